@@ -1,0 +1,32 @@
+"""ament_python package definition of seaforce_ros."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = 'seaforce_ros'
+
+# Executables installed to lib/seaforce_ros so that `ros2 run seaforce_ros <name>` finds them.
+CONSOLE_SCRIPTS = [
+    'sim_node = seaforce_ros.sim_node:main',
+]
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
+        ('share/' + PACKAGE, ['package.xml']),
+        ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='seaforce_ros maintainers',
+    maintainer_email='maintainers@seaforce-ros.org',
+    description='DOB + endpoint friction feed-forward impedance control of a fluid-actuated '
+                'series-elastic gripper, with simulation, EtherCAT I/O, recording and '
+                'identification.',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={'console_scripts': CONSOLE_SCRIPTS},
+)

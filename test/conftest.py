@@ -1,0 +1,40 @@
+"""Shared fixtures: isolated ROS graph per test run, rclpy contexts, managed node processes."""
+import os
+import pathlib
+import sys
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / 'test'))
+
+# Every test run gets its own DDS domain and stays on this host (set before rclpy is imported
+# anywhere, and inherited by every process the tests start).
+os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+
+from helpers.processes import ProcessGroup  # noqa: E402
+
+
+@pytest.fixture
+def processes():
+    """Start processes for a test and end every one of them by PID afterwards, pass or fail."""
+    group = ProcessGroup()
+    try:
+        yield group
+    finally:
+        group.stop_all()
+
+
+@pytest.fixture
+def ros_context():
+    """A fresh rclpy Context, shut down after the test."""
+    import rclpy
+    from rclpy.context import Context
+
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        yield context
+    finally:
+        rclpy.try_shutdown(context=context)

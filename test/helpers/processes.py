@@ -1,0 +1,92 @@
+"""Start node processes for tests and make sure each one ends, by its own PID."""
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import time
+from typing import List, Optional, Sequence
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+INSTALL_LIB = ROOT / 'install' / 'seaforce_ros' / 'lib' / 'seaforce_ros'
+
+
+def executable(name: str) -> pathlib.Path:
+    """Path of an installed executable: what `ros2 run seaforce_ros <name>` runs."""
+    path = INSTALL_LIB / name
+    if not path.is_file():
+        raise FileNotFoundError(f'{path} is not installed; run scripts/setup.sh (colcon build)')
+    return path
+
+
+class ManagedProcess:
+    """A child in its own session, with stdout+stderr captured to a log file."""
+
+    def __init__(self, argv: Sequence[str], log_path: pathlib.Path, env=None):
+        self.argv = list(argv)
+        self.log_path = log_path
+        self._log = open(log_path, 'wb')
+        self.popen = subprocess.Popen(self.argv, stdout=self._log, stderr=subprocess.STDOUT,
+                                      stdin=subprocess.DEVNULL, env=env, start_new_session=True)
+
+    @property
+    def pid(self) -> int:
+        return self.popen.pid
+
+    def output(self) -> str:
+        self._log.flush()
+        return self.log_path.read_text(errors='replace')
+
+    def wait_for_output(self, text: str, timeout: float = 20.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if text in self.output():
+                return True
+            if self.popen.poll() is not None:
+                return text in self.output()
+            time.sleep(0.05)
+        return False
+
+    def send_signal(self, sig: int) -> None:
+        if self.popen.poll() is None:
+            os.kill(self.popen.pid, sig)
+
+    def wait(self, timeout: float) -> Optional[int]:
+        try:
+            return self.popen.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            return None
+
+    def stop(self, timeout: float = 5.0) -> Optional[int]:
+        """SIGINT, then SIGKILL after `timeout`; returns the exit code."""
+        if self.popen.poll() is None:
+            self.send_signal(signal.SIGINT)
+            if self.wait(timeout) is None:
+                self.send_signal(signal.SIGKILL)
+                self.wait(5.0)
+        self._log.close()
+        return self.popen.returncode
+
+
+class ProcessGroup:
+    """The processes one test started; `stop_all` ends each by PID."""
+
+    def __init__(self):
+        self._procs: List[ManagedProcess] = []
+        self._logdir = ROOT / 'log' / 'test-processes'
+        self._logdir.mkdir(parents=True, exist_ok=True)
+
+    def start(self, argv: Sequence[str], name: Optional[str] = None, env=None) -> ManagedProcess:
+        name = name or pathlib.Path(argv[0]).name
+        log_path = self._logdir / f'{name}-{os.getpid()}-{len(self._procs)}.log'
+        proc = ManagedProcess(argv, log_path, env=env)
+        self._procs.append(proc)
+        return proc
+
+    def start_python(self, script: pathlib.Path, *args: str, name: Optional[str] = None,
+                     env=None) -> ManagedProcess:
+        return self.start([sys.executable, str(script), *args], name=name or script.stem, env=env)
+
+    def stop_all(self) -> None:
+        for proc in reversed(self._procs):
+            proc.stop()
