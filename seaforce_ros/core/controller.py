@@ -1,0 +1,296 @@
+"""Per-channel controller: DOB + endpoint friction feed-forward (paper III-IV).
+
+Inputs per sample: motor position X [rad], motor velocity V [rad/s],
+pressure force F_p [N m]. Output: motor torque F_a [N m].
+
+Discretisation (sample period T = ``dt``):
+
+* Hose inversion (eq. 29): ``delta = F_p/(b_s s + k_s)`` (the hose
+  deflection X_e - X), pole ``k_s/b_s`` (1414 rad/s for Table I), discretised
+  exactly for a piecewise-*linear* F_p (first-order hold: no lag at the
+  sample instants). Then ``X_e_hat = X + delta`` and
+  ``V_e_hat = V + (F_p - k_s delta)/b_s`` (= V + d(delta)/dt exactly).
+* Feed-forward: ``F_cmp = b_e V_e_hat + k_e (X_e_hat - rest_position)``
+  (eq. 29) and the Dahl force ``F_d`` (eq. 14, exact per-sample update
+  driven by X_e_hat, :mod:`.dahl`).
+* DOB (eq. 19) rewritten without differentiation::
+
+      F_a = F_ref + I - lambda m_n V - lambda b_n X,
+      I'  = lambda (F_ref + F_p - k_n X)
+
+  The integrator uses the trapezoidal rule (no phase error at low
+  frequency); ``d_hat = F_a - F_ref`` is the disturbance estimate.
+* hold: ``F_a = bias - K_p (X - X_0) - K_d V`` with X_0 and the bias captured
+  at mode entry.
+* force_feedback: ``F_a = K_f F_p + beta`` with a transfer offset beta that
+  decays with a 50 ms time constant (bumpless entry).
+* impedance: the DOB with ``F_ref = F_cmp + F_d - K_t (X_e_hat - X_e0) -
+  B_t V_e_hat``, X_e0 captured at mode entry: the endpoint renders the target
+  stiffness/damping (plus the endpoint inertia).
+* chirp: ``F_a = u_0 + A w(t) sin(phi(t))``, log chirp, u_0 the torque at
+  entry, w a 50 ms raised-cosine fade-in/out.
+* off: zero torque, immediately (the safe state; the one deliberate
+  non-bumpless transition).
+
+Bumpless transfer: every mode entry (or ``configure``) initialises the new
+mode's state from the last output so that the first output equals it.
+
+Faults: a NaN/inf input latches ``fault``, the output becomes 0 and
+:class:`~.errors.NonFiniteInputError` is raised; subsequent updates return
+0.0 until :meth:`ChannelController.reset`.
+
+The hot path uses Python floats only (no numpy, no allocation beyond
+float boxing, no logging).
+"""
+
+import math
+
+from .dahl import DahlState
+from .errors import NonFiniteInputError
+from .params import ControllerConfig, DOB_MODES
+
+__all__ = ["ChannelController"]
+
+_BUMP_TAU = 0.05      # s, decay of the force-feedback transfer offset
+_CHIRP_FADE = 0.05    # s, raised-cosine fade of the chirp envelope
+
+
+class ChannelController:
+    """Controller of one channel.
+
+    Parameters
+    ----------
+    config : ControllerConfig
+    dt : float > 0
+        Sample period [s] (default 5e-4, 2 kHz).
+
+    Attributes (updated by every :meth:`update`)
+    ----------------------------------------------
+    mode : str
+        Active mode.
+    torque : float
+        Last output F_a [N m] (after the limit).
+    limited : bool
+        The output was clamped to ``max_torque`` this sample.
+    fault : bool
+        Latched after a non-finite input.
+    disturbance : float
+        DOB disturbance estimate ``d_hat = F_a - F_ref`` [N m] (NaN outside
+        the DOB modes).
+    feedforward : float
+        ``F_cmp + F_d`` [N m] (computed in every mode).
+    endpoint_velocity_estimate : float
+        V_e_hat [rad/s].
+    endpoint_position_estimate : float
+        X_e_hat [rad].
+    dahl_force : float
+        F_d [N m].
+    """
+
+    def __init__(self, config=None, dt=5e-4):
+        if config is None:
+            config = ControllerConfig()
+        if not isinstance(config, ControllerConfig):
+            raise TypeError("config must be a ControllerConfig")
+        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt = {dt!r} must be > 0 and finite")
+        self.dt = float(dt)
+        self._pending = None
+        self._dahl = DahlState(config.dahl)
+        self._apply_config(config)
+        self.reset()
+
+    # --- configuration ----------------------------------------------------------
+    def configure(self, config):
+        """Queue a new (already validated) config; it takes effect at the
+        start of the next :meth:`update`, bumplessly."""
+        if not isinstance(config, ControllerConfig):
+            raise TypeError("config must be a ControllerConfig")
+        config.validate()
+        self._pending = config
+
+    @property
+    def config(self):
+        """The active configuration."""
+        return self._config
+
+    def _apply_config(self, c):
+        self._config = c
+        dt = self.dt
+        p = c.plant
+        self.mode = c.mode
+        self._dob_mode = c.mode in DOB_MODES
+        ks, bs = p.hose_stiffness, p.hose_damping
+        self._ks, self._inv_bs = ks, 1.0 / bs
+        # exact first-order-hold discretisation of delta' = (F_p - k_s delta)/b_s
+        pT = ks / bs * dt
+        a = math.exp(-pT)
+        i1 = (1.0 - a) - (1.0 - a - pT * a) / pT
+        self._h_a = a
+        self._h_c0 = (1.0 - a - i1) / ks
+        self._h_c1 = i1 / ks
+        self._be, self._ke = p.endpoint_damping, p.endpoint_stiffness
+        self._rest = c.rest_position
+        self._dahl.set_params(c.dahl)
+        lam = c.dob.cutoff
+        self._lam_half_dt = 0.5 * lam * dt
+        self._lam_mn = lam * c.dob.nominal_inertia
+        self._lam_bn = lam * c.dob.nominal_damping
+        self._kn = c.dob.nominal_stiffness
+        self._kp, self._kd = c.hold_stiffness, c.hold_damping
+        self._kf = c.force_feedback_gain
+        self._bump_decay = math.exp(-dt / _BUMP_TAU)
+        self._kt, self._bt = c.target_stiffness, c.target_damping
+        self._max = c.max_torque
+        self._use_ff = c.mode in ("dob_linear_ff", "dob_full_ff", "impedance")
+        self._use_dahl = c.mode in ("dob_full_ff", "impedance")
+
+    def reset(self):
+        """Clear all state (filters, integrator, fault); output restarts at 0."""
+        if self._pending is not None:
+            self._apply_config(self._pending)
+            self._pending = None
+        self.fault = False
+        self.torque = 0.0
+        self.limited = False
+        self.disturbance = math.nan
+        self.feedforward = 0.0
+        self.endpoint_velocity_estimate = 0.0
+        self.endpoint_position_estimate = 0.0
+        self.dahl_force = 0.0
+        self._first = True
+        self._delta = 0.0
+        self._fp_prev = 0.0
+        self._dahl.reset(0.0, 0.0)
+        self._integ = 0.0
+        self._e_prev = 0.0
+        self._x0 = 0.0
+        self._bias = 0.0
+        self._t_mode = 0.0
+        self._enter = True
+
+    # --- per sample -------------------------------------------------------------
+    def update(self, x, v, f_p):
+        """One sample: ``(X [rad], V [rad/s], F_p [N m]) -> F_a [N m]``.
+
+        Raises
+        ------
+        NonFiniteInputError
+            An input is NaN/inf (the fault is latched, output 0).
+        """
+        if self.fault:
+            return 0.0
+        if not (math.isfinite(x) and math.isfinite(v) and math.isfinite(f_p)):
+            self.fault = True
+            self.torque = 0.0
+            self.limited = False
+            bad = [(n, val) for n, val in (("x", x), ("v", v), ("f_p", f_p))
+                   if not math.isfinite(val)][0]
+            raise NonFiniteInputError(*bad)
+        if self._pending is not None:
+            self._apply_config(self._pending)
+            self._pending = None
+            self._enter = True
+
+        # hose inversion: delta = F_p/(b_s s + k_s), exact FOH
+        if self._first:
+            self._first = False
+            delta = f_p / self._ks
+            self._dahl.reset(x + delta, 0.0)
+        else:
+            delta = self._h_a * self._delta + self._h_c0 * self._fp_prev + self._h_c1 * f_p
+        self._delta = delta
+        self._fp_prev = f_p
+        xe_hat = x + delta
+        ve_hat = v + (f_p - self._ks * delta) * self._inv_bs
+        fd = self._dahl.update(xe_hat)
+        fcmp = self._be * ve_hat + self._ke * (xe_hat - self._rest)
+        self.endpoint_position_estimate = xe_hat
+        self.endpoint_velocity_estimate = ve_hat
+        self.dahl_force = fd
+        self.feedforward = fcmp + fd
+
+        mode = self.mode
+        enter = self._enter
+        self._enter = False
+        u_prev = self.torque
+        if self._dob_mode:
+            if mode == "dob":
+                f_ref = 0.0
+            elif mode == "dob_linear_ff":
+                f_ref = fcmp
+            elif mode == "dob_full_ff":
+                f_ref = fcmp + fd
+            else:   # impedance
+                if enter:
+                    self._x0 = xe_hat
+                f_ref = fcmp + fd - self._kt * (xe_hat - self._x0) - self._bt * ve_hat
+            e = f_ref + f_p - self._kn * x
+            lam_h = self._lam_half_dt
+            ramp = self._lam_mn * v + self._lam_bn * x
+            if enter:
+                # bumpless: choose I_{k-1} so that this output equals u_prev
+                self._integ = u_prev - f_ref + ramp - 2.0 * lam_h * e
+                self._e_prev = e
+            integ = self._integ + lam_h * (e + self._e_prev)
+            self._e_prev = e
+            u = f_ref + integ - ramp
+            lim = self._max
+            if u > lim or u < -lim:
+                # back-calculation anti-windup: keep the integrator at the limit
+                u = lim if u > lim else -lim
+                integ = u - f_ref + ramp
+                self.limited = True
+            else:
+                self.limited = False
+            self._integ = integ
+            self.disturbance = u - f_ref
+            self.torque = u
+            return u
+
+        self.disturbance = math.nan
+        if mode == "off":
+            u = 0.0
+        elif mode == "hold":
+            if enter:
+                self._x0 = x
+                self._bias = u_prev + self._kd * v
+            u = self._bias - self._kp * (x - self._x0) - self._kd * v
+        elif mode == "force_feedback":
+            if enter:
+                self._bias = u_prev - self._kf * f_p
+            else:
+                self._bias *= self._bump_decay
+            u = self._kf * f_p + self._bias
+        else:   # chirp
+            if enter:
+                self._bias = u_prev
+                self._t_mode = 0.0
+            else:
+                self._t_mode += self.dt
+            u = self._bias + self._chirp(self._t_mode)
+        lim = self._max
+        if u > lim:
+            u, self.limited = lim, True
+        elif u < -lim:
+            u, self.limited = -lim, True
+        else:
+            self.limited = False
+        self.torque = u
+        return u
+
+    def _chirp(self, t):
+        c = self._config
+        T = c.chirp_duration
+        if t >= T:
+            return 0.0
+        f0, f1 = c.chirp_start_frequency, c.chirp_end_frequency
+        if f1 == f0:
+            phase = 2.0 * math.pi * f0 * t
+        else:
+            rate = math.log(f1 / f0) / T
+            phase = 2.0 * math.pi * f0 * math.expm1(rate * t) / rate
+        fade = min(_CHIRP_FADE, 0.1 * T)
+        edge = min(t, T - t)
+        w = 1.0 if edge >= fade else 0.5 - 0.5 * math.cos(math.pi * edge / fade)
+        return c.chirp_amplitude * w * math.sin(phase)

@@ -1,0 +1,436 @@
+"""Validated parameter sets of one channel (motor frame, rotational SI units).
+
+All classes are frozen dataclasses that call ``validate()`` in
+``__post_init__``; a bad value raises
+:class:`~seaforce_ros.core.errors.InvalidParameterError` (or
+:class:`~seaforce_ros.core.errors.NonPassiveError`) naming the value and
+its bound.
+
+The flat-dict helpers :meth:`ControllerConfig.from_dict` and
+:meth:`ControllerConfig.to_dict` map the per-channel ROS parameters 1:1 (the
+keys below are relative to ``<channel>.``)::
+
+    mode
+    plant.{motor_inertia, motor_damping, motor_stiffness, endpoint_inertia,
+           endpoint_damping, endpoint_stiffness, hose_damping, hose_stiffness}
+    dahl.{sigma, coulomb_force, exponent}
+    dob.{cutoff, nominal_inertia, nominal_damping, nominal_stiffness}
+    target.{stiffness, damping}
+    hold.{stiffness, damping}
+    force_feedback.gain
+    chirp.{amplitude, start_frequency, end_frequency, duration}
+    feedforward.rest_position
+    max_torque
+    allow_non_passive
+"""
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+from .errors import InvalidParameterError, NonPassiveError
+
+__all__ = [
+    "MODES", "DOB_MODES", "PlantParams", "DahlParams", "DobParams",
+    "ControllerConfig", "PARAMETER_DESCRIPTIONS", "DEFAULT_CUTOFF",
+    "DEFAULT_HOLD_STIFFNESS", "DEFAULT_HOLD_DAMPING",
+]
+
+#: Controller modes (DESIGN.md "Control").
+MODES = ("off", "hold", "force_feedback", "dob", "dob_linear_ff", "dob_full_ff",
+         "impedance", "chirp")
+
+#: Modes that run the disturbance observer (eq. 19).
+DOB_MODES = ("dob", "dob_linear_ff", "dob_full_ff", "impedance")
+
+#: Default DOB cut-off lambda [rad/s]: the 20 Hz of Section III-B.
+DEFAULT_CUTOFF = 2.0 * math.pi * 20.0
+
+#: Default hold (maximum impedance) PD gains on the motor position, K_p
+#: [N m/rad] and K_d [N m s/rad]. Chosen with
+#: :func:`seaforce_ros.core.analysis.design_hold_gains` for Table I at 2 kHz
+#: with a one-sample command delay and the drive's backward-difference
+#: velocity: the largest K_p on a (K_p, K_d) grid for which the discrete
+#: closed loop keeps a 6 dB gain margin and closed-loop damping ratio >= 0.3,
+#: with the endpoint both free and clamped (see core/README.md).
+DEFAULT_HOLD_STIFFNESS = 60.0
+DEFAULT_HOLD_DAMPING = 0.25
+
+
+def _check_finite(name, value):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InvalidParameterError(name, value, "a real number")
+    if not math.isfinite(value):
+        raise InvalidParameterError(name, value, "finite")
+
+
+def _check_positive(name, value):
+    _check_finite(name, value)
+    if not value > 0.0:
+        raise InvalidParameterError(name, value, "> 0 and finite")
+
+
+def _check_nonnegative(name, value):
+    _check_finite(name, value)
+    if not value >= 0.0:
+        raise InvalidParameterError(name, value, ">= 0 and finite")
+
+
+@dataclass(frozen=True)
+class PlantParams:
+    """Lumped linear model of one channel (paper Section II-C, Table I).
+
+    Motor ``(m s^2 + b s + k) X = F_a + F_p``; endpoint
+    ``(m_e s^2 + b_e s + k_e) X_e = F_e - F_p``; hose
+    ``F_p = (b_s s + k_s)(X_e - X)``.
+
+    Parameters
+    ----------
+    motor_inertia : float > 0
+        m [N m s^2/rad].
+    motor_damping : float >= 0
+        b [N m s/rad].
+    motor_stiffness : float >= 0
+        k [N m/rad].
+    endpoint_inertia : float > 0
+        m_e [N m s^2/rad].
+    endpoint_damping : float >= 0
+        b_e [N m s/rad].
+    endpoint_stiffness : float >= 0
+        k_e [N m/rad].
+    hose_damping : float >= 0
+        b_s [N m s/rad].
+    hose_stiffness : float >= 0
+        k_s [N m/rad].
+    """
+
+    motor_inertia: float
+    motor_damping: float
+    motor_stiffness: float
+    endpoint_inertia: float
+    endpoint_damping: float
+    endpoint_stiffness: float
+    hose_damping: float
+    hose_stiffness: float
+
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self):
+        """Raise :class:`InvalidParameterError` on the first bad value."""
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name in ("motor_inertia", "endpoint_inertia"):
+                _check_positive("plant." + f.name, value)
+            else:
+                _check_nonnegative("plant." + f.name, value)
+
+    @classmethod
+    def table_i(cls):
+        """The identified gripper parameters of the paper's Table I."""
+        return cls(motor_inertia=1.1116e-3, motor_damping=2.9814e-2,
+                   motor_stiffness=0.1642, endpoint_inertia=0.7089e-3,
+                   endpoint_damping=3.3879e-2, endpoint_stiffness=0.0637,
+                   hose_damping=9.2453e-3, hose_stiffness=13.0782)
+
+    def scaled(self, **factors):
+        """Copy with some parameters multiplied, e.g. ``scaled(endpoint_damping=10)``."""
+        return dataclasses.replace(
+            self, **{n: getattr(self, n) * f for n, f in factors.items()})
+
+
+@dataclass(frozen=True)
+class DahlParams:
+    """Dahl endpoint hysteresis (paper eq. 14-15).
+
+    Parameters
+    ----------
+    sigma : float >= 0
+        sigma, stiffness at F_d = 0 [N m/rad]; 0 disables the hysteresis.
+    coulomb_force : float > 0
+        F_c, hysteresis amplitude [N m].
+    exponent : float >= 0
+        n, material exponent (1 gives eq. 15).
+    """
+
+    sigma: float = 12.8
+    coulomb_force: float = 0.032
+    exponent: float = 1.0
+
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self):
+        _check_nonnegative("dahl.sigma", self.sigma)
+        _check_positive("dahl.coulomb_force", self.coulomb_force)
+        _check_nonnegative("dahl.exponent", self.exponent)
+
+
+@dataclass(frozen=True)
+class DobParams:
+    """Disturbance observer on the motor plant (paper eq. 17-19).
+
+    Nominal inverse plant ``P_n^-1 = m_n s + b_n + k_n/s`` and low-pass
+    ``Q = lambda/(s + lambda)``.
+
+    Parameters
+    ----------
+    cutoff : float > 0
+        lambda [rad/s]; default 2*pi*20 (Section III-B; Fig. 5C's caption
+        uses 20 rad/s, also supported).
+    nominal_inertia : float >= 0 or None
+        m_n [N m s^2/rad]; None means "the plant's motor inertia m" (the
+        paper's conservative choice), resolved by :class:`ControllerConfig`.
+    nominal_damping : float
+        b_n [N m s/rad], may be slightly negative (> -k/lambda).
+    nominal_stiffness : float >= 0
+        k_n [N m/rad].
+    """
+
+    cutoff: float = DEFAULT_CUTOFF
+    nominal_inertia: float = None
+    nominal_damping: float = 0.0
+    nominal_stiffness: float = 0.0
+
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self):
+        _check_positive("dob.cutoff", self.cutoff)
+        if self.nominal_inertia is not None:
+            _check_nonnegative("dob.nominal_inertia", self.nominal_inertia)
+        _check_finite("dob.nominal_damping", self.nominal_damping)
+        _check_nonnegative("dob.nominal_stiffness", self.nominal_stiffness)
+
+
+def check_dob_passivity(plant, dob):
+    """Raise :class:`NonPassiveError` if ``dob`` violates eq. 28 for ``plant``.
+
+    Passive iff ``m_n >= m - b/lambda`` and ``0 <= k_n <= k + lambda*b_n``
+    (the Routh-Hurwitz and imaginary-pole conditions of Section III-C are
+    implied by these when m > 0).
+    """
+    m, b, k = plant.motor_inertia, plant.motor_damping, plant.motor_stiffness
+    lam = dob.cutoff
+    m_n = m if dob.nominal_inertia is None else dob.nominal_inertia
+    m_min = m - b / lam
+    if m_n < m_min:
+        raise NonPassiveError(
+            "dob.nominal_inertia", m_n,
+            f">= m - b/lambda = {m:.6g} - {b:.6g}/{lam:.6g} = {m_min:.6g} "
+            "N m s^2/rad (eq. 28)")
+    k_max = k + lam * dob.nominal_damping
+    if dob.nominal_stiffness > k_max:
+        raise NonPassiveError(
+            "dob.nominal_stiffness", dob.nominal_stiffness,
+            f"<= k + lambda*b_n = {k:.6g} + {lam:.6g}*{dob.nominal_damping:.6g} = "
+            f"{k_max:.6g} N m/rad (eq. 28)")
+
+
+# --- flat key table: key -> (attribute path, type, description) ----------
+_PLANT_KEYS = {
+    "plant.motor_inertia": "m, motor inertia [N m s^2/rad], > 0",
+    "plant.motor_damping": "b, motor damping [N m s/rad], >= 0",
+    "plant.motor_stiffness": "k, motor stiffness [N m/rad], >= 0",
+    "plant.endpoint_inertia": "m_e, endpoint inertia [N m s^2/rad], > 0",
+    "plant.endpoint_damping": "b_e, endpoint damping [N m s/rad], >= 0",
+    "plant.endpoint_stiffness": "k_e, endpoint stiffness [N m/rad], >= 0",
+    "plant.hose_damping": "b_s, hose damping [N m s/rad], > 0 for the controller",
+    "plant.hose_stiffness": "k_s, hose stiffness [N m/rad], > 0 for the controller",
+}
+_OTHER_KEYS = {
+    "mode": "controller mode, one of " + ", ".join(MODES),
+    "dahl.sigma": "sigma, Dahl stiffness at F_d = 0 [N m/rad], >= 0 (eq. 14)",
+    "dahl.coulomb_force": "F_c, Dahl hysteresis amplitude [N m], > 0 (eq. 14)",
+    "dahl.exponent": "n, Dahl exponent, >= 0 (1 gives eq. 15)",
+    "dob.cutoff": "lambda, DOB low-pass cut-off [rad/s], > 0 (eq. 18)",
+    "dob.nominal_inertia": "m_n, DOB nominal inertia [N m s^2/rad], >= m - b/lambda (eq. 28)",
+    "dob.nominal_damping": "b_n, DOB nominal damping [N m s/rad], > -k/lambda",
+    "dob.nominal_stiffness": "k_n, DOB nominal stiffness [N m/rad], 0..k + lambda b_n (eq. 28)",
+    "target.stiffness": "rendered endpoint stiffness in impedance mode [N m/rad], >= 0",
+    "target.damping": "rendered endpoint damping in impedance mode [N m s/rad], >= 0",
+    "hold.stiffness": "hold-mode PD stiffness K_p on the motor position [N m/rad], >= 0",
+    "hold.damping": "hold-mode PD damping K_d on the motor velocity [N m s/rad], >= 0",
+    "force_feedback.gain": "K_f of F_a = K_f F_p (eq. 20), -1..1 unless allow_non_passive",
+    "chirp.amplitude": "open-loop chirp torque amplitude [N m], >= 0",
+    "chirp.start_frequency": "chirp start frequency [Hz], > 0",
+    "chirp.end_frequency": "chirp end frequency [Hz], > 0",
+    "chirp.duration": "chirp duration [s], > 0",
+    "feedforward.rest_position": "motor-frame endpoint position where k_e is relaxed [rad]",
+    "max_torque": "motor torque limit |F_a| [N m], > 0",
+    "allow_non_passive": "accept DOB / force-feedback settings outside eq. 28 (bool)",
+}
+
+#: Flat parameter key -> description (units, range), for ROS descriptors.
+PARAMETER_DESCRIPTIONS = {**{"mode": _OTHER_KEYS["mode"]}, **_PLANT_KEYS,
+                          **{k: v for k, v in _OTHER_KEYS.items() if k != "mode"}}
+
+_SIMPLE_KEYS = {
+    "mode": "mode",
+    "target.stiffness": "target_stiffness",
+    "target.damping": "target_damping",
+    "hold.stiffness": "hold_stiffness",
+    "hold.damping": "hold_damping",
+    "force_feedback.gain": "force_feedback_gain",
+    "chirp.amplitude": "chirp_amplitude",
+    "chirp.start_frequency": "chirp_start_frequency",
+    "chirp.end_frequency": "chirp_end_frequency",
+    "chirp.duration": "chirp_duration",
+    "feedforward.rest_position": "rest_position",
+    "max_torque": "max_torque",
+    "allow_non_passive": "allow_non_passive",
+}
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """Everything one channel's controller needs.
+
+    Parameters
+    ----------
+    mode : str
+        One of :data:`MODES`.
+    plant : PlantParams
+        Identified model; the feed-forward uses b_e, k_e, b_s, k_s and the
+        passivity check m, b, k.
+    dahl : DahlParams
+        Endpoint hysteresis model of the Dahl feed-forward.
+    dob : DobParams
+        DOB settings; ``nominal_inertia=None`` is replaced by ``plant.motor_inertia``.
+    hold_stiffness, hold_damping : float >= 0
+        K_p [N m/rad] and K_d [N m s/rad] of the ``hold`` PD on motor position.
+    force_feedback_gain : float
+        K_f of ``force_feedback`` (eq. 20), passive for -1 <= K_f <= 1.
+    target_stiffness, target_damping : float >= 0
+        Endpoint stiffness [N m/rad] / damping [N m s/rad] of ``impedance`` mode.
+    chirp_amplitude : float >= 0
+        [N m].
+    chirp_start_frequency, chirp_end_frequency : float > 0
+        [Hz] (log chirp).
+    chirp_duration : float > 0
+        [s].
+    rest_position : float
+        Endpoint position where k_e is relaxed, motor frame [rad].
+    max_torque : float > 0
+        |F_a| limit [N m].
+    allow_non_passive : bool
+        Accept settings outside the passivity bounds.
+    """
+
+    mode: str = "off"
+    plant: PlantParams = field(default_factory=PlantParams.table_i)
+    dahl: DahlParams = field(default_factory=DahlParams)
+    dob: DobParams = field(default_factory=DobParams)
+    hold_stiffness: float = DEFAULT_HOLD_STIFFNESS
+    hold_damping: float = DEFAULT_HOLD_DAMPING
+    force_feedback_gain: float = 1.0
+    target_stiffness: float = 0.0
+    target_damping: float = 0.0
+    chirp_amplitude: float = 0.3
+    chirp_start_frequency: float = 0.01
+    chirp_end_frequency: float = 1000.0
+    chirp_duration: float = 60.0
+    rest_position: float = 0.0
+    max_torque: float = 5.0
+    allow_non_passive: bool = False
+
+    def __post_init__(self):
+        if isinstance(self.dob, DobParams) and self.dob.nominal_inertia is None \
+                and isinstance(self.plant, PlantParams):
+            object.__setattr__(self, "dob", dataclasses.replace(
+                self.dob, nominal_inertia=self.plant.motor_inertia))
+        self.validate()
+
+    def validate(self):
+        """Check every value and the cross-parameter (passivity) rules."""
+        if self.mode not in MODES:
+            raise InvalidParameterError("mode", self.mode, "one of " + ", ".join(MODES))
+        for name, cls in (("plant", PlantParams), ("dahl", DahlParams), ("dob", DobParams)):
+            if not isinstance(getattr(self, name), cls):
+                raise InvalidParameterError(name, getattr(self, name), f"a {cls.__name__}")
+        _check_positive("plant.hose_damping", self.plant.hose_damping)
+        _check_positive("plant.hose_stiffness", self.plant.hose_stiffness)
+        _check_nonnegative("hold.stiffness", self.hold_stiffness)
+        _check_nonnegative("hold.damping", self.hold_damping)
+        _check_finite("force_feedback.gain", self.force_feedback_gain)
+        _check_nonnegative("target.stiffness", self.target_stiffness)
+        _check_nonnegative("target.damping", self.target_damping)
+        _check_nonnegative("chirp.amplitude", self.chirp_amplitude)
+        _check_positive("chirp.start_frequency", self.chirp_start_frequency)
+        _check_positive("chirp.end_frequency", self.chirp_end_frequency)
+        _check_positive("chirp.duration", self.chirp_duration)
+        _check_finite("feedforward.rest_position", self.rest_position)
+        _check_positive("max_torque", self.max_torque)
+        if not isinstance(self.allow_non_passive, bool):
+            raise InvalidParameterError("allow_non_passive", self.allow_non_passive,
+                                        "a bool")
+        if not self.allow_non_passive:
+            check_dob_passivity(self.plant, self.dob)
+            if not -1.0 <= self.force_feedback_gain <= 1.0:
+                raise NonPassiveError("force_feedback.gain", self.force_feedback_gain,
+                                      "-1 <= K_f <= 1 (Section III-A, internal force "
+                                      "feedback of a series-elastic system)")
+
+    def replace(self, **changes):
+        """Validated copy with some fields changed (``dataclasses.replace``)."""
+        return dataclasses.replace(self, **changes)
+
+    # -- flat ROS-style dictionaries -------------------------------------
+    @staticmethod
+    def keys():
+        """All flat parameter keys, in a stable order."""
+        return tuple(PARAMETER_DESCRIPTIONS)
+
+    def to_dict(self):
+        """Flat ``{key: value}`` dict (keys relative to ``<channel>.``)."""
+        out = {}
+        for key in PARAMETER_DESCRIPTIONS:
+            group, _, name = key.partition(".")
+            if group in ("plant", "dahl", "dob"):
+                out[key] = float(getattr(getattr(self, group), name))
+            else:
+                value = getattr(self, _SIMPLE_KEYS[key])
+                out[key] = value if isinstance(value, (str, bool)) else float(value)
+        return out
+
+    @classmethod
+    def from_dict(cls, values, base=None):
+        """Build a validated config from flat keys, overriding ``base``.
+
+        Parameters
+        ----------
+        values : mapping
+            ``{key: value}``; keys as in :data:`PARAMETER_DESCRIPTIONS`,
+            optionally prefixed by ``<channel>.`` (the prefix is stripped when
+            the remainder is a known key).
+        base : ControllerConfig, optional
+            Values for keys not given (default: ``ControllerConfig()``).
+
+        Raises
+        ------
+        InvalidParameterError
+            Unknown key or bad value (the error names the key and bound).
+        """
+        base = cls() if base is None else base
+        groups = {"plant": {}, "dahl": {}, "dob": {}}
+        simple = {}
+        for raw_key, value in values.items():
+            key = raw_key
+            if key not in PARAMETER_DESCRIPTIONS and "." in key:
+                tail = key.split(".", 1)[1]
+                if tail in PARAMETER_DESCRIPTIONS:
+                    key = tail
+            if key not in PARAMETER_DESCRIPTIONS:
+                raise InvalidParameterError(raw_key, value, "a known key: " +
+                                            ", ".join(PARAMETER_DESCRIPTIONS))
+            group, _, name = key.partition(".")
+            if isinstance(value, int) and not isinstance(value, bool):
+                value = float(value)
+            if group in groups:
+                groups[group][name] = value
+            else:
+                simple[_SIMPLE_KEYS[key]] = value
+        plant = dataclasses.replace(base.plant, **groups["plant"])
+        dahl = dataclasses.replace(base.dahl, **groups["dahl"])
+        dob = dataclasses.replace(base.dob, **groups["dob"])
+        return dataclasses.replace(base, plant=plant, dahl=dahl, dob=dob, **simple)
