@@ -19,7 +19,7 @@ keys below are relative to ``<channel>.``)::
     hold.{stiffness, damping}
     force_feedback.gain
     chirp.{amplitude, start_frequency, end_frequency, duration}
-    feedforward.rest_position
+    feedforward.{rest_position, dahl_deadband}
     max_torque
     allow_non_passive
 """
@@ -53,8 +53,8 @@ DEFAULT_CUTOFF = 2.0 * math.pi * 20.0
 #: velocity: the largest K_p on a (K_p, K_d) grid for which the discrete
 #: closed loop keeps a 6 dB gain margin and closed-loop damping ratio >= 0.3,
 #: with the endpoint both free and clamped (see core/README.md).
-DEFAULT_HOLD_STIFFNESS = 60.0
-DEFAULT_HOLD_DAMPING = 0.25
+DEFAULT_HOLD_STIFFNESS = 150.0
+DEFAULT_HOLD_DAMPING = 0.5
 
 
 def _check_finite(name, value):
@@ -257,6 +257,8 @@ _OTHER_KEYS = {
     "chirp.end_frequency": "chirp end frequency [Hz], > 0",
     "chirp.duration": "chirp duration [s], > 0",
     "feedforward.rest_position": "motor-frame endpoint position where k_e is relaxed [rad]",
+    "feedforward.dahl_deadband": ("width of the dead zone (play) on the estimated endpoint "
+                                  "position driving the Dahl feed-forward [rad], >= 0"),
     "max_torque": "motor torque limit |F_a| [N m], > 0",
     "allow_non_passive": "accept DOB / force-feedback settings outside eq. 28 (bool)",
 }
@@ -277,6 +279,7 @@ _SIMPLE_KEYS = {
     "chirp.end_frequency": "chirp_end_frequency",
     "chirp.duration": "chirp_duration",
     "feedforward.rest_position": "rest_position",
+    "feedforward.dahl_deadband": "dahl_deadband",
     "max_torque": "max_torque",
     "allow_non_passive": "allow_non_passive",
 }
@@ -311,6 +314,8 @@ class ControllerConfig:
         [s].
     rest_position : float
         Endpoint position where k_e is relaxed, motor frame [rad].
+    dahl_deadband : float >= 0
+        Play (dead-zone width) on X_e_hat before the Dahl model [rad].
     max_torque : float > 0
         |F_a| limit [N m].
     allow_non_passive : bool
@@ -331,6 +336,7 @@ class ControllerConfig:
     chirp_end_frequency: float = 1000.0
     chirp_duration: float = 60.0
     rest_position: float = 0.0
+    dahl_deadband: float = 1e-4
     max_torque: float = 5.0
     allow_non_passive: bool = False
 
@@ -360,6 +366,7 @@ class ControllerConfig:
         _check_positive("chirp.end_frequency", self.chirp_end_frequency)
         _check_positive("chirp.duration", self.chirp_duration)
         _check_finite("feedforward.rest_position", self.rest_position)
+        _check_nonnegative("feedforward.dahl_deadband", self.dahl_deadband)
         _check_positive("max_torque", self.max_torque)
         if not isinstance(self.allow_non_passive, bool):
             raise InvalidParameterError("allow_non_passive", self.allow_non_passive,

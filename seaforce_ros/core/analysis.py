@@ -1,0 +1,302 @@
+"""Impedance analysis: force feedback (Fig. 7), low-frequency limits
+(eq. 22-24), Z-width, impedance from time series, hold-gain design.
+"""
+
+import math
+from collections import namedtuple
+
+import numpy as np
+
+from .passivity import numerical_passivity
+from .plant import PlantModel
+from .params import PlantParams
+
+__all__ = [
+    "magnitude_db", "zwidth_db", "frequency_response", "max_passive_external_gain",
+    "force_feedback_comparison", "low_frequency_stiffness_passive",
+    "low_frequency_stiffness_internal", "low_frequency_stiffness_external",
+    "eq22_stiffness", "eq23_stiffness", "eq24_stiffness",
+    "fourier_coefficient", "impedance_from_series", "impedance_from_position",
+    "hold_loop", "HoldMargins", "hold_margins", "design_hold_gains",
+]
+
+
+def magnitude_db(z):
+    """20 log10 |z| (dB re 1 N m s/rad for impedances)."""
+    return 20.0 * np.log10(np.abs(z))
+
+
+def zwidth_db(z_low, z_high):
+    """Z-width [dB] between a low- and a high-impedance curve:
+    ``20 log10(|z_high| / |z_low|)`` elementwise."""
+    return 20.0 * np.log10(np.abs(z_high) / np.abs(z_low))
+
+
+def frequency_response(tf, omega):
+    """Complex ``tf(j omega)`` of a SISO :class:`control.TransferFunction`."""
+    num = np.asarray(tf.num[0][0], float)
+    den = np.asarray(tf.den[0][0], float)
+    s = 1j * np.asarray(omega, float)
+    return np.polyval(num, s) / np.polyval(den, s)
+
+
+def _admittance_passive(tf):
+    """Numerical passivity of the admittance 1/Z for an impedance tf."""
+    return numerical_passivity(tf.den[0][0], tf.num[0][0]).passive
+
+
+def max_passive_external_gain(plant, upper=100.0, tol=1e-6):
+    """Largest K_f for which external force feedback ``F_a = K_f F_e`` keeps
+    the endpoint port passive (bisection on :func:`numerical_passivity`).
+
+    Returns ``upper`` if every gain up to it is passive.
+    """
+    model = PlantModel(plant)
+    lo = 0.0
+    if not _admittance_passive(model.external_force_feedback_impedance(lo)):
+        raise ValueError("the passive plant itself is not passive")
+    hi = upper
+    if _admittance_passive(model.external_force_feedback_impedance(hi)):
+        return hi
+    while hi - lo > tol * max(1.0, lo):
+        mid = 0.5 * (lo + hi)
+        if _admittance_passive(model.external_force_feedback_impedance(mid)):
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def force_feedback_comparison(plant, omega, internal_gain=1.0):
+    """Endpoint |Z| curves of Fig. 7 for one parameter set.
+
+    Returns
+    -------
+    dict with ``omega``, ``passive``, ``internal``, ``external`` (complex
+    Z(j omega) arrays [N m s/rad]), ``external_gain`` (the maximum passive
+    K_f used) and ``internal_gain``.
+    """
+    model = PlantModel(plant)
+    k_ext = max_passive_external_gain(plant)
+    return {
+        "omega": np.asarray(omega, float),
+        "passive": frequency_response(model.passive_impedance(), omega),
+        "internal": frequency_response(
+            model.internal_force_feedback_impedance(internal_gain), omega),
+        "external": frequency_response(
+            model.external_force_feedback_impedance(k_ext), omega),
+        "external_gain": k_ext,
+        "internal_gain": internal_gain,
+    }
+
+
+def low_frequency_stiffness_passive(plant):
+    """``lim_{s->0} s Z(s)`` unpowered: ``k_e + k k_s/(k + k_s)`` [N m/rad]."""
+    p = plant
+    k, ks, ke = p.motor_stiffness, p.hose_stiffness, p.endpoint_stiffness
+    return ke + k * ks / (k + ks)
+
+
+def low_frequency_stiffness_internal(plant, gain=1.0):
+    """``lim s Z`` with internal force feedback ``F_a = K_f F_p``:
+    ``k_e + k k_s/(k + (1+K_f) k_s)`` (eq. 22 for K_f = 1)."""
+    p = plant
+    k, ks, ke = p.motor_stiffness, p.hose_stiffness, p.endpoint_stiffness
+    return ke + k * ks / (k + (1.0 + gain) * ks)
+
+
+def low_frequency_stiffness_external(plant, gain):
+    """``lim s Z`` with external force feedback ``F_a = K_f F_e``:
+    ``(k_e (k + k_s) + k k_s)/(k + (1+K_f) k_s)``."""
+    p = plant
+    k, ks, ke = p.motor_stiffness, p.hose_stiffness, p.endpoint_stiffness
+    return (ke * (k + ks) + k * ks) / (k + (1.0 + gain) * ks)
+
+
+def eq22_stiffness(plant):
+    """Eq. 22: ``((k + 2 k_e) k_s + k k_e)/(2 k_s + k)`` [N m/rad]."""
+    p = plant
+    k, ks, ke = p.motor_stiffness, p.hose_stiffness, p.endpoint_stiffness
+    return ((k + 2.0 * ke) * ks + k * ke) / (2.0 * ks + k)
+
+
+def eq23_stiffness(plant):
+    """Eq. 23 (non-backdrivable actuator, k >> k_s, k_e): ``k_s + k_e``."""
+    return plant.hose_stiffness + plant.endpoint_stiffness
+
+
+def eq24_stiffness(plant):
+    """Eq. 24 (backdrivable, k_s >> k, k_e): ``k/2 + k_e``."""
+    return 0.5 * plant.motor_stiffness + plant.endpoint_stiffness
+
+
+# --- impedance from time series ------------------------------------------------
+def fourier_coefficient(y, omega, dt, settle_time=0.0):
+    """Single-frequency Fourier projection of a sampled signal.
+
+    Uses the largest whole number of periods of ``omega`` that fits after
+    ``settle_time`` (taken from the end of the record), so a steady-state
+    sinusoid ``A sin(omega t + phi)`` gives ``A e^{j(phi - pi/2)}``.
+
+    Parameters
+    ----------
+    y : array_like
+        Samples at ``t_k = k dt``.
+    omega : float > 0
+        [rad/s].
+    dt : float > 0
+        [s].
+    settle_time : float >= 0
+        Transient to discard at the start [s].
+
+    Returns
+    -------
+    complex
+    """
+    y = np.asarray(y, float)
+    period = 2.0 * math.pi / omega
+    start = int(math.ceil(settle_time / dt))
+    available = (y.size - start) * dt
+    n_periods = int(math.floor(available / period + 1e-9))
+    if n_periods < 1:
+        raise ValueError("record shorter than one period after settle_time")
+    n = int(round(n_periods * period / dt))
+    k0 = y.size - n
+    t = (k0 + np.arange(n)) * dt
+    return 2.0 / n * np.sum(y[k0:] * np.exp(-1j * omega * t))
+
+
+def impedance_from_series(f_e, v_e, omega, dt, settle_time=0.0):
+    """Complex Z(j omega) = F_e/V_e from time series of F_e [N m] and V_e [rad/s]."""
+    return (fourier_coefficient(f_e, omega, dt, settle_time)
+            / fourier_coefficient(v_e, omega, dt, settle_time))
+
+
+def impedance_from_position(f_e, x_e, omega, dt, settle_time=0.0):
+    """Complex Z(j omega) = F_e/(j omega X_e) from F_e [N m] and X_e [rad]."""
+    return (fourier_coefficient(f_e, omega, dt, settle_time)
+            / (1j * omega * fourier_coefficient(x_e, omega, dt, settle_time)))
+
+
+# --- hold (maximum impedance) gain design ---------------------------------------
+def hold_loop(plant, stiffness, damping, dt=5e-4, delay=1, endpoint="free",
+              clamp_stiffness=1e4):
+    """Discrete loop of the ``hold`` PD on the motor (ZOH plant, exact).
+
+    ``u_k = -K_p x_k - K_d (x_k - x_{k-1})/dt`` (drive velocity), applied
+    ``delay`` samples later.
+
+    Parameters
+    ----------
+    endpoint : "free" or "clamped"
+        Clamped: the endpoint is tied to ground by ``clamp_stiffness``.
+
+    Returns
+    -------
+    (closed_loop_matrix, loop_gain) where ``loop_gain(omega)`` gives the
+    complex loop transfer L(e^{j omega dt}) broken at the torque input.
+    """
+    from .simulator import discretise
+    ken = clamp_stiffness if endpoint == "clamped" else 0.0
+    ben = 2.0 * 0.7 * math.sqrt(ken * plant.endpoint_inertia) if ken else 0.0
+    phi6, gam6 = discretise(plant, dt, ken, ben, 0.0)
+    phi, gam = phi6[:4, :4], gam6[:4, 0]
+    kp, kd = stiffness, damping
+    # state: z (4), x_{k-1}, pending commands (delay)
+    n = 4 + 1 + delay
+    A = np.zeros((n, n))
+    A[:4, :4] = phi
+    ck = np.zeros(n)                   # u_k as a row of the state
+    ck[0] = -(kp + kd / dt)
+    ck[4] = kd / dt
+    if delay == 0:
+        A[:4, :] += np.outer(gam, ck)
+    else:
+        A[:4, 4 + delay] += gam        # oldest pending command applied
+        for j in range(delay - 1, 0, -1):
+            A[4 + j + 1, 4 + j] = 1.0  # shift register
+        A[5, :] += ck
+    A[4, 0] = 1.0                      # x_{k-1} <- x_k
+
+    def loop_gain(omega):
+        z = np.exp(1j * np.asarray(omega, float) * dt)
+        out = np.empty(z.shape, complex)
+        eye = np.eye(4)
+        for i, zi in enumerate(z.ravel()):
+            g = np.linalg.solve(zi * eye - phi, gam)[0]     # X/u
+            c = kp + kd * (1.0 - 1.0 / zi) / dt
+            out.ravel()[i] = c * g * zi ** (-delay)
+        return out
+
+    return A, loop_gain
+
+
+HoldMargins = namedtuple("HoldMargins", "stable modulus_margin gain_margin_db "
+                         "phase_margin_deg spectral_radius")
+
+
+def hold_margins(plant, stiffness, damping, dt=5e-4, delay=1, endpoint="free",
+                 omega=None):
+    """Stability margins of the discrete hold loop (:func:`hold_loop`).
+
+    Returns
+    -------
+    HoldMargins
+        ``stable`` (closed-loop spectral radius < 1), ``modulus_margin``
+        (min |1 + L|), gain margin [dB] and phase margin [deg] (inf when
+        there is no crossing).
+    """
+    A, loop = hold_loop(plant, stiffness, damping, dt, delay, endpoint)
+    rho = float(np.max(np.abs(np.linalg.eigvals(A))))
+    if omega is None:
+        omega = np.logspace(-1, math.log10(math.pi / dt * 0.999), 3000)
+    L = loop(omega)
+    mm = float(np.min(np.abs(1.0 + L)))
+    mag, ph = np.abs(L), np.unwrap(np.angle(L))
+    gm = math.inf
+    for i in range(len(omega) - 1):
+        # phase crossings of -180 deg (mod 360)
+        a = (ph[i] + math.pi) % (2 * math.pi)
+        b = (ph[i + 1] + math.pi) % (2 * math.pi)
+        if abs(a - b) > math.pi:
+            gm = min(gm, -20 * math.log10(max(mag[i], 1e-300)))
+    pm = math.inf
+    for i in range(len(omega) - 1):
+        if (mag[i] - 1.0) * (mag[i + 1] - 1.0) <= 0.0:
+            pm = min(pm, math.degrees((ph[i] + math.pi) % (2 * math.pi)))
+    return HoldMargins(rho < 1.0, mm, gm, pm, rho)
+
+
+def design_hold_gains(plant, dt=5e-4, delay=1, modulus_margin=0.5,
+                      stiffness_grid=None, damping_grid=None):
+    """Largest hold stiffness K_p (and its K_d) with a margin.
+
+    Searches a log grid of (K_p, K_d); keeps the pairs whose discrete loop is
+    stable with ``min |1 + L| >= modulus_margin`` (0.5 guarantees a gain
+    margin >= 6 dB and a phase margin >= 29 deg) for the endpoint both free
+    and clamped, and returns the one with the largest K_p (ties: smallest
+    K_d).
+
+    Returns
+    -------
+    (K_p [N m/rad], K_d [N m s/rad])
+    """
+    if stiffness_grid is None:
+        stiffness_grid = np.round(np.logspace(0, 3, 31), 1)
+    if damping_grid is None:
+        damping_grid = np.round(np.logspace(-2, 0.5, 26), 3)
+    best = None
+    for kp in stiffness_grid:
+        for kd in damping_grid:
+            ok = True
+            for endpoint in ("free", "clamped"):
+                mg = hold_margins(plant, kp, kd, dt, delay, endpoint,
+                                  omega=np.logspace(-1, math.log10(math.pi / dt * 0.999), 600))
+                if not (mg.stable and mg.modulus_margin >= modulus_margin):
+                    ok = False
+                    break
+            if ok and (best is None or kp > best[0]):
+                best = (float(kp), float(kd))
+    if best is None:
+        raise ValueError("no stable hold gains on the grid")
+    return best
