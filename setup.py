@@ -8,6 +8,7 @@ PACKAGE = 'seaforce_ros'
 # Executables installed to lib/seaforce_ros so that `ros2 run seaforce_ros <name>` finds them.
 CONSOLE_SCRIPTS = [
     'sim_node = seaforce_ros.sim_node:main',
+    'controller_node = seaforce_ros.controller_node:main',
 ]
 
 setup(

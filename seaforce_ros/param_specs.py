@@ -1,0 +1,139 @@
+"""The ROS parameters of the nodes, generated from the core's parameter tables.
+
+Per-channel keys are ``<channel>.<key>`` with ``<key>`` from
+:data:`seaforce_ros.core.params.PARAMETER_DESCRIPTIONS` (controller) and the simulator tables
+below. Ranges given here are what rclpy enforces before any callback runs; cross-parameter
+rules (DOB passivity, eq. 28) are checked by the core in the nodes' on-set callbacks.
+"""
+from __future__ import annotations
+
+import math
+from typing import Dict, List, Sequence
+
+from .core.environment import DRIVE_DAMPING, DRIVE_STIFFNESS, ENVIRONMENT_MODES
+from .core.params import MODES, PARAMETER_DESCRIPTIONS, ControllerConfig, PlantParams
+from .core.sensors import SensorParams
+from .ros_common import EXECUTORS, ParamSpec
+
+BIG = 1e9
+
+#: [low, high] of the controller keys (rclpy enforces these; the core enforces the rest).
+CONTROLLER_RANGES = {
+    'plant.motor_inertia': (0.0, 10.0), 'plant.motor_damping': (0.0, 1e3),
+    'plant.motor_stiffness': (0.0, 1e4), 'plant.endpoint_inertia': (0.0, 10.0),
+    'plant.endpoint_damping': (0.0, 1e3), 'plant.endpoint_stiffness': (0.0, 1e4),
+    'plant.hose_damping': (0.0, 1e3), 'plant.hose_stiffness': (0.0, 1e6),
+    'dahl.sigma': (0.0, 1e6), 'dahl.coulomb_force': (0.0, 1e3), 'dahl.exponent': (0.0, 10.0),
+    'dob.cutoff': (0.0, 1e4), 'dob.nominal_inertia': (0.0, 10.0),
+    'dob.nominal_damping': (-1e3, 1e3), 'dob.nominal_stiffness': (0.0, 1e4),
+    'target.stiffness': (0.0, 1e4), 'target.damping': (0.0, 1e3),
+    'hold.stiffness': (0.0, 1e5), 'hold.damping': (0.0, 1e3),
+    'force_feedback.gain': (-100.0, 100.0),
+    'chirp.amplitude': (0.0, 100.0), 'chirp.start_frequency': (0.0, 1e4),
+    'chirp.end_frequency': (0.0, 1e4), 'chirp.duration': (0.0, 1e5),
+    'feedforward.rest_position': (-100.0, 100.0), 'feedforward.dahl_deadband': (0.0, 1.0),
+    'max_torque': (0.0, 1e3),
+}
+
+PLANT_KEYS = tuple(k for k in PARAMETER_DESCRIPTIONS if k.startswith('plant.'))
+DAHL_KEYS = tuple(k for k in PARAMETER_DESCRIPTIONS if k.startswith('dahl.'))
+
+ENVIRONMENT_SPECS = (
+    ('environment.mode', 'free', 'endpoint environment: ' + ', '.join(ENVIRONMENT_MODES), None),
+    ('environment.amplitude', 0.5, 'amplitude [N m for torque modes, rad for position_sine]',
+     (0.0, 100.0)),
+    ('environment.frequency', 1.0, 'sine frequency [rad/s]', (0.0, 1e5)),
+    ('environment.start_frequency', 0.01, 'torque chirp start frequency [Hz]', (1e-6, 1e4)),
+    ('environment.end_frequency', 1000.0, 'torque chirp end frequency [Hz]', (1e-6, 1e4)),
+    ('environment.duration', 60.0, 'torque chirp duration [s]', (1e-3, 1e6)),
+    ('environment.stiffness', DRIVE_STIFFNESS,
+     'position drive spring to the endpoint [N m/rad]', (0.0, 1e6)),
+    ('environment.damping', DRIVE_DAMPING,
+     'position drive damper to the endpoint [N m s/rad]', (0.0, 1e4)),
+    ('environment.offset', 0.0, 'centre of the position drive [rad]', (-100.0, 100.0)),
+)
+
+_SENSORS = SensorParams()
+SIM_CHANNEL_SPECS = (
+    ('sim.motor_coulomb', 0.0, 'motor Coulomb friction [N m]', (0.0, 100.0)),
+    ('sim.endpoint_coulomb', 0.0,
+     'endpoint Coulomb friction [N m] (unobservable from pressure)', (0.0, 100.0)),
+    ('sim.backlash', 0.0, 'dead zone between position drive and endpoint [rad]', (0.0, 10.0)),
+    ('sim.max_torque', 10.0, 'motor torque saturation [N m]', (1e-6, 1e3)),
+    ('sensors.pressure_range', float(_SENSORS.pressure_range),
+     'pressure ADC full scale, as +-F_p [N m]', (1e-6, 1e4)),
+    ('sensors.pressure_noise', float(_SENSORS.pressure_noise),
+     'pressure noise standard deviation [N m]', (0.0, 100.0)),
+    ('sensors.motor_counts_per_rev', int(_SENSORS.motor_counts_per_rev),
+     'motor encoder counts per revolution (0: ideal)', (0, 2**40)),
+    ('sensors.endpoint_counts_per_rev', int(_SENSORS.endpoint_counts_per_rev),
+     'endpoint encoder counts per revolution (0: ideal)', (0, 2**40)),
+)
+
+
+def channels_spec(default=('wrist', 'pinch')) -> ParamSpec:
+    return ParamSpec('channels', list(default),
+                     'names of the actuator channels, in message order (same in every node)',
+                     read_only=True)
+
+
+def executor_spec(default='events') -> ParamSpec:
+    return ParamSpec('executor', default,
+                     'rclpy executor: events (fast; spun so parameter services answer) or '
+                     'single_threaded', choices=EXECUTORS, read_only=True)
+
+
+def controller_channel_specs(channel: str) -> List[ParamSpec]:
+    """Every controller parameter of one channel, defaults = Table I config."""
+    defaults = ControllerConfig(plant=PlantParams.table_i()).to_dict()
+    specs = []
+    for key, description in PARAMETER_DESCRIPTIONS.items():
+        default = defaults[key]
+        if isinstance(default, int) and not isinstance(default, bool):
+            default = float(default)
+        low, high = CONTROLLER_RANGES.get(key, (None, None))
+        specs.append(ParamSpec(f'{channel}.{key}', default, description, low=low, high=high,
+                               choices=MODES if key == 'mode' else ()))
+    return specs
+
+
+def sim_channel_specs(channel: str) -> List[ParamSpec]:
+    """Simulated-plant parameters of one channel (plant and Dahl read-only: structural)."""
+    defaults = ControllerConfig(plant=PlantParams.table_i()).to_dict()
+    specs = []
+    for key in PLANT_KEYS + DAHL_KEYS:
+        low, high = CONTROLLER_RANGES[key]
+        specs.append(ParamSpec(f'{channel}.{key}', float(defaults[key]),
+                               PARAMETER_DESCRIPTIONS[key] + ' (simulated plant)',
+                               low=low, high=high, read_only=True))
+    for key, default, description, rng in SIM_CHANNEL_SPECS:
+        low, high = rng
+        specs.append(ParamSpec(f'{channel}.{key}', default, description, low=low, high=high,
+                               read_only=True))
+    for key, default, description, rng in ENVIRONMENT_SPECS:
+        low, high = rng if rng else (None, None)
+        specs.append(ParamSpec(f'{channel}.{key}', default, description, low=low, high=high,
+                               choices=ENVIRONMENT_MODES if key == 'environment.mode' else ()))
+    return specs
+
+
+def channel_values(values: Dict[str, object], channel: str, prefix: str = '') -> Dict[str, object]:
+    """``{'<channel>.<prefix>x': v}`` -> ``{'<prefix>x': v}`` for one channel."""
+    head = f'{channel}.{prefix}'
+    return {k[len(channel) + 1:]: v for k, v in values.items() if k.startswith(head)}
+
+
+def check_channels(channels: Sequence[str]) -> None:
+    """Channel names must be unique, non-empty ROS-name-safe tokens."""
+    if not channels:
+        raise ValueError('channels is empty: name at least one channel, e.g. [wrist, pinch]')
+    for name in channels:
+        if not name or not name.replace('_', 'a').isalnum() or name[0].isdigit():
+            raise ValueError(f'channel name {name!r} must be letters, digits and _, '
+                             'not starting with a digit')
+    if len(set(channels)) != len(channels):
+        raise ValueError(f'channel names must be unique: {list(channels)}')
+
+
+def is_finite_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)

@@ -1,0 +1,200 @@
+"""ROS 2 plumbing shared by the nodes: parameter declaration, QoS, diagnostics, spinning.
+
+Only conversion and wiring lives here; the algorithms are in :mod:`seaforce_ros.core`.
+"""
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass
+from typing import Any, Callable, Dict, Iterable, List, Optional, Sequence, Tuple
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType)
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+
+#: Control-rate topics (actuator_state, actuator_command), publisher side: reliable (lockstep
+#: simulation advances one sample per command and must never lose a step), and a history of
+#: 50 samples so that a recorder that falls a few samples behind still gets every sample.
+CONTROL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+
+#: Control-rate topics, the control loop's subscription: only the newest sample matters to a
+#: 2 kHz loop; anything older is worthless.
+CONTROL_SUB_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.VOLATILE)
+
+#: Recorders and test observers of the control topics: keep up to 1 s of samples queued.
+RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+
+#: Monitoring topics (controller_status, joint_states): a few samples of slack.
+STATUS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+
+EXECUTORS = ('events', 'single_threaded')
+
+_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
+          float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One ROS parameter: name, default (its Python type is the parameter type), description
+    with units, optional numeric range [low, high], allowed string values, read-only flag."""
+
+    name: str
+    default: Any
+    description: str
+    low: Optional[float] = None
+    high: Optional[float] = None
+    choices: Tuple[str, ...] = ()
+    read_only: bool = False
+
+    def descriptor(self) -> ParameterDescriptor:
+        d = ParameterDescriptor(name=self.name, description=self.description,
+                                read_only=self.read_only)
+        if isinstance(self.default, (list, tuple)):
+            d.type = ParameterType.PARAMETER_STRING_ARRAY
+        else:
+            d.type = _TYPES[type(self.default)]
+        if self.choices:
+            d.additional_constraints = 'one of: ' + ', '.join(self.choices)
+        if self.low is not None or self.high is not None:
+            low = -sys.float_info.max if self.low is None else self.low
+            high = sys.float_info.max if self.high is None else self.high
+            if isinstance(self.default, float):
+                d.floating_point_range = [FloatingPointRange(from_value=float(low),
+                                                             to_value=float(high), step=0.0)]
+            elif isinstance(self.default, int) and not isinstance(self.default, bool):
+                d.integer_range = [IntegerRange(from_value=int(max(low, -2**63)),
+                                                to_value=int(min(high, 2**63 - 1)), step=1)]
+        return d
+
+    def check(self, value) -> Optional[str]:
+        """Reason to reject ``value``, or None. (rclpy enforces ranges itself; this adds
+        finiteness and the allowed strings, which descriptors cannot express.)"""
+        if isinstance(value, float) and not math.isfinite(value):
+            return f'{self.name} must be finite, got {value}'
+        if self.choices and value not in self.choices:
+            return f'{self.name} must be one of {", ".join(self.choices)}; got {value!r}'
+        return None
+
+
+def declare(node, specs: Iterable[ParamSpec]) -> Dict[str, Any]:
+    """Declare every spec on ``node`` (values from --params-file override the defaults) and
+    return name -> current value. Integers given for float parameters in YAML are accepted."""
+    values = {}
+    for spec in specs:
+        default = spec.default
+        if isinstance(default, tuple):
+            default = list(default)
+        node.declare_parameter(spec.name, default, spec.descriptor(),
+                               ignore_override=False)
+        values[spec.name] = node.get_parameter(spec.name).value
+    return values
+
+
+def diagnostic_status(name: str, hardware_id: str, level: int, message: str,
+                      values: Dict[str, Any]) -> DiagnosticStatus:
+    status = DiagnosticStatus(level=level, name=name, message=message, hardware_id=hardware_id)
+    status.values = [KeyValue(key=k, value=_fmt(v)) for k, v in values.items()]
+    return status
+
+
+def _fmt(value) -> str:
+    if isinstance(value, float):
+        return f'{value:.6g}'
+    return str(value)
+
+
+def diagnostics_publisher(node):
+    return node.create_publisher(DiagnosticArray, '/diagnostics', 10)
+
+
+def publish_diagnostics(node, publisher, statuses: Sequence[DiagnosticStatus]) -> None:
+    msg = DiagnosticArray()
+    msg.header.stamp = node.get_clock().now().to_msg()
+    msg.status = list(statuses)
+    publisher.publish(msg)
+
+
+def make_executor(kind: str, context=None):
+    """The executor named by a node's read-only ``executor`` parameter."""
+    if kind == 'events':
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor(context=context)
+    if kind == 'single_threaded':
+        return SingleThreadedExecutor(context=context)
+    raise ValueError(f'executor must be one of {", ".join(EXECUTORS)}; got {kind!r}')
+
+
+def spin_forever(executor, context=None, chunk_sec: float = 1.0) -> None:
+    """Spin until shutdown in a way that works with every executor of the PyPI Jazzy wheels.
+
+    In rclpy 7.1.6 as shipped on PyPI, *every* untimed EventsExecutor call (``spin()``,
+    ``spin_once()``, ``spin_until_future_complete(f)``) hangs: its events queue waits on a
+    condition variable until ``steady_clock::time_point::max()``, which this manylinux_2_28 build
+    converts to a wall-clock deadline that overflows, so ``pthread_cond_timedwait`` fails with
+    EINVAL and the queue thread busy-loops holding the mutex every event and ``Stop()`` need.
+    No subscription, timer, service (parameters!) or signal is ever handled. Any finite
+    timeout works, so we spin in finite chunks with a fresh Future each time. Callback
+    exceptions propagate and SIGINT/SIGTERM end the loop within ~0.2 s. The
+    SingleThreadedExecutor is spun the same way for uniformity.
+    """
+    from rclpy.task import Future
+    context = context or executor.context
+    while context.ok():
+        try:
+            executor.spin_until_future_complete(Future(), timeout_sec=chunk_sec)
+        except Exception:
+            if context.ok():
+                raise
+            return  # a callback raced the shutdown (e.g. publish on a shut-down context)
+
+
+def run(node_factory: Callable[..., Any], args=None, executor_param: str = 'executor') -> int:
+    """``main()`` body of every node executable: the Jazzy shutdown idiom.
+
+    Creates the node, builds the executor its ``executor`` parameter names (if it has one),
+    spins until SIGINT / shutdown, then calls ``node.shutdown()`` if defined (safe state) and
+    destroys everything. Returns the process exit code.
+    """
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = node_factory()
+        kind = 'single_threaded'
+        if node.has_parameter(executor_param):
+            kind = node.get_parameter(executor_param).value
+        executor = make_executor(kind)
+        executor.add_node(node)
+        node.get_logger().info(f'spinning with the {kind} executor')
+        spin_forever(executor)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except StartupError as exc:
+        print(f'[{getattr(exc, "node_name", "seaforce_ros")}] cannot start: {exc}', file=sys.stderr)
+        code = 2
+    finally:
+        if node is not None:
+            try:
+                shutdown = getattr(node, 'shutdown', None)
+                if shutdown is not None:
+                    shutdown()
+            finally:
+                node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+class StartupError(RuntimeError):
+    """A node cannot start with the configuration it was given (message says what to fix)."""

@@ -1,0 +1,127 @@
+"""Loop timing statistics for the 2 kHz cycles (no ROS imports).
+
+:class:`LoopStats` records cycle start times into a preallocated ring (no allocation per
+sample) and summarises rate, period jitter and missed deadlines on demand, for
+``/diagnostics`` and the benchmarks.
+"""
+from __future__ import annotations
+
+import array
+import time
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class LoopSummary:
+    """Timing of the cycles recorded since the previous summary.
+
+    rate_hz : achieved cycle rate [Hz]
+    period_p50_ms, period_p99_ms, period_max_ms : cycle period percentiles [ms]
+    jitter_p99_ms : p99 of |period - nominal| [ms]
+    missed : cycles whose start was more than one nominal period late
+    cycles : cycles in the window
+    """
+
+    rate_hz: float
+    period_p50_ms: float
+    period_p99_ms: float
+    period_max_ms: float
+    jitter_p99_ms: float
+    missed: int
+    cycles: int
+
+
+class LoopStats:
+    """Ring buffer of cycle periods.
+
+    Parameters
+    ----------
+    nominal_period : float > 0
+        Target period [s] (5e-4 at 2 kHz).
+    capacity : int > 0
+        Periods kept between summaries (older ones are overwritten).
+    """
+
+    def __init__(self, nominal_period: float, capacity: int = 8192):
+        if not nominal_period > 0:
+            raise ValueError(f'nominal_period must be > 0 s, got {nominal_period}')
+        self.nominal_period = float(nominal_period)
+        self._periods = array.array('d', bytes(8 * capacity))
+        self._capacity = capacity
+        self._count = 0
+        self._missed = 0
+        self._last = None
+        self._window_start = None
+        self.total_cycles = 0
+        self.total_missed = 0
+
+    def tick(self, now: float = None) -> None:
+        """Record the start of a cycle at monotonic time ``now`` [s]."""
+        if now is None:
+            now = time.monotonic()
+        last = self._last
+        self._last = now
+        self.total_cycles += 1
+        if last is None:
+            self._window_start = now
+            return
+        period = now - last
+        self._periods[self._count % self._capacity] = period
+        self._count += 1
+        if period > 2.0 * self.nominal_period:
+            self._missed += 1
+            self.total_missed += 1
+
+    def summary(self, reset: bool = True) -> LoopSummary:
+        """Statistics of the window since the last reset."""
+        n = min(self._count, self._capacity)
+        if n == 0:
+            result = LoopSummary(0.0, float('nan'), float('nan'), float('nan'), float('nan'), 0, 0)
+        else:
+            periods = sorted(self._periods[:n])
+            elapsed = (self._last - self._window_start) if self._window_start is not None else 0.0
+            jitter = sorted(abs(p - self.nominal_period) for p in periods)
+            result = LoopSummary(
+                rate_hz=self._count / elapsed if elapsed > 0 else 0.0,
+                period_p50_ms=1e3 * periods[n // 2],
+                period_p99_ms=1e3 * periods[min(n - 1, int(0.99 * n))],
+                period_max_ms=1e3 * periods[-1],
+                jitter_p99_ms=1e3 * jitter[min(n - 1, int(0.99 * n))],
+                missed=self._missed,
+                cycles=self._count)
+        if reset:
+            self._count = 0
+            self._missed = 0
+            self._window_start = self._last
+        return result
+
+
+class Deadline:
+    """Absolute-deadline pacing of a periodic loop (no drift: deadlines are k * period).
+
+    ``wait()`` sleeps until the next deadline; if the loop is more than ``max_lag`` periods
+    behind, it skips ahead instead of bursting to catch up, and counts the skipped cycles.
+    """
+
+    def __init__(self, period: float, max_lag: int = 10):
+        self.period = float(period)
+        self.max_lag = max_lag
+        self.start = time.monotonic()
+        self.index = 0
+        self.skipped = 0
+
+    def wait(self) -> float:
+        """Sleep until the next deadline; return the monotonic time at wake-up."""
+        self.index += 1
+        deadline = self.start + self.index * self.period
+        now = time.monotonic()
+        if now - deadline > self.max_lag * self.period:
+            behind = int((now - deadline) / self.period)
+            self.index += behind
+            self.skipped += behind
+            return now
+        remaining = deadline - now
+        if remaining > 0:
+            time.sleep(remaining)
+            return time.monotonic()
+        return now

@@ -1,0 +1,29 @@
+"""Start the installed seaforce_ros executables with a parameter file for a test."""
+import pathlib
+import tempfile
+from typing import Any, Dict, Optional
+
+import yaml
+
+from helpers.processes import ROOT, ProcessGroup, executable
+
+CONFIG = ROOT / 'config' / 'gripper.yaml'
+
+
+def params_file(node_name: str, values: Dict[str, Any], directory: pathlib.Path) -> pathlib.Path:
+    """A --params-file with ``values`` (flat dotted keys) for ``node_name``."""
+    path = directory / f'{node_name}-overrides.yaml'
+    path.write_text(yaml.safe_dump({node_name: {'ros__parameters': dict(values)}}))
+    return path
+
+
+def start_node(processes: ProcessGroup, name: str, node_name: str, tmp_path: pathlib.Path,
+               overrides: Optional[Dict[str, Any]] = None, config: pathlib.Path = CONFIG,
+               wait: bool = True):
+    argv = [str(executable(name)), '--ros-args', '--params-file', str(config)]
+    if overrides:
+        argv += ['--params-file', str(params_file(node_name, overrides, tmp_path))]
+    proc = processes.start(argv, name=name)
+    if wait:
+        assert proc.wait_for_output('spinning with', timeout=60), proc.output()
+    return proc

@@ -1,0 +1,119 @@
+"""A test-side ROS node: records topics, sets parameters (what `ros2 param set` does), calls
+services. It spins its own executor in a background thread on its own Context."""
+import threading
+import time
+from typing import Any, Callable, Dict, List, Optional
+
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+
+from seaforce_ros.ros_common import RECORD_QOS, CONTROL_QOS
+
+
+class Probe:
+    def __init__(self, name: str = 'test_probe'):
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._lock = threading.Lock()
+        self.records: Dict[str, List[Any]] = {}
+        self._stop = False
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self):
+        while not self._stop and self.context.ok():
+            try:
+                self.executor.spin_once(timeout_sec=0.05)
+            except Exception:
+                if self._stop or not self.context.ok():
+                    return
+                raise
+
+    def close(self):
+        self._stop = True
+        self._thread.join(timeout=2.0)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+    # --- topics ------------------------------------------------------------------------
+    def record(self, msg_type, topic: str, qos=RECORD_QOS):
+        self.records[topic] = []
+
+        def callback(msg, topic=topic):
+            with self._lock:
+                self.records[topic].append(msg)
+
+        self.node.create_subscription(msg_type, topic, callback, qos)
+
+    def messages(self, topic: str) -> List[Any]:
+        with self._lock:
+            return list(self.records[topic])
+
+    def clear(self, topic: str) -> None:
+        with self._lock:
+            self.records[topic].clear()
+
+    def wait_for(self, predicate: Callable[[], bool], timeout: float = 20.0,
+                 what: str = 'condition') -> None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if predicate():
+                return
+            time.sleep(0.02)
+        raise AssertionError(f'timed out after {timeout} s waiting for {what}')
+
+    def wait_messages(self, topic: str, count: int = 1, timeout: float = 20.0,
+                      where: Optional[Callable[[Any], bool]] = None) -> List[Any]:
+        def matching():
+            msgs = self.messages(topic)
+            return [m for m in msgs if where is None or where(m)]
+        self.wait_for(lambda: len(matching()) >= count, timeout,
+                      f'{count} message(s) on {topic}')
+        return matching()
+
+    def publisher(self, msg_type, topic: str, qos=CONTROL_QOS):
+        return self.node.create_publisher(msg_type, topic, qos)
+
+    # --- parameters (the calls `ros2 param set/get` make) -----------------------------------
+    def _param_client(self, node_name: str) -> AsyncParameterClient:
+        client = AsyncParameterClient(self.node, node_name)
+        if not client.wait_for_services(timeout_sec=20.0):
+            raise AssertionError(f'parameter services of {node_name} not available')
+        return client
+
+    def set_parameters(self, node_name: str, values: Dict[str, Any], timeout: float = 10.0):
+        """Set parameters atomically; returns (successful, reason)."""
+        client = self._param_client(node_name)
+        params = [Parameter(name, value=value) for name, value in values.items()]
+        future = client.set_parameters_atomically(params)
+        result = self._wait_future(future, timeout, f'set_parameters on {node_name}')
+        return result.result.successful, result.result.reason
+
+    def get_parameters(self, node_name: str, names: List[str], timeout: float = 10.0):
+        client = self._param_client(node_name)
+        future = client.get_parameters(names)
+        result = self._wait_future(future, timeout, f'get_parameters on {node_name}')
+        from rclpy.parameter import parameter_value_to_python
+        return {name: parameter_value_to_python(v) for name, v in zip(names, result.values)}
+
+    def call(self, srv_type, name: str, request=None, timeout: float = 10.0):
+        client = self.node.create_client(srv_type, name)
+        if not client.wait_for_service(timeout_sec=20.0):
+            raise AssertionError(f'service {name} not available')
+        future = client.call_async(request or srv_type.Request())
+        return self._wait_future(future, timeout, f'call {name}')
+
+    @staticmethod
+    def _wait_future(future, timeout, what):
+        deadline = time.monotonic() + timeout
+        while not future.done():
+            if time.monotonic() > deadline:
+                raise AssertionError(f'no answer to {what} within {timeout} s')
+            time.sleep(0.01)
+        return future.result()
