@@ -1,0 +1,143 @@
+"""Parameter validation and the flat ROS-key mapping."""
+
+import math
+
+import pytest
+
+from seaforce_ros.core import (ControllerConfig, DahlParams, DobParams, InvalidParameterError,
+                               MODES, NonPassiveError, PARAMETER_DESCRIPTIONS, PlantParams,
+                               SeaforceError)
+
+TABLE_I = PlantParams.table_i()
+
+
+def test_table_i_values():
+    p = TABLE_I
+    assert (p.motor_inertia, p.motor_damping, p.motor_stiffness) == (1.1116e-3, 2.9814e-2, 0.1642)
+    assert (p.endpoint_inertia, p.endpoint_damping, p.endpoint_stiffness) == \
+        (0.7089e-3, 3.3879e-2, 0.0637)
+    assert (p.hose_damping, p.hose_stiffness) == (9.2453e-3, 13.0782)
+    assert DahlParams() == DahlParams(sigma=12.8, coulomb_force=0.032, exponent=1.0)
+
+
+@pytest.mark.parametrize("field", ["motor_inertia", "endpoint_inertia"])
+@pytest.mark.parametrize("value", [0.0, -1e-3])
+def test_non_positive_inertia_rejected(field, value):
+    with pytest.raises(InvalidParameterError) as info:
+        TABLE_I.scaled()  # copy is fine
+        PlantParams(**{**TABLE_I.__dict__, field: value})
+    err = info.value
+    assert err.name == "plant." + field and err.value == value
+    assert err.bound == "> 0 and finite"
+    assert f"plant.{field}" in str(err) and "> 0" in str(err)
+
+
+@pytest.mark.parametrize("field", [
+    "motor_damping", "motor_stiffness", "endpoint_damping", "endpoint_stiffness",
+    "hose_damping", "hose_stiffness"])
+def test_negative_stiffness_damping_rejected(field):
+    with pytest.raises(InvalidParameterError) as info:
+        PlantParams(**{**TABLE_I.__dict__, field: -0.01})
+    assert info.value.name == "plant." + field
+    assert ">= 0" in str(info.value) and "-0.01" in str(info.value)
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])
+@pytest.mark.parametrize("field", ["motor_inertia", "hose_stiffness", "endpoint_damping"])
+def test_non_finite_rejected(field, value):
+    with pytest.raises(InvalidParameterError) as info:
+        PlantParams(**{**TABLE_I.__dict__, field: value})
+    assert info.value.name == "plant." + field
+    assert "finite" in str(info.value)
+
+
+def test_invalid_errors_are_value_errors_and_seaforce_errors():
+    with pytest.raises(ValueError):
+        DahlParams(coulomb_force=0.0)
+    with pytest.raises(SeaforceError):
+        DobParams(cutoff=-1.0)
+    with pytest.raises(InvalidParameterError, match="dob.nominal_stiffness"):
+        DobParams(nominal_stiffness=-0.1)
+    with pytest.raises(InvalidParameterError, match="dahl.exponent"):
+        DahlParams(exponent=math.nan)
+
+
+def test_non_passive_dob_rejected_unless_allowed():
+    m_min = TABLE_I.motor_inertia - TABLE_I.motor_damping / (2 * math.pi * 20)
+    bad = DobParams(nominal_inertia=0.9 * m_min)
+    with pytest.raises(NonPassiveError) as info:
+        ControllerConfig(mode="dob", dob=bad)
+    err = info.value
+    assert isinstance(err, InvalidParameterError)
+    assert err.name == "dob.nominal_inertia" and err.value == pytest.approx(0.9 * m_min)
+    assert f"{m_min:.6g}" in err.bound and "allow_non_passive" in str(err)
+    ok = ControllerConfig(mode="dob", dob=bad, allow_non_passive=True)
+    assert ok.dob.nominal_inertia == pytest.approx(0.9 * m_min)
+    # at the bound itself it is accepted
+    ControllerConfig(mode="dob", dob=DobParams(nominal_inertia=m_min * (1 + 1e-12)))
+
+
+def test_non_passive_nominal_stiffness_rejected():
+    lam = 2 * math.pi * 20
+    b_n = 1e-3
+    k_max = TABLE_I.motor_stiffness + lam * b_n
+    with pytest.raises(NonPassiveError) as info:
+        ControllerConfig(dob=DobParams(nominal_damping=b_n, nominal_stiffness=1.01 * k_max))
+    assert info.value.name == "dob.nominal_stiffness"
+    assert f"{k_max:.6g}" in info.value.bound
+    ControllerConfig(dob=DobParams(nominal_damping=b_n, nominal_stiffness=0.99 * k_max))
+
+
+def test_force_feedback_gain_passive_range():
+    for gain in (-1.0, 0.0, 1.0):
+        assert ControllerConfig(force_feedback_gain=gain).force_feedback_gain == gain
+    for gain in (-1.01, 1.5):
+        with pytest.raises(NonPassiveError, match="force_feedback.gain"):
+            ControllerConfig(force_feedback_gain=gain)
+    assert ControllerConfig(force_feedback_gain=1.5, allow_non_passive=True)
+
+
+def test_controller_config_other_checks():
+    with pytest.raises(InvalidParameterError, match="mode"):
+        ControllerConfig(mode="zero")
+    with pytest.raises(InvalidParameterError, match="max_torque"):
+        ControllerConfig(max_torque=0.0)
+    with pytest.raises(InvalidParameterError, match="target.stiffness"):
+        ControllerConfig(target_stiffness=-1.0)
+    with pytest.raises(InvalidParameterError, match="plant.hose_damping"):
+        # the hose inversion of the feed-forward needs b_s > 0
+        ControllerConfig(plant=PlantParams(**{**TABLE_I.__dict__, "hose_damping": 0.0}))
+    for mode in MODES:
+        assert ControllerConfig(mode=mode).mode == mode
+
+
+def test_flat_dict_round_trip():
+    cfg = ControllerConfig(mode="dob_full_ff", target_stiffness=0.5,
+                           dob=DobParams(cutoff=20.0, nominal_inertia=5e-4))
+    flat = cfg.to_dict()
+    assert set(flat) == set(PARAMETER_DESCRIPTIONS)
+    assert flat["mode"] == "dob_full_ff" and flat["dob.cutoff"] == 20.0
+    assert flat["plant.hose_stiffness"] == 13.0782
+    assert flat["dahl.coulomb_force"] == 0.032
+    assert flat["allow_non_passive"] is False
+    assert ControllerConfig.from_dict(flat) == cfg
+
+
+def test_from_dict_overrides_base_and_strips_channel_prefix():
+    cfg = ControllerConfig.from_dict({"pinch.mode": "dob", "pinch.dob.cutoff": 20,
+                                      "plant.motor_damping": 0.05, "target.damping": 0.01})
+    assert cfg.mode == "dob" and cfg.dob.cutoff == 20.0
+    assert isinstance(cfg.dob.cutoff, float)
+    assert cfg.plant.motor_damping == 0.05 and cfg.target_damping == 0.01
+    assert cfg.plant.motor_inertia == TABLE_I.motor_inertia
+    with pytest.raises(InvalidParameterError, match="no_such_key"):
+        ControllerConfig.from_dict({"no_such_key": 1.0})
+    with pytest.raises(NonPassiveError):
+        ControllerConfig.from_dict({"dob.nominal_inertia": 0.0})
+    with pytest.raises(InvalidParameterError, match="plant.motor_inertia"):
+        ControllerConfig.from_dict({"plant.motor_inertia": math.nan})
+
+
+def test_every_key_has_a_description_with_range_or_units():
+    for key, text in PARAMETER_DESCRIPTIONS.items():
+        assert text and ("[" in text or "one of" in text or "bool" in text), key
