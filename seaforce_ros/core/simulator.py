@@ -374,6 +374,11 @@ class ChannelSimulator:
             n1 -= g10 * ffm + g11 * ffe
             n2 -= g20 * ffm + g21 * ffe
             n3 -= g30 * ffm + g31 * ffe
+            # stuck joints: exactly zero velocity (no rounding residue)
+            if fcm and -fcm < ffm < fcm:
+                n1 = 0.0
+            if fce and -fce < ffe < fce:
+                n3 = 0.0
             self.motor_friction, self.endpoint_friction = ffm, ffe
         z[0], z[1], z[2], z[3], z[4], z[5] = n0, n1, n2, n3, n4, n5
         self._dahl.update(n2)
