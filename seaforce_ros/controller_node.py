@@ -37,10 +37,6 @@ from .ros_common import (CONTROL_QOS, CONTROL_SUB_QOS, STATUS_QOS, ParamSpec, St
                          diagnostic_status, diagnostics_publisher, publish_diagnostics, run)
 from .timing import LoopStats
 
-# A state whose channel reports either of these had zero torque applied by the plant side:
-# restart that channel's controller from zero so that it does not wind up.
-_PLANT_SIDE_STOP = ActuatorState.STATUS_COMMAND_TIMEOUT | ActuatorState.STATUS_FAULT
-
 
 def node_specs():
     return [
@@ -49,7 +45,7 @@ def node_specs():
         ParamSpec('rate', 2000.0, 'control rate the sample period is derived from [Hz]; '
                   'must equal the rate of the state source', low=1.0, high=20000.0,
                   read_only=True),
-        ParamSpec('state_timeout', 0.01,
+        ParamSpec('state_timeout', 0.05,
                   'a state older than this (header stamp vs now) latches a fault [s]',
                   low=1e-4, high=10.0),
         ParamSpec('status_rate', 100.0, 'controller_status rate [Hz], 0 = off', low=0.0,
@@ -91,6 +87,8 @@ class ControllerNode(Node):
         self.faults = [''] * n           # latched fault reason per channel ('' = none)
         self._fault_count = 0
         self._last_cycle = None
+        self._armed = False              # stale-state check armed by the first fresh state
+        self._dropped_stale = 0
         self._state_names = None         # cached (names, index of each channel in the state)
         self._states = 0
         self.stats = LoopStats(self.dt)
@@ -171,10 +169,15 @@ class ControllerNode(Node):
         now_ns = self.get_clock().now().nanoseconds
         stamp_ns = Time.from_msg(msg.header.stamp).nanoseconds
         if now_ns - stamp_ns > self.state_timeout_ns:
+            if not self._armed:
+                # before the first fresh sample (start-up, discovery backlog): drop, count
+                self._dropped_stale += 1
+                return
             age_ms = (now_ns - stamp_ns) * 1e-6
             self._latch_all(f'stale state: {age_ms:.1f} ms old (> state_timeout)')
+        self._armed = True
         effort = self._effort
-        xs, vs, fps, status = msg.motor_position, msg.motor_velocity, msg.pressure_force, msg.status
+        xs, vs, fps = msg.motor_position, msg.motor_velocity, msg.pressure_force
         n_state = len(msg.name)
         for i, ctrl in enumerate(self.controllers):
             j = index[i]
@@ -186,8 +189,6 @@ class ControllerNode(Node):
             try:
                 if len(xs) != n_state or len(vs) != n_state or len(fps) != n_state:
                     raise ValueError('actuator_state arrays differ in length from name')
-                if j < len(status) and status[j] & _PLANT_SIDE_STOP:
-                    ctrl.reset()
                 u = ctrl.update(xs[j], vs[j], fps[j])
             except (NonFiniteInputError, ValueError) as exc:
                 self._latch(i, f'bad state: {exc}')
@@ -262,6 +263,7 @@ class ControllerNode(Node):
             {'state_rate_hz': s.rate_hz, 'period_p50_ms': s.period_p50_ms,
              'period_p99_ms': s.period_p99_ms, 'jitter_p99_ms': s.jitter_p99_ms,
              'missed_deadlines': s.missed, 'states_received': self._states,
+             'stale_dropped_before_start': self._dropped_stale,
              'compute_mean_us': 1e6 * self._compute_sum / max(1, s.cycles),
              'compute_max_us': 1e6 * self._compute_max,
              'faults_latched_total': self._fault_count})]

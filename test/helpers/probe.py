@@ -6,7 +6,8 @@ from typing import Any, Callable, Dict, List, Optional
 
 import rclpy
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
+from rclpy.task import Future
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 
@@ -18,7 +19,8 @@ class Probe:
         self.context = Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node(name, context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
+        # EventsExecutor keeps up with 2 kHz topics; spun in finite chunks (see ros_common)
+        self.executor = EventsExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._lock = threading.Lock()
         self.records: Dict[str, List[Any]] = {}
@@ -29,7 +31,7 @@ class Probe:
     def _spin(self):
         while not self._stop and self.context.ok():
             try:
-                self.executor.spin_once(timeout_sec=0.05)
+                self.executor.spin_until_future_complete(Future(), timeout_sec=0.05)
             except Exception:
                 if self._stop or not self.context.ok():
                     return
