@@ -1,0 +1,184 @@
+"""Speed of the control core: controller update, simulator step, closed loop.
+
+Prints, in one run:
+* samples/s of the simulator alone and of simulator + controller in every mode;
+* mean and p99 time of one controller update in ``dob_full_ff`` (goal <= 10 us)
+  and of one simulator step (goal <= 20 us), each next to a naive numpy
+  implementation of the same computation (per-sample array construction and
+  matrix products) measured in the same run;
+* wall time of a 60 s closed-loop simulation at 2 kHz with ``run_closed_loop``
+  (goal <= 3 s) next to the same loop built from the naive pieces.
+
+Timing figures are printed, never asserted.
+
+Run:  PYTHONPATH=. python bench/core_sim_speed.py
+"""
+
+import math
+import platform
+import sys
+import time
+
+import numpy as np
+
+from seaforce_ros.core import (MODES, ChannelController, ChannelSimulator, ControllerConfig,
+                               DahlParams, PlantParams, position_sine, run_closed_loop)
+from seaforce_ros.core.simulator import discretise
+
+DT = 5e-4
+PLANT = PlantParams.table_i()
+DAHL = DahlParams()
+
+
+class NaiveSimulator:
+    """Baseline: the same exact ZOH plant + Dahl, written the obvious numpy way
+    (state as an array, ``Phi @ z + Gamma @ u`` with a new input array per step)."""
+
+    def __init__(self, plant, dahl, env):
+        self.phi, self.gam = discretise(plant, DT, env.stiffness, env.damping, env.frequency)
+        self.z = np.array([0.0, 0.0, 0.0, 0.0, 0.0, env.amplitude])
+        self.fd = 0.0
+        self.dahl = dahl
+        self.ks, self.bs = plant.hose_stiffness, plant.hose_damping
+        self.rng = np.random.default_rng(0)
+
+    def step(self, torque):
+        u = np.array([torque, -self.fd])
+        z_new = self.phi @ self.z + self.gam @ u
+        dx = z_new[2] - self.z[2]
+        s = np.sign(dx)
+        if s != 0:
+            self.fd = s * self.dahl.coulomb_force + (self.fd - s * self.dahl.coulomb_force) * \
+                np.exp(-self.dahl.sigma * abs(dx) / self.dahl.coulomb_force)
+        self.z = z_new
+        fp = self.ks * (z_new[2] - z_new[0]) + self.bs * (z_new[3] - z_new[1])
+        fp += 5e-4 * self.rng.standard_normal()
+        return np.array([z_new[0], z_new[1], fp])
+
+
+class NaiveController:
+    """Baseline dob_full_ff: the same equations with numpy scalars/arrays per sample."""
+
+    def __init__(self, cfg):
+        p = cfg.plant
+        self.ks, self.bs, self.be, self.ke = (p.hose_stiffness, p.hose_damping,
+                                              p.endpoint_damping, p.endpoint_stiffness)
+        self.lam, self.mn = cfg.dob.cutoff, cfg.dob.nominal_inertia
+        self.a = np.exp(-self.ks / self.bs * DT)
+        self.state = np.zeros(4)            # delta, fp_prev, integ, e_prev
+        self.fd, self.xd = 0.0, 0.0
+        self.dahl = cfg.dahl
+
+    def update(self, x, v, fp):
+        st = self.state
+        delta = self.a * st[0] + (1 - self.a) * np.mean(np.array([st[1], fp])) / self.ks
+        xe = x + delta
+        ve = v + (fp - self.ks * delta) / self.bs
+        dx = xe - self.xd
+        s = np.sign(dx)
+        fc = self.dahl.coulomb_force
+        self.fd = s * fc + (self.fd - s * fc) * np.exp(-self.dahl.sigma * abs(dx) / fc)
+        self.xd = xe
+        fref = np.dot(np.array([self.be, self.ke, 1.0]), np.array([ve, xe, self.fd]))
+        e = fref + fp
+        integ = st[2] + 0.5 * self.lam * DT * (e + st[3])
+        u = fref + integ - self.lam * self.mn * v
+        self.state = np.array([delta, fp, integ, e])
+        return float(np.clip(u, -5.0, 5.0))
+
+
+def timed_calls(fn, args_iter, n):
+    times = np.empty(n)
+    clock = time.perf_counter_ns
+    for i in range(n):
+        a = args_iter(i)
+        t0 = clock()
+        fn(*a)
+        times[i] = clock() - t0
+    return times * 1e-3      # us
+
+
+def fmt(times):
+    return f"mean {np.mean(times):6.2f} us   p99 {np.percentile(times, 99):6.2f} us"
+
+
+def main():
+    print(f"Python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}")
+    env = position_sine(0.5, 1.0)
+    n = 40000
+
+    # --- throughput --------------------------------------------------------------
+    def plant_alone():
+        sim = ChannelSimulator(PLANT, DAHL, environment=env)
+        step = sim.step
+        t0 = time.perf_counter()
+        for i in range(n):
+            step(0.0)
+        return n / (time.perf_counter() - t0)
+
+    def with_controller(mode):
+        sim = ChannelSimulator(PLANT, DAHL, environment=env)
+        ctl = ChannelController(ControllerConfig(mode=mode))
+        m = sim.measurement()
+        update, step = ctl.update, sim.step
+        t0 = time.perf_counter()
+        for _ in range(n):
+            m = step(update(m.x, m.v, m.f_p))
+        return n / (time.perf_counter() - t0)
+
+    # best of 3 runs of 20 s simulated time each (the machine may be shared)
+    plant_rate = max(plant_alone() for _ in range(3))
+    print(f"\nthroughput, best of 3 x {n} samples")
+    print(f"simulator alone (position drive, Dahl, sensors): {plant_rate:8.0f} samples/s"
+          f"  ({1e6 / plant_rate:5.1f} us/sample)")
+    print("simulator + controller, plain loop (no recording):")
+    for mode in MODES:
+        rate = max(with_controller(mode) for _ in range(3))
+        print(f"  {mode:15s} {rate:8.0f} samples/s  ({1e6 / rate:5.1f} us/sample)")
+
+    # --- per-call timing: controller update ----------------------------------------
+    cfg = ControllerConfig(mode="dob_full_ff")
+    sim = ChannelSimulator(PLANT, DAHL, environment=env)
+    rec = run_closed_loop(sim, ChannelController(cfg), n)
+    xs, vs, fps = rec["x"].tolist(), rec["v"].tolist(), rec["f_p"].tolist()
+    ctl = ChannelController(cfg)
+    t_ctl = timed_calls(ctl.update, lambda i: (xs[i], vs[i], fps[i]), n)
+    naive = NaiveController(cfg)
+    t_ctl_naive = timed_calls(naive.update, lambda i: (xs[i], vs[i], fps[i]), n)
+    print("\none controller update, dob_full_ff (goal <= 10 us):")
+    print(f"  ChannelController.update      {fmt(t_ctl)}")
+    print(f"  naive numpy baseline          {fmt(t_ctl_naive)}")
+
+    # --- per-call timing: simulator step --------------------------------------------
+    us = rec["u"].tolist()
+    sim = ChannelSimulator(PLANT, DAHL, environment=env)
+    t_sim = timed_calls(sim.step, lambda i: (us[i],), n)
+    nsim = NaiveSimulator(PLANT, DAHL, env)
+    t_sim_naive = timed_calls(nsim.step, lambda i: (us[i],), n)
+    print("\none simulator step (goal <= 20 us):")
+    print(f"  ChannelSimulator.step         {fmt(t_sim)}")
+    print(f"  naive numpy baseline          {fmt(t_sim_naive)}")
+
+    # --- 60 s closed loop -------------------------------------------------------------
+    n60 = int(round(60.0 / DT))
+    sim = ChannelSimulator(PLANT, DAHL, environment=env)
+    t0 = time.perf_counter()
+    run_closed_loop(sim, ChannelController(cfg), n60)
+    wall = time.perf_counter() - t0
+    nsim, nctl = NaiveSimulator(PLANT, DAHL, env), NaiveController(cfg)
+    t0 = time.perf_counter()
+    y = np.zeros(3)
+    log = np.zeros((n60, 4))
+    for i in range(n60):
+        u = nctl.update(y[0], y[1], y[2])
+        y = nsim.step(u)
+        log[i] = (y[0], y[1], y[2], u)
+    wall_naive = time.perf_counter() - t0
+    print("\n60 s closed-loop simulation at 2 kHz, dob_full_ff, recording (goal <= 3 s):")
+    print(f"  run_closed_loop               {wall:6.2f} s  ({60.0 / wall:5.1f}x real time)")
+    print(f"  naive numpy baseline          {wall_naive:6.2f} s  ({60.0 / wall_naive:5.1f}x real time)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
