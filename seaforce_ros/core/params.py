@@ -247,8 +247,8 @@ _OTHER_KEYS = {
     "dob.nominal_inertia": "m_n, DOB nominal inertia [N m s^2/rad], >= m - b/lambda (eq. 28)",
     "dob.nominal_damping": "b_n, DOB nominal damping [N m s/rad], > -k/lambda",
     "dob.nominal_stiffness": "k_n, DOB nominal stiffness [N m/rad], 0..k + lambda b_n (eq. 28)",
-    "target.stiffness": "rendered endpoint stiffness in impedance mode [N m/rad], >= 0",
-    "target.damping": "rendered endpoint damping in impedance mode [N m s/rad], >= 0",
+    "target.stiffness": "rendered endpoint stiffness in impedance mode [N m/rad], 0..k_s",
+    "target.damping": "rendered endpoint damping in impedance mode [N m s/rad], 0..10 b_s",
     "hold.stiffness": "hold-mode PD stiffness K_p on the motor position [N m/rad], >= 0",
     "hold.damping": "hold-mode PD damping K_d on the motor velocity [N m s/rad], >= 0",
     "force_feedback.gain": "K_f of F_a = K_f F_p (eq. 20) [dimensionless], -1..1 unless allow_non_passive",
@@ -305,7 +305,8 @@ class ControllerConfig:
     force_feedback_gain : float
         K_f of ``force_feedback`` (eq. 20), passive for -1 <= K_f <= 1.
     target_stiffness, target_damping : float >= 0
-        Endpoint stiffness [N m/rad] / damping [N m s/rad] of ``impedance`` mode.
+        Endpoint stiffness [N m/rad] / damping [N m s/rad] of ``impedance``
+        mode; at most k_s and 10 b_s unless ``allow_non_passive``.
     chirp_amplitude : float >= 0
         [N m].
     chirp_start_frequency, chirp_end_frequency : float > 0
@@ -373,6 +374,22 @@ class ControllerConfig:
                                         "a bool")
         if not self.allow_non_passive:
             check_dob_passivity(self.plant, self.dob)
+            # impedance mode: ranges verified stable in simulation (Table I,
+            # endpoint free and driven); the free endpoint went unstable at
+            # K_t ~ 2 k_s and at B_t ~ 25 b_s (V_e_hat amplifies the pressure
+            # noise and the hose dynamics by B_t/b_s)
+            hint = "set allow_non_passive to true to override"
+            if self.target_stiffness > self.plant.hose_stiffness:
+                raise InvalidParameterError(
+                    "target.stiffness", self.target_stiffness,
+                    f"<= k_s = {self.plant.hose_stiffness:.6g} N m/rad (the hose "
+                    "stiffness; stiffer targets destabilise a free endpoint)", hint)
+            b_max = 10.0 * self.plant.hose_damping
+            if self.target_damping > b_max:
+                raise InvalidParameterError(
+                    "target.damping", self.target_damping,
+                    f"<= 10 b_s = {b_max:.6g} N m s/rad (the velocity estimate "
+                    "amplifies pressure noise by 1/b_s)", hint)
             if not -1.0 <= self.force_feedback_gain <= 1.0:
                 raise NonPassiveError("force_feedback.gain", self.force_feedback_gain,
                                       "-1 <= K_f <= 1 (Section III-A, internal force "

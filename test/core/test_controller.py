@@ -202,3 +202,13 @@ def test_chirp_mode_output():
     # frequency rises: more zero crossings in the second second than in the first
     zc = lambda x: np.count_nonzero(np.diff(np.sign(x)) != 0)
     assert zc(u[2000:4000]) > 5 * zc(u[:2000])
+
+
+def test_impedance_mode_at_its_limits_is_stable_with_free_endpoint():
+    from seaforce_ros.core import free
+    cfg = ControllerConfig(mode="impedance", target_stiffness=TABLE_I.hose_stiffness,
+                           target_damping=10 * TABLE_I.hose_damping, max_torque=100.0)
+    sim = ChannelSimulator(TABLE_I, DahlParams(), environment=free())
+    rec = run_closed_loop(sim, ChannelController(cfg), 12000)
+    assert np.max(np.abs(rec["u"][-4000:])) < 0.1       # noise-level, not diverging
+    assert np.max(np.abs(rec["x_true"][-4000:])) < 1e-3

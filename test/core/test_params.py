@@ -141,3 +141,16 @@ def test_from_dict_overrides_base_and_strips_channel_prefix():
 def test_every_key_has_a_description_with_range_or_units():
     for key, text in PARAMETER_DESCRIPTIONS.items():
         assert text and ("[" in text or "one of" in text or "bool" in text), key
+
+
+def test_impedance_target_limits():
+    ks, bs = TABLE_I.hose_stiffness, TABLE_I.hose_damping
+    assert ControllerConfig(mode="impedance", target_stiffness=ks, target_damping=10 * bs)
+    with pytest.raises(InvalidParameterError) as info:
+        ControllerConfig(mode="impedance", target_stiffness=1.5 * ks)
+    assert info.value.name == "target.stiffness" and "13.0782" in info.value.bound
+    assert "allow_non_passive" in str(info.value)
+    with pytest.raises(InvalidParameterError, match="target.damping"):
+        ControllerConfig(mode="impedance", target_damping=11 * bs)
+    assert ControllerConfig(mode="impedance", target_stiffness=1.5 * ks,
+                            allow_non_passive=True).target_stiffness == 1.5 * ks
