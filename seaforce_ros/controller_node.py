@@ -33,7 +33,7 @@ from . import param_specs as ps
 from .core.controller import ChannelController
 from .core.errors import NonFiniteInputError, SeaforceError
 from .core.params import ControllerConfig
-from .ros_common import (CONTROL_QOS, CONTROL_SUB_QOS, STATUS_QOS, ParamSpec, StartupError, declare,
+from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec, declare,
                          diagnostic_status, diagnostics_publisher, publish_diagnostics, run)
 from .timing import LoopStats
 
@@ -42,6 +42,7 @@ def node_specs():
     return [
         ps.channels_spec(),
         ps.executor_spec('events'),
+        control_qos_spec(),
         ParamSpec('rate', 2000.0, 'control rate the sample period is derived from [Hz]; '
                   'must equal the rate of the state source', low=1.0, high=20000.0,
                   read_only=True),
@@ -101,10 +102,12 @@ class ControllerNode(Node):
         self._status = ControllerStatus()
         self._status.name = list(self.channels)
 
-        self.cmd_pub = self.create_publisher(ActuatorCommand, 'actuator_command', CONTROL_QOS)
+        qos = values['control_qos']
+        self.cmd_pub = self.create_publisher(ActuatorCommand, 'actuator_command', control_qos(qos))
         self.status_pub = self.create_publisher(ControllerStatus, 'controller_status', STATUS_QOS)
         self.diag_pub = diagnostics_publisher(self)
-        self.create_subscription(ActuatorState, 'actuator_state', self._on_state, CONTROL_SUB_QOS)
+        self.create_subscription(ActuatorState, 'actuator_state', self._on_state,
+                                 control_qos(qos, subscriber=True))
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)

@@ -34,6 +34,24 @@ RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
 
+QOS_RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE,
+                   'best_effort': ReliabilityPolicy.BEST_EFFORT}
+
+
+def control_qos(reliability: str = 'reliable', subscriber: bool = False) -> QoSProfile:
+    """CONTROL_QOS / CONTROL_SUB_QOS with the reliability named by a node's ``control_qos``
+    parameter (``reliable`` or ``best_effort``; see bench/control_loop.py for the trade)."""
+    base = CONTROL_SUB_QOS if subscriber else CONTROL_QOS
+    return QoSProfile(history=base.history, depth=base.depth,
+                      reliability=QOS_RELIABILITY[reliability], durability=base.durability)
+
+
+def control_qos_spec():
+    return ParamSpec('control_qos', 'reliable',
+                     'reliability of actuator_state/actuator_command: reliable (required by '
+                     'lockstep) or best_effort', choices=tuple(QOS_RELIABILITY), read_only=True)
+
+
 #: Monitoring topics (controller_status, joint_states): a few samples of slack.
 STATUS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                         reliability=ReliabilityPolicy.RELIABLE,

@@ -20,6 +20,7 @@ takes effect at the start of the next cycle.
 """
 from __future__ import annotations
 
+import array
 import math
 import sys
 import threading
@@ -37,7 +38,7 @@ from .core.errors import SeaforceError
 from .core.params import DahlParams, PlantParams
 from .core.sensors import SensorParams
 from .core.simulator import ChannelSimulator
-from .ros_common import (CONTROL_QOS, CONTROL_SUB_QOS, STATUS_QOS, ParamSpec, StartupError, declare,
+from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec, declare,
                          diagnostic_status, diagnostics_publisher, publish_diagnostics, run)
 from .timing import Deadline, LoopStats
 
@@ -64,6 +65,7 @@ def node_specs():
         ParamSpec('seed', 0, 'seed of the sensor noise generators (channel i uses seed + i)',
                   low=0, high=2**31 - 1, read_only=True),
         ps.executor_spec('events'),
+        control_qos_spec(),
     ]
 
 
@@ -103,6 +105,12 @@ class SimNode(Node):
         self._index_of = None            # cached command name order -> channel index
         self._pending_env = {}           # channel index -> Environment, applied next cycle
         self._timeouts = 0
+        # round trip: publish time of each state (ring by cycle) -> arrival of its command
+        self._sent_at = [0.0] * 4096
+        self._rtt = array.array('d', bytes(8 * 8192))
+        self._rtt_n = 0
+        self._command_cycle = -1
+        self._late_commands = 0          # cycles stepped without the answer to the last state
         self._bad_commands = 0
         self._unknown_names = set()
         self.stats = LoopStats(self.dt)
@@ -112,11 +120,15 @@ class SimNode(Node):
         self._js_msg = JointState()
         self._js_msg.name = [f'{c}_{j}' for c in self.channels for j in ('motor', 'endpoint')]
 
-        self.state_pub = self.create_publisher(ActuatorState, 'actuator_state', CONTROL_QOS)
+        qos = values['control_qos']
+        if self.lockstep and qos != 'reliable':
+            raise StartupError('clock_mode lockstep needs control_qos reliable: a lost command '
+                               'would stall the simulation')
+        self.state_pub = self.create_publisher(ActuatorState, 'actuator_state', control_qos(qos))
         self.js_pub = self.create_publisher(JointState, 'joint_states', STATUS_QOS)
         self.diag_pub = diagnostics_publisher(self)
         self.create_subscription(ActuatorCommand, 'actuator_command', self._on_command,
-                                 CONTROL_SUB_QOS)
+                                 control_qos(qos, subscriber=True))
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self.create_timer(values['diagnostics_period'], self._publish_diagnostics)
@@ -204,8 +216,13 @@ class SimNode(Node):
         efforts = self._command_efforts(msg)
         if efforts is None:
             return
+        now = time.monotonic()
         self._command = efforts
-        self._command_time = time.monotonic()
+        self._command_time = now
+        self._command_cycle = msg.cycle
+        if msg.cycle <= self.cycle and self.cycle - msg.cycle < len(self._sent_at):
+            self._rtt[self._rtt_n % len(self._rtt)] = now - self._sent_at[msg.cycle % len(self._sent_at)]
+            self._rtt_n += 1
         if self.lockstep:
             if msg.cycle != self.cycle:
                 return  # an answer to an older state (e.g. a re-published one)
@@ -278,7 +295,7 @@ class SimNode(Node):
             STATUS_FAULT if self._command_fault else 0)
         msg.status = [base | (STATUS_LIMIT if sim.limited else 0) for sim in self.sims]
         self.state_pub.publish(msg)
-        self._last_publish = time.monotonic()
+        self._last_publish = self._sent_at[cycle % len(self._sent_at)] = time.monotonic()
         if self._js_every and cycle % self._js_every == 0:
             js = self._js_msg
             js.header.stamp = msg.header.stamp
@@ -306,6 +323,8 @@ class SimNode(Node):
                 elif was_timed_out and not timed_out:
                     self.get_logger().info('actuator_command back: torque re-enabled')
                 was_timed_out = timed_out
+                if self._command_cycle != self.cycle:
+                    self._late_commands += 1
                 self._step(zero if timed_out else self._command, timed_out)
         except Exception as exc:  # never die silently: report and stop publishing
             if self._running and self.context.ok():
@@ -327,7 +346,13 @@ class SimNode(Node):
             level, message = DiagnosticStatus.WARN, 'waiting for actuator_command'
         elif not self.lockstep and time.monotonic() - self._command_time > self.command_timeout:
             level, message = DiagnosticStatus.WARN, 'command timeout: zero torque'
+        n = min(self._rtt_n, len(self._rtt))
+        rtt = sorted(self._rtt[:n]) if n else [math.nan]
+        self._rtt_n = 0
         values = {'cycle': self.cycle, 'rate_hz': s.rate_hz, 'period_p50_ms': s.period_p50_ms,
+                  'round_trip_p50_ms': 1e3 * rtt[len(rtt) // 2],
+                  'round_trip_p99_ms': 1e3 * rtt[min(len(rtt) - 1, int(0.99 * len(rtt)))],
+                  'late_commands_total': self._late_commands,
                   'period_p99_ms': s.period_p99_ms, 'jitter_p99_ms': s.jitter_p99_ms,
                   'missed_deadlines': s.missed, 'command_timeouts': self._timeouts,
                   'bad_commands': self._bad_commands,
