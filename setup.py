@@ -9,6 +9,7 @@ PACKAGE = 'seaforce_ros'
 CONSOLE_SCRIPTS = [
     'sim_node = seaforce_ros.sim_node:main',
     'controller_node = seaforce_ros.controller_node:main',
+    'bringup = seaforce_ros.bringup:main',
 ]
 
 setup(

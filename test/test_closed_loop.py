@@ -63,6 +63,36 @@ def test_mode_change_by_parameter_changes_behaviour(processes, tmp_path, probe):
     assert math.isfinite(pinch(st[-1], 'disturbance'))  # the DOB is running
 
 
+def test_environment_changes_at_run_time_and_standard_topics_flow(processes, tmp_path, probe):
+    """The sim's environment is a run-time parameter; joint_states and /diagnostics flow."""
+    from sensor_msgs.msg import JointState
+    start_node(processes, 'sim_node', 'sim', tmp_path)
+    start_node(processes, 'controller_node', 'controller', tmp_path, RELAXED)
+    probe.record(ActuatorState, 'actuator_state')
+    probe.record(JointState, 'joint_states')
+    probe.record(DiagnosticArray, '/diagnostics')
+    probe.wait_messages('actuator_state', 100)
+    assert all(pinch(m, 'external_force') == 0.0 for m in probe.messages('actuator_state'))
+    ok, reason = probe.set_parameters('/sim', {'pinch.environment.mode': 'torque_sine',
+                                               'pinch.environment.amplitude': 0.3,
+                                               'pinch.environment.frequency': 10.0})
+    assert ok, reason
+    moved = probe.wait_messages('actuator_state', 1, where=lambda m: abs(
+        pinch(m, 'external_force')) > 0.1)
+    assert abs(pinch(moved[-1], 'external_force')) <= 0.3
+    # a bad environment value is rejected by the descriptor range / choices
+    ok, reason = probe.set_parameters('/sim', {'pinch.environment.mode': 'earthquake'})
+    assert not ok and 'one of' in reason
+    js = probe.wait_messages('joint_states', 3)[-1]
+    assert list(js.name) == ['wrist_motor', 'wrist_endpoint', 'pinch_motor', 'pinch_endpoint']
+    assert len(js.position) == 4
+    diag = probe.wait_messages('/diagnostics', 1, timeout=5, where=lambda d: any(
+        s.name == 'sim: cycle' for s in d.status))[-1]
+    keys = {kv.key for s in diag.status if s.name == 'sim: cycle' for kv in s.values}
+    assert {'rate_hz', 'period_p99_ms', 'missed_deadlines', 'command_timeouts',
+            'round_trip_p50_ms'} <= keys
+
+
 def test_non_passive_dob_is_rejected_with_reason_and_old_values_stay(processes, tmp_path, probe):
     start_node(processes, 'controller_node', 'controller', tmp_path)
     before = probe.get_parameters('/controller', ['pinch.dob.nominal_inertia', 'pinch.mode'])
