@@ -18,7 +18,6 @@ the ``~/reset`` service (std_srvs/Trigger) clears it.
 """
 from __future__ import annotations
 
-import math
 import sys
 import time
 
@@ -160,6 +159,14 @@ class ControllerNode(Node):
 
     # --- the 2 kHz path ------------------------------------------------------------------
     def _on_state(self, msg):
+        try:
+            self._cycle(msg)
+        except Exception:
+            if self.context.ok():
+                raise
+            # else: shutting down (SIGINT) while a sample was in flight; nothing to do
+
+    def _cycle(self, msg):
         t0 = time.perf_counter()
         self.stats.tick()
         self._states += 1

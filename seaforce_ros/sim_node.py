@@ -213,6 +213,14 @@ class SimNode(Node):
 
     # --- commands ------------------------------------------------------------------------
     def _on_command(self, msg):
+        try:
+            self._command_received(msg)
+        except Exception:
+            if self.context.ok():
+                raise
+            # else: shutting down (SIGINT) while a command was in flight
+
+    def _command_received(self, msg):
         efforts = self._command_efforts(msg)
         if efforts is None:
             return

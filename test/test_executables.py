@@ -5,7 +5,7 @@ import pytest
 
 from helpers.nodes import start_node
 
-NODES = [('sim_node', 'sim'), ('controller_node', 'controller')]
+NODES = [('sim_node', 'sim'), ('controller_node', 'controller'), ('bringup', 'controller')]
 
 
 @pytest.mark.parametrize('executor', ['events', 'single_threaded'])

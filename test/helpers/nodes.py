@@ -1,6 +1,5 @@
 """Start the installed seaforce_ros executables with a parameter file for a test."""
 import pathlib
-import tempfile
 from typing import Any, Dict, Optional
 
 import yaml
