@@ -1,0 +1,188 @@
+"""The EtherCAT master of the hardware node: pysoem (SOEM) driven from a :class:`BusConfig`.
+
+No ROS here. :class:`EthercatBus` brings the bus up (identity check before anything is
+written to a drive), exchanges process data once per cycle, packs/unpacks the configured PDO
+entries, and takes the bus back to INIT. The per-cycle path does no allocation beyond the
+bytes objects pysoem itself returns.
+"""
+from __future__ import annotations
+
+import struct
+import time
+from typing import Dict, List, Tuple
+
+from .bus_config import BusConfig, SlaveConfig
+
+
+class BusError(RuntimeError):
+    """The bus cannot be brought up or has failed; the message says what to check."""
+
+
+class IdentityError(BusError):
+    """A slave on the bus is not the one the configuration expects."""
+
+
+def _hex(value):
+    return 'none' if value is None else f'0x{value:08X}'
+
+
+class EthercatBus:
+    """pysoem master for one bus configuration.
+
+    Parameters
+    ----------
+    config : BusConfig
+    interface : str
+        Network interface the bus is on (needs CAP_NET_RAW and CAP_NET_ADMIN).
+    receive_timeout_us : int
+        How long ``exchange`` waits for the frame to come back [us].
+    """
+
+    def __init__(self, config: BusConfig, interface: str, receive_timeout_us: int = 400):
+        self.config = config
+        self.interface = interface
+        self.receive_timeout_us = int(receive_timeout_us)
+        self.master = None
+        self.expected_wkc = None
+        self._outputs: List[bytearray] = [bytearray(s.outputs.size) for s in config.slaves]
+        self._out_offsets = [s.outputs.offsets() for s in config.slaves]
+        self._in_offsets = [s.inputs.offsets() for s in config.slaves]
+        self._inputs: List[bytes] = [bytes(s.inputs.size) for s in config.slaves]
+
+    # --- bring-up ------------------------------------------------------------------------
+    def open(self) -> None:
+        """Open the interface, find and check every slave, map process data, go to SAFE-OP."""
+        import pysoem
+        self._pysoem = pysoem
+        master = pysoem.Master()
+        try:
+            master.open(self.interface)
+        except Exception as exc:
+            raise BusError(
+                f'cannot open EtherCAT interface {self.interface!r}: {exc}. Check the name '
+                '(ip link) and the capabilities: sudo setcap cap_net_raw,cap_net_admin+ep '
+                '$(readlink -f $(which python3))') from exc
+        self.master = master
+        found = master.config_init()
+        if found <= 0:
+            self.close()
+            raise BusError(f'no EtherCAT slave answered on {self.interface} (config_init '
+                           f'returned {found}); check cabling and power')
+        expected = self.config.slaves
+        if found != len(expected):
+            names = [master.slaves[i].name for i in range(found)]
+            self.close()
+            raise BusError(f'{found} slave(s) on the bus ({", ".join(names)}) but the '
+                           f'configuration lists {len(expected)} '
+                           f'({", ".join(s.name for s in expected)})')
+        for position, want in enumerate(expected):
+            self._check_identity(position, want, master.slaves[position])
+        try:
+            master.config_map()
+        except Exception as exc:
+            self.close()
+            raise BusError(f'process data mapping failed: {exc}') from exc
+        for position, want in enumerate(expected):
+            slave = master.slaves[position]
+            n_out, n_in = len(slave.output), len(slave.input)
+            if n_out != want.outputs.size or n_in != want.inputs.size:
+                self.close()
+                raise BusError(
+                    f'slave {position + 1} ({want.name}) maps {n_out} output / {n_in} input '
+                    f'bytes but the configuration describes {want.outputs.size} / '
+                    f'{want.inputs.size}: fix its outputs/inputs entries')
+        if master.state_check(pysoem.SAFEOP_STATE, 50000) != pysoem.SAFEOP_STATE:
+            master.read_state()
+            states = ', '.join(f'{expected[i].name}: 0x{master.slaves[i].state:02X} '
+                               f'(AL {master.slaves[i].al_status:#06x})'
+                               for i in range(found))
+            self.close()
+            raise BusError(f'slaves did not reach SAFE-OP: {states}')
+        self.expected_wkc = master.expected_wkc
+        try:
+            master.always_release_gil = True
+        except AttributeError:
+            pass
+
+    def _check_identity(self, position: int, want: SlaveConfig, slave) -> None:
+        got = (slave.man, slave.id, slave.rev)
+        mismatch = got[0] != want.vendor_id or got[1] != want.product_code or (
+            want.revision is not None and got[2] != want.revision)
+        if mismatch:
+            self.close()
+            raise IdentityError(
+                f'slave {position + 1} ({want.name}, "{slave.name}") is not the configured '
+                f'device: vendor {_hex(got[0])} product code {_hex(got[1])} revision '
+                f'{_hex(got[2])}, expected vendor {_hex(want.vendor_id)} product code '
+                f'{_hex(want.product_code)} revision {_hex(want.revision)}. No torque was '
+                'commanded; fix the bus YAML or the cabling order.')
+
+    def request_op(self, timeout_s: float = 2.0) -> None:
+        """Request OP while exchanging (zero) process data, as SOEM needs."""
+        pysoem = self._pysoem
+        master = self.master
+        master.state = pysoem.OP_STATE
+        master.write_state()
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            self.exchange()
+            if master.state_check(pysoem.OP_STATE, 1000) == pysoem.OP_STATE:
+                return
+            time.sleep(0.0005)
+        master.read_state()
+        states = ', '.join(f'{s.name}: 0x{master.slaves[i].state:02X}'
+                           for i, s in enumerate(self.config.slaves))
+        raise BusError(f'slaves did not reach OP within {timeout_s} s: {states}')
+
+    # --- cycle ---------------------------------------------------------------------------
+    def set_output(self, slave: int, entry: str, value: int) -> None:
+        offset, fmt = self._out_offsets[slave][entry]
+        struct.pack_into(fmt, self._outputs[slave], offset, value)
+
+    def get_input(self, slave: int, entry: str):
+        offset, fmt = self._in_offsets[slave][entry]
+        return struct.unpack_from(fmt, self._inputs[slave], offset)[0]
+
+    def exchange(self) -> int:
+        """Write outputs, send/receive one process-data frame, read inputs; return the WKC."""
+        master = self.master
+        slaves = master.slaves
+        for i, data in enumerate(self._outputs):
+            if data:
+                slaves[i].output = bytes(data)
+        master.send_processdata()
+        wkc = master.receive_processdata(self.receive_timeout_us)
+        if wkc == self.expected_wkc:
+            for i in range(len(self._inputs)):
+                self._inputs[i] = slaves[i].input
+        return wkc
+
+    def zero_outputs(self) -> None:
+        for data in self._outputs:
+            data[:] = bytes(len(data))
+
+    # --- shut-down -----------------------------------------------------------------------
+    def to_init(self) -> bool:
+        """Request INIT on every slave; True when they report it."""
+        if self.master is None:
+            return False
+        pysoem = self._pysoem
+        try:
+            self.master.state = pysoem.INIT_STATE
+            self.master.write_state()
+            return self.master.state_check(pysoem.INIT_STATE, 50000) == pysoem.INIT_STATE
+        except Exception:
+            return False
+
+    def close(self) -> None:
+        if self.master is not None:
+            try:
+                self.master.close()
+            finally:
+                self.master = None
+
+    def slave_states(self) -> Dict[str, Tuple[int, int]]:
+        """name -> (AL state, AL status code), read from the bus."""
+        self.master.read_state()
+        return {s.name: (self.master.slaves[i].state, self.master.slaves[i].al_status)
+                for i, s in enumerate(self.config.slaves)}
