@@ -1,0 +1,34 @@
+"""``python -m ethercat.emulator --interface IF --control SOCKET [--config FILE]``
+
+Runs the EtherCAT slave emulator on ``IF`` (normally the slave end of a veth pair inside
+a network namespace) with the control side channel on the UNIX socket ``SOCKET``.
+Without ``--config`` the default bus (wrist drive, pinch drive, pressure terminal) is
+used.  Run from ``test/`` on PYTHONPATH (the harness does this).
+"""
+
+import argparse
+import sys
+
+from . import config as cfg
+from .server import serve
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog="python -m ethercat.emulator", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--interface", required=True, help="network interface to serve")
+    parser.add_argument("--control", required=True, help="path of the control UNIX socket")
+    parser.add_argument("--config", help="JSON (.json) or YAML bus configuration")
+    args = parser.parse_args(argv)
+    try:
+        config = cfg.load(args.config) if args.config else cfg.default_config()
+        bus = cfg.build(config)
+    except (OSError, ValueError) as exc:
+        print("emulator: bad configuration: %s" % exc, file=sys.stderr, flush=True)
+        return 2
+    serve(bus, args.interface, args.control)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
