@@ -10,6 +10,7 @@ CONSOLE_SCRIPTS = [
     'sim_node = seaforce_ros.sim_node:main',
     'controller_node = seaforce_ros.controller_node:main',
     'bringup = seaforce_ros.bringup:main',
+    'hardware_node = seaforce_ros.hardware_node:main',
 ]
 
 setup(
