@@ -1,0 +1,269 @@
+"""Plant identification from a chirp record (paper Section II-C, Fig. 4, Table I).
+
+Which experiment identifies what
+--------------------------------
+* ``external`` excitation (the paper's bonded finger, the sim's ``torque_chirp``; motor off,
+  F_a = 0): F_e drives the endpoint, the hose drives the motor. All four plants of Fig. 4 are
+  measurable: A = X/(F_p + F_a) -> m, b, k; B = X_e/(F_e - F_p) -> m_e, b_e, k_e;
+  C = F_p/(X_e - X) -> b_s, k_s; D = X_e/F_e (the 2-zero/4-pole model; its 7 free
+  coefficients alone cannot give 8 parameters, so D is the cross-check of A-C).
+* ``motor`` excitation (the controller's ``chirp`` mode, endpoint free, F_e = 0): A, B and C are
+  measurable (B's input is -F_p), D is not (no external force).
+
+The reference of every cross-spectrum is the excitation (F_e or F_a), see
+:mod:`.spectral`. The endpoint plant is fitted with the Dahl hysteresis removed
+(:func:`.fit.fit_endpoint_with_dahl`); the raw B and D (hysteresis lumped in, what the
+paper's linear fit saw) are kept for the plots and the 2-zero/4-pole fit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional
+
+import numpy as np
+
+from ..core.params import PlantParams
+from ..core.plant import PlantModel
+from ..core.analysis import frequency_response
+from .errors import IdentificationError
+from .fit import (ParameterFit, RationalFit, fit_endpoint_with_dahl, fit_hose,
+                  fit_mass_spring_damper, fit_rational)
+from .dahl_model import dahl_force
+from .spectral import BlackmanTukey, FrequencyResponse
+
+__all__ = ["PlantIdentification", "identify_plant", "PARAMETERS", "required_fields"]
+
+#: key -> (symbol, unit, plant letter)
+PARAMETERS = {
+    "motor_inertia": ("m", "N m s^2/rad", "A"),
+    "motor_damping": ("b", "N m s/rad", "A"),
+    "motor_stiffness": ("k", "N m/rad", "A"),
+    "endpoint_inertia": ("m_e", "N m s^2/rad", "B"),
+    "endpoint_damping": ("b_e", "N m s/rad", "B"),
+    "endpoint_stiffness": ("k_e", "N m/rad", "B"),
+    "hose_damping": ("b_s", "N m s/rad", "C"),
+    "hose_stiffness": ("k_s", "N m/rad", "C"),
+}
+
+#: prewhitening (backward differences) of position signals per band, see spectral.py
+POSITION_ORDERS = ((0, 5.0), (1, 60.0), (2, math.inf))
+#: relative power (of omega S_rr, flat for a log chirp) below which there is no excitation
+MIN_RELATIVE_POWER = 1e-3
+
+
+def required_fields(excitation):
+    return ("x", "f_p", "x_e", "f_e") if excitation == "external" else ("x", "f_p", "x_e", "f_a")
+
+
+@dataclass
+class PlantIdentification:
+    """Everything :func:`identify_plant` found (see the attributes)."""
+
+    params: PlantParams
+    sigma: Dict[str, float]
+    fit_error: Dict[str, float]
+    fits: Dict[str, ParameterFit]
+    responses: Dict[str, FrequencyResponse]
+    rational: Optional[RationalFit]
+    excitation: str
+    band: tuple
+    dahl: Dict[str, float]
+    omega: np.ndarray
+    excited_band: tuple
+    notes: List[str] = field(default_factory=list)
+
+    def model_responses(self):
+        """Identified linear model on the grid, per plant letter (A-D)."""
+        m = PlantModel(self.params)
+        p = self.params
+        w = self.omega
+        return {"A": frequency_response(m.motor_plant(), w),
+                "B": frequency_response(m.endpoint_plant(), w),
+                "C": p.hose_stiffness + 1j * w * p.hose_damping,
+                "D": frequency_response(m.endpoint_system(), w)}
+
+    def rows(self, truth=None):
+        """Table rows: (key, symbol, unit, value, sigma, fit error, plant[, truth, error %])."""
+        out = []
+        for key, (sym, unit, plant) in PARAMETERS.items():
+            row = [key, sym, unit, getattr(self.params, key), self.sigma[key],
+                   self.fit_error[plant], plant]
+            if truth is not None:
+                t = getattr(truth, key)
+                row += [t, 100.0 * (row[3] / t - 1.0)]
+            out.append(tuple(row))
+        return out
+
+
+def _excitation(series, excitation):
+    s = series.signals
+    if excitation == "auto":
+        fe = np.std(s["f_e"]) if "f_e" in s else 0.0
+        fa = np.std(s["f_a"]) if "f_a" in s else 0.0
+        if fe == 0.0 and fa == 0.0:
+            raise IdentificationError(
+                "too little frequency content: neither the external force nor the motor "
+                "effort varies (record a torque chirp: the sim's torque_chirp environment or "
+                "the controller's chirp mode)")
+        excitation = "external" if fe >= fa else "motor"
+    if excitation not in ("external", "motor"):
+        raise IdentificationError(f"excitation must be auto, external or motor, not "
+                                  f"{excitation!r}")
+    return excitation
+
+
+def identify_plant(series, band=(0.5, 400.0), rational_band=(0.5, 400.0), excitation="auto",
+                   external_force_delay=0.5, motor_effort_delay=-0.5, periods=20.0,
+                   n_freq=80, dahl=True, progress=None):
+    """Identify the eight linear parameters from a chirp :class:`~.timeseries.Series`.
+
+    Parameters
+    ----------
+    series : Series
+        Needs x, f_p, x_e and the excitation (f_e or f_a).
+    band : (lo, hi) [rad/s]
+        Band of the plant fits A-C.
+    rational_band : (lo, hi) [rad/s]
+        Band of the 2-zero/4-pole fit of D (paper: 0-400 rad/s).
+    excitation : 'auto', 'external' or 'motor'
+    external_force_delay, motor_effort_delay : float
+        Delay [samples] of the recorded F_e and F_a relative to the force that acted (0.5:
+        held over the next interval -- the sim's environment torque; -0.5: the recorded
+        motor effort was applied during the previous interval).
+    periods : float
+        Blackman-Tukey resolution (periods per lag window).
+    dahl : bool
+        Fit the endpoint with Dahl hysteresis (else purely linear, like the paper).
+    progress : callable(str, float), optional
+    """
+    def report(msg, frac):
+        if progress is not None:
+            progress(msg, frac)
+
+    lo, hi = band
+    if not (0 < lo < hi):
+        raise IdentificationError(f"band must satisfy 0 < lo < hi, got {lo:g}-{hi:g} rad/s")
+    excitation = _excitation(series, excitation)
+    s = series.signals
+    dt = series.dt
+    nyq = math.pi / dt
+    top = max(hi, rational_band[1])
+    if top >= 0.9 * nyq:
+        raise IdentificationError(f"band up to {top:g} rad/s is above 0.9x the Nyquist "
+                                  f"frequency {nyq:.0f} rad/s of this record")
+    need_t = 2.0 * 2.0 * math.pi / min(lo, rational_band[0])
+    if series.duration < need_t:
+        raise IdentificationError(
+            f"too little data: {series.duration:.1f} s recorded, the band starting at "
+            f"{min(lo, rational_band[0]):g} rad/s needs at least {need_t:.0f} s (two periods);"
+            " record longer or raise the band's lower edge with --band")
+    w_lo = min(lo, rational_band[0])
+    w_hi = max(hi, rational_band[1])
+    omega = np.logspace(math.log10(w_lo), math.log10(w_hi), n_freq)
+    if excitation == "external":
+        ref, ref_delay = s["f_e"], external_force_delay
+    else:
+        ref, ref_delay = s["f_a"], motor_effort_delay
+    report("Blackman-Tukey spectra", 0.05)
+    bt = BlackmanTukey(ref, dt, omega, periods=periods, reference_delay=ref_delay)
+    # excitation content over the band
+    wide = np.logspace(math.log10(w_lo / 10), math.log10(min(0.9 * nyq, w_hi * 10)), 200)
+    bt_wide = BlackmanTukey(ref, dt, wide, periods=periods, reference_delay=ref_delay)
+    power = wide * bt_wide.reference_spectrum
+    excited = wide[power >= MIN_RELATIVE_POWER * power.max()]
+    ex_lo, ex_hi = float(excited.min()), float(excited.max())
+    if ex_lo > w_lo * 1.05 or ex_hi < w_hi / 1.05:
+        raise IdentificationError(
+            f"too little frequency content for the band {w_lo:g}-{w_hi:g} rad/s: the "
+            f"{excitation} excitation covers about {ex_lo:.3g}-{ex_hi:.3g} rad/s. Record a "
+            "chirp that spans the band (e.g. 0.01-1000 Hz) or narrow it with --band")
+    zero = np.zeros(series.n)
+    f_a = s.get("f_a", zero)
+    f_e = s.get("f_e", zero) if excitation == "external" else zero
+    sx = bt.signal("x", s["x"], orders=POSITION_ORDERS)
+    sxe = bt.signal("x_e", s["x_e"], orders=POSITION_ORDERS)
+    sfp = bt.signal("f_p", s["f_p"])
+    sfa = bt.signal("f_a", f_a, delay=motor_effort_delay) if excitation == "motor" else None
+    sfe = bt.signal("f_e", f_e, delay=external_force_delay) if excitation == "external" \
+        else None
+    shose = bt.signal("hose", s["x_e"] - s["x"], orders=POSITION_ORDERS)
+    report("frequency responses", 0.2)
+    # A: X / (F_p + F_a)
+    if sfa is not None:
+        motor_in = (sfp[0] + sfa[0], bt.auto(s["f_p"] + f_a))
+    else:
+        motor_in = sfp
+    # B: X_e / (F_e - F_p)
+    if sfe is not None:
+        end_in = (sfe[0] - sfp[0], bt.auto(f_e - s["f_p"]))
+    else:
+        end_in = (-sfp[0], sfp[1])
+    responses = {
+        "A": bt.response(sx, motor_in, "X/F_p"),
+        "B": bt.response(sxe, end_in, "X_e/(F_e-F_p)"),
+        "C": bt.response(sfp, shose, "F_p/(X_e-X)"),
+    }
+    if sfe is not None:
+        responses["D"] = bt.response(sxe, sfe, "X_e/F_e")
+    fits = {}
+    notes = []
+    report("fitting the motor plant (A) and the hose (C)", 0.3)
+    fits["A"] = fit_mass_spring_damper(responses["A"], lo, hi,
+                                       ("motor_inertia", "motor_damping", "motor_stiffness"))
+    fits["C"] = fit_hose(responses["C"], lo, hi)
+    report("fitting the endpoint plant (B) with Dahl hysteresis", 0.35)
+    if dahl:
+        def sub(msg, frac):
+            report(msg, 0.35 + 0.5 * frac)
+        fb = fit_endpoint_with_dahl(bt, sxe[0], end_in[0], s["x_e"], lo, hi,
+                                    responses["B"].rel_sigma, progress=sub)
+    else:
+        fb = fit_mass_spring_damper(responses["B"], lo, hi,
+                                    ("endpoint_inertia", "endpoint_damping",
+                                     "endpoint_stiffness"))
+        fb.extra.update(sigma=0.0, coulomb_force=0.0)
+    fits["B"] = fb
+    dahl_info = {k: fb.extra.get(k, 0.0) for k in ("sigma", "coulomb_force", "sigma_1s",
+                                                    "coulomb_force_1s")}
+    if dahl_info["sigma"] > 0:
+        fd = dahl_force(s["x_e"], dahl_info["sigma"], dahl_info["coulomb_force"])
+        sfd = bt.cross(fd, delay=0.5)
+        responses["B_corrected"] = FrequencyResponse(
+            omega, sxe[0] / (end_in[0] - sfd), responses["B"].rel_sigma,
+            "X_e/(F_e-F_p-F_d)")
+        if sfe is not None:
+            responses["D_corrected"] = FrequencyResponse(
+                omega, sxe[0] / (sfe[0] - sfd), responses["D"].rel_sigma, "X_e/(F_e-F_d)")
+    values = {}
+    sigma = {}
+    for letter in ("A", "B", "C"):
+        f = fits[letter]
+        for name, v, sg in zip(f.names, f.values, f.sigma):
+            values[name] = float(v)
+            sigma[name] = float(sg)
+    bad = [k for k, v in values.items() if not (math.isfinite(v) and v > 0)]
+    for k in bad:
+        notes.append(f"{k} fitted as {values[k]:.4g} (not positive; clipped to 0): not "
+                     "identifiable from this record")
+        values[k] = max(values[k], 0.0) if math.isfinite(values[k]) else 0.0
+    if values["motor_inertia"] <= 0 or values["endpoint_inertia"] <= 0:
+        raise IdentificationError("the fit gave a non-positive inertia: the record does not "
+                                  "excite the band well enough (check the chirp and --band)")
+    params = PlantParams(**values)
+    rational = None
+    if "D" in responses:
+        report("2-zero/4-pole fit of X_e/F_e", 0.9)
+        rlo, rhi = rational_band
+        rational = fit_rational(responses["D"], rlo, rhi)
+    fit_err = {k: fits[k].fit_error for k in fits}
+    if "D" in responses:
+        model_d = frequency_response(PlantModel(params).endpoint_system(), omega)
+        key = "D_corrected" if "D_corrected" in responses else "D"
+        sel = (omega >= rational_band[0]) & (omega <= rational_band[1])
+        h = responses[key].h[sel]
+        fit_err["D"] = float(np.sqrt(np.mean(np.abs(model_d[sel] - h) ** 2 / np.abs(h) ** 2)))
+    report("done", 1.0)
+    return PlantIdentification(params, sigma, fit_err, fits, responses, rational, excitation,
+                               (lo, hi), dahl_info, omega, (ex_lo, ex_hi), notes)
