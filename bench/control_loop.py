@@ -30,6 +30,7 @@ import threading
 import time
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
 LIB = ROOT / 'install' / 'seaforce_ros' / 'lib' / 'seaforce_ros'
 CONFIG = ROOT / 'config' / 'gripper.yaml'
 
@@ -53,26 +54,13 @@ def cpu_seconds(pid):
 
 class DiagnosticsListener:
     def __init__(self):
-        import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
-        from rclpy.context import Context
-        from rclpy.experimental import EventsExecutor
-        self.context = Context()
-        rclpy.init(context=self.context)
-        self.node = rclpy.create_node('bench_control_loop', context=self.context)
-        self.executor = EventsExecutor(context=self.context)
-        self.executor.add_node(self.node)
+        from seaforce_ros.ros_common import BackgroundNode
+        self.background = BackgroundNode('bench_control_loop')
         self.lock = threading.Lock()
         self.items = []
-        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 50)
-        self.stop = False
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self):
-        from rclpy.task import Future
-        while not self.stop and self.context.ok():
-            self.executor.spin_until_future_complete(Future(), timeout_sec=0.1)
+        self.background.node.create_subscription(DiagnosticArray, '/diagnostics',
+                                                 self._on_diag, 50)
 
     def _on_diag(self, msg):
         now = time.monotonic()
@@ -85,11 +73,7 @@ class DiagnosticsListener:
             return [v for t, n, v in self.items if n == name and t0 <= t < t1]
 
     def close(self):
-        import rclpy
-        self.stop = True
-        self.thread.join(timeout=2)
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
+        self.background.close()
 
 
 def run_variant(layout, executor, qos, seconds, workdir):

@@ -61,11 +61,7 @@ class ControllerNode(Node):
     def __init__(self, **kwargs):
         super().__init__('controller', **kwargs)
         values = declare(self, node_specs())
-        self.channels = list(values['channels'])
-        try:
-            ps.check_channels(self.channels)
-        except ValueError as exc:
-            raise StartupError(str(exc)) from exc
+        self.channels = ps.channels_from(values)
         self._specs = {}
         self.controllers = []
         self.configs = []                # newest accepted config per channel

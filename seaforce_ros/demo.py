@@ -83,38 +83,19 @@ class Observer:
     """In-process ROS node: records actuator_state/controller_status, sets parameters."""
 
     def __init__(self):
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.experimental import EventsExecutor
         from seaforce_msgs.msg import ActuatorState, ControllerStatus
 
-        from .ros_common import RECORD_QOS, STATUS_QOS
+        from .ros_common import RECORD_QOS, STATUS_QOS, BackgroundNode
 
-        self.context = Context()
-        rclpy.init(context=self.context)
-        self.node = rclpy.create_node('seaforce_demo', context=self.context)
-        self.executor = EventsExecutor(context=self.context)
-        self.executor.add_node(self.node)
+        self.background = BackgroundNode('seaforce_demo')
+        self.node = self.background.node
         self.lock = threading.Lock()
         self.states = []
         self.modes: Dict[int, str] = {}
+        self.param_client = None
         self.node.create_subscription(ActuatorState, 'actuator_state', self._on_state, RECORD_QOS)
         self.node.create_subscription(ControllerStatus, 'controller_status', self._on_status,
                                       STATUS_QOS)
-        self.param_client = None
-        self._stop = False
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self):
-        from rclpy.task import Future
-        while not self._stop and self.context.ok():
-            try:
-                self.executor.spin_until_future_complete(Future(), timeout_sec=0.1)
-            except Exception:
-                if self._stop or not self.context.ok():
-                    return
-                raise
 
     def _on_state(self, msg):
         i = list(msg.name).index(CHANNEL)
@@ -168,11 +149,7 @@ class Observer:
         return out
 
     def close(self):
-        import rclpy
-        self._stop = True
-        self.thread.join(timeout=2.0)
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
+        self.background.close()
 
 
 def measure(window, omega, amplitude):

@@ -29,7 +29,6 @@ import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
-from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from seaforce_msgs.msg import ActuatorCommand, ActuatorState
@@ -124,9 +123,8 @@ class HardwareNode(Node):
     def __init__(self, **kwargs):
         super().__init__('hardware', **kwargs)
         values = declare(self, node_specs())
-        self.channels = list(values['channels'])
+        self.channels = ps.channels_from(values)
         try:
-            ps.check_channels(self.channels)
             self.bus_config = BusConfig.load(values['bus_config'])
             channel_cfgs = [self.bus_config.channel(c) for c in self.channels]
         except (ValueError, BusConfigError) as exc:

@@ -8,12 +8,12 @@ rules (DOB passivity, eq. 28) are checked by the core in the nodes' on-set callb
 from __future__ import annotations
 
 import math
-from typing import Dict, List, Sequence
+from typing import Dict, List
 
 from .core.environment import DRIVE_DAMPING, DRIVE_STIFFNESS, ENVIRONMENT_MODES
 from .core.params import MODES, PARAMETER_DESCRIPTIONS, ControllerConfig, PlantParams
 from .core.sensors import SensorParams
-from .ros_common import EXECUTORS, ParamSpec
+from .ros_common import EXECUTORS, ParamSpec, StartupError
 
 BIG = 1e9
 
@@ -123,16 +123,21 @@ def channel_values(values: Dict[str, object], channel: str, prefix: str = '') ->
     return {k[len(channel) + 1:]: v for k, v in values.items() if k.startswith(head)}
 
 
-def check_channels(channels: Sequence[str]) -> None:
-    """Channel names must be unique, non-empty ROS-name-safe tokens."""
+def channels_from(values: Dict[str, object]) -> List[str]:
+    """The validated ``channels`` parameter: unique, non-empty ROS-name-safe tokens.
+
+    Raises :class:`~seaforce_ros.ros_common.StartupError` saying what to write instead.
+    """
+    channels = list(values['channels'])
     if not channels:
-        raise ValueError('channels is empty: name at least one channel, e.g. [wrist, pinch]')
+        raise StartupError('channels is empty: name at least one channel, e.g. [wrist, pinch]')
     for name in channels:
         if not name or not name.replace('_', 'a').isalnum() or name[0].isdigit():
-            raise ValueError(f'channel name {name!r} must be letters, digits and _, '
-                             'not starting with a digit')
+            raise StartupError(f'channel name {name!r} must be letters, digits and _, '
+                               'not starting with a digit')
     if len(set(channels)) != len(channels):
-        raise ValueError(f'channel names must be unique: {list(channels)}')
+        raise StartupError(f'channel names must be unique: {channels}')
+    return channels
 
 
 def is_finite_number(value) -> bool:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import sys
+import threading
 from dataclasses import dataclass
 from typing import Any, Callable, Dict, Iterable, Optional, Sequence, Tuple
 
@@ -216,3 +217,41 @@ def run(node_factory: Callable[..., Any], args=None, executor_param: str = 'exec
 
 class StartupError(RuntimeError):
     """A node cannot start with the configuration it was given (message says what to fix)."""
+
+
+class BackgroundNode:
+    """A node on its own Context, spun by an EventsExecutor in a daemon thread.
+
+    For tools, benchmarks and tests that watch the ROS graph while doing other work. The
+    executor is spun in finite chunks (see :func:`spin_forever`); :meth:`close` stops the thread
+    and shuts the context down.
+    """
+
+    def __init__(self, name: str):
+        from rclpy.context import Context
+        from rclpy.experimental import EventsExecutor
+
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = EventsExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._stop = False
+        self._thread = threading.Thread(target=self._spin, name=f'{name}_spin', daemon=True)
+        self._thread.start()
+
+    def _spin(self):
+        from rclpy.task import Future
+        while not self._stop and self.context.ok():
+            try:
+                self.executor.spin_until_future_complete(Future(), timeout_sec=0.05)
+            except Exception:
+                if self._stop or not self.context.ok():
+                    return
+                raise
+
+    def close(self) -> None:
+        self._stop = True
+        self._thread.join(timeout=2.0)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)

@@ -75,11 +75,7 @@ class SimNode(Node):
     def __init__(self, **kwargs):
         super().__init__('sim', **kwargs)
         values = declare(self, node_specs())
-        self.channels = list(values['channels'])
-        try:
-            ps.check_channels(self.channels)
-        except ValueError as exc:
-            raise StartupError(str(exc)) from exc
+        self.channels = ps.channels_from(values)
         self._specs = {}
         for channel in self.channels:
             specs = ps.sim_channel_specs(channel)

@@ -4,44 +4,21 @@ import threading
 import time
 from typing import Any, Callable, Dict, List, Optional
 
-import rclpy
-from rclpy.context import Context
-from rclpy.experimental import EventsExecutor
-from rclpy.task import Future
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 
-from seaforce_ros.ros_common import RECORD_QOS, CONTROL_QOS
+from seaforce_ros.ros_common import RECORD_QOS, CONTROL_QOS, BackgroundNode
 
 
 class Probe:
     def __init__(self, name: str = 'test_probe'):
-        self.context = Context()
-        rclpy.init(context=self.context)
-        self.node = rclpy.create_node(name, context=self.context)
-        # EventsExecutor keeps up with 2 kHz topics; spun in finite chunks (see ros_common)
-        self.executor = EventsExecutor(context=self.context)
-        self.executor.add_node(self.node)
+        self.background = BackgroundNode(name)
+        self.node = self.background.node
         self._lock = threading.Lock()
         self.records: Dict[str, List[Any]] = {}
-        self._stop = False
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
-
-    def _spin(self):
-        while not self._stop and self.context.ok():
-            try:
-                self.executor.spin_until_future_complete(Future(), timeout_sec=0.05)
-            except Exception:
-                if self._stop or not self.context.ok():
-                    return
-                raise
 
     def close(self):
-        self._stop = True
-        self._thread.join(timeout=2.0)
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
+        self.background.close()
 
     # --- topics ------------------------------------------------------------------------
     def record(self, msg_type, topic: str, qos=RECORD_QOS):

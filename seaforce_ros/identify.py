@@ -1,0 +1,219 @@
+"""identify: plant and Dahl identification from rosbag2 bags (offline, no ROS graph needed).
+
+    identify CHIRP_BAG --channel pinch --out PARAMS.yaml [--plots DIR]
+    identify CHIRP_BAG --channel pinch --out PARAMS.yaml --dahl-bag LOOP_BAG
+    identify --plant-params PARAMS.yaml --dahl-bag LOOP_BAG --channel pinch --out PARAMS.yaml
+
+CHIRP_BAG: ``actuator_state`` of a torque-chirp experiment (sim ``torque_chirp`` environment
+or the bonded-finger rig with the motor off; or the controller's ``chirp`` mode); a rosbag2
+directory (mcap or sqlite3), a storage file, or a directory of split bags. Prints the
+Blackman-Tukey/fit table (parameter, value, 1-sigma, fit error), writes PARAMS.yaml
+(``/**: ros__parameters: <channel>: plant: {...}`` and, with ``--dahl-bag``, ``dahl: {...}``)
+for ``--ros-args --params-file``, and Fig. 4 / Fig. 6-style PNGs into ``--plots``.
+
+Exit status: 0 ok, 2 bad input (a one-line reason on stderr, no stack trace).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+__all__ = ["main", "build_parser"]
+
+
+def build_parser():
+    p = argparse.ArgumentParser(
+        prog="identify",
+        description="Identify the eight linear plant parameters (Table I) from a chirp bag, "
+                    "and the Dahl hysteresis from a work-loop bag.")
+    p.add_argument("bag", nargs="?", help="chirp bag (rosbag2 dir, .mcap/.db3, or a "
+                   "directory of split bags)")
+    p.add_argument("--channel", required=True, help="channel name in actuator_state")
+    p.add_argument("--out", required=True, help="parameter file to write (YAML)")
+    p.add_argument("--plots", help="directory for the PNG figures")
+    p.add_argument("--dahl-bag", help="work-loop bag (position drive, e.g. 0.5 rad at "
+                   "1 rad/s) for the Dahl fit")
+    p.add_argument("--plant-params", help="use the plant parameters of this params file "
+                   "instead of a chirp bag (for --dahl-bag alone)")
+    p.add_argument("--topic", default="actuator_state", help="state topic (default "
+                   "actuator_state)")
+    p.add_argument("--band", nargs=2, type=float, default=(0.5, 400.0), metavar=("LO", "HI"),
+                   help="fit band of plants A-C [rad/s] (default 0.5 400)")
+    p.add_argument("--rational-band", nargs=2, type=float, default=(0.5, 400.0),
+                   metavar=("LO", "HI"), help="band of the 2-zero/4-pole X_e/F_e fit [rad/s] "
+                   "(default 0.5 400; the paper: 0-400)")
+    p.add_argument("--excitation", choices=("auto", "external", "motor"), default="auto",
+                   help="which torque was chirped (auto: the larger of F_e and F_a)")
+    p.add_argument("--external-force", choices=("held", "instant"), default="held",
+                   help="held: F_e was held over the sample interval after its sample (the "
+                        "sim's environment); instant: a sampled force sensor")
+    p.add_argument("--rate", type=float, help="sample rate [Hz] (default: from the stamps)")
+    p.add_argument("--no-dahl", action="store_true", help="fit the endpoint as purely "
+                   "linear (as the paper did; hysteresis then biases m_e, b_e, k_e)")
+    p.add_argument("--fit-exponent", action="store_true", help="fit the Dahl exponent n too")
+    p.add_argument("--truth", help="params file with the true values (simulation): adds "
+                   "error columns")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    return p
+
+
+def _identify_chirp(args, progress):
+    from .identification.bagio import read_channel
+    from .identification.plant_id import identify_plant
+    from .identification.timeseries import prepare
+
+    progress("reading " + args.bag, 0.0)
+    record = read_channel(args.bag, args.channel, args.topic, progress.stage(0.0, 0.25))
+    series = prepare(record, ("x", "f_p", "x_e"),
+                     dt=None if args.rate is None else 1.0 / args.rate,
+                     optional=("f_e", "f_a"))
+    progress(f"{series.n} samples, {series.duration:.1f} s at {1 / series.dt:.0f} Hz", 0.25)
+    for note in series.notes():
+        print("note: " + note)
+    result = identify_plant(
+        series, band=tuple(args.band), rational_band=tuple(args.rational_band),
+        excitation=args.excitation,
+        external_force_delay=0.5 if args.external_force == "held" else 0.0,
+        dahl=not args.no_dahl, progress=progress.stage(0.25, 0.95))
+    return record, series, result
+
+
+def _print_plant_table(result, truth, series, record):
+    from .identification.output import format_table
+
+    rows = result.rows(truth)
+    headers = ["parameter", "symbol", "unit", "value", "1-sigma", "fit error", "plant"]
+    formats = [None, None, None, ".5g", ".2g", ".2%", None]
+    if truth is not None:
+        headers += ["true", "error"]
+        formats += [".5g", "+.2f"]
+        rows = [r[:-1] + (f"{r[-1]:+.2f} %",) for r in rows]
+        formats[-1] = None
+    print(f"channel {record.channel}: {series.n} samples ({series.duration:.1f} s), "
+          f"{result.excitation} excitation over {result.excited_band[0]:.3g}-"
+          f"{result.excited_band[1]:.3g} rad/s; fits over {result.band[0]:g}-"
+          f"{result.band[1]:g} rad/s")
+    print(format_table(headers, rows, formats))
+    d = result.dahl
+    if d.get("sigma", 0) > 0:
+        print(f"endpoint hysteresis seen in the chirp (removed before fitting B): "
+              f"sigma = {d['sigma']:.4g} +- {d['sigma_1s']:.2g} N m/rad, "
+              f"F_c = {d['coulomb_force']:.4g} +- {d['coulomb_force_1s']:.2g} N m "
+              f"(linear-only misfit {result.fits['B'].extra['cost_linear']:.4g} -> "
+              f"{result.fits['B'].extra['cost_dahl']:.4g})")
+    if "D" in result.fit_error:
+        print(f"X_e/F_e from the identified parameters vs the measured response: "
+              f"{result.fit_error['D']:.2%} rms")
+    if result.rational is not None:
+        r = result.rational
+        poles = ", ".join(f"{p.real:.2f}{p.imag:+.2f}j" if abs(p.imag) > 1e-9
+                          else f"{p.real:.2f}" for p in r.poles)
+        print(f"2-zero/4-pole fit of X_e/F_e over {r.band[0]:g}-{r.band[1]:g} rad/s: poles "
+              f"{poles} rad/s, fit error {r.fit_error:.2%}")
+    for note in result.notes:
+        print("note: " + note)
+
+
+def _dahl(args, plant, progress):
+    from .identification.bagio import read_channel
+    from .identification.dahl_fit import fit_dahl_loop
+    from .identification.timeseries import prepare
+
+    progress("reading " + args.dahl_bag, None)
+    record = read_channel(args.dahl_bag, args.channel, args.topic)
+    series = prepare(record, ("x_e", "f_e", "f_p"),
+                     dt=None if args.rate is None else 1.0 / args.rate)
+    for note in series.notes():
+        print("note (Dahl bag): " + note)
+    progress("fitting the Dahl model to the work loop", None)
+    fit = fit_dahl_loop(series, plant, fit_exponent=args.fit_exponent,
+                        external_force_delay=0.0)
+    return fit
+
+
+def run(args):
+    from .core.params import PlantParams
+    from .identification.errors import IdentificationError
+    from .identification.output import (Progress, check_output_dir, check_output_file,
+                                        read_params_file, write_params_file)
+
+    progress = Progress("identify", quiet=args.quiet)
+    if args.bag is None and not (args.plant_params and args.dahl_bag):
+        raise IdentificationError("give a chirp bag, or --plant-params with --dahl-bag")
+    check_output_file(args.out)
+    plots = check_output_dir(args.plots) if args.plots else None
+    truth = None
+    if args.truth:
+        t_plant, _ = read_params_file(args.truth, args.channel)
+        try:
+            truth = PlantParams(**{k: float(v) for k, v in t_plant.items()})
+        except TypeError:
+            raise IdentificationError(f"{args.truth}: no complete {args.channel}.plant.* "
+                                      "parameter set") from None
+    plant = None
+    comments = []
+    if args.bag is not None:
+        record, series, result = _identify_chirp(args, progress)
+        plant = result.params
+        _print_plant_table(result, truth, series, record)
+        comments.append(f"plant: chirp bag {args.bag} ({series.duration:.1f} s, "
+                        f"{result.excitation} excitation, fits over {result.band[0]:g}-"
+                        f"{result.band[1]:g} rad/s)")
+        if plots is not None:
+            from .identification.plots import bode_fig4
+            path = bode_fig4(result, plots / f"{args.channel}_fig4_bode.png",
+                             f"channel {args.channel}: identification ({args.bag})")
+            print(f"wrote {path}")
+    else:
+        p_plant, _ = read_params_file(args.plant_params, args.channel)
+        try:
+            plant = PlantParams(**{k: float(v) for k, v in p_plant.items()})
+        except TypeError:
+            raise IdentificationError(f"{args.plant_params}: no complete {args.channel}.plant.* "
+                                      "parameter set") from None
+    dahl = None
+    if args.dahl_bag:
+        fit = _dahl(args, plant, progress)
+        dahl = {"sigma": fit.sigma, "coulomb_force": fit.coulomb_force,
+                "exponent": fit.exponent}
+        print(f"Dahl fit (work loop {args.dahl_bag}): sigma = {fit.sigma:.4g} +- "
+              f"{fit.sigma_1s:.2g} N m/rad, F_c = {fit.coulomb_force:.4g} +- "
+              f"{fit.coulomb_force_1s:.2g} N m, n = {fit.exponent:.3g}"
+              + (f" +- {fit.exponent_1s:.2g}" if args.fit_exponent else " (fixed)")
+              + f"; loop residual rms {fit.rms:.3g} N m (linear terms only: "
+                f"{fit.rms_linear_only:.3g} N m)")
+        comments.append(f"dahl: work-loop bag {args.dahl_bag}")
+        if plots is not None:
+            from .identification.plots import dahl_fig6
+            path = dahl_fig6(fit, plots / f"{args.channel}_fig6_dahl.png",
+                             f"channel {args.channel}: Dahl fit ({args.dahl_bag})")
+            print(f"wrote {path}")
+    out = write_params_file(args.out, args.channel,
+                            plant=plant if args.bag is not None else None, dahl=dahl,
+                            comments=comments)
+    print(f"wrote {out}")
+    progress("done", 1.0)
+    return 0
+
+
+def main(argv=None):
+    from .core.errors import SeaforceError
+    from .identification.errors import IdentificationError
+
+    args = build_parser().parse_args(argv)
+    try:
+        return run(args)
+    except (IdentificationError, SeaforceError) as exc:
+        print(f"identify: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("identify: interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, OSError) as exc:
+        print(f"identify: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
