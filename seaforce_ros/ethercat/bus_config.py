@@ -36,8 +36,8 @@ from __future__ import annotations
 import math
 import pathlib
 import struct
-from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Sequence, Tuple
+from dataclasses import dataclass
+from typing import Dict, Optional, Tuple
 
 KINDS = ('cia402_drive', 'analog_input', 'encoder')
 DTYPES = {'u8': 'B', 'i8': 'b', 'u16': 'H', 'i16': 'h', 'u32': 'I', 'i32': 'i'}

@@ -147,6 +147,11 @@ def identify_plant(series, band=(0.5, 400.0), rational_band=(0.5, 400.0), excita
         raise IdentificationError(f"band must satisfy 0 < lo < hi, got {lo:g}-{hi:g} rad/s")
     excitation = _excitation(series, excitation)
     s = series.signals
+    missing = [f for f in required_fields(excitation) if f not in s]
+    if missing:
+        raise IdentificationError(
+            f"{', '.join(missing)} not measured (NaN in every sample): the {excitation} "
+            "chirp needs " + ", ".join(required_fields(excitation)))
     dt = series.dt
     nyq = math.pi / dt
     top = max(hi, rational_band[1])

@@ -56,6 +56,8 @@ class EmulatorHarness:
         Where the config, control socket and log go (default: a new temporary directory).
     python : str
         Interpreter for the emulator (default: this one).
+    realtime : int
+        SCHED_FIFO priority of the emulator process (0, the default: normal scheduling).
 
     Attributes
     ----------
@@ -70,7 +72,7 @@ class EmulatorHarness:
     log_path : pathlib.Path
     """
 
-    def __init__(self, config=None, workdir=None, python=sys.executable):
+    def __init__(self, config=None, workdir=None, python=sys.executable, realtime=0):
         n = next(_counter)
         pid = os.getpid()
         self.config = default_config() if config is None else config
@@ -89,6 +91,7 @@ class EmulatorHarness:
         self.config_path = self.workdir / ("emulator-%d-%d.json" % (pid, n))
         self.log_path = self.workdir / ("emulator-%d-%d.log" % (pid, n))
         self.python = python
+        self.realtime = int(realtime)
         self.process = None
         self.client = None
         self._netns_created = False
@@ -139,6 +142,8 @@ class EmulatorHarness:
         argv = ["ip", "netns", "exec", self.netns, self.python, "-m", "ethercat.emulator",
                 "--interface", self.slave_interface, "--control", str(self.control_path),
                 "--config", str(self.config_path)]
+        if self.realtime:
+            argv += ["--realtime", str(self.realtime)]
         self._log = open(self.log_path, "wb")
         self.process = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT,
                                         stdin=subprocess.DEVNULL, env=env, cwd=str(ROOT),

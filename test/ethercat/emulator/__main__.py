@@ -7,6 +7,7 @@ used.  Run from ``test/`` on PYTHONPATH (the harness does this).
 """
 
 import argparse
+import os
 import sys
 
 from . import config as cfg
@@ -19,7 +20,11 @@ def main(argv=None):
     parser.add_argument("--interface", required=True, help="network interface to serve")
     parser.add_argument("--control", required=True, help="path of the control UNIX socket")
     parser.add_argument("--config", help="JSON (.json) or YAML bus configuration")
+    parser.add_argument("--realtime", type=int, default=0, metavar="PRIO",
+                        help="run with SCHED_FIFO priority PRIO (default 0: normal)")
     args = parser.parse_args(argv)
+    if args.realtime:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.realtime))
     try:
         config = cfg.load(args.config) if args.config else cfg.default_config()
         bus = cfg.build(config)
