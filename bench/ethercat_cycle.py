@@ -1,0 +1,150 @@
+#!/usr/bin/env python3
+"""EtherCAT cycle benchmark: pysoem (SOEM) master against the software slave emulator
+on a veth pair, with absolute deadlines.
+
+    sudo -E python bench/ethercat_cycle.py [--duration 20] [--rate 2000] [--realtime]
+
+Creates its own network namespace and veth pair (test/ethercat/harness.py), starts the
+emulator (wrist drive, pinch drive, pressure terminal) in its own process, brings the
+bus to OP, enables both drives in cyclic synchronous torque mode with a small torque,
+then runs ``send_processdata`` / ``receive_processdata`` once per period.  Cycle k starts
+at ``t0 + k T``; a late cycle does not shift later deadlines (a cycle that starts more
+than one period late is counted as an overrun and its deadline skipped).
+
+Prints: cycles and achieved rate, period p50/p99/max and period jitter |period - T|
+p50/p99, send->receive round trip p50/p99/max, working-counter errors (wkc !=
+expected_wkc, with a histogram), overruns, and the emulator's own counters.  Figures, not
+pass/fail.  Needs root (raw sockets, namespaces).
+"""
+
+import argparse
+import os
+import pathlib
+import sys
+import time
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "test"))
+
+import pysoem  # noqa: E402
+
+from ethercat.harness import EmulatorHarness  # noqa: E402
+from ethercat.soem_bus import CW_ENABLE_OPERATION, SoemBus  # noqa: E402
+
+
+def percentile(sorted_values, q):
+    if not sorted_values:
+        return float("nan")
+    i = min(len(sorted_values) - 1, max(0, int(round(q / 100.0 * (len(sorted_values) - 1)))))
+    return sorted_values[i]
+
+
+def run(args):
+    period = 1.0 / args.rate
+    period_ns = int(round(1e9 / args.rate))
+    timeout_us = args.receive_timeout_us or int(period * 1e6)
+    harness = EmulatorHarness(realtime=args.realtime)
+    harness.start()
+    master = pysoem.Master()
+    try:
+        if args.realtime:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.realtime))
+        master.open(harness.master_interface)
+        bus = SoemBus(master)
+        state = bus.bring_up()
+        if state != pysoem.OP_STATE:
+            print("bus did not reach OP (state 0x%02X)" % state)
+            return 1
+        for i in bus.drives:
+            bus.enable(i, 20)
+            bus.set_drive(i, CW_ENABLE_OPERATION, 20)
+        expected = master.expected_wkc
+        status0 = harness.client.status()
+        n = int(round(args.duration * args.rate))
+        starts = [0] * n
+        rtts = [0] * n
+        wkcs = [0] * n
+        send, receive = master.send_processdata, master.receive_processdata
+        mono = time.monotonic_ns
+        sleep = time.sleep
+        spin_ns = int(args.spin_us * 1000)
+        overruns = 0
+        t0 = mono() + 10 * period_ns
+        deadline = t0
+        for k in range(n):
+            now = mono()
+            wait = deadline - now - spin_ns
+            if wait > 0:
+                sleep(wait * 1e-9)
+            while mono() < deadline:
+                pass
+            start = mono()
+            send(release_gil=True)
+            w = receive(timeout_us, release_gil=True)
+            end = mono()
+            starts[k] = start
+            rtts[k] = end - start
+            wkcs[k] = w
+            deadline += period_ns
+            if end > deadline + period_ns:            # more than a period behind: skip
+                missed = (end - deadline) // period_ns
+                overruns += 1
+                deadline += missed * period_ns
+        status1 = harness.client.status()
+        for cw in (0x06, 0x00):
+            for i in bus.drives:
+                bus.set_drive(i, cw, 0)
+            bus.cycle(3)
+        bus.request_state(pysoem.INIT_STATE)
+    finally:
+        master.close()
+        harness.stop()
+
+    elapsed = (starts[-1] - starts[0]) * 1e-9
+    periods = sorted((starts[i + 1] - starts[i]) * 1e-3 for i in range(n - 1))
+    jitter = sorted(abs(p - period * 1e6) for p in periods)
+    rtt = sorted(r * 1e-3 for r in rtts)
+    errors = [w for w in wkcs if w != expected]
+    hist = {}
+    for w in errors:
+        hist[w] = hist.get(w, 0) + 1
+    c0, c1 = status0["counters"], status1["counters"]
+    print("EtherCAT cycle benchmark: pysoem %s master -> emulator on veth %s (%s)"
+          % (pysoem.__version__, harness.master_interface,
+             "SCHED_FIFO %d" % args.realtime if args.realtime else "normal scheduling"))
+    print("  target            %8.0f Hz   (period %.1f us, receive timeout %d us, spin %d us)"
+          % (args.rate, period * 1e6, timeout_us, args.spin_us))
+    print("  cycles            %8d      over %.2f s" % (n, elapsed))
+    print("  achieved rate     %8.1f Hz" % ((n - 1) / elapsed))
+    print("  period  p50/p99/max   %7.1f / %7.1f / %7.1f us"
+          % (percentile(periods, 50), percentile(periods, 99), periods[-1]))
+    print("  jitter |T-T0| p50/p99 %7.1f / %7.1f us" % (percentile(jitter, 50), percentile(jitter, 99)))
+    print("  round trip p50/p99/max %6.1f / %7.1f / %7.1f us"
+          % (percentile(rtt, 50), percentile(rtt, 99), rtt[-1]))
+    print("  wkc errors        %8d      (expected wkc %d; %s)"
+          % (len(errors), expected, ", ".join("wkc %d: %d" % kv for kv in sorted(hist.items()))
+             or "none"))
+    print("  overruns          %8d      (cycles ending > 1 period late; deadlines skipped)" % overruns)
+    print("  emulator          %8d process frames served, %d physics steps, %d watchdog expiries"
+          % (c1["process_frames"] - c0["process_frames"],
+             status1["physics_steps"] - status0["physics_steps"],
+             sum(s["watchdog_expiries"] for s in status1["slaves"])))
+    print("  load average      %s" % " ".join("%.2f" % x for x in os.getloadavg()))
+    return 0
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--duration", type=float, default=20.0, help="seconds (default 20)")
+    parser.add_argument("--rate", type=float, default=2000.0, help="Hz (default 2000)")
+    parser.add_argument("--receive-timeout-us", type=int, default=0,
+                        help="receive_processdata timeout (default: one period)")
+    parser.add_argument("--spin-us", type=float, default=0.0,
+                        help="busy-wait the last N us before each deadline (default 0)")
+    parser.add_argument("--realtime", type=int, default=0, metavar="PRIO",
+                        help="SCHED_FIFO priority for master and emulator (default 0: off)")
+    return run(parser.parse_args())
+
+
+if __name__ == "__main__":
+    sys.exit(main())
