@@ -72,7 +72,7 @@ class StateLayout:
     ----------
     data : bytes
         One serialised message; every message with the same length and the same bytes in
-        ``[fixed_start, fixed_end)`` (frame_id and channel names) has the same layout.
+        the ranges ``fixed`` (frame_id and channel names) has the same layout.
     """
 
     def __init__(self, data):
@@ -92,12 +92,14 @@ class StateLayout:
         self.nanosec = pos + 4
         pos += 8
         flen = u32(pos)
-        self.fixed_start = pos
+        #: byte ranges that must match for the layout to apply (frame_id, channel names)
+        self.fixed = [(pos, pos + 4 + flen)]
         pos += 4 + flen
         pos = align(pos, 8)
         self.cycle = pos
         pos += 8
         pos = align(pos, 4)
+        names_start = pos
         count = u32(pos)
         pos += 4
         names = []
@@ -106,7 +108,7 @@ class StateLayout:
             slen = u32(pos)
             names.append(data[pos + 4:pos + 4 + slen - 1].decode("utf-8", "replace"))
             pos += 4 + slen
-        self.fixed_end = pos
+        self.fixed.append((names_start, pos))
         self.names = names
         self.arrays = {}
         for msg_field, _short in STATE_FIELDS:
@@ -251,14 +253,15 @@ def _decode(raws, channel):
             f"unknown channel {channel!r}: the bag's actuator_state has channels "
             f"{', '.join(names) or '(none)'}; pass one of them with --channel")
     j = names.index(channel)
-    fixed = layout.template[layout.fixed_start:layout.fixed_end]
     n = len(raws)
     lengths = np.fromiter((len(r) for r in raws), dtype=np.int64, count=n)
     same = lengths == layout.length
     idx_fast = np.flatnonzero(same)
     rows = np.frombuffer(b"".join(raws[i] for i in idx_fast), dtype=np.uint8).reshape(
         idx_fast.size, layout.length)
-    good = np.all(rows[:, layout.fixed_start:layout.fixed_end] == fixed, axis=1)
+    good = np.ones(rows.shape[0], bool)
+    for a, b in layout.fixed:
+        good &= np.all(rows[:, a:b] == layout.template[a:b], axis=1)
     slow = sorted(set(np.flatnonzero(~same).tolist()) | set(idx_fast[~good].tolist()))
     rows = rows[good]
     out = {"cycle": layout.column(rows, layout.cycle, "<u8").astype(np.int64),
