@@ -446,3 +446,13 @@ def test_config_errors_name_the_key():
     bad["channels"]["wrist"]["plant"] = {"motor_mass": 1.0}
     with pytest.raises(cfg.ConfigError, match="channels.wrist.plant"):
         cfg.build(bad)
+
+
+def test_documented_yaml_example_builds(tmp_path):
+    text = cfg.__doc__.split("Format")[1].split("::", 1)[1]
+    path = tmp_path / "bus.yaml"
+    path.write_text(text)
+    bus = cfg.build(cfg.load(path))
+    assert [s.name for s in bus.slaves] == ["wrist_drive", "pinch_drive", "pressure_terminal"]
+    assert bus.physics.channel("pinch").sim.environment.mode == "position_sine"
+    assert bus.slaves[2].identity.product_code == 0x0C1E3052

@@ -7,6 +7,7 @@ used.  Run from ``test/`` on PYTHONPATH (the harness does this).
 """
 
 import argparse
+import json
 import os
 import sys
 
@@ -17,12 +18,19 @@ from .server import serve
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m ethercat.emulator", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--interface", required=True, help="network interface to serve")
-    parser.add_argument("--control", required=True, help="path of the control UNIX socket")
+    parser.add_argument("--interface", help="network interface to serve")
+    parser.add_argument("--control", help="path of the control UNIX socket")
     parser.add_argument("--config", help="JSON (.json) or YAML bus configuration")
     parser.add_argument("--realtime", type=int, default=0, metavar="PRIO",
                         help="run with SCHED_FIFO priority PRIO (default 0: normal)")
+    parser.add_argument("--print-default-config", action="store_true",
+                        help="print the default configuration as JSON and exit")
     args = parser.parse_args(argv)
+    if args.print_default_config:
+        print(json.dumps(cfg.default_config(), indent=2))
+        return 0
+    if not args.interface or not args.control:
+        parser.error("--interface and --control are required")
     if args.realtime:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.realtime))
     try:

@@ -92,8 +92,14 @@ def _int(value, key):
 
 
 def _float(value, key):
-    if isinstance(value, str) and value.lower() in (".inf", "inf"):
-        return math.inf
+    if isinstance(value, str):        # YAML 1.1 reads 5.0e5 (no exponent sign) as a string
+        text = value.strip().lower()
+        if text in (".inf", "+.inf"):
+            return math.inf
+        try:
+            return float(text)
+        except ValueError:
+            pass
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError("%s must be a number, got %r" % (key, value))
     return float(value)
