@@ -1,24 +1,28 @@
 #!/usr/bin/env python3
-"""Benchmark the 2 kHz closed loop over ROS 2: executors, QoS, separate vs composed processes.
+"""Benchmark the 2 kHz closed loop over ROS 2 against the platform's own limit.
 
-For each variant it starts sim_node (realtime, 2 kHz) and controller_node (pinch in
-dob_full_ff, finger backdriven 0.5 rad at 1 rad/s) — as two processes or composed in one
-(`bringup`) — lets them settle, then reads the nodes' own /diagnostics for `--seconds`:
+Main rows, 60 s each, with the EventsExecutor and the SingleThreadedExecutor:
 
-  rate      achieved sim cycle rate [Hz]
-  p99 per   p99 of the sim cycle period [ms]
-  rtt p50/p99   state published -> its command received by the sim [ms]
-  late %    cycles stepped before the answer to the previous state had arrived
-  timeouts  command watchdog trips (no command for command_timeout = 10 ms)
-  CPU %     CPU time of the node processes / wall time (200 % = both cores)
+* **nodes** - sim_node (realtime) and controller_node as separate processes, pinch in
+  dob_full_ff with the finger backdriven 0.5 rad at 1 rad/s, wrist in dob; figures from the
+  sim's own /diagnostics;
+* **bare echo** - bench/echo_pair.py: a 2 kHz ActuatorState source and a process that answers
+  each with an ActuatorCommand and does nothing else: what rclpy + Fast DDS allow here.
 
-and prints a table with the round trip relative to the baseline variant of the same run
-(separate processes, single_threaded executor, reliable QoS).
+Extra rows (20 s): best-effort QoS, both nodes composed in one process (bringup), and lower
+rates, to find what the loop holds. Columns:
 
-Usage: scripts/setup.sh first (or scripts/test does it), then
-       python bench/control_loop.py [--seconds 20] [--variants all|quick]
+  rate      achieved cycle rate [Hz]
+  in time   commands that arrived before the next cycle started
+  rtt       state k published -> its command received [ms], p50 and p99
+  vs bare   rtt p50 / the bare echo's with the same executor, same run
+  timeouts  command watchdog trips (no command for 10 ms)
+  CPU %     per process, CPU time / wall time (one core = 100)
+
+Usage: source scripts/setup.sh; python bench/control_loop.py [--seconds 60] [--no-extras]
 """
 import argparse
+import json
 import os
 import pathlib
 import signal
@@ -33,16 +37,6 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 LIB = ROOT / 'install' / 'seaforce_ros' / 'lib' / 'seaforce_ros'
 CONFIG = ROOT / 'config' / 'gripper.yaml'
-
-VARIANTS = [  # (layout, executor, qos)
-    ('separate', 'single_threaded', 'reliable'),
-    ('separate', 'events', 'reliable'),
-    ('separate', 'events', 'best_effort'),
-    ('separate', 'single_threaded', 'best_effort'),
-    ('composed', 'events', 'reliable'),
-    ('composed', 'single_threaded', 'reliable'),
-]
-
 
 def cpu_seconds(pid):
     try:
@@ -76,88 +70,147 @@ class DiagnosticsListener:
         self.background.close()
 
 
-def run_variant(layout, executor, qos, seconds, workdir):
-    overrides = workdir / f'{layout}-{executor}-{qos}.yaml'
-    common = (f'    executor: {executor}\n    control_qos: {qos}\n')
+def _stop(procs):
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+    for p in procs:
+        try:
+            p.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+def run_nodes(layout, executor, qos, rate, seconds, workdir):
+    """The project's sim_node + controller_node (or bringup); figures from /diagnostics."""
+    overrides = workdir / f'{layout}-{executor}-{qos}-{rate:.0f}.yaml'
+    # node-specific sections: they take precedence over gripper.yaml's sim/controller ones
+    common = (f'    executor: {executor}\n    control_qos: {qos}\n    rate: {rate}\n')
     overrides.write_text(
-        '/**:\n  ros__parameters:\n' + common
+        'sim:\n  ros__parameters:\n' + common
         + '    pinch.environment.mode: position_sine\n    pinch.environment.amplitude: 0.5\n'
-        + '    pinch.mode: dob_full_ff\n    wrist.mode: dob\n')
+        'controller:\n  ros__parameters:\n' + common
+        + '    pinch.mode: dob_full_ff\n    wrist.mode: dob\n    state_timeout: 1.0\n')
     args = ['--ros-args', '--params-file', str(CONFIG), '--params-file', str(overrides)]
     if layout == 'separate':
-        argvs = [[str(LIB / 'sim_node')] + args, [str(LIB / 'controller_node')] + args]
+        argvs = {'sim': [str(LIB / 'sim_node')] + args,
+                 'ctl': [str(LIB / 'controller_node')] + args}
     else:
-        argvs = [[str(LIB / 'bringup')] + args]
-    procs = [subprocess.Popen(a, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                              stdin=subprocess.DEVNULL, start_new_session=True) for a in argvs]
+        argvs = {'both': [str(LIB / 'bringup')] + args}
+    procs = {k: subprocess.Popen(a, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                 stdin=subprocess.DEVNULL, start_new_session=True)
+             for k, a in argvs.items()}
     listener = DiagnosticsListener()
     try:
         time.sleep(4.0)  # discovery and settling
-        c0 = sum(cpu_seconds(p.pid) for p in procs)
+        c0 = {k: cpu_seconds(p.pid) for k, p in procs.items()}
         t0 = time.monotonic()
         time.sleep(seconds)
         t1 = time.monotonic()
-        c1 = sum(cpu_seconds(p.pid) for p in procs)
+        c1 = {k: cpu_seconds(p.pid) for k, p in procs.items()}
         time.sleep(1.2)
         sim = listener.window('sim: cycle', t0 + 1.0, t1 + 1.2)
-        ctl = listener.window('controller: loop', t0 + 1.0, t1 + 1.2)
     finally:
         listener.close()
-        for p in procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        for p in procs:
-            try:
-                p.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        _stop(procs.values())
     if len(sim) < 2:
         return None
-    f = lambda rows, key: [float(r[key]) for r in rows if key in r and r[key] != 'nan']
+    f = lambda key: [float(r[key]) for r in sim if key in r and r[key] != 'nan']
     cycles = int(sim[-1]['cycle']) - int(sim[0]['cycle'])
     late = int(sim[-1]['late_commands_total']) - int(sim[0]['late_commands_total'])
     return {
-        'rate': statistics.mean(f(sim, 'rate_hz')),
-        'per_p99': statistics.median(f(sim, 'period_p99_ms')),
-        'rtt_p50': statistics.median(f(sim, 'round_trip_p50_ms') or [float('nan')]),
-        'rtt_p99': statistics.median(f(sim, 'round_trip_p99_ms') or [float('nan')]),
-        'late': 100.0 * late / max(1, cycles),
+        'rate': statistics.mean(f('rate_hz')),
+        'in_time': 1.0 - late / max(1, cycles),
+        'rtt_p50_ms': statistics.median(f('round_trip_p50_ms') or [float('nan')]),
+        'rtt_p99_ms': statistics.median(f('round_trip_p99_ms') or [float('nan')]),
         'timeouts': int(sim[-1]['command_timeouts']) - int(sim[0]['command_timeouts']),
-        'compute_us': statistics.median(f(ctl, 'compute_mean_us') or [float('nan')]),
-        'cpu': 100.0 * (c1 - c0) / (t1 - t0),
+        'cpu': {k: 100.0 * (c1[k] - c0[k]) / (t1 - t0) for k in procs},
     }
+
+
+def run_bare(executor, qos, rate, seconds):
+    """The bare rclpy echo pair (bench/echo_pair.py) with the same message types."""
+    common = ['--executor', executor, '--qos', qos, '--rate', str(rate)]
+    script = str(ROOT / 'bench' / 'echo_pair.py')
+    echo = subprocess.Popen([sys.executable, script, '--role', 'echo'] + common,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    time.sleep(1.0)
+    src = subprocess.Popen([sys.executable, script, '--role', 'source', '--seconds',
+                            str(seconds), '--warmup', '4'] + common, stdout=subprocess.PIPE,
+                           stderr=subprocess.DEVNULL, text=True, start_new_session=True)
+    procs = {'src': src, 'echo': echo}
+    try:
+        time.sleep(4.0)
+        c0 = {k: cpu_seconds(p.pid) for k, p in procs.items()}
+        t0 = time.monotonic()
+        out, _ = src.communicate(timeout=seconds + 60)
+        t1 = time.monotonic()
+        c1 = {k: cpu_seconds(p.pid) if p.poll() is None else c0[k] for k, p in procs.items()}
+    finally:
+        _stop(procs.values())
+    lines = [line for line in out.splitlines() if line.startswith('{')]
+    if not lines:
+        return None
+    result = json.loads(lines[-1])
+    result['rate'] = result.pop('rate')
+    result['timeouts'] = 0
+    result['cpu'] = {k: 100.0 * (c1[k] - c0[k]) / max(1e-9, t1 - t0) for k in procs}
+    return result
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    parser.add_argument('--seconds', type=float, default=20.0)
-    parser.add_argument('--variants', choices=('all', 'quick'), default='all')
+    parser.add_argument('--seconds', type=float, default=60.0,
+                        help='measurement per main variant (bare/nodes x executor)')
+    parser.add_argument('--extra-seconds', type=float, default=20.0,
+                        help='measurement per extra variant (QoS, composition, lower rates)')
+    parser.add_argument('--no-extras', action='store_true')
     args = parser.parse_args()
     if not (LIB / 'bringup').exists():
         sys.exit('install/ is missing: run `source scripts/setup.sh` first')
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
-    variants = VARIANTS if args.variants == 'all' else VARIANTS[:2]
-    results = {}
+    runs = []   # (label, executor, qos, rate, result)
     with tempfile.TemporaryDirectory() as tmp:
-        for variant in variants:
-            print(f'[bench] {"/".join(variant)}: {args.seconds:.0f} s ...', flush=True)
-            results[variant] = run_variant(*variant, args.seconds, pathlib.Path(tmp))
-    base = results.get(VARIANTS[0])
-    print(f'\n{"layout":9s}{"executor":16s}{"qos":12s}{"rate Hz":>9s}{"p99 per":>9s}'
-          f'{"rtt p50":>9s}{"rtt p99":>9s}{"vs base":>8s}{"late %":>8s}{"timeouts":>9s}'
-          f'{"ctl us":>8s}{"CPU %":>7s}')
-    for (layout, executor, qos), r in results.items():
+        tmp = pathlib.Path(tmp)
+        for executor in ('events', 'single_threaded'):
+            for kind in ('bare echo', 'nodes'):
+                print(f'[bench] {kind} / {executor} / 2000 Hz: {args.seconds:.0f} s', flush=True)
+                r = (run_bare(executor, 'reliable', 2000.0, args.seconds) if kind == 'bare echo'
+                     else run_nodes('separate', executor, 'reliable', 2000.0, args.seconds, tmp))
+                runs.append((kind, executor, 'reliable', 2000.0, r))
+        if not args.no_extras:
+            extras = [('nodes', 'events', 'best_effort', 2000.0, 'separate'),
+                      ('composed', 'events', 'reliable', 2000.0, 'composed'),
+                      ('nodes', 'events', 'reliable', 1000.0, 'separate'),
+                      ('bare echo', 'events', 'reliable', 1000.0, None),
+                      ('nodes', 'events', 'reliable', 500.0, 'separate')]
+            for kind, executor, qos, rate, layout in extras:
+                print(f'[bench] {kind} / {executor} / {qos} / {rate:.0f} Hz: '
+                      f'{args.extra_seconds:.0f} s', flush=True)
+                r = (run_bare(executor, qos, rate, args.extra_seconds) if layout is None
+                     else run_nodes(layout, executor, qos, rate, args.extra_seconds, tmp))
+                runs.append((kind, executor, qos, rate, r))
+    bare = {(e, q, rt): r for k, e, q, rt, r in runs if k == 'bare echo' and r}
+    print(f'\n{"what":11s}{"executor":16s}{"qos":12s}{"target":>7s}{"rate Hz":>9s}'
+          f'{"in time":>9s}{"rtt p50":>9s}{"rtt p99":>9s}{"vs bare":>8s}{"timeouts":>9s}'
+          '  CPU % per process')
+    for kind, executor, qos, rate, r in runs:
         if r is None:
-            print(f'{layout:9s}{executor:16s}{qos:12s}  no diagnostics received')
+            print(f'{kind:11s}{executor:16s}{qos:12s}{rate:7.0f}  no figures (see logs)')
             continue
-        ratio = r['rtt_p50'] / base['rtt_p50'] if base else float('nan')
-        print(f'{layout:9s}{executor:16s}{qos:12s}{r["rate"]:9.0f}{r["per_p99"]:9.2f}'
-              f'{r["rtt_p50"]:9.3f}{r["rtt_p99"]:9.2f}{ratio:8.2f}{r["late"]:8.1f}'
-              f'{r["timeouts"]:9d}{r["compute_us"]:8.0f}{r["cpu"]:7.0f}')
-    print('\nrtt: sim publishes state k -> sim receives the command for k; '
-          '"vs base": rtt p50 / that of the first row')
+        ref = bare.get((executor, qos, rate)) or bare.get((executor, 'reliable', rate))
+        ratio = r['rtt_p50_ms'] / ref['rtt_p50_ms'] if ref and kind != 'bare echo' else float('nan')
+        cpu = ' '.join(f'{k}={v:.0f}' for k, v in r['cpu'].items())
+        print(f'{kind:11s}{executor:16s}{qos:12s}{rate:7.0f}{r["rate"]:9.0f}'
+              f'{100 * r["in_time"]:8.1f}%{r["rtt_p50_ms"]:9.3f}{r["rtt_p99_ms"]:9.2f}'
+              f'{ratio:8.2f}{r["timeouts"]:9d}  {cpu}')
+    print('\nin time: the command answering state k arrived before cycle k+1 started; '
+          'rtt: state k published -> its command received [ms]; vs bare: rtt p50 / that of '
+          'the bare echo pair with the same executor, measured in this run; timeouts: '
+          'command watchdog trips (10 ms).')
 
 
 if __name__ == '__main__':

@@ -24,7 +24,6 @@ import time
 from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from rclpy.time import Time
 from seaforce_msgs.msg import ActuatorCommand, ActuatorState, ControllerStatus
 from std_srvs.srv import Trigger
 
@@ -171,9 +170,11 @@ class ControllerNode(Node):
             self.cmd_pub.publish(cmd)  # a re-published state: same answer, no new sample
             return
         self._last_cycle = msg.cycle
-        index = self._state_index(msg.name)
-        now_ns = self.get_clock().now().nanoseconds
-        stamp_ns = Time.from_msg(msg.header.stamp).nanoseconds
+        names = msg.name
+        index = self._state_index(names)
+        now_ns = time.time_ns()  # system clock, as the stamps (ros_common.stamp_now)
+        stamp = msg.header.stamp
+        stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
         if now_ns - stamp_ns > self.state_timeout_ns:
             if not self._armed:
                 # before the first fresh sample (start-up, discovery backlog): drop, count
@@ -184,7 +185,7 @@ class ControllerNode(Node):
         self._armed = True
         effort = self._effort
         xs, vs, fps = msg.motor_position, msg.motor_velocity, msg.pressure_force
-        n_state = len(msg.name)
+        n_state = len(names)
         for i, ctrl in enumerate(self.controllers):
             j = index[i]
             if self.faults[i] or j < 0:

@@ -40,7 +40,7 @@ from .ethercat.cia402 import CW_DISABLE_VOLTAGE, MODE_CST, DriveSequencer
 from .ethercat.master import BusError, EthercatBus
 from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
                          declare, diagnostic_status, diagnostics_publisher,
-                         publish_diagnostics, run)
+                         publish_diagnostics, run, stamp_now)
 from .timing import Deadline, LoopStats
 
 STATUS_COMMAND_TIMEOUT = ActuatorState.STATUS_COMMAND_TIMEOUT
@@ -314,7 +314,7 @@ class HardwareNode(Node):
     def _publish(self, timed_out):
         bus = self.bus
         msg = self._state_msg
-        msg.header.stamp = self.get_clock().now().to_msg()
+        stamp_now(msg.header.stamp)
         msg.cycle = self.cycle
         n = len(self.ch)
         x, v, fp, fa, xe, fe, st = ([0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n, [NAN] * n,

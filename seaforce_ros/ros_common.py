@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import sys
 import threading
+import time
 from dataclasses import dataclass
 from typing import Any, Callable, Dict, Iterable, Optional, Sequence, Tuple
 
@@ -119,6 +120,17 @@ def declare(node, specs: Iterable[ParamSpec]) -> Dict[str, Any]:
                                ignore_override=False)
         values[spec.name] = node.get_parameter(spec.name).value
     return values
+
+
+def stamp_now(stamp) -> int:
+    """Fill a builtin_interfaces/Time in place with the system time; return it in ns.
+
+    The nodes run on the system clock (no use_sim_time): this avoids the two Time objects
+    ``get_clock().now().to_msg()`` allocates, which matters at 2 kHz.
+    """
+    now = time.time_ns()
+    stamp.sec, stamp.nanosec = divmod(now, 1_000_000_000)
+    return now
 
 
 def diagnostic_status(name: str, hardware_id: str, level: int, message: str,

@@ -38,7 +38,7 @@ from .core.errors import SeaforceError
 from .core.params import DahlParams, PlantParams
 from .core.sensors import SensorParams
 from .core.simulator import ChannelSimulator
-from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec, declare,
+from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec, declare, stamp_now,
                          diagnostic_status, diagnostics_publisher, publish_diagnostics, run)
 from .timing import Deadline, LoopStats
 
@@ -286,7 +286,7 @@ class SimNode(Node):
 
     def _publish_state(self, cycle, timed_out=False):
         msg = self._state_msg
-        msg.header.stamp = self.get_clock().now().to_msg()
+        stamp_now(msg.header.stamp)
         msg.cycle = cycle
         ms = [sim.measurement() for sim in self.sims]
         msg.motor_position = [m.x for m in ms]
@@ -298,8 +298,9 @@ class SimNode(Node):
         base = (STATUS_COMMAND_TIMEOUT if timed_out else 0) | (
             STATUS_FAULT if self._command_fault else 0)
         msg.status = [base | (STATUS_LIMIT if sim.limited else 0) for sim in self.sims]
-        self.state_pub.publish(msg)
+        # the send time is taken before publishing: the answer can arrive before publish returns
         self._last_publish = self._sent_at[cycle % len(self._sent_at)] = time.monotonic()
+        self.state_pub.publish(msg)
         if self._js_every and cycle % self._js_every == 0:
             js = self._js_msg
             js.header.stamp = msg.header.stamp
