@@ -182,6 +182,27 @@ def test_position_drive_backdrives_the_finger(ecat_emulator, soem_master):
     assert abs(bus.drive(0).position) < 0.001 * COUNTS_PER_RAD
 
 
+def test_plant_trace_over_the_side_channel(bus_in_op):
+    emu, bus = bus_in_op
+    emu.client.set_environment("pinch", {"mode": "torque_sine", "amplitude": 0.2,
+                                         "frequency": 30.0})
+    emu.client.start_trace(decimation=2)
+    wkcs = bus.cycle(100)
+    bus.enable(0, 100)                                          # 9 cycles
+    wkcs += bus.cycle(291)
+    trace = emu.client.trace()
+    assert wkcs == [EXPECTED_WKC] * 391
+    wrist, pinch = trace["wrist"], trace["pinch"]
+    assert len(wrist["time"]) == len(pinch["time"]) == 200
+    dt = [b - a for a, b in zip(wrist["time"], wrist["time"][1:])]
+    assert all(d == pytest.approx(0.001) for d in dt)          # 2 steps of 0.5 ms
+    assert wrist["torque"][-1] == pytest.approx(0.05)           # 100 per-mille of 0.5 N m
+    assert wrist["torque"][0] == 0.0                            # before Operation enabled
+    f_e = pinch["external_force"]
+    assert max(f_e) == pytest.approx(0.2, abs=0.01) and min(f_e) < -0.19
+    assert emu.client.trace() == {}                             # stopped
+
+
 def test_cable_pull_gives_wkc_errors_and_watchdog_removes_torque(bus_in_op):
     emu, bus = bus_in_op
     bus.enable(0, 200)

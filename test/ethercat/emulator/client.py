@@ -109,6 +109,18 @@ class EmulatorClient:
     def clear_history(self):
         return self.request("clear_history")
 
+    def start_trace(self, decimation=1, max_samples=100000):
+        """Start recording the true plant states of every channel at every
+        ``decimation``-th physics step (restarts a running trace)."""
+        return self.request("start_trace", decimation=decimation, max_samples=max_samples)
+
+    def trace(self, stop=True):
+        """``{channel: {field: [values]}}``: fields time [s], torque [N m],
+        motor_position, endpoint_position [rad], motor_velocity, endpoint_velocity
+        [rad/s], pressure_force, external_force [N m].  Fetch it after the measurement: a
+        long trace stalls the emulator while it is sent."""
+        return self.request("trace", stop=stop)
+
     # --- fault injection ---------------------------------------------------------------------
     def silent(self, on=True):
         """Cable pull: no frame reaches a slave or gets an answer while on."""

@@ -178,6 +178,40 @@ class Physics:
         self.channels = {name: Channel(name, cfg, self.cycle_time, cpr)
                          for name, (cfg, cpr) in channels.items()}
         self.steps = 0
+        self._trace = None            # (decimation, max_samples, {name: list of rows})
+
+    # --- trace ------------------------------------------------------------------------------
+    TRACE_FIELDS = ("time", "torque", "motor_position", "motor_velocity", "endpoint_position",
+                    "endpoint_velocity", "pressure_force", "external_force")
+
+    def start_trace(self, decimation=1, max_samples=100000):
+        """Record every ``decimation``-th step of every channel (true states, SI units,
+        :data:`TRACE_FIELDS`), at most ``max_samples`` rows per channel."""
+        if int(decimation) < 1 or int(max_samples) < 1:
+            raise ValueError("decimation and max_samples must be >= 1")
+        self._trace = (int(decimation), int(max_samples), {n: [] for n in self.channels})
+
+    def trace(self, stop=False):
+        """``{channel: {field: [values]}}`` recorded so far (``stop``: end recording)."""
+        if self._trace is None:
+            return {}
+        rows = self._trace[2]
+        if stop:
+            self._trace = None
+        return {name: {f: [r[i] for r in data] for i, f in enumerate(self.TRACE_FIELDS)}
+                for name, data in rows.items()}
+
+    def _record(self):
+        decimation, max_samples, rows = self._trace
+        if self.steps % decimation:
+            return
+        for name, ch in self.channels.items():
+            data = rows[name]
+            if len(data) < max_samples:
+                sim = ch.sim
+                x, v, xe, ve = sim.state
+                data.append((sim.t, ch.torque, x, v, xe, ve, sim.pressure_force,
+                             ch.measurement.f_e))
 
     def channel(self, name):
         try:
@@ -191,6 +225,8 @@ class Physics:
         for name, ch in self.channels.items():
             ch.step(torques.get(name, 0.0))
         self.steps += 1
+        if self._trace is not None:
+            self._record()
 
     def status(self):
         return {name: ch.status() for name, ch in self.channels.items()}

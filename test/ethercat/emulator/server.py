@@ -118,6 +118,14 @@ class Controller:
         ch.set_environment(req.get("environment"))
         return ch.status()
 
+    def cmd_start_trace(self, req):
+        self.bus.physics.start_trace(int(req.get("decimation", 1)),
+                                     int(req.get("max_samples", 100000)))
+        return None
+
+    def cmd_trace(self, req):
+        return self.bus.physics.trace(stop=bool(req.get("stop", False)))
+
     def cmd_shutdown(self, req):
         self.stop_requested = True
         return None
