@@ -1,4 +1,4 @@
-"""A minimal pysoem master for tests: ``python -m ethercat.example_master IFACE``.
+"""A minimal pysoem master for tests: ``python -m ethercat.example_master IFACE [WD_MS]``.
 
 Configures the bus, goes to OP, enables every drive in CST with a small torque, prints
 ``READY`` and cycles until SIGINT/SIGTERM; then disables the drives (shutdown, disable
@@ -16,7 +16,7 @@ import pysoem
 from ethercat.soem_bus import (CW_DISABLE_VOLTAGE, CW_SHUTDOWN, SoemBus)
 
 
-def main(interface, torque=100):
+def main(interface, watchdog_ms=None, torque=100):
     stop = []
     signal.signal(signal.SIGINT, lambda *a: stop.append(1))
     signal.signal(signal.SIGTERM, lambda *a: stop.append(1))
@@ -28,6 +28,8 @@ def main(interface, torque=100):
             print("FAILED to reach OP", flush=True)
             return 1
         for i in bus.drives:
+            if watchdog_ms:
+                bus.slaves[i].set_watchdog("processdata", watchdog_ms)
             bus.enable(i, torque)
         print("READY", flush=True)
         period = 1e-3
@@ -50,4 +52,4 @@ def main(interface, torque=100):
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1]))
+    sys.exit(main(sys.argv[1], float(sys.argv[2]) if len(sys.argv) > 2 else None))

@@ -57,7 +57,7 @@ class SoemBus:
         self.slaves = []
         self.iomap_size = None
         self.drives = []          # slave indexes with 5-byte outputs
-        self.receive_timeout_us = 20000
+        self.receive_timeout_us = 100000
 
     def configure(self):
         """config_init + config_map; returns (slave count, IOmap size)."""
@@ -93,7 +93,7 @@ class SoemBus:
     def cycle(self, n=1, timeout_us=None):
         """``n`` send/receive cycles; returns the list of working counters.
 
-        ``timeout_us`` defaults to :attr:`receive_timeout_us` (20 ms: the tests check
+        ``timeout_us`` defaults to :attr:`receive_timeout_us` (100 ms: the tests check
         correctness, not timing, and the emulator shares a loaded host)."""
         if timeout_us is None:
             timeout_us = self.receive_timeout_us
