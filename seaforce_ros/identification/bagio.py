@@ -209,8 +209,18 @@ def _topic_matches(name, topic):
     return name == topic or (not topic[1:].count("/") and name.endswith(topic))
 
 
-def _raw_messages(path, topic, progress=None):
-    """Raw ``actuator_state`` bytes from every source under ``path`` (list, sources, skipped)."""
+def _check_channel(data, channel):
+    names = StateLayout(data).names
+    if channel not in names:
+        raise IdentificationError(
+            f"unknown channel {channel!r}: the bag's actuator_state has channels "
+            f"{', '.join(names) or '(none)'}; pass one of them with --channel")
+
+
+def _raw_messages(path, topic, progress=None, channel=None):
+    """Raw ``actuator_state`` bytes from every source under ``path`` (list, sources, skipped).
+
+    With ``channel``, the first message is checked for it before the rest is read."""
     from rosbags.rosbag2 import Reader
 
     raws, used, skipped, seen_topics = [], [], [], set()
@@ -224,6 +234,8 @@ def _raw_messages(path, topic, progress=None):
                 if not conns:
                     continue
                 for _conn, _ts, data in reader.messages(connections=conns):
+                    if channel is not None and not raws:
+                        _check_channel(data, channel)
                     raws.append(data)
                 used.append(str(src))
         except IdentificationError:
@@ -307,7 +319,7 @@ def read_channel(path, channel, topic="actuator_state", progress=None):
     IdentificationError
         No such bag, no ``actuator_state`` in it, unknown channel.
     """
-    raws, used, skipped = _raw_messages(path, topic, progress)
+    raws, used, skipped = _raw_messages(path, topic, progress, channel)
     arrays, names = _decode(raws, channel)
     order = np.argsort(arrays["cycle"], kind="stable")
     cyc = arrays["cycle"][order]

@@ -28,6 +28,25 @@ def _relax(u0, c, n):
     return np.power(inv + p * c, -1.0 / p)
 
 
+def _relax_scalar(n):
+    """Scalar form of :func:`_relax` for the run recursion."""
+    import math
+    if n < 1.0:
+        p = 1.0 - n
+
+        def relax(u0, c):
+            base = u0 ** p - p * c
+            return base ** (1.0 / p) if base > 0.0 else 0.0
+    else:
+        p = n - 1.0
+
+        def relax(u0, c):
+            if u0 <= 0.0:
+                return 0.0
+            return (u0 ** -p + p * c) ** (-1.0 / p)
+    return relax
+
+
 def dahl_force(x, sigma, coulomb_force, exponent=1.0, initial_force=0.0):
     """Dahl force F_d [N m] after each sample of the path ``x`` [rad].
 
@@ -65,17 +84,23 @@ def dahl_force(x, sigma, coulomb_force, exponent=1.0, initial_force=0.0):
     base = np.r_[0.0, cum][starts]                    # cumulative path before each run
     c_in_run = cum - base[run_of]                     # path from run start to after this step
     run_total = cum[ends - 1] - base
-    # scalar recursion over runs: u at run start
-    u_start = np.empty(starts.size)
-    f = float(initial_force)
+    # scalar recursion over runs: u at run start (after the first run every run starts at a
+    # reversal, where u_start = 2 - u_end of the previous run)
     s_run = sgn[starts]
-    for r in range(starts.size):
-        u0 = 1.0 - s_run[r] * f / fc
-        if u0 < 0.0:
-            u0 = 0.0
-        u_start[r] = u0
-        u_end = float(_relax(np.float64(u0), np.float64(run_total[r]), exponent))
-        f = s_run[r] * fc * (1.0 - u_end)
+    u0 = max(0.0, 1.0 - s_run[0] * float(initial_force) / fc)
+    totals = run_total.tolist()
+    starts_u = [u0]
+    if exponent == 1.0:
+        decay = np.exp(-run_total).tolist()
+        for r in range(1, starts.size):
+            u0 = 2.0 - u0 * decay[r - 1]
+            starts_u.append(u0)
+    else:
+        relax = _relax_scalar(exponent)
+        for r in range(1, starts.size):
+            u0 = 2.0 - relax(u0, totals[r - 1])
+            starts_u.append(u0)
+    u_start = np.asarray(starts_u)
     u = _relax(u_start[run_of], c_in_run, exponent)
     f_moving = s_run[run_of] * fc * (1.0 - u)
     # forward-fill: F_d after sample k+1 for each moving increment k

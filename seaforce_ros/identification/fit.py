@@ -182,17 +182,19 @@ def fit_endpoint_with_dahl(bt, s_xe, s_input, x_e, lo, hi, rel_sigma, dahl_delay
 
     cost_linear = float(resid_for(su) @ resid_for(su))
     # coarse grid, then Nelder-Mead in log space
-    grid = [(ls, lf) for ls in np.log(np.logspace(0.0, 2.7, 7))
-            for lf in np.log(np.logspace(-3.0, -0.5, 7))]
+    grid = [(ls, lf) for ls in np.log(np.logspace(0.3, 2.4, 4))
+            for lf in np.log(np.logspace(-2.7, -0.6, 4))]
     costs = []
     for i, p in enumerate(grid):
         costs.append(cost(p))
-        if progress is not None and i % 7 == 6:
-            progress(f"Dahl search: grid {i + 1}/{len(grid)}", (i + 1) / (len(grid) + 60))
+        if progress is not None and i % 4 == 3:
+            progress(f"Dahl search: grid {i + 1}/{len(grid)}", (i + 1) / (len(grid) + 70))
     best = grid[int(np.argmin(costs))]
     res = scipy.optimize.minimize(cost, np.array(best), method="Nelder-Mead",
-                                  options={"xatol": 1e-3, "fatol": 1e-9 * max(1.0, min(costs)),
-                                           "maxfev": 120})
+                                  options={"xatol": 2e-3, "fatol": 1e-9 * max(1.0, min(costs)),
+                                           "maxfev": 70, "initial_simplex": np.array(
+                                               [best, (best[0] + 0.7, best[1]),
+                                                (best[0], best[1] + 0.7)])})
     p_opt = res.x
     cost_dahl = float(res.fun)
     use_dahl = cost_dahl < 0.9 * cost_linear

@@ -97,6 +97,20 @@ class PlantIdentification:
         return out
 
 
+def excited_band(ref, dt, relative=MIN_RELATIVE_POWER):
+    """Band [rad/s] where ``omega P_rr`` (Welch, flat for a log chirp) is within ``relative``
+    of its maximum: the frequencies the excitation reaches."""
+    import scipy.signal
+    nper = int(min(2 ** 14, max(256, ref.size // 4)))
+    f, p = scipy.signal.welch(ref - np.mean(ref), fs=1.0 / dt, nperseg=nper)
+    w = 2.0 * np.pi * f[1:]
+    wp = w * p[1:]
+    if not np.any(wp > 0):
+        return math.inf, 0.0
+    ok = w[wp >= relative * wp.max()]
+    return float(ok.min()), float(ok.max())
+
+
 def _excitation(series, excitation):
     s = series.signals
     if excitation == "auto":
@@ -173,13 +187,9 @@ def identify_plant(series, band=(0.5, 400.0), rational_band=(0.5, 400.0), excita
         ref, ref_delay = s["f_a"], motor_effort_delay
     report("Blackman-Tukey spectra", 0.05)
     bt = BlackmanTukey(ref, dt, omega, periods=periods, reference_delay=ref_delay)
-    # excitation content over the band
-    wide = np.logspace(math.log10(w_lo / 10), math.log10(min(0.9 * nyq, w_hi * 10)), 200)
-    bt_wide = BlackmanTukey(ref, dt, wide, periods=periods, reference_delay=ref_delay)
-    power = wide * bt_wide.reference_spectrum
-    excited = wide[power >= MIN_RELATIVE_POWER * power.max()]
-    ex_lo, ex_hi = float(excited.min()), float(excited.max())
-    if ex_lo > w_lo * 1.05 or ex_hi < w_hi / 1.05:
+    ex_lo, ex_hi = excited_band(ref, dt)
+    check_lo = max(w_lo, 4.0 * math.pi / min(series.duration, 2 ** 14 * dt))
+    if ex_lo > check_lo * 1.05 or ex_hi < w_hi / 1.05:
         raise IdentificationError(
             f"too little frequency content for the band {w_lo:g}-{w_hi:g} rad/s: the "
             f"{excitation} excitation covers about {ex_lo:.3g}-{ex_hi:.3g} rad/s. Record a "

@@ -32,6 +32,7 @@ of a cycle was applied during the interval *before* the sample (``delay=-0.5``).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -39,10 +40,13 @@ import numpy as np
 __all__ = ["BlackmanTukey", "FrequencyResponse", "hann_lag_window"]
 
 
+@functools.lru_cache(maxsize=64)
 def hann_lag_window(m):
     """Hann lag window of half-length ``m`` at lags ``-m..m`` (``w(0) = 1``, ``w(+-m) = 0``)."""
     tau = np.arange(-m, m + 1)
-    return 0.5 * (1.0 + np.cos(np.pi * tau / m))
+    w = 0.5 * (1.0 + np.cos(np.pi * tau / m))
+    w.setflags(write=False)
+    return w
 
 
 class FrequencyResponse:
