@@ -14,6 +14,7 @@ order even when something failed: side-channel ``shutdown``, SIGTERM then SIGKIL
 the host is touched.  Requires root (CAP_NET_ADMIN, CAP_NET_RAW).
 """
 
+import atexit
 import itertools
 import json
 import os
@@ -30,6 +31,13 @@ from ethercat.emulator.config import default_config
 TEST_DIR = pathlib.Path(__file__).resolve().parent.parent      # .../test
 ROOT = TEST_DIR.parent
 _counter = itertools.count()
+_running = set()          # harnesses started and not yet stopped (atexit safety net)
+
+
+@atexit.register
+def _stop_leftovers():
+    for harness in list(_running):
+        harness.stop()
 
 
 class HarnessError(RuntimeError):
@@ -104,6 +112,7 @@ class EmulatorHarness:
     # --- set-up ----------------------------------------------------------------------------------
     def start(self, timeout=20.0):
         """Create namespace + veth pair, start the emulator, wait for its side channel."""
+        _running.add(self)
         try:
             self._create_network()
             self._start_process()
@@ -210,6 +219,9 @@ class EmulatorHarness:
         if self._tmp is not None:
             self._tmp.cleanup()
             self._tmp = None
+        _running.discard(self)
+        if code is None and self.process is not None:
+            code = self.process.returncode
         return code
 
     def __enter__(self):
