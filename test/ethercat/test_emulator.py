@@ -107,6 +107,25 @@ def test_op_and_cyclic_working_counter(ecat_bus, soem_master):
     assert st["counters"]["malformed"] == 0 and st["counters"]["ignored"] == 0
 
 
+def test_block_lrw_makes_soem_use_lwr_and_lrd(ecat_emulator, soem_master):
+    config = default_config()
+    # on the terminal: SOEM copies the SII data of a slave identical to an earlier one
+    # (the pinch drive gets the wrist drive's), so the flag would be missed there
+    config["slaves"][2]["block_lrw"] = True
+    emu = ecat_emulator(config)
+    bus = SoemBus(soem_master(emu.master_interface))
+    assert bus.bring_up() == pysoem.OP_STATE
+    frames0 = emu.client.status()["counters"]["datagrams"]
+    wkcs = bus.cycle(50)
+    assert wkcs == [bus.master.expected_wkc] * 50
+    st = emu.client.status()
+    assert st["counters"]["datagrams"] - frames0 == 100          # LWR + LRD per cycle
+    bus.enable(1, 100)
+    d = bus.command(1, CW_ENABLE_OPERATION, 100, cycles=50)
+    assert cia402_state(d.statusword) == "operation_enabled" and d.torque == 100
+    assert emu.client.torque_applied("pinch_drive")
+
+
 def test_cia402_enable_applies_torque_and_moves_the_plant(bus_in_op):
     emu, bus = bus_in_op
     bus.cycle(5)

@@ -24,6 +24,7 @@ Format (every key optional except ``slaves``; integers may be written as ``"0x..
         product_code: 0x0C1E3052
         revision: 0x00100000
         serial: 3
+        block_lrw: false             # SII blockLRW flag (any slave): SOEM uses LWR + LRD
         inputs:                      # exactly 2; null = 0 V
           - {channel: wrist, quantity: pressure}
           - {channel: pinch, quantity: pressure,
@@ -185,7 +186,7 @@ def build(config, clock=None):
     if not isinstance(config, dict) or not isinstance(config.get("slaves"), list) \
             or not config["slaves"]:
         raise ConfigError("the configuration needs a non-empty 'slaves' list")
-    extra = {} if clock is None else {"clock": clock}
+    base_extra = {} if clock is None else {"clock": clock}
     cycle_time = _float(config.get("cycle_time", 0.0005), "cycle_time")
     if not cycle_time > 0:
         raise ConfigError("cycle_time must be > 0 s, got %r" % cycle_time)
@@ -202,6 +203,9 @@ def build(config, clock=None):
         if name in names:
             raise ConfigError("%s.name %r is used twice" % (key, name))
         names.add(name)
+        extra = dict(base_extra)
+        if spec.get("block_lrw"):
+            extra["block_lrw"] = True
         if kind == "cia402_drive":
             channel = spec.get("channel")
             if not channel:

@@ -84,11 +84,15 @@ class EscSlave:
         Identity, SMs, FMMUs and PDOs of the SII image.
     clock : callable
         Monotonic time source [s] (the watchdog's time base).
+    block_lrw : bool
+        Set the SII GENERAL flag blockLRW: SOEM then uses LWR + LRD instead of LRW.
     """
 
     kind = "esc"
 
-    def __init__(self, name, sii_spec, clock=time.monotonic):
+    def __init__(self, name, sii_spec, clock=time.monotonic, block_lrw=False):
+        if block_lrw:
+            sii_spec.block_lrw = True
         self.name = name
         self.clock = clock
         self.sii_spec = sii_spec
