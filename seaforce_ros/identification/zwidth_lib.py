@@ -1,0 +1,166 @@
+"""Endpoint impedance Z(jw) = F_e/V_e per controller mode and the Z-width (paper Fig. 5C).
+
+Measured the way the paper did: the endpoint is backdriven by a stiff position drive
+(``position_sine``, the bonded second finger) at one frequency at a time; Z is the ratio of
+the Fourier coefficients of F_e and V_e = j w X_e over whole periods after the transient
+(:func:`seaforce_ros.core.analysis.impedance_from_position`).
+
+* :func:`simulate_impedance` runs that experiment offline with the core (simulated plant =
+  the "true" one, controller configured with any -- e.g. identified -- parameters);
+* :func:`impedance_from_record` measures it on a recorded backdrive bag (the drive frequency
+  is found from the endpoint motion);
+* :func:`zwidth` is 20 log10(|Z_hold|/|Z_min|) with Z_min the lowest-impedance mode at each
+  frequency (the "MaxZ" reference is the stiff PD ``hold``).
+
+The DC limit is represented by a measurement at ``DC_OMEGA`` = 0.1 rad/s, where every mode's
+|Z| is within 0.1 dB of its stiffness asymptote |K|/w for the Table I plant (the slowest pole
+of the passive endpoint is at 4 rad/s).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Dict, List, Optional, Sequence
+
+import numpy as np
+
+from ..core.analysis import fourier_coefficient, impedance_from_position
+from ..core.params import ControllerConfig
+from .errors import IdentificationError
+from .experiments import work_loop_experiment
+
+__all__ = ["DC_OMEGA", "DEFAULT_MODES", "simulate_impedance", "impedance_from_record",
+           "zwidth", "ZWidthRow", "zwidth_rows", "drive_frequency", "config_from_params"]
+
+DC_OMEGA = 0.1
+DEFAULT_MODES = ("off", "hold", "dob", "dob_linear_ff", "dob_full_ff")
+
+
+def simulate_impedance(plant, dahl, config, modes=DEFAULT_MODES, omegas=(DC_OMEGA, 1, 3, 10),
+                       amplitude=0.2, cycles=2.0, sensors=None, seed=0, progress=None):
+    """|Z| per mode and frequency from the offline backdrive experiment.
+
+    Parameters
+    ----------
+    plant, dahl : PlantParams, DahlParams or None
+        The simulated (true) gripper.
+    config : ControllerConfig
+        Controller settings (its plant/dahl are what the controller *believes*, e.g. the
+        identified parameters); ``mode`` is replaced per run.
+    modes : sequence of str
+    omegas : sequence of float > 0 [rad/s]
+    amplitude : float
+        Drive amplitude [rad].
+
+    Returns
+    -------
+    dict mode -> complex array of Z(j w) [N m s/rad] on ``omegas``.
+    """
+    out = {}
+    total = len(modes) * len(omegas)
+    k = 0
+    for mode in modes:
+        zs = []
+        for w in omegas:
+            if progress is not None:
+                progress(f"backdrive {mode} at {w:g} rad/s", k / total)
+            k += 1
+            settle = max(1.0, 3.0 / w) if w >= 1.0 else 0.25
+            rec = work_loop_experiment(plant=plant, dahl=dahl, sensors=sensors,
+                                       amplitude=amplitude, frequency=w,
+                                       cycles=cycles if w >= 1.0 else 1.0, mode=mode,
+                                       config=config, seed=seed, settle_cycles=settle)
+            dt = rec["t"][1] - rec["t"][0]
+            zs.append(impedance_from_position(rec["f_e"], rec["x_e"], w, dt, rec["settle"]))
+        out[mode] = np.asarray(zs)
+    return out
+
+
+def drive_frequency(x, dt):
+    """Frequency [rad/s] of the dominant sinusoid in ``x`` (FFT peak, refined by maximising
+    the single-frequency Fourier coefficient)."""
+    x = np.asarray(x, float) - np.mean(x)
+    n = x.size
+    spec = np.abs(np.fft.rfft(x * np.hanning(n)))
+    spec[0] = 0.0
+    k = int(np.argmax(spec))
+    if k == 0 or spec[k] == 0:
+        raise IdentificationError("no periodic endpoint motion found in the bag")
+    df = 2 * math.pi / (n * dt)
+    lo, hi = max((k - 1) * df, 0.5 * df), (k + 1) * df
+    # golden-section on |Fourier coefficient| over whole periods
+    g = (math.sqrt(5) - 1) / 2
+    a, b = lo, hi
+
+    def f(w):
+        n_per = int((n * dt) / (2 * math.pi / w))
+        if n_per < 1:
+            return 0.0
+        return abs(fourier_coefficient(x, w, dt))
+
+    c, d = b - g * (b - a), a + g * (b - a)
+    for _ in range(40):
+        if f(c) > f(d):
+            b = d
+        else:
+            a = c
+        c, d = b - g * (b - a), a + g * (b - a)
+    return 0.5 * (a + b)
+
+
+def impedance_from_record(series, omega=None, settle=None):
+    """Z(j w) of a backdrive record (Series with x_e, f_e); returns ``(omega, Z)``."""
+    s = series.signals
+    if "x_e" not in s or "f_e" not in s:
+        raise IdentificationError("a backdrive bag needs endpoint_position and external_force")
+    w = drive_frequency(s["x_e"], series.dt) if omega is None else float(omega)
+    period = 2 * math.pi / w
+    if settle is None:
+        settle = min(period, 0.25 * series.duration)
+    if series.duration - settle < period:
+        raise IdentificationError(
+            f"too little data: the drive at {w:.3g} rad/s needs at least one full period "
+            f"({period:.1f} s) after {settle:.1f} s of transient; the record is "
+            f"{series.duration:.1f} s")
+    return w, impedance_from_position(s["f_e"], s["x_e"], w, series.dt, settle)
+
+
+def zwidth(z_hold, z_min):
+    """20 log10(|Z_hold|/|Z_min|) [dB]."""
+    return 20.0 * np.log10(np.abs(z_hold) / np.abs(z_min))
+
+
+@dataclass
+class ZWidthRow:
+    omega: float
+    z_db: Dict[str, float]
+    min_mode: Optional[str]
+    width_db: Optional[float]
+
+
+def zwidth_rows(omegas, z_by_mode, reference="hold", min_modes=None):
+    """Per frequency: |Z| [dB] per mode, the minimum-impedance mode (among ``min_modes``,
+    default every mode but the reference) and the Z-width against ``reference``."""
+    rows = []
+    for i, w in enumerate(omegas):
+        z_db = {m: float(20 * np.log10(abs(z[i]))) for m, z in z_by_mode.items()
+                if i < len(z) and np.isfinite(z[i])}
+        cands = [m for m in (min_modes or z_db) if m != reference and m in z_db]
+        min_mode = min(cands, key=lambda m: z_db[m]) if cands else None
+        width = (z_db[reference] - z_db[min_mode]) if (min_mode and reference in z_db) else None
+        rows.append(ZWidthRow(float(w), z_db, min_mode, width))
+    return rows
+
+
+def config_from_params(plant_dict, dahl_dict, base=None):
+    """ControllerConfig with the plant/dahl of a params file on top of ``base``."""
+    from ..core.params import DahlParams, PlantParams
+    base = base or ControllerConfig()
+    plant = PlantParams(**{k: float(v) for k, v in plant_dict.items()}) if plant_dict \
+        else base.plant
+    dahl = DahlParams(**{k: float(v) for k, v in dahl_dict.items()}) if dahl_dict \
+        else base.dahl
+    from dataclasses import replace
+    dob = replace(base.dob, nominal_inertia=plant.motor_inertia)
+    return base.replace(plant=plant, dahl=dahl, dob=dob)

@@ -1,0 +1,239 @@
+"""zwidth: endpoint impedance Z = F_e/V_e per controller mode and the Z-width (Fig. 5C).
+
+From backdrive bags (one mode and drive frequency per bag; the mode is read from the bag's
+``controller_status`` or given as ``MODE=BAG``)::
+
+    zwidth hold=bags/hold_1rad dob_full_ff=bags/ff_1rad --channel pinch [--plot z.png]
+
+Or by running the backdrive experiment offline on the core simulator (true plant = Table I
+with Dahl hysteresis unless ``--true-params``; the controller uses ``--params``, e.g. the
+output of ``identify``; ``--reference-params`` repeats it with a second controller parameter
+set and compares the Z-widths)::
+
+    zwidth --simulate --channel pinch --params PARAMS.yaml --reference-params TRUE.yaml
+
+Table: |Z| [dB re 1 N m s/rad] per mode at the DC limit (0.1 rad/s), 1, 3 and 10 rad/s and
+the Z-width = |Z_hold| / |Z_min| in dB, Z_min the lowest-impedance mode at that frequency.
+Exit status 0 ok, 2 bad input (one line on stderr).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import math
+import sys
+
+import numpy as np
+
+__all__ = ["main", "build_parser"]
+
+
+def build_parser():
+    p = argparse.ArgumentParser(prog="zwidth", description="Endpoint impedance per mode and "
+                                "Z-width (minimum-impedance mode vs hold).")
+    p.add_argument("bags", nargs="*", help="backdrive bags, BAG or MODE=BAG")
+    p.add_argument("--channel", required=True)
+    p.add_argument("--simulate", action="store_true", help="run the backdrive experiment "
+                   "offline instead of reading bags")
+    p.add_argument("--params", help="controller parameters (plant, dahl) for --simulate")
+    p.add_argument("--reference-params", help="second controller parameter set to compare "
+                   "with (e.g. the true values)")
+    p.add_argument("--true-params", help="parameters of the simulated gripper (default "
+                   "Table I, Dahl sigma 12.8 N m/rad, F_c 0.032 N m)")
+    p.add_argument("--modes", default="off,hold,dob,dob_linear_ff,dob_full_ff",
+                   help="modes for --simulate (comma separated)")
+    p.add_argument("--frequencies", default="dc,1,3,10",
+                   help="drive frequencies [rad/s] for --simulate; dc = 0.1 rad/s")
+    p.add_argument("--amplitude", type=float, default=0.2, help="drive amplitude [rad]")
+    p.add_argument("--topic", default="actuator_state")
+    p.add_argument("--plot", help="PNG file for the Fig. 5C-style plot")
+    p.add_argument("--quiet", action="store_true")
+    return p
+
+
+def _frequencies(text):
+    from .identification.errors import IdentificationError
+    from .identification.zwidth_lib import DC_OMEGA
+    out = []
+    for item in text.split(","):
+        item = item.strip().lower()
+        try:
+            w = DC_OMEGA if item == "dc" else float(item)
+        except ValueError:
+            raise IdentificationError(f"bad frequency {item!r} (numbers in rad/s or dc)") \
+                from None
+        if not w > 0:
+            raise IdentificationError(f"frequencies must be > 0, got {w}")
+        out.append(w)
+    return out
+
+
+def _params(path, channel):
+    from .identification.output import read_params_file
+    return read_params_file(path, channel)
+
+
+def _mode_in_bag(path, channel):
+    """Most common ``mode`` of ``channel`` in the bag's controller_status (None if absent)."""
+    from rosbags.rosbag2 import Reader
+    from .identification.bagio import bag_sources, typestore
+    store = typestore()
+    counts = collections.Counter()
+    for src in bag_sources(path):
+        try:
+            with Reader(src) as reader:
+                conns = [c for c in reader.connections
+                         if c.msgtype == "seaforce_msgs/msg/ControllerStatus"]
+                for i, (_c, _t, data) in enumerate(reader.messages(connections=conns)):
+                    msg = store.deserialize_cdr(data, "seaforce_msgs/msg/ControllerStatus")
+                    names = list(msg.name)
+                    if channel in names:
+                        counts[msg.mode[names.index(channel)]] += 1
+                    if i > 200:
+                        break
+        except Exception:  # an unreadable split: the mode may still be in another
+            continue
+        if counts:
+            break
+    return counts.most_common(1)[0][0] if counts else None
+
+
+def _from_bags(args, progress):
+    from .identification.bagio import read_channel
+    from .identification.errors import IdentificationError
+    from .identification.timeseries import prepare
+    from .identification.zwidth_lib import impedance_from_record
+
+    points = collections.defaultdict(list)     # mode -> [(omega, Z)]
+    for item in args.bags:
+        mode, _, path = item.rpartition("=") if "=" in item else ("", "", item)
+        progress(f"reading {path}", None)
+        record = read_channel(path, args.channel, args.topic)
+        series = prepare(record, ("x_e", "f_e"))
+        if not mode:
+            mode = _mode_in_bag(path, args.channel)
+            if mode is None:
+                raise IdentificationError(f"{path}: no controller_status in the bag to tell "
+                                          "the mode; give it as MODE=BAG")
+        w, z = impedance_from_record(series)
+        for note in series.notes():
+            print(f"note ({path}): {note}")
+        print(f"{path}: mode {mode}, drive {w:.4g} rad/s, |Z| = {20 * math.log10(abs(z)):.2f} "
+              "dB")
+        points[mode].append((w, z))
+    # common frequency grid (drive frequencies rounded to 3 significant digits)
+    omegas = sorted({float(f"{w:.3g}") for pts in points.values() for w, _ in pts})
+    z_by_mode = {}
+    for mode, pts in points.items():
+        arr = np.full(len(omegas), np.nan + 0j)
+        for w, z in pts:
+            arr[omegas.index(float(f"{w:.3g}"))] = z
+        z_by_mode[mode] = arr
+    return omegas, z_by_mode
+
+
+def _print_rows(title, rows, modes):
+    from .identification.output import format_table
+    from .identification.zwidth_lib import DC_OMEGA
+    print(title)
+    headers = ["mode"] + [("DC (0.1)" if abs(r.omega - DC_OMEGA) < 1e-12 else f"{r.omega:g}")
+                          + " rad/s" for r in rows]
+    table = []
+    for m in modes:
+        table.append([m] + [f"{r.z_db[m]:.2f}" if m in r.z_db else "-" for r in rows])
+    table.append(["Z-width [dB]"] + [f"{r.width_db:.2f}" if r.width_db is not None else "-"
+                                     for r in rows])
+    table.append(["  min mode"] + [r.min_mode or "-" for r in rows])
+    print(format_table(headers, table, [None] * len(headers)))
+
+
+def run(args):
+    from .core.params import ControllerConfig, DahlParams, PlantParams
+    from .identification.errors import IdentificationError
+    from .identification.output import Progress, check_output_file
+    from .identification.zwidth_lib import (config_from_params, simulate_impedance,
+                                            zwidth_rows)
+
+    progress = Progress("zwidth", quiet=args.quiet)
+    if args.plot:
+        check_output_file(args.plot)
+    curves = {}
+    if args.simulate:
+        if args.bags:
+            raise IdentificationError("give bags or --simulate, not both")
+        if args.true_params:
+            tp, td = _params(args.true_params, args.channel)
+            plant = PlantParams(**{k: float(v) for k, v in tp.items()}) if tp \
+                else PlantParams.table_i()
+            dahl = DahlParams(**{k: float(v) for k, v in td.items()}) if td else DahlParams()
+        else:
+            plant, dahl = PlantParams.table_i(), DahlParams()
+        truth_config = ControllerConfig(plant=plant, dahl=dahl)
+        sets = []
+        if args.params:
+            sets.append(("params", config_from_params(*_params(args.params, args.channel),
+                                                      base=truth_config)))
+        else:
+            sets.append(("true parameters", truth_config))
+        if args.reference_params:
+            sets.append(("reference", config_from_params(
+                *_params(args.reference_params, args.channel), base=truth_config)))
+        omegas = _frequencies(args.frequencies)
+        modes = [m.strip() for m in args.modes.split(",") if m.strip()]
+        if "hold" not in modes:
+            modes.insert(0, "hold")
+        results = []
+        for i, (label, cfg) in enumerate(sets):
+            z = simulate_impedance(plant, dahl, cfg, modes, omegas, amplitude=args.amplitude,
+                                   progress=progress.stage(i / len(sets), (i + 1) / len(sets)))
+            rows = zwidth_rows(omegas, z)
+            _print_rows(f"|Z| [dB re 1 N m s/rad], controller with {label} "
+                        f"({args.params if label == 'params' else args.reference_params or ''})"
+                        .replace(" ()", ""), rows, modes)
+            results.append(rows)
+            curves[label] = z
+        if len(results) == 2:
+            print("Z-width difference (params - reference) [dB]: " + ", ".join(
+                f"{a.omega:g} rad/s {a.width_db - b.width_db:+.2f}"
+                for a, b in zip(*results) if a.width_db is not None and b.width_db is not None))
+        z_plot = curves[sets[0][0]]
+    else:
+        if not args.bags:
+            raise IdentificationError("give backdrive bags (BAG or MODE=BAG) or --simulate")
+        omegas, z_plot = _from_bags(args, progress)
+        modes = list(z_plot)
+        rows = zwidth_rows(omegas, z_plot)
+        _print_rows("|Z| [dB re 1 N m s/rad] from the bags", rows, modes)
+    if args.plot:
+        from .identification.plots import zwidth_fig5c
+        markers = {m: (np.asarray(omegas), z) for m, z in z_plot.items()}
+        lines = dict(z_plot)
+        if args.simulate and len(curves) == 2:
+            for m, z in curves["reference"].items():
+                lines[f"{m} (reference)"] = z
+        path = zwidth_fig5c(np.asarray(omegas), lines, args.plot,
+                            f"channel {args.channel}: endpoint impedance per mode",
+                            markers=markers)
+        print(f"wrote {path}")
+    progress("done", 1.0)
+    return 0
+
+
+def main(argv=None):
+    from .core.errors import SeaforceError
+    from .identification.errors import IdentificationError
+
+    args = build_parser().parse_args(argv)
+    try:
+        return run(args)
+    except (IdentificationError, SeaforceError, ValueError, OSError) as exc:
+        print(f"zwidth: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("zwidth: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
