@@ -78,8 +78,8 @@ def simulate_impedance(plant, dahl, config, modes=DEFAULT_MODES, omegas=(DC_OMEG
 
 
 def drive_frequency(x, dt):
-    """Frequency [rad/s] of the dominant sinusoid in ``x`` (FFT peak, refined by maximising
-    the single-frequency Fourier coefficient)."""
+    """Frequency [rad/s] of the dominant sinusoid in ``x`` (FFT peak, refined by nonlinear
+    least squares: the frequency whose sine/cosine (+ offset and trend) explain most of x)."""
     x = np.asarray(x, float) - np.mean(x)
     n = x.size
     spec = np.abs(np.fft.rfft(x * np.hanning(n)))
@@ -89,15 +89,17 @@ def drive_frequency(x, dt):
         raise IdentificationError("no periodic endpoint motion found in the bag")
     df = 2 * math.pi / (n * dt)
     lo, hi = max((k - 1) * df, 0.5 * df), (k + 1) * df
-    # golden-section on |Fourier coefficient| over whole periods
+    # golden-section on the variance explained by a sinusoid at w
     g = (math.sqrt(5) - 1) / 2
     a, b = lo, hi
+    t = np.arange(n) * dt
+    trend = t - t.mean()
 
     def f(w):
-        n_per = int((n * dt) / (2 * math.pi / w))
-        if n_per < 1:
-            return 0.0
-        return abs(fourier_coefficient(x, w, dt))
+        basis = np.stack([np.sin(w * t), np.cos(w * t), np.ones(n), trend], axis=1)
+        coef, *_ = np.linalg.lstsq(basis, x, rcond=None)
+        fitted = basis @ coef
+        return float(fitted @ fitted)
 
     c, d = b - g * (b - a), a + g * (b - a)
     for _ in range(40):
