@@ -126,7 +126,8 @@ class StateLayout:
         if n != count:
             raise ValueError(f"status has {n} entries for {count} names")
         self.status = pos + 4
-        if self.status + n != self.length:
+        # serialisers pad the message to a multiple of 4 bytes (Fast DDS does)
+        if not 0 <= self.length - (self.status + n) < 4:
             raise ValueError("unexpected trailing bytes")
         self.template = np.frombuffer(data, dtype=np.uint8).copy()
 
@@ -209,8 +210,15 @@ def _topic_matches(name, topic):
     return name == topic or (not topic[1:].count("/") and name.endswith(topic))
 
 
+def _names(data):
+    try:
+        return StateLayout(data).names
+    except ValueError:
+        return list(typestore().deserialize_cdr(data, ACTUATOR_STATE).name)
+
+
 def _check_channel(data, channel):
-    names = StateLayout(data).names
+    names = _names(data)
     if channel not in names:
         raise IdentificationError(
             f"unknown channel {channel!r}: the bag's actuator_state has channels "
@@ -258,14 +266,19 @@ def _raw_messages(path, topic, progress=None, channel=None):
 def _decode(raws, channel):
     """Decode raw ActuatorState messages for one channel -> dict of arrays + names."""
     store = typestore()
-    layout = StateLayout(raws[0])
-    names = layout.names
+    try:
+        layout = StateLayout(raws[0])
+    except ValueError:   # unexpected layout: decode every message generically
+        layout = None
+    names = layout.names if layout is not None else _names(raws[0])
     if channel not in names:
         raise IdentificationError(
             f"unknown channel {channel!r}: the bag's actuator_state has channels "
             f"{', '.join(names) or '(none)'}; pass one of them with --channel")
     j = names.index(channel)
     n = len(raws)
+    if layout is None:
+        layout = _state_template(names)
     lengths = np.fromiter((len(r) for r in raws), dtype=np.int64, count=n)
     same = lengths == layout.length
     idx_fast = np.flatnonzero(same)
@@ -391,6 +404,17 @@ class SplitBagWriter:
                                                 offered_qos_profiles=self.offered_qos.get(t, ()))
                        for t, mt in self.topics.items()}
         self._writer, self.current, self._split_start = writer, path, timestamp
+
+    def add_topic(self, topic, msgtype):
+        """Add a topic (also to the open split)."""
+        if topic in self.topics:
+            return
+        self.topics[topic] = msgtype
+        self.written.setdefault(topic, 0)
+        if self._writer is not None:
+            self._conns[topic] = self._writer.add_connection(
+                topic, msgtype, typestore=typestore(),
+                offered_qos_profiles=self.offered_qos.get(topic, ()))
 
     def _close_current(self):
         if self._writer is not None:
