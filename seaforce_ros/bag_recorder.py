@@ -53,6 +53,8 @@ KNOWN_TYPES = {
     'controller_status': 'seaforce_msgs/msg/ControllerStatus',
 }
 DEFAULT_TOPICS = ('actuator_state', 'actuator_command', 'controller_status')
+#: the writer thread wakes up this often [s] when the queue is empty
+WRITE_PERIOD = 0.01
 
 
 def node_specs():
@@ -157,21 +159,28 @@ class BagRecorderNode(Node):
 
     # --- writer thread -----------------------------------------------------------------------
     def _write_loop(self):
+        """Drain the queue in batches every few milliseconds (few wake-ups and GIL hand-overs
+        per message: the executor thread that takes messages from DDS stays responsive)."""
         q = self._queue
         writer = self.writer
+        get = q.get_nowait
         try:
             while True:
+                batch = []
                 try:
-                    item = q.get(timeout=0.2)
+                    while len(batch) < 20000:
+                        batch.append(get())
                 except queue.Empty:
+                    pass
+                for topic, stamp, data in batch:
+                    if topic == '__topic__':
+                        writer.add_topic(data, stamp)
+                    else:
+                        writer.write(topic, stamp, data)
+                if not batch:
                     if self._stop.is_set():
                         break
-                    continue
-                topic, stamp, data = item
-                if topic == '__topic__':
-                    writer.add_topic(data, stamp)
-                    continue
-                writer.write(topic, stamp, data)
+                    time.sleep(WRITE_PERIOD)
         except Exception as exc:  # disk full, permissions: report, keep counting
             self._write_error = repr(exc)
             self.get_logger().error(f'writing the bag failed: {exc!r}; recording stopped')
