@@ -31,8 +31,9 @@ from . import param_specs as ps
 from .core.controller import ChannelController
 from .core.errors import NonFiniteInputError, SeaforceError
 from .core.params import ControllerConfig
-from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec, declare,
-                         diagnostic_status, diagnostics_publisher, publish_diagnostics, run)
+from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
+                         declare, diagnostic_status, diagnostics_publisher,
+                         publish_diagnostics, run, shutdown_safe)
 from .timing import LoopStats
 
 
@@ -52,6 +53,10 @@ def node_specs():
         ParamSpec('diagnostics_period', 1.0, '/diagnostics period [s]', low=0.05, high=60.0,
                   read_only=True),
     ]
+
+
+# the plant side reports it applied zero torque on this channel (watchdog or fault)
+_PLANT_STOPPED = ActuatorState.STATUS_COMMAND_TIMEOUT | ActuatorState.STATUS_FAULT
 
 
 class ControllerNode(Node):
@@ -153,15 +158,8 @@ class ControllerNode(Node):
                 self.get_logger().info(f'{self.channels[index]}: mode {old.mode} -> {config.mode}')
 
     # --- the 2 kHz path ------------------------------------------------------------------
+    @shutdown_safe
     def _on_state(self, msg):
-        try:
-            self._cycle(msg)
-        except Exception:
-            if self.context.ok():
-                raise
-            # else: shutting down (SIGINT) while a sample was in flight; nothing to do
-
-    def _cycle(self, msg):
         t0 = time.perf_counter()
         self.stats.tick()
         self._states += 1
@@ -184,7 +182,8 @@ class ControllerNode(Node):
             self._latch_all(f'stale state: {age_ms:.1f} ms old (> state_timeout)')
         self._armed = True
         effort = self._effort
-        xs, vs, fps = msg.motor_position, msg.motor_velocity, msg.pressure_force
+        xs, vs, fps, status = (msg.motor_position, msg.motor_velocity, msg.pressure_force,
+                               msg.status)
         n_state = len(names)
         for i, ctrl in enumerate(self.controllers):
             j = index[i]
@@ -196,6 +195,8 @@ class ControllerNode(Node):
             try:
                 if len(xs) != n_state or len(vs) != n_state or len(fps) != n_state:
                     raise ValueError('actuator_state arrays differ in length from name')
+                if status and status[j] & _PLANT_STOPPED:
+                    ctrl.track_applied(0.0)  # the plant side zeroed the torque: no windup
                 u = ctrl.update(xs[j], vs[j], fps[j])
             except (NonFiniteInputError, ValueError) as exc:
                 self._latch(i, f'bad state: {exc}')
@@ -261,6 +262,7 @@ class ControllerNode(Node):
         self.get_logger().info(f'reset: {response.message}')
         return response
 
+    @shutdown_safe
     def _publish_diagnostics(self):
         s = self.stats.summary()
         statuses = [diagnostic_status(
@@ -286,7 +288,7 @@ class ControllerNode(Node):
 
 
 def main(args=None):
-    sys.exit(run(ControllerNode, args=args))
+    sys.exit(run(ControllerNode, args=args, name='controller_node'))
 
 
 if __name__ == '__main__':

@@ -40,8 +40,8 @@ from .ethercat.cia402 import CW_DISABLE_VOLTAGE, MODE_CST, DriveSequencer
 from .ethercat.master import BusError, EthercatBus
 from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
                          declare, diagnostic_status, diagnostics_publisher,
-                         publish_diagnostics, run, stamp_now)
-from .timing import Deadline, LoopStats
+                         publish_diagnostics, run, shutdown_safe, stamp_now)
+from .timing import CommandTiming, Deadline, LoopStats
 
 STATUS_COMMAND_TIMEOUT = ActuatorState.STATUS_COMMAND_TIMEOUT
 STATUS_LIMIT = ActuatorState.STATUS_LIMIT
@@ -168,6 +168,7 @@ class HardwareNode(Node):
         self._faults_total = 0
         self._reset_requested = False
         self.stats = LoopStats(self.dt)
+        self.timing = CommandTiming()
 
         qos = values['control_qos']
         self._state_msg = ActuatorState()
@@ -205,6 +206,7 @@ class HardwareNode(Node):
                 self._js_every = self._decimation(p.value)
 
     # --- commands ------------------------------------------------------------------------
+    @shutdown_safe
     def _on_command(self, msg):
         names = msg.name
         if len(msg.effort) != len(names):
@@ -218,7 +220,8 @@ class HardwareNode(Node):
             if i >= 0:
                 command[i] = value if math.isfinite(value) else NAN
         self._command = command
-        self._command_time = time.monotonic()
+        self._command_time = now = time.monotonic()
+        self.timing.on_command(msg.cycle, self.cycle, now)
 
     def _on_reset(self, request, response):
         faults = [f'{c.cfg.name}: {c.fault}' for c in self.ch if c.fault]
@@ -249,6 +252,7 @@ class HardwareNode(Node):
                 if not self._running:
                     break
                 self.stats.tick(now)
+                self.timing.on_tick(self.cycle)
                 if self._reset_requested:
                     self._reset_requested = False
                     self._bus_fault = ''
@@ -339,6 +343,7 @@ class HardwareNode(Node):
                 fe[i] = c.cfg.external_sign * fp[self._index[c.cfg.external_from_channel]]
         msg.motor_position, msg.motor_velocity, msg.pressure_force = x, v, fp
         msg.motor_effort, msg.endpoint_position, msg.external_force, msg.status = fa, xe, fe, st
+        self.timing.on_publish(self.cycle, time.monotonic())
         self.state_pub.publish(msg)
         if self._js_every and self.cycle % self._js_every == 0:
             js = self._js_msg
@@ -349,8 +354,10 @@ class HardwareNode(Node):
             self.js_pub.publish(js)
 
     # --- monitoring / shut-down ----------------------------------------------------------
+    @shutdown_safe
     def _publish_diagnostics(self):
         s = self.stats.summary()
+        rtt50, rtt99 = self.timing.round_trip_ms()
         statuses = [diagnostic_status(
             'hardware: bus', self.bus.interface,
             DiagnosticStatus.ERROR if (self._bus_fault or not self._running) else DiagnosticStatus.OK,
@@ -359,6 +366,8 @@ class HardwareNode(Node):
             {'cycle': self.cycle, 'rate_hz': s.rate_hz, 'period_p50_ms': s.period_p50_ms,
              'period_p99_ms': s.period_p99_ms, 'jitter_p99_ms': s.jitter_p99_ms,
              'missed_deadlines': s.missed, 'wkc_errors_total': self._wkc_errors_total,
+             'round_trip_p50_ms': rtt50, 'round_trip_p99_ms': rtt99,
+             'late_commands_total': self.timing.late,
              'expected_wkc': self.bus.expected_wkc, 'command_timeouts': self._timeouts,
              'faults_latched_total': self._faults_total})]
         for c in self.ch:
@@ -396,7 +405,7 @@ class HardwareNode(Node):
 
 def main(args=None):
     sys.setswitchinterval(2e-4)  # the cycle thread must get the GIL promptly
-    sys.exit(run(HardwareNode, args=args))
+    sys.exit(run(HardwareNode, args=args, name='hardware_node'))
 
 
 if __name__ == '__main__':

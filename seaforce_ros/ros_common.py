@@ -4,6 +4,7 @@ Only conversion and wiring lives here; the algorithms are in :mod:`seaforce_ros.
 """
 from __future__ import annotations
 
+import functools
 import math
 import sys
 import threading
@@ -191,32 +192,46 @@ def spin_forever(executor, context=None, chunk_sec: float = 1.0) -> None:
             return  # a callback raced the shutdown (e.g. publish on a shut-down context)
 
 
-def run(node_factory: Callable[..., Any], args=None, executor_param: str = 'executor') -> int:
-    """``main()`` body of every node executable: the Jazzy shutdown idiom.
+def run(node_factory: Callable[[], Any], args=None, executor_param: str = 'executor',
+        name: str = 'seaforce_ros') -> int:
+    """``main()`` body of every executable: the Jazzy shutdown idiom.
 
-    Creates the node, builds the executor its ``executor`` parameter names (if it has one),
-    spins until SIGINT / shutdown, then calls ``node.shutdown()`` if defined (safe state) and
-    destroys everything. Returns the process exit code.
+    ``node_factory()`` returns a node or a list of nodes (composition: one process, one
+    executor). The executor is the one the first node's ``executor`` parameter names. Spins
+    until SIGINT/SIGTERM; then, in this order: the executor is shut down (it must release the
+    nodes' callbacks first: an EventsExecutor destroyed while it still holds them aborts the
+    process), each node's ``shutdown()`` runs (safe state), the nodes are destroyed. A
+    :class:`StartupError` prints its message (no traceback) and exits 2.
     """
     rclpy.init(args=args)
-    node = None
+    nodes = []
+    executor = None
     code = 0
     try:
-        node = node_factory()
+        made = node_factory()
+        nodes = list(made) if isinstance(made, (list, tuple)) else [made]
         kind = 'single_threaded'
-        if node.has_parameter(executor_param):
-            kind = node.get_parameter(executor_param).value
+        if nodes[0].has_parameter(executor_param):
+            kind = nodes[0].get_parameter(executor_param).value
         executor = make_executor(kind)
-        executor.add_node(node)
-        node.get_logger().info(f'spinning with the {kind} executor')
+        for node in nodes:
+            executor.add_node(node)
+        nodes[0].get_logger().info(f'spinning with the {kind} executor')
         spin_forever(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except StartupError as exc:
-        print(f'[{getattr(exc, "node_name", "seaforce_ros")}] cannot start: {exc}', file=sys.stderr)
+        print(f'[{name}] cannot start: {exc}', file=sys.stderr)
         code = 2
     finally:
-        if node is not None:
+        if executor is not None:
+            executor.shutdown(timeout_sec=1.0)
+            for node in nodes:
+                try:
+                    executor.remove_node(node)
+                except Exception:
+                    pass
+        for node in reversed(nodes):
             try:
                 shutdown = getattr(node, 'shutdown', None)
                 if shutdown is not None:
@@ -225,6 +240,26 @@ def run(node_factory: Callable[..., Any], args=None, executor_param: str = 'exec
                 node.destroy_node()
         rclpy.try_shutdown()
     return code
+
+
+def shutdown_safe(callback):
+    """Decorate a node callback so that an error raised *because the context is shutting down*
+    (SIGINT while a sample was in flight: publish on a shut-down context) ends it quietly;
+    any other error propagates."""
+    @functools.wraps(callback)
+    def guarded(self, *args):
+        try:
+            return callback(self, *args)
+        except KeyboardInterrupt:
+            # SIGINT arrives wherever the main thread is -- at 2 kHz usually inside a
+            # callback. It means "stop": shut the context down, spin_forever then returns.
+            rclpy.try_shutdown(context=self.context)
+            return None
+        except Exception:
+            if self.context.ok():
+                raise
+            return None  # publish on a context shut down by SIGINT/SIGTERM meanwhile
+    return guarded
 
 
 class StartupError(RuntimeError):

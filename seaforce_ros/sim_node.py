@@ -20,7 +20,6 @@ takes effect at the start of the next cycle.
 """
 from __future__ import annotations
 
-import array
 import math
 import sys
 import threading
@@ -38,9 +37,10 @@ from .core.errors import SeaforceError
 from .core.params import DahlParams, PlantParams
 from .core.sensors import SensorParams
 from .core.simulator import ChannelSimulator
-from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec, declare, stamp_now,
-                         diagnostic_status, diagnostics_publisher, publish_diagnostics, run)
-from .timing import Deadline, LoopStats
+from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
+                         declare, diagnostic_status, diagnostics_publisher,
+                         publish_diagnostics, run, shutdown_safe, stamp_now)
+from .timing import CommandTiming, Deadline, LoopStats
 
 STATUS_OK = ActuatorState.STATUS_OK
 STATUS_COMMAND_TIMEOUT = ActuatorState.STATUS_COMMAND_TIMEOUT
@@ -101,12 +101,7 @@ class SimNode(Node):
         self._index_of = None            # cached command name order -> channel index
         self._pending_env = {}           # channel index -> Environment, applied next cycle
         self._timeouts = 0
-        # round trip: publish time of each state (ring by cycle) -> arrival of its command
-        self._sent_at = [0.0] * 4096
-        self._rtt = array.array('d', bytes(8 * 8192))
-        self._rtt_n = 0
-        self._command_cycle = -1
-        self._late_commands = 0          # cycles stepped without the answer to the last state
+        self.timing = CommandTiming()    # round trip and commands in time
         self._bad_commands = 0
         self._unknown_names = set()
         self.stats = LoopStats(self.dt)
@@ -208,25 +203,15 @@ class SimNode(Node):
                     pass  # applied before the next step
 
     # --- commands ------------------------------------------------------------------------
+    @shutdown_safe
     def _on_command(self, msg):
-        try:
-            self._command_received(msg)
-        except Exception:
-            if self.context.ok():
-                raise
-            # else: shutting down (SIGINT) while a command was in flight
-
-    def _command_received(self, msg):
         efforts = self._command_efforts(msg)
         if efforts is None:
             return
         now = time.monotonic()
         self._command = efforts
         self._command_time = now
-        self._command_cycle = msg.cycle
-        if msg.cycle <= self.cycle and self.cycle - msg.cycle < len(self._sent_at):
-            self._rtt[self._rtt_n % len(self._rtt)] = now - self._sent_at[msg.cycle % len(self._sent_at)]
-            self._rtt_n += 1
+        self.timing.on_command(msg.cycle, self.cycle, now)
         if self.lockstep:
             if msg.cycle != self.cycle:
                 return  # an answer to an older state (e.g. a re-published one)
@@ -299,7 +284,8 @@ class SimNode(Node):
             STATUS_FAULT if self._command_fault else 0)
         msg.status = [base | (STATUS_LIMIT if sim.limited else 0) for sim in self.sims]
         # the send time is taken before publishing: the answer can arrive before publish returns
-        self._last_publish = self._sent_at[cycle % len(self._sent_at)] = time.monotonic()
+        self._last_publish = now = time.monotonic()
+        self.timing.on_publish(cycle, now)
         self.state_pub.publish(msg)
         if self._js_every and cycle % self._js_every == 0:
             js = self._js_msg
@@ -328,19 +314,20 @@ class SimNode(Node):
                 elif was_timed_out and not timed_out:
                     self.get_logger().info('actuator_command back: torque re-enabled')
                 was_timed_out = timed_out
-                if self._command_cycle != self.cycle:
-                    self._late_commands += 1
+                self.timing.on_tick(self.cycle)
                 self._step(zero if timed_out else self._command, timed_out)
         except Exception as exc:  # never die silently: report and stop publishing
             if self._running and self.context.ok():
                 self.get_logger().fatal(f'simulation loop stopped: {exc!r}')
             self._running = False
 
+    @shutdown_safe
     def _lockstep_kick(self):
         if time.monotonic() - self._last_publish > 0.1:
             self._publish_state(self.cycle)
 
     # --- monitoring ----------------------------------------------------------------------
+    @shutdown_safe
     def _publish_diagnostics(self):
         s = self.stats.summary()
         level = DiagnosticStatus.OK
@@ -351,13 +338,10 @@ class SimNode(Node):
             level, message = DiagnosticStatus.WARN, 'waiting for actuator_command'
         elif not self.lockstep and time.monotonic() - self._command_time > self.command_timeout:
             level, message = DiagnosticStatus.WARN, 'command timeout: zero torque'
-        n = min(self._rtt_n, len(self._rtt))
-        rtt = sorted(self._rtt[:n]) if n else [math.nan]
-        self._rtt_n = 0
+        rtt50, rtt99 = self.timing.round_trip_ms()
         values = {'cycle': self.cycle, 'rate_hz': s.rate_hz, 'period_p50_ms': s.period_p50_ms,
-                  'round_trip_p50_ms': 1e3 * rtt[len(rtt) // 2],
-                  'round_trip_p99_ms': 1e3 * rtt[min(len(rtt) - 1, int(0.99 * len(rtt)))],
-                  'late_commands_total': self._late_commands,
+                  'round_trip_p50_ms': rtt50, 'round_trip_p99_ms': rtt99,
+                  'late_commands_total': self.timing.late,
                   'period_p99_ms': s.period_p99_ms, 'jitter_p99_ms': s.jitter_p99_ms,
                   'missed_deadlines': s.missed, 'command_timeouts': self._timeouts,
                   'bad_commands': self._bad_commands,
@@ -374,7 +358,7 @@ class SimNode(Node):
 
 def main(args=None):
     sys.setswitchinterval(2e-4)  # the cycle thread must get the GIL promptly
-    sys.exit(run(SimNode, args=args))
+    sys.exit(run(SimNode, args=args, name='sim_node'))
 
 
 if __name__ == '__main__':

@@ -125,3 +125,44 @@ class Deadline:
             time.sleep(remaining)
             return time.monotonic()
         return now
+
+
+class CommandTiming:
+    """Round trip of a state -> command loop, kept by the side that publishes the states.
+
+    ``on_publish(cycle, now)`` just before a state goes out, ``on_command(cycle, now)`` when the
+    command answering it arrives, ``on_tick(cycle)`` at the start of the next cycle (counts the
+    cycle as late if the answer to ``cycle`` has not arrived yet). No allocation per sample.
+    """
+
+    def __init__(self, ring: int = 4096, capacity: int = 8192):
+        self._sent = array.array('d', bytes(8 * ring))
+        self._rtt = array.array('d', bytes(8 * capacity))
+        self._n = 0
+        self.answered = -1
+        self.late = 0
+        self.cycles = 0
+
+    def on_publish(self, cycle: int, now: float) -> None:
+        self._sent[cycle % len(self._sent)] = now
+
+    def on_command(self, cycle: int, latest_cycle: int, now: float) -> None:
+        self.answered = cycle
+        if 0 <= latest_cycle - cycle < len(self._sent):
+            self._rtt[self._n % len(self._rtt)] = now - self._sent[cycle % len(self._sent)]
+            self._n += 1
+
+    def on_tick(self, previous_cycle: int) -> None:
+        self.cycles += 1
+        if self.answered != previous_cycle:
+            self.late += 1
+
+    def round_trip_ms(self, reset: bool = True):
+        """(p50, p99) of the round trips since the last reset [ms] (NaN if none)."""
+        n = min(self._n, len(self._rtt))
+        if reset:
+            self._n = 0
+        if n == 0:
+            return float('nan'), float('nan')
+        values = sorted(self._rtt[:n])
+        return 1e3 * values[n // 2], 1e3 * values[min(n - 1, int(0.99 * n))]

@@ -151,6 +151,23 @@ class ChannelController:
         self._use_ff = c.mode in ("dob_linear_ff", "dob_full_ff", "impedance")
         self._use_dahl = c.mode in ("dob_full_ff", "impedance")
 
+    def track_applied(self, applied):
+        """Tell the controller the plant applied ``applied`` [N m] instead of its last output.
+
+        The plant side zeroes the torque on a command timeout or a fault; an integrating mode
+        (the DOB modes) would otherwise keep integrating as if its torque had acted and wind
+        up. This is back-calculation anti-windup with the applied torque: the integrator is
+        shifted so that the last output equals ``applied``, and the next output continues from
+        there. Non-integrating modes only record the value (their next output does not depend
+        on it, except through bumpless entry).
+        """
+        applied = float(applied)
+        if not math.isfinite(applied):
+            return
+        if self._dob_mode and not self._enter:
+            self._integ += applied - self.torque
+        self.torque = applied
+
     def reset(self):
         """Clear all state (filters, integrator, fault); output restarts at 0."""
         if self._pending is not None:

@@ -1,0 +1,199 @@
+"""hardware_node end to end over real EtherCAT frames: software slaves on a veth pair
+(test/ethercat), hardware_node and controller_node as separate processes."""
+import math
+import pathlib
+import signal
+import time
+
+import numpy as np
+import pytest
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray
+from seaforce_msgs.msg import ActuatorState
+from std_srvs.srv import Trigger
+
+from ethercat.emulator.config import default_config
+from ethercat.fixtures import ecat_emulator  # noqa: F401  (fixture)
+from helpers.nodes import start_node
+from helpers.probe import Probe
+from seaforce_ros.core.analysis import impedance_from_position
+
+BUS = pathlib.Path(__file__).resolve().parent / 'data' / 'bus_emulated.yaml'
+RELAXED = {'state_timeout': 0.5}
+
+
+@pytest.fixture
+def probe():
+    p = Probe('hardware_test_probe')
+    try:
+        yield p
+    finally:
+        p.close()
+
+
+def driven_config(amplitude=0.5, frequency=1.0):
+    config = default_config()
+    config['channels']['pinch']['environment'] = {
+        'mode': 'position_sine', 'amplitude': amplitude, 'frequency': frequency}
+    return config
+
+
+def start_hardware(processes, tmp_path, harness, overrides=None, bus=BUS, wait=True):
+    values = {'interface': harness.master_interface, 'bus_config': str(bus),
+              'max_torque': 5.0, **(overrides or {})}
+    return start_node(processes, 'hardware_node', 'hardware', tmp_path, values, wait=wait)
+
+
+def pinch(msg, field):
+    return getattr(msg, field)[list(msg.name).index('pinch')]
+
+
+def measured_impedance_db(client, omega, periods=1.0, settle=1.0):
+    """|Z| = |F_e / V_e| of the pinch finger from the emulator's true plant trace."""
+    needed = periods * 2 * math.pi / omega + 0.05
+    time.sleep(settle)
+    client.start_trace(decimation=2, max_samples=200000)
+    # simulated time advances one 0.5 ms step per process-data frame: wait on the steps
+    start = client.channel('pinch')['steps']
+    deadline = time.monotonic() + 10 * needed + 30
+    while (client.channel('pinch')['steps'] - start) * 5e-4 < needed:
+        assert time.monotonic() < deadline, 'the emulated plant stopped advancing'
+        time.sleep(0.25)
+    trace = client.trace(stop=True)['pinch']
+    dt = float(np.median(np.diff(trace['time'])))
+    z = impedance_from_position(np.asarray(trace['external_force']),
+                                np.asarray(trace['endpoint_position']), omega, dt)
+    return 20 * math.log10(abs(z))
+
+
+def test_dob_full_ff_lowers_impedance_over_ethercat(ecat_emulator, processes, tmp_path, probe):
+    harness = ecat_emulator(driven_config())
+    start_hardware(processes, tmp_path, harness)
+    start_node(processes, 'controller_node', 'controller', tmp_path, RELAXED)
+    probe.record(ActuatorState, 'actuator_state')
+    # once the controller answers, the state is clean (no timeout/fault/limit bits)
+    probe.wait_messages('actuator_state', 1, timeout=30, where=lambda m: list(m.status) == [0, 0])
+    assert harness.client.al_state('pinch_drive') == 8           # OP
+    assert harness.client.cia402_state('pinch_drive') == 'operation_enabled'
+    z_off = measured_impedance_db(harness.client, 1.0)
+    ok, reason = probe.set_parameters('/controller', {'pinch.mode': 'dob_full_ff'})
+    assert ok, reason
+    z_ff = measured_impedance_db(harness.client, 1.0)
+    print(f'|Z| at 1 rad/s over EtherCAT: off {z_off:.1f} dB, dob_full_ff {z_ff:.1f} dB')
+    assert z_ff <= z_off - 7.0, (z_off, z_ff)
+    # the controller really drove the motor through the drive
+    assert harness.client.torque_applied('pinch_drive')
+
+
+def _diag(probe, name, predicate, timeout=10.0):
+    msgs = probe.wait_messages('/diagnostics', 1, timeout=timeout, where=lambda d: any(
+        s.name == name and predicate(s) for s in d.status))
+    return [s for s in msgs[-1].status if s.name == name][0]
+
+
+def test_cable_pull_latches_bus_fault_and_drive_watchdog_drops_torque(
+        ecat_emulator, processes, tmp_path, probe):
+    harness = ecat_emulator(driven_config(amplitude=0.2))
+    start_hardware(processes, tmp_path, harness)
+    start_node(processes, 'controller_node', 'controller', tmp_path,
+               {'pinch.mode': 'hold', **RELAXED})
+    probe.record(DiagnosticArray, '/diagnostics')
+    probe.wait_for(lambda: harness.client.torque_applied('pinch_drive'), timeout=30,
+                   what='torque applied by the emulated drive')
+    harness.client.silent(True)
+    status = _diag(probe, 'hardware: bus', lambda s: 'FAULT' in s.message)
+    assert '10 consecutive working-counter errors' in status.message, status.message
+    # the drive's process-data watchdog (100 ms) removes the torque on its own
+    probe.wait_for(lambda: not harness.client.torque_applied('pinch_drive'), timeout=10,
+                   what='the emulated drive dropping torque')
+    assert any('watchdog' in e['text'].lower() for e in harness.client.events())
+
+
+def test_controller_killed_gives_zero_torque(ecat_emulator, processes, tmp_path, probe):
+    harness = ecat_emulator(driven_config(amplitude=0.2))
+    start_hardware(processes, tmp_path, harness)
+    ctrl = start_node(processes, 'controller_node', 'controller', tmp_path,
+                      {'pinch.mode': 'hold', **RELAXED})
+    probe.record(ActuatorState, 'actuator_state')
+    probe.wait_for(lambda: harness.client.torque_applied('pinch_drive'), timeout=30,
+                   what='torque applied by the emulated drive')
+    ctrl.send_signal(signal.SIGKILL)
+    ctrl.wait(timeout=5)
+    cycle_at_kill = probe.messages('actuator_state')[-1].cycle
+    probe.wait_messages('actuator_state', 1, where=lambda m: m.cycle > cycle_at_kill and (
+        pinch(m, 'status') & ActuatorState.STATUS_COMMAND_TIMEOUT))
+    time.sleep(0.2)
+    states = sorted({m.cycle: m for m in probe.messages('actuator_state')}.values(),
+                    key=lambda m: m.cycle)
+    efforts = np.array([pinch(m, 'motor_effort') for m in states])
+    flags = np.array([pinch(m, 'status') & ActuatorState.STATUS_COMMAND_TIMEOUT for m in states])
+    cycles = np.array([m.cycle for m in states])
+    last_driven = int(np.flatnonzero(efforts != 0.0)[-1])
+    first_to = last_driven + int(np.argmax(flags[last_driven:] > 0))
+    # zero torque from the first flagged cycle, within command_timeout (20 cycles) + 1
+    assert cycles[first_to] - cycles[last_driven] <= 21, (cycles[last_driven], cycles[first_to])
+    assert np.all(efforts[first_to:] == 0.0) and np.all(flags[first_to:] > 0)
+    assert not harness.client.torque_applied('pinch_drive')
+
+
+def test_drive_fault_zero_torque_then_reset_recovers(ecat_emulator, processes, tmp_path, probe):
+    harness = ecat_emulator(driven_config(amplitude=0.2))
+    start_hardware(processes, tmp_path, harness)
+    start_node(processes, 'controller_node', 'controller', tmp_path,
+               {'pinch.mode': 'hold', **RELAXED})
+    probe.record(ActuatorState, 'actuator_state')
+    probe.record(DiagnosticArray, '/diagnostics')
+    probe.wait_for(lambda: harness.client.torque_applied('pinch_drive'), timeout=30,
+                   what='torque applied')
+    harness.client.drive_fault('pinch_drive')
+    probe.wait_messages('actuator_state', 1, where=lambda m: pinch(
+        m, 'status') & ActuatorState.STATUS_FAULT)
+    probe.clear('actuator_state')
+    after = probe.wait_messages('actuator_state', 50)
+    assert all(pinch(m, 'motor_effort') == 0.0 for m in after)
+    assert all(pinch(m, 'status') & ActuatorState.STATUS_FAULT for m in after)
+    assert harness.client.cia402_state('pinch_drive') == 'fault'
+    status = _diag(probe, 'hardware: pinch', lambda s: 'FAULT' in s.message)
+    assert 'drive reports a fault' in status.message
+    response = probe.call(Trigger, '/hardware/reset')
+    assert response.success and 'pinch' in response.message
+    probe.wait_for(lambda: harness.client.cia402_state('pinch_drive') == 'operation_enabled',
+                   timeout=10, what='Operation enabled after ~/reset')
+    probe.clear('actuator_state')
+    probe.wait_messages('actuator_state', 1, where=lambda m: pinch(m, 'status') == 0
+                        and pinch(m, 'motor_effort') != 0.0)
+
+
+def test_wrong_product_code_refuses_to_start(ecat_emulator, processes, tmp_path):
+    harness = ecat_emulator(default_config())
+    bus = yaml.safe_load(BUS.read_text())
+    bus['slaves'][1]['product_code'] = 0x0403
+    wrong = tmp_path / 'bus_wrong.yaml'
+    wrong.write_text(yaml.safe_dump(bus))
+    proc = start_hardware(processes, tmp_path, harness, bus=wrong, wait=False)
+    code = proc.wait(timeout=60)
+    out = proc.output()
+    assert code == 2, out
+    assert 'pinch_drive' in out and '0x00000402' in out and '0x00000403' in out, out
+    assert 'Traceback' not in out
+    # nothing was enabled, no torque ever
+    assert harness.client.cia402_state('pinch_drive') != 'operation_enabled'
+    assert not any(e['value'] & 0x0F == 8 for e in harness.client.al_history())
+
+
+def test_sigint_disables_drives_and_returns_bus_to_init(ecat_emulator, processes, tmp_path):
+    harness = ecat_emulator(default_config())
+    hw = start_hardware(processes, tmp_path, harness)
+    start_node(processes, 'controller_node', 'controller', tmp_path, RELAXED)
+    deadline = time.monotonic() + 30
+    while harness.client.cia402_state('pinch_drive') != 'operation_enabled':
+        assert time.monotonic() < deadline, 'drives never enabled'
+        time.sleep(0.1)
+    hw.send_signal(signal.SIGINT)
+    assert hw.wait(timeout=5) == 0, hw.output()
+    for drive in ('wrist_drive', 'pinch_drive'):
+        assert harness.client.cia402_state(drive) == 'switch_on_disabled'
+        assert not harness.client.torque_applied(drive)
+        assert harness.client.last_al_request(drive) & 0x0F == 1       # INIT requested
+        assert harness.client.al_state(drive) == 1
+    assert 'bus in INIT' in hw.output()
