@@ -181,20 +181,26 @@ def fit_endpoint_with_dahl(bt, s_xe, s_input, x_e, lo, hi, rel_sigma, dahl_delay
         return float(r @ r)
 
     cost_linear = float(resid_for(su) @ resid_for(su))
-    # coarse grid, then Nelder-Mead in log space
-    grid = [(ls, lf) for ls in np.log(np.logspace(0.3, 2.4, 4))
-            for lf in np.log(np.logspace(-2.7, -0.6, 4))]
+    # coarse grid, then a trust-region least-squares refinement in log space
+    grid = [(ls, lf) for ls in np.log([3.0, 20.0, 120.0]) for lf in np.log([0.004, 0.02, 0.1])]
     costs = []
     for i, p in enumerate(grid):
         costs.append(cost(p))
-        if progress is not None and i % 4 == 3:
-            progress(f"Dahl search: grid {i + 1}/{len(grid)}", (i + 1) / (len(grid) + 70))
-    best = grid[int(np.argmin(costs))]
-    res = scipy.optimize.minimize(cost, np.array(best), method="Nelder-Mead",
-                                  options={"xatol": 2e-3, "fatol": 1e-9 * max(1.0, min(costs)),
-                                           "maxfev": 70, "initial_simplex": np.array(
-                                               [best, (best[0] + 0.7, best[1]),
-                                                (best[0], best[1] + 0.7)])})
+        if progress is not None:
+            progress(f"Dahl search: grid {i + 1}/{len(grid)}", (i + 1) / (len(grid) + 25))
+    best = np.array(grid[int(np.argmin(costs))])
+    calls = [0]
+
+    def resid_p(p):
+        calls[0] += 1
+        if progress is not None:
+            progress(f"Dahl search: refinement step {calls[0]}",
+                     min(0.99, (len(grid) + calls[0]) / (len(grid) + 25)))
+        return resid_for(su - s_dahl(*p))
+
+    res = scipy.optimize.least_squares(resid_p, best, method="trf", diff_step=1e-3,
+                                       xtol=1e-4, ftol=1e-6, max_nfev=40)
+    res.fun = float(res.fun @ res.fun)
     p_opt = res.x
     cost_dahl = float(res.fun)
     use_dahl = cost_dahl < 0.9 * cost_linear
@@ -216,8 +222,9 @@ def fit_endpoint_with_dahl(bt, s_xe, s_input, x_e, lo, hi, rel_sigma, dahl_delay
             return yy - a @ th
         p_all = np.r_[theta, p_opt]
         jac = np.empty((y.size, 5))
-        for k in range(5):
-            h = 1e-4 * (abs(p_all[k]) if k < 3 else 1.0) + (1e-12 if k < 3 else 0.0)
+        jac[:, :3] = -a                       # the residual is linear in (m_e, b_e, k_e)
+        for k in (3, 4):
+            h = 1e-3
             dp = np.zeros(5)
             dp[k] = h
             jac[:, k] = (full_resid(p_all + dp) - full_resid(p_all - dp)) / (2 * h)

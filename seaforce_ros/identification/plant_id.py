@@ -186,7 +186,8 @@ def identify_plant(series, band=(0.5, 400.0), rational_band=(0.5, 400.0), excita
     else:
         ref, ref_delay = s["f_a"], motor_effort_delay
     report("Blackman-Tukey spectra", 0.05)
-    bt = BlackmanTukey(ref, dt, omega, periods=periods, reference_delay=ref_delay)
+    bt = BlackmanTukey(ref, dt, omega, periods=periods, reference_delay=ref_delay,
+                       decimate="auto")
     ex_lo, ex_hi = excited_band(ref, dt)
     check_lo = max(w_lo, 4.0 * math.pi / min(series.duration, 2 ** 14 * dt))
     if ex_lo > check_lo * 1.05 or ex_hi < w_hi / 1.05:
