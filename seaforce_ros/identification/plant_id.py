@@ -233,8 +233,11 @@ def identify_plant(series, band=(0.5, 400.0), rational_band=(0.5, 400.0), excita
     if dahl:
         def sub(msg, frac):
             report(msg, 0.35 + 0.5 * frac)
+        # F_d is evaluated at the samples of X_e; it acts like the external force (held
+        # over the interval in the simulator, continuous on hardware)
         fb = fit_endpoint_with_dahl(bt, sxe[0], end_in[0], s["x_e"], lo, hi,
-                                    responses["B"].rel_sigma, progress=sub)
+                                    responses["B"].rel_sigma, progress=sub,
+                                    dahl_delay=external_force_delay)
     else:
         fb = fit_mass_spring_damper(responses["B"], lo, hi,
                                     ("endpoint_inertia", "endpoint_damping",
@@ -245,7 +248,7 @@ def identify_plant(series, band=(0.5, 400.0), rational_band=(0.5, 400.0), excita
                                                     "coulomb_force_1s")}
     if dahl_info["sigma"] > 0:
         fd = dahl_force(s["x_e"], dahl_info["sigma"], dahl_info["coulomb_force"])
-        sfd = bt.cross(fd, delay=0.5)
+        sfd = bt.cross(fd, delay=external_force_delay)
         responses["B_corrected"] = FrequencyResponse(
             omega, sxe[0] / (end_in[0] - sfd), responses["B"].rel_sigma,
             "X_e/(F_e-F_p-F_d)")
