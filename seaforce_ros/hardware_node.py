@@ -149,12 +149,10 @@ class HardwareNode(Node):
         self.get_logger().info(f'bringing up EtherCAT on {values["interface"]} '
                                f'({len(self.bus_config.slaves)} slaves)')
         try:
-            self.bus.open()
-            self.bus.request_op()
+            self.bus.open()      # identities checked, process data mapped, SAFE-OP
         except BusError as exc:
             self.bus.close()
             raise StartupError(str(exc)) from exc
-        self.get_logger().info(f'bus in OP, expected working counter {self.bus.expected_wkc}')
 
         self._thread = None
         self.cycle = 0
@@ -185,9 +183,18 @@ class HardwareNode(Node):
         self.create_timer(values['diagnostics_period'], self._publish_diagnostics)
         for c in self.ch:
             c.sequencer.enable = True
+        # OP last, and the cycle right after it: once in OP the slaves' process-data
+        # watchdogs (typically 100 ms) expect a frame every cycle
+        try:
+            self.bus.request_op()
+        except BusError as exc:
+            self.bus.to_init()
+            self.bus.close()
+            raise StartupError(str(exc)) from exc
         self._running = True
         self._thread = threading.Thread(target=self._loop, name='ethercat_cycle', daemon=True)
         self._thread.start()
+        self.get_logger().info(f'bus in OP, expected working counter {self.bus.expected_wkc}')
 
     def _decimation(self, rate_hz):
         return 0 if rate_hz <= 0 else max(1, int(round(1.0 / (self.dt * rate_hz))))

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import math
+import signal
 import sys
 import threading
 import time
@@ -192,6 +193,10 @@ def spin_forever(executor, context=None, chunk_sec: float = 1.0) -> None:
             return  # a callback raced the shutdown (e.g. publish on a shut-down context)
 
 
+def _ignore_signal(signum, frame):
+    """Python-level SIGINT/SIGTERM handler: rclpy's C handler has already shut down."""
+
+
 def run(node_factory: Callable[[], Any], args=None, executor_param: str = 'executor',
         name: str = 'seaforce_ros') -> int:
     """``main()`` body of every executable: the Jazzy shutdown idiom.
@@ -203,6 +208,12 @@ def run(node_factory: Callable[[], Any], args=None, executor_param: str = 'execu
     process), each node's ``shutdown()`` runs (safe state), the nodes are destroyed. A
     :class:`StartupError` prints its message (no traceback) and exits 2.
     """
+    # SIGINT/SIGTERM: rclpy's own handler (installed by init, chaining to this one) shuts the
+    # context down, which ends spin_forever. The Python-level handler must then do nothing:
+    # the default one raises KeyboardInterrupt wherever the main thread happens to be, which at
+    # 2 kHz is inside a callback, half-way through a cycle.
+    signal.signal(signal.SIGINT, _ignore_signal)
+    signal.signal(signal.SIGTERM, _ignore_signal)
     rclpy.init(args=args)
     nodes = []
     executor = None

@@ -14,6 +14,7 @@ os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 from helpers.processes import ProcessGroup  # noqa: E402
+from ethercat.fixtures import ecat_bus, ecat_emulator, soem_master  # noqa: E402,F401
 
 
 @pytest.fixture

@@ -18,8 +18,10 @@ def params_file(node_name: str, values: Dict[str, Any], directory: pathlib.Path)
 
 def start_node(processes: ProcessGroup, name: str, node_name: str, tmp_path: pathlib.Path,
                overrides: Optional[Dict[str, Any]] = None, config: pathlib.Path = CONFIG,
-               wait: bool = True):
-    argv = [str(executable(name)), '--ros-args', '--params-file', str(config)]
+               wait: bool = True, prefix=()):
+    """Start an installed executable with config + overrides; ``prefix`` goes before it
+    (e.g. ``('chrt', '-f', '40')``: chrt execs, so the PID stays the node's)."""
+    argv = [*prefix, str(executable(name)), '--ros-args', '--params-file', str(config)]
     if overrides:
         argv += ['--params-file', str(params_file(node_name, overrides, tmp_path))]
     proc = processes.start(argv, name=name)

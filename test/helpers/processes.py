@@ -1,4 +1,5 @@
 """Start node processes for tests and make sure each one ends, by its own PID."""
+import itertools
 import os
 import pathlib
 import signal
@@ -9,6 +10,7 @@ from typing import List, Optional, Sequence
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 INSTALL_LIB = ROOT / 'install' / 'seaforce_ros' / 'lib' / 'seaforce_ros'
+_log_counter = itertools.count()
 
 
 def executable(name: str) -> pathlib.Path:
@@ -78,7 +80,7 @@ class ProcessGroup:
 
     def start(self, argv: Sequence[str], name: Optional[str] = None, env=None) -> ManagedProcess:
         name = name or pathlib.Path(argv[0]).name
-        log_path = self._logdir / f'{name}-{os.getpid()}-{len(self._procs)}.log'
+        log_path = self._logdir / f'{name}-{os.getpid()}-{next(_log_counter)}.log'
         proc = ManagedProcess(argv, log_path, env=env)
         self._procs.append(proc)
         return proc
