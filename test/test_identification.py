@@ -159,8 +159,8 @@ def test_linear_only_fit_is_biased_by_hysteresis(bags, table_i_run, tmp_path, ca
 
 def test_motor_chirp_identifies_motor_endpoint_and_hose(tmp_path, capsys):
     """The controller's chirp mode (torque on the motor, endpoint free): plants A-C, no D."""
-    d = chirp_experiment(plant=TABLE_I, dahl=None, excitation="motor", duration=40.0,
-                         amplitude=0.3, start_frequency=0.05)
+    d = chirp_experiment(plant=TABLE_I, dahl=None, excitation="motor", duration=20.0,
+                         amplitude=0.3, start_frequency=0.2)
     bagio.write_state_bag(tmp_path / "bag", ["pinch"], {"pinch": d})
     out = tmp_path / "p.yaml"
     code, stdout, err = _identify(capsys, tmp_path / "bag", "--channel", "pinch", "--out", out,
@@ -304,7 +304,7 @@ def test_error_too_little_data_and_frequency_content(tmp_path, capsys):
 
 
 def test_nan_samples_are_dropped_and_counted(tmp_path, capsys):
-    d = chirp_experiment(plant=TABLE_I, dahl=None, duration=40.0, start_frequency=0.05)
+    d = chirp_experiment(plant=TABLE_I, dahl=None, duration=20.0, start_frequency=0.2)
     rng = np.random.default_rng(2)
     bad = rng.choice(d["x"].size, 37, replace=False)
     d = dict(d, f_p=d["f_p"].copy())
