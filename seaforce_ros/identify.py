@@ -40,9 +40,9 @@ def build_parser():
                    "actuator_state)")
     p.add_argument("--band", nargs=2, type=float, default=(0.5, 400.0), metavar=("LO", "HI"),
                    help="fit band of plants A-C [rad/s] (default 0.5 400)")
-    p.add_argument("--rational-band", nargs=2, type=float, default=(0.5, 400.0),
+    p.add_argument("--rational-band", nargs=2, type=float, default=None,
                    metavar=("LO", "HI"), help="band of the 2-zero/4-pole X_e/F_e fit [rad/s] "
-                   "(default 0.5 400; the paper: 0-400)")
+                   "(default: --band; the paper: 0-400)")
     p.add_argument("--excitation", choices=("auto", "external", "motor"), default="auto",
                    help="which torque was chirped (auto: the larger of F_e and F_a)")
     p.add_argument("--external-force", choices=("held", "instant"), default="held",
@@ -72,7 +72,8 @@ def _identify_chirp(args, progress):
     for note in series.notes():
         print("note: " + note)
     result = identify_plant(
-        series, band=tuple(args.band), rational_band=tuple(args.rational_band),
+        series, band=tuple(args.band),
+        rational_band=tuple(args.rational_band or args.band),
         excitation=args.excitation,
         external_force_delay=0.5 if args.external_force == "held" else 0.0,
         dahl=not args.no_dahl, progress=progress.stage(0.25, 0.95))
