@@ -22,6 +22,7 @@ Safety (each with a status bit, a ``/diagnostics`` entry and a log line):
 """
 from __future__ import annotations
 
+import collections
 import math
 import pathlib
 import sys
@@ -40,13 +41,14 @@ from .ethercat.cia402 import CW_DISABLE_VOLTAGE, MODE_CST, DriveSequencer
 from .ethercat.master import BusError, EthercatBus
 from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
                          declare, diagnostic_status, diagnostics_publisher,
-                         publish_diagnostics, run, shutdown_safe, stamp_now)
+                         publish_diagnostics, run, shutdown_safe)
 from .timing import CommandTiming, Deadline, LoopStats
 
 STATUS_COMMAND_TIMEOUT = ActuatorState.STATUS_COMMAND_TIMEOUT
 STATUS_LIMIT = ActuatorState.STATUS_LIMIT
 STATUS_FAULT = ActuatorState.STATUS_FAULT
 NAN = float('nan')
+RESET_GRACE_CYCLES = 200  # 0.1 s at 2 kHz for a drive to leave Fault after a fault reset
 
 
 def _default_bus_config() -> str:
@@ -113,6 +115,7 @@ class _Channel:
         self.has_mode_output = 'mode_of_operation' in drive.outputs.names()
         self.sequencer = DriveSequencer()
         self.fault = ''              # latched fault reason
+        self.reset_grace = 0         # cycles a drive may still report Fault after ~/reset
         self.applied = 0.0
         self.limited = False
 
@@ -155,6 +158,7 @@ class HardwareNode(Node):
             raise StartupError(str(exc)) from exc
 
         self._thread = None
+        self._publisher = None
         self.cycle = 0
         self._command = [0.0] * len(self.channels)
         self._command_time = None
@@ -191,6 +195,12 @@ class HardwareNode(Node):
             self.bus.to_init()
             self.bus.close()
             raise StartupError(str(exc)) from exc
+        self._outbox = collections.deque(maxlen=4096)   # cycle -> publisher thread
+        self._outbox_ready = threading.Event()
+        self._publishing = True
+        self._publisher = threading.Thread(target=self._publisher_loop, name='state_publisher',
+                                           daemon=True)
+        self._publisher.start()
         self._running = True
         self._thread = threading.Thread(target=self._loop, name='ethercat_cycle', daemon=True)
         self._thread.start()
@@ -268,6 +278,8 @@ class HardwareNode(Node):
                         c.fault = ''
                         c.sequencer.request_fault_reset()
                         c.sequencer.enable = True
+                        # the drive needs a few cycles to leave Fault: don't re-latch meanwhile
+                        c.reset_grace = RESET_GRACE_CYCLES
                 t_cmd = self._command_time
                 timed_out = t_cmd is None or (now - t_cmd) > self.command_timeout
                 if timed_out and not was_timed_out and t_cmd is not None:
@@ -283,7 +295,12 @@ class HardwareNode(Node):
                     mode = bus.get_input(c.drive, 'mode_display') if c.has_mode_display else MODE_CST
                     cw = seq.controlword(status, mode)
                     if seq.faulted:
-                        self._latch(c, 'drive reports a fault (statusword bit 3)')
+                        if c.reset_grace > 0:
+                            c.reset_grace -= 1    # torque stays off: not in Operation enabled
+                        else:
+                            self._latch(c, 'drive reports a fault (statusword bit 3)')
+                    else:
+                        c.reset_grace = 0
                     u = command[i]
                     c.limited = False
                     if not math.isfinite(u):
@@ -323,10 +340,8 @@ class HardwareNode(Node):
             self._running = False
 
     def _publish(self, timed_out):
+        """Scale this cycle's inputs and hand them to the publisher thread (never blocks)."""
         bus = self.bus
-        msg = self._state_msg
-        stamp_now(msg.header.stamp)
-        msg.cycle = self.cycle
         n = len(self.ch)
         x, v, fp, fa, xe, fe, st = ([0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n, [NAN] * n,
                                     [NAN] * n, [0] * n)
@@ -348,17 +363,38 @@ class HardwareNode(Node):
         for i, c in enumerate(self.ch):
             if c.cfg.external_from_channel is not None:
                 fe[i] = c.cfg.external_sign * fp[self._index[c.cfg.external_from_channel]]
-        msg.motor_position, msg.motor_velocity, msg.pressure_force = x, v, fp
-        msg.motor_effort, msg.endpoint_position, msg.external_force, msg.status = fa, xe, fe, st
-        self.timing.on_publish(self.cycle, time.monotonic())
-        self.state_pub.publish(msg)
-        if self._js_every and self.cycle % self._js_every == 0:
-            js = self._js_msg
-            js.header.stamp = msg.header.stamp
-            js.position = [val for i in range(n) for val in (x[i], xe[i])]
-            js.velocity = [val for i in range(n) for val in (v[i], NAN)]
-            js.effort = [val for i in range(n) for val in (fa[i], fe[i])]
-            self.js_pub.publish(js)
+        self._outbox.append((self.cycle, time.time_ns(), x, v, fp, fa, xe, fe, st))
+        self._outbox_ready.set()
+
+    def _publisher_loop(self):
+        """Publishes the samples the cycle queued. A reliable DDS writer can block for up to
+        100 ms (its max_blocking_time) when a subscriber lags; that must never hold up the
+        EtherCAT cycle, whose slaves' watchdogs expire after 100 ms without process data."""
+        outbox, ready = self._outbox, self._outbox_ready
+        msg, js = self._state_msg, self._js_msg
+        n = len(self.ch)
+        try:
+            while self._publishing:
+                ready.wait(0.1)
+                ready.clear()
+                while outbox:
+                    cycle, now_ns, x, v, fp, fa, xe, fe, st = outbox.popleft()
+                    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(now_ns, 10**9)
+                    msg.cycle = cycle
+                    msg.motor_position, msg.motor_velocity, msg.pressure_force = x, v, fp
+                    msg.motor_effort, msg.endpoint_position = fa, xe
+                    msg.external_force, msg.status = fe, st
+                    self.timing.on_publish(cycle, time.monotonic())
+                    self.state_pub.publish(msg)
+                    if self._js_every and cycle % self._js_every == 0:
+                        js.header.stamp = msg.header.stamp
+                        js.position = [val for i in range(n) for val in (x[i], xe[i])]
+                        js.velocity = [val for i in range(n) for val in (v[i], NAN)]
+                        js.effort = [val for i in range(n) for val in (fa[i], fe[i])]
+                        self.js_pub.publish(js)
+        except Exception as exc:
+            if self._publishing and self.context.ok():
+                self.get_logger().fatal(f'state publisher stopped: {exc!r}')
 
     # --- monitoring / shut-down ----------------------------------------------------------
     @shutdown_safe
@@ -391,6 +427,10 @@ class HardwareNode(Node):
         self._running = False
         if self._thread is not None:
             self._thread.join(timeout=1.0)
+        self._publishing = False
+        if self._publisher is not None:
+            self._outbox_ready.set()
+            self._publisher.join(timeout=1.0)
         bus = self.bus
         if bus.master is None:
             return

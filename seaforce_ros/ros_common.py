@@ -22,8 +22,8 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 
 #: Control-rate topics (actuator_state, actuator_command), publisher side: reliable (lockstep
 #: simulation advances one sample per command and must never lose a step), and a history of
-#: 50 samples so that a recorder that falls a few samples behind still gets every sample.
-CONTROL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
+#: 1000 samples (0.5 s at 2 kHz) so that a recorder stalled by a slow disk still gets every sample.
+CONTROL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
 
