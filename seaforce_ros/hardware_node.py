@@ -77,6 +77,9 @@ def node_specs():
                   'fault latched [rad/s]', low=0.0, high=1e4),
         ParamSpec('max_torque', 5.0, 'torque commands are clamped to +-max_torque [N m]',
                   low=0.0, high=1e3),
+        ParamSpec('drive_watchdog', 0.1, 'process-data watchdog programmed into every drive: '
+                  'it drops torque on its own when the master stops for this long [s]',
+                  low=0.001, high=6.0, read_only=True),
         ParamSpec('receive_timeout', 4e-4, 'wait for the process-data frame [s]',
                   low=1e-5, high=0.1, read_only=True),
         ParamSpec('joint_state_rate', 100.0, 'sensor_msgs/JointState rate [Hz], 0 = off',
@@ -153,6 +156,7 @@ class HardwareNode(Node):
                                f'({len(self.bus_config.slaves)} slaves)')
         try:
             self.bus.open()      # identities checked, process data mapped, SAFE-OP
+            self.bus.set_process_data_watchdog(values['drive_watchdog'])
         except BusError as exc:
             self.bus.close()
             raise StartupError(str(exc)) from exc
@@ -408,6 +412,7 @@ class HardwareNode(Node):
             ('cycle stopped' if not self._running else 'OP'),
             {'cycle': self.cycle, 'rate_hz': s.rate_hz, 'period_p50_ms': s.period_p50_ms,
              'period_p99_ms': s.period_p99_ms, 'jitter_p99_ms': s.jitter_p99_ms,
+             'period_max_ms': s.period_max_ms,
              'missed_deadlines': s.missed, 'wkc_errors_total': self._wkc_errors_total,
              'round_trip_p50_ms': rtt50, 'round_trip_p99_ms': rtt99,
              'late_commands_total': self.timing.late,

@@ -104,6 +104,13 @@ class EthercatBus:
         except AttributeError:
             pass
 
+    def set_process_data_watchdog(self, seconds: float) -> None:
+        """Program every drive's SyncManager (process-data) watchdog: a drive whose outputs stop
+        for this long drops its torque and faults on its own."""
+        for position, want in enumerate(self.config.slaves):
+            if want.kind == 'cia402_drive':
+                self.master.slaves[position].set_watchdog('processdata', 1e3 * seconds)
+
     def _check_identity(self, position: int, want: SlaveConfig, slave) -> None:
         got = (slave.man, slave.id, slave.rev)
         mismatch = got[0] != want.vendor_id or got[1] != want.product_code or (
