@@ -251,6 +251,9 @@ def test_lockstep_loop_reproduces_offline_simulation(processes, tmp_path, probe)
     start_node(processes, 'sim_node', 'sim', tmp_path,
                {**DRIVE, 'pinch.environment.amplitude': 0.5, 'clock_mode': 'lockstep',
                 'seed': 7})
+    # the sim re-publishes state 0 until a controller answers: make sure we see the loop from
+    # its start (discovery can take seconds on a loaded host)
+    probe.wait_messages('actuator_state', 1, timeout=60, where=lambda m: m.cycle == 0)
     start_node(processes, 'controller_node', 'controller', tmp_path,
                {'pinch.mode': 'dob_full_ff', 'wrist.mode': 'dob', 'state_timeout': 5.0})
     probe.wait_messages('actuator_state', 1, timeout=120,

@@ -70,14 +70,14 @@ class Probe:
         """Set parameters atomically; returns (successful, reason)."""
         client = self._param_client(node_name)
         params = [Parameter(name, value=value) for name, value in values.items()]
-        future = client.set_parameters_atomically(params)
-        result = self._wait_future(future, timeout, f'set_parameters on {node_name}')
+        result = self._request(lambda: client.set_parameters_atomically(params), timeout,
+                               f'set_parameters on {node_name}')
         return result.result.successful, result.result.reason
 
     def get_parameters(self, node_name: str, names: List[str], timeout: float = 10.0):
         client = self._param_client(node_name)
-        future = client.get_parameters(names)
-        result = self._wait_future(future, timeout, f'get_parameters on {node_name}')
+        result = self._request(lambda: client.get_parameters(names), timeout,
+                               f'get_parameters on {node_name}')
         from rclpy.parameter import parameter_value_to_python
         return {name: parameter_value_to_python(v) for name, v in zip(names, result.values)}
 
@@ -85,8 +85,20 @@ class Probe:
         client = self.node.create_client(srv_type, name)
         if not client.wait_for_service(timeout_sec=20.0):
             raise AssertionError(f'service {name} not available')
-        future = client.call_async(request or srv_type.Request())
-        return self._wait_future(future, timeout, f'call {name}')
+        return self._request(lambda: client.call_async(request or srv_type.Request()),
+                             timeout, f'call {name}')
+
+    def _request(self, send, timeout, what, attempts=4):
+        """Send, wait, and re-send if unanswered: `wait_for_service` only says the server's
+        request reader is matched; until the server has also discovered our response reader
+        (slow on a loaded host) the response is dropped -- a known ROS 2 race. Every request
+        made here is idempotent."""
+        for _ in range(attempts - 1):
+            try:
+                return self._wait_future(send(), timeout / attempts, what)
+            except AssertionError:
+                pass
+        return self._wait_future(send(), timeout, what)
 
     @staticmethod
     def _wait_future(future, timeout, what):
