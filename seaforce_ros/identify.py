@@ -199,21 +199,8 @@ def run(args):
 
 
 def main(argv=None):
-    from .core.errors import SeaforceError
-    from .identification.errors import IdentificationError
-
-    args = build_parser().parse_args(argv)
-    try:
-        return run(args)
-    except (IdentificationError, SeaforceError) as exc:
-        print(f"identify: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("identify: interrupted", file=sys.stderr)
-        return 130
-    except (ValueError, OSError) as exc:
-        print(f"identify: error: {exc}", file=sys.stderr)
-        return 2
+    from .identification.output import run_cli
+    return run_cli("identify", run, build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

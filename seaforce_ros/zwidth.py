@@ -221,18 +221,8 @@ def run(args):
 
 
 def main(argv=None):
-    from .core.errors import SeaforceError
-    from .identification.errors import IdentificationError
-
-    args = build_parser().parse_args(argv)
-    try:
-        return run(args)
-    except (IdentificationError, SeaforceError, ValueError, OSError) as exc:
-        print(f"zwidth: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("zwidth: interrupted", file=sys.stderr)
-        return 130
+    from .identification.output import run_cli
+    return run_cli("zwidth", run, build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

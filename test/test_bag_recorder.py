@@ -192,6 +192,7 @@ def test_sigkill_loses_at_most_the_open_split(processes, tmp_path):
         assert list(split.glob('*.db3'))
         with Reader(split) as reader:
             assert reader.message_count > 0
+            # recorded message time of one split (2 s splits), not the test's wall clock
             assert reader.duration <= 2.2e9
     # the split being written when the recorder died has no metadata (lost or partial)
     dirs = sorted(d for d in out.iterdir() if d.is_dir())

@@ -143,3 +143,21 @@ class Progress:
         def cb(message, fraction=None):
             self(message, None if fraction is None else lo + (hi - lo) * fraction)
         return cb
+
+
+def run_cli(prog, run, args):
+    """Run an offline tool's ``run(args)``: a bad input is one ``prog: error: ...`` line and exit
+    code 2 (never a stack trace), Ctrl-C exit code 130."""
+    import sys
+
+    from ..core.errors import SeaforceError
+    from .errors import IdentificationError
+
+    try:
+        return run(args)
+    except (IdentificationError, SeaforceError, ValueError, OSError) as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
