@@ -304,6 +304,7 @@ class BackgroundNode:
         self.executor = EventsExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._stop = False
+        self._closed = False
         self._thread = threading.Thread(target=self._spin, name=f'{name}_spin', daemon=True)
         self._thread.start()
 
@@ -318,7 +319,23 @@ class BackgroundNode:
                 raise
 
     def close(self) -> None:
+        """Stop spinning, release the executor, destroy the node, shut the context down.
+
+        Idempotent. The order matters with the PyPI wheel's EventsExecutor: it aborts the
+        process ("terminate called without an active exception") if it is destroyed while a
+        thread still spins it or while it still holds the node's callbacks.
+        """
+        if self._closed:
+            return
+        self._closed = True
         self._stop = True
-        self._thread.join(timeout=2.0)
+        self._thread.join(timeout=30.0)
+        if self._thread.is_alive():
+            raise RuntimeError(f'{self.node.get_name()}: spin thread did not stop within 30 s')
+        self.executor.shutdown(timeout_sec=1.0)
+        try:
+            self.executor.remove_node(self.node)
+        except Exception:
+            pass
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)

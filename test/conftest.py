@@ -13,7 +13,7 @@ sys.path.insert(0, str(ROOT / 'test'))
 os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
-from helpers.processes import ProcessGroup  # noqa: E402
+from helpers.processes import ProcessGroup, stop_leftovers  # noqa: E402
 from ethercat.fixtures import ecat_bus, ecat_emulator, soem_master  # noqa: E402,F401
 
 
@@ -39,3 +39,31 @@ def ros_context():
         yield context
     finally:
         rclpy.try_shutdown(context=context)
+
+
+# --- session end ---------------------------------------------------------------------------
+_session = {}
+
+
+def pytest_sessionfinish(session, exitstatus):
+    _session['status'] = int(exitstatus)
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_unconfigure(config):
+    """End the test process deterministically once pytest has reported.
+
+    Every process a test started is ended by PID first (a safety net behind the fixtures).
+    Then the interpreter leaves without running finalizers: the rclpy objects of the PyPI
+    wheels (the EventsExecutor above all) can abort or block while the interpreter tears them
+    down, which would turn a finished, reported run into a crash or a hang.
+    """
+    leftovers = stop_leftovers()
+    if leftovers:
+        print(f'conftest: ended {leftovers} process(es) a test left running', file=sys.stderr)
+    if 'status' in _session and os.environ.get('SEAFORCE_TEST_NORMAL_EXIT') != '1':
+        from ethercat import harness
+        harness._stop_leftovers()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(_session['status'])

@@ -175,7 +175,7 @@ def test_controller_killed_gives_zero_torque(ecat_emulator, processes, tmp_path,
     cycle_at_kill = probe.messages('actuator_state')[-1].cycle
     probe.wait_messages('actuator_state', 1, where=lambda m: m.cycle > cycle_at_kill and (
         pinch(m, 'status') & ActuatorState.STATUS_COMMAND_TIMEOUT))
-    time.sleep(0.2)
+    probe.wait_messages('actuator_state', 50, where=lambda m: m.cycle > cycle_at_kill + 30)
     states = sorted({m.cycle: m for m in probe.messages('actuator_state')}.values(),
                     key=lambda m: m.cycle)
     efforts = np.array([pinch(m, 'motor_effort') for m in states])

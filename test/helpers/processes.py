@@ -11,6 +11,15 @@ from typing import List, Optional, Sequence
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 INSTALL_LIB = ROOT / 'install' / 'seaforce_ros' / 'lib' / 'seaforce_ros'
 _log_counter = itertools.count()
+_live: 'set[ManagedProcess]' = set()   # started and not yet stopped: see stop_leftovers()
+
+
+def stop_leftovers() -> int:
+    """End every process a test started and did not stop (safety net at session end)."""
+    leftovers = list(_live)
+    for proc in leftovers:
+        proc.stop(timeout=2.0)
+    return len(leftovers)
 
 
 def executable(name: str) -> pathlib.Path:
@@ -30,6 +39,7 @@ class ManagedProcess:
         self._log = open(log_path, 'wb')
         self.popen = subprocess.Popen(self.argv, stdout=self._log, stderr=subprocess.STDOUT,
                                       stdin=subprocess.DEVNULL, env=env, start_new_session=True)
+        _live.add(self)
 
     @property
     def pid(self) -> int:
@@ -67,6 +77,7 @@ class ManagedProcess:
                 self.send_signal(signal.SIGKILL)
                 self.wait(5.0)
         self._log.close()
+        _live.discard(self)
         return self.popen.returncode
 
 
