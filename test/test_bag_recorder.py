@@ -29,8 +29,8 @@ FINAL = re.compile(r'final counts: (.*); splits (\d+)')
 def bag_dir(tmp_path):
     """Where the 60 s test records: tmpfs when there is one. On this shared VM the virtual
     disk stalls now and then for up to ~0.5 s; during such a stall the recorder process gets no
-    DDS samples and the publishers' 25 ms history (ros_common.CONTROL_QOS, depth 50) cannot
-    bridge it, so samples are lost before they reach the recorder (bench/recorder_soak.py
+    DDS samples and, for longer stalls, the publishers' 0.5 s history (ros_common.CONTROL_QOS,
+    depth 1000) cannot bridge it, so samples are lost before they reach the recorder (bench/recorder_soak.py
     measures that on disk: received == written always held, 0.5 % of the states never
     arrived in 10 minutes). The test is about the recorder, so it records to memory."""
     shm = pathlib.Path('/dev/shm')

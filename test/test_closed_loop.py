@@ -33,9 +33,13 @@ def pinch(msg, field):
     return getattr(msg, field)[list(msg.name).index('pinch')]
 
 
-def test_mode_change_by_parameter_changes_behaviour(processes, tmp_path, probe):
+@pytest.mark.parametrize('executor', ['events', 'single_threaded'])
+def test_mode_change_by_parameter_changes_behaviour(processes, tmp_path, probe, executor):
+    """With either executor the parameter services answer; the first change goes through
+    SetParameters (what `ros2 param set` calls), the second through SetParametersAtomically."""
     start_node(processes, 'sim_node', 'sim', tmp_path, DRIVE)
-    start_node(processes, 'controller_node', 'controller', tmp_path, RELAXED)
+    start_node(processes, 'controller_node', 'controller', tmp_path,
+               {**RELAXED, 'executor': executor})
     probe.record(ControllerStatus, 'controller_status')
     probe.record(ActuatorState, 'actuator_state')
     probe.wait_messages('controller_status', 5)
@@ -44,7 +48,7 @@ def test_mode_change_by_parameter_changes_behaviour(processes, tmp_path, probe):
     probe.wait_messages('actuator_state', 200)
     assert all(pinch(m, 'motor_effort') == 0.0 for m in probe.messages('actuator_state')[-200:])
 
-    ok, reason = probe.set_parameters('/controller', {'pinch.mode': 'hold'})
+    ok, reason = probe.set_parameters('/controller', {'pinch.mode': 'hold'}, atomic=False)
     assert ok, reason
     probe.wait_messages('controller_status', 1, where=lambda m: pinch(m, 'mode') == 'hold')
     probe.clear('actuator_state')
@@ -105,6 +109,12 @@ def test_non_passive_dob_is_rejected_with_reason_and_old_values_stay(processes, 
     # out-of-range stiffness (k_n > k + lambda b_n) alone
     ok, reason = probe.set_parameters('/controller', {'pinch.dob.nominal_stiffness': 5.0})
     assert not ok and 'nominal_stiffness' in reason, reason
+    # the same through SetParameters, one parameter (what `ros2 param set` shows the user)
+    ok, reason = probe.set_parameters('/controller', {'pinch.dob.nominal_inertia': 1e-5},
+                                      atomic=False)
+    assert not ok and 'nominal_inertia' in reason and 'eq. 28' in reason, reason
+    assert probe.get_parameters('/controller', ['pinch.dob.nominal_inertia']) == {
+        'pinch.dob.nominal_inertia': before['pinch.dob.nominal_inertia']}
     # explicitly allowing non-passive settings is the documented override
     ok, reason = probe.set_parameters('/controller', {'pinch.allow_non_passive': True,
                                                       'pinch.dob.nominal_inertia': 1e-5})

@@ -66,13 +66,23 @@ class Probe:
             raise AssertionError(f'parameter services of {node_name} not available')
         return client
 
-    def set_parameters(self, node_name: str, values: Dict[str, Any], timeout: float = 10.0):
-        """Set parameters atomically; returns (successful, reason)."""
+    def set_parameters(self, node_name: str, values: Dict[str, Any], timeout: float = 10.0,
+                       atomic: bool = True):
+        """Set parameters; returns (successful, reason).
+
+        ``atomic=False`` uses the SetParameters service one parameter at a time, which is what
+        ``ros2 param set`` does; the reasons of the rejected ones are joined with '; '.
+        """
         client = self._param_client(node_name)
         params = [Parameter(name, value=value) for name, value in values.items()]
-        result = self._request(lambda: client.set_parameters_atomically(params), timeout,
+        if atomic:
+            result = self._request(lambda: client.set_parameters_atomically(params), timeout,
+                                   f'set_parameters_atomically on {node_name}')
+            return result.result.successful, result.result.reason
+        result = self._request(lambda: client.set_parameters(params), timeout,
                                f'set_parameters on {node_name}')
-        return result.result.successful, result.result.reason
+        failed = [r.reason for r in result.results if not r.successful]
+        return not failed, '; '.join(failed)
 
     def get_parameters(self, node_name: str, names: List[str], timeout: float = 10.0):
         client = self._param_client(node_name)

@@ -1,0 +1,48 @@
+"""The README's main job (`scripts/demo`): a short run end to end, as a user starts it."""
+import os
+import pathlib
+import re
+import uuid
+
+from helpers.processes import ROOT
+
+
+def _processes_with_marker(marker: str):
+    found = []
+    for entry in pathlib.Path('/proc').iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            if marker.encode() in (entry / 'environ').read_bytes():
+                found.append(int(entry.name))
+        except OSError:
+            continue
+    return found
+
+
+def test_demo_prints_the_table_writes_the_png_and_stops_its_nodes(processes, tmp_path):
+    out = tmp_path / 'demo'
+    marker = f'SEAFORCE_DEMO_TEST={uuid.uuid4().hex}'
+    env = dict(os.environ)
+    env[marker.split('=')[0]] = marker.split('=')[1]
+    # the README command itself; one period of a 3 rad/s drive per mode keeps it short
+    demo = processes.start([str(ROOT / 'scripts' / 'demo'), '--periods', '1',
+                            '--frequency', '3', '--out', str(out)], name='demo', env=env)
+    code = demo.wait(timeout=240)
+    text = demo.output()
+    assert code == 0, text
+    rows = {}
+    for mode in ('off', 'hold', 'dob', 'dob_linear_ff', 'dob_full_ff'):
+        match = re.search(rf'^{mode}\s+(-?\d+\.\d)\s+(-?\d+\.\d)\s+(\d+\.\d+)', text, re.M)
+        assert match, f'no table row for {mode}:\n{text}'
+        rows[mode] = float(match.group(1))
+    # the paper's ordering: hold >> off > dob > dob_linear_ff > dob_full_ff
+    assert rows['hold'] > rows['off'] + 10, rows
+    assert rows['off'] > rows['dob'] > rows['dob_linear_ff'] > rows['dob_full_ff'], rows
+    width = float(re.search(r'impedance range at 3\.0 rad/s: (\d+\.\d) dB', text).group(1))
+    assert width > 30.0, text
+    png = out / 'work_loops.png'
+    assert png.is_file() and png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    assert png.stat().st_size > 20_000
+    # every process the demo started has ended (they carry the marker in their environment)
+    assert _processes_with_marker(marker) == []
