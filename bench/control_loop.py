@@ -9,8 +9,10 @@ Main rows, 60 s each, with the EventsExecutor and the SingleThreadedExecutor:
 * **bare echo** - bench/echo_pair.py: a 2 kHz ActuatorState source and a process that answers
   each with an ActuatorCommand and does nothing else: what rclpy + Fast DDS allow here.
 
-Extra rows (20 s): best-effort QoS, both nodes composed in one process (bringup), and lower
-rates, to find what the loop holds. Columns:
+Extra rows (20 s each): best-effort QoS; both nodes composed in one process (bringup); the
+"rt" rows, whose processes run under SCHED_FIFO (chrt -f, needs root or CAP_SYS_NICE); and a
+sweep of lower rates for the bare echo and the nodes, to find the highest rate at which >= 99 %
+of commands arrive in time (printed at the end). Columns:
 
   rate      achieved cycle rate [Hz]
   in time   commands that arrived before the next cycle started
@@ -82,9 +84,9 @@ def _stop(procs):
             p.wait()
 
 
-def run_nodes(layout, executor, qos, rate, seconds, workdir):
+def run_nodes(layout, executor, qos, rate, seconds, workdir, prefix=()):
     """The project's sim_node + controller_node (or bringup); figures from /diagnostics."""
-    overrides = workdir / f'{layout}-{executor}-{qos}-{rate:.0f}.yaml'
+    overrides = workdir / f'{layout}-{executor}-{qos}-{rate:.0f}-{len(prefix)}.yaml'
     # node-specific sections: they take precedence over gripper.yaml's sim/controller ones
     common = (f'    executor: {executor}\n    control_qos: {qos}\n    rate: {rate}\n')
     overrides.write_text(
@@ -98,7 +100,8 @@ def run_nodes(layout, executor, qos, rate, seconds, workdir):
                  'ctl': [str(LIB / 'controller_node')] + args}
     else:
         argvs = {'both': [str(LIB / 'bringup')] + args}
-    procs = {k: subprocess.Popen(a, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    procs = {k: subprocess.Popen(list(prefix) + a, stdout=subprocess.DEVNULL,
+                                 stderr=subprocess.DEVNULL,
                                  stdin=subprocess.DEVNULL, start_new_session=True)
              for k, a in argvs.items()}
     listener = DiagnosticsListener()
@@ -129,15 +132,15 @@ def run_nodes(layout, executor, qos, rate, seconds, workdir):
     }
 
 
-def run_bare(executor, qos, rate, seconds):
+def run_bare(executor, qos, rate, seconds, prefix=()):
     """The bare rclpy echo pair (bench/echo_pair.py) with the same message types."""
     common = ['--executor', executor, '--qos', qos, '--rate', str(rate)]
     script = str(ROOT / 'bench' / 'echo_pair.py')
-    echo = subprocess.Popen([sys.executable, script, '--role', 'echo'] + common,
+    echo = subprocess.Popen(list(prefix) + [sys.executable, script, '--role', 'echo'] + common,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             start_new_session=True)
     time.sleep(1.0)
-    src = subprocess.Popen([sys.executable, script, '--role', 'source', '--seconds',
+    src = subprocess.Popen(list(prefix) + [sys.executable, script, '--role', 'source', '--seconds',
                             str(seconds), '--warmup', '4'] + common, stdout=subprocess.PIPE,
                            stderr=subprocess.DEVNULL, text=True, start_new_session=True)
     procs = {'src': src, 'echo': echo}
@@ -157,6 +160,7 @@ def run_bare(executor, qos, rate, seconds):
     result['rate'] = result.pop('rate')
     result['timeouts'] = 0
     result['cpu'] = {k: 100.0 * (c1[k] - c0[k]) / max(1e-9, t1 - t0) for k in procs}
+    result['cpu']['src'] = result.pop('cpu_pct', float('nan'))  # it has exited: its own figure
     return result
 
 
@@ -167,6 +171,11 @@ def main():
     parser.add_argument('--extra-seconds', type=float, default=20.0,
                         help='measurement per extra variant (QoS, composition, lower rates)')
     parser.add_argument('--no-extras', action='store_true')
+    parser.add_argument('--sweep', type=lambda v: [float(x) for x in v.split(',') if x],
+                        default=[1500.0, 1000.0, 750.0, 500.0, 250.0],
+                        help='lower rates [Hz] tried for bare echo and nodes (events)')
+    parser.add_argument('--fifo-priority', type=int, default=40,
+                        help='SCHED_FIFO priority of the "rt" rows (chrt -f)')
     args = parser.parse_args()
     if not (LIB / 'bringup').exists():
         sys.exit('install/ is missing: run `source scripts/setup.sh` first')
@@ -182,35 +191,51 @@ def main():
                      else run_nodes('separate', executor, 'reliable', 2000.0, args.seconds, tmp))
                 runs.append((kind, executor, 'reliable', 2000.0, r))
         if not args.no_extras:
-            extras = [('nodes', 'events', 'best_effort', 2000.0, 'separate'),
-                      ('composed', 'events', 'reliable', 2000.0, 'composed'),
-                      ('nodes', 'events', 'reliable', 1000.0, 'separate'),
-                      ('bare echo', 'events', 'reliable', 1000.0, None),
-                      ('nodes', 'events', 'reliable', 500.0, 'separate')]
-            for kind, executor, qos, rate, layout in extras:
-                print(f'[bench] {kind} / {executor} / {qos} / {rate:.0f} Hz: '
+            fifo = ['chrt', '-f', str(args.fifo_priority)]
+            extras = [('nodes', 'events', 'best_effort', 2000.0, 'separate', ()),
+                      ('composed', 'events', 'reliable', 2000.0, 'composed', ()),
+                      ('nodes', 'events', 'reliable', 2000.0, 'separate', fifo),
+                      ('bare echo', 'events', 'reliable', 2000.0, None, fifo),
+                      ('composed', 'events', 'reliable', 2000.0, 'composed', fifo)]
+            for rate in args.sweep:
+                extras += [('bare echo', 'events', 'reliable', rate, None, ()),
+                           ('nodes', 'events', 'reliable', rate, 'separate', ())]
+                if rate >= 1000.0:
+                    extras.append(('composed', 'events', 'reliable', rate, 'composed', fifo))
+            for kind, executor, qos, rate, layout, prefix in extras:
+                tag = ' / SCHED_FIFO' if prefix else ''
+                print(f'[bench] {kind} / {executor} / {qos} / {rate:.0f} Hz{tag}: '
                       f'{args.extra_seconds:.0f} s', flush=True)
-                r = (run_bare(executor, qos, rate, args.extra_seconds) if layout is None
-                     else run_nodes(layout, executor, qos, rate, args.extra_seconds, tmp))
-                runs.append((kind, executor, qos, rate, r))
-    bare = {(e, q, rt): r for k, e, q, rt, r in runs if k == 'bare echo' and r}
-    print(f'\n{"what":11s}{"executor":16s}{"qos":12s}{"target":>7s}{"rate Hz":>9s}'
+                r = (run_bare(executor, qos, rate, args.extra_seconds, prefix) if layout is None
+                     else run_nodes(layout, executor, qos, rate, args.extra_seconds, tmp, prefix))
+                runs.append((kind + (' rt' if prefix else ''), executor, qos, rate, r))
+    bare = {(k.endswith(' rt'), e, q, rt): r
+            for k, e, q, rt, r in runs if k.startswith('bare echo') and r}
+    print(f'\n{"what":13s}{"executor":16s}{"qos":12s}{"target":>7s}{"rate Hz":>9s}'
           f'{"in time":>9s}{"rtt p50":>9s}{"rtt p99":>9s}{"vs bare":>8s}{"timeouts":>9s}'
           '  CPU % per process')
     for kind, executor, qos, rate, r in runs:
         if r is None:
-            print(f'{kind:11s}{executor:16s}{qos:12s}{rate:7.0f}  no figures (see logs)')
+            print(f'{kind:13s}{executor:16s}{qos:12s}{rate:7.0f}  no figures (see logs)')
             continue
-        ref = bare.get((executor, qos, rate)) or bare.get((executor, 'reliable', rate))
-        ratio = r['rtt_p50_ms'] / ref['rtt_p50_ms'] if ref and kind != 'bare echo' else float('nan')
+        rt = kind.endswith(' rt')
+        ref = bare.get((rt, executor, qos, rate)) or bare.get((rt, executor, 'reliable', rate))
+        ratio = (r['rtt_p50_ms'] / ref['rtt_p50_ms'] if ref and not kind.startswith('bare')
+                 else float('nan'))
         cpu = ' '.join(f'{k}={v:.0f}' for k, v in r['cpu'].items())
-        print(f'{kind:11s}{executor:16s}{qos:12s}{rate:7.0f}{r["rate"]:9.0f}'
+        print(f'{kind:13s}{executor:16s}{qos:12s}{rate:7.0f}{r["rate"]:9.0f}'
               f'{100 * r["in_time"]:8.1f}%{r["rtt_p50_ms"]:9.3f}{r["rtt_p99_ms"]:9.2f}'
               f'{ratio:8.2f}{r["timeouts"]:9d}  {cpu}')
+    for what in ('bare echo', 'nodes', 'composed rt'):
+        held = [rate for kind, executor, qos, rate, r in runs
+                if kind == what and executor == 'events' and qos == 'reliable' and r
+                and r['in_time'] >= 0.99 and r['rate'] >= 0.98 * rate]
+        print(f'highest rate with >= 99 % of commands in time, {what} (events, reliable): '
+              + (f'{max(held):.0f} Hz' if held else 'none of those tried'))
     print('\nin time: the command answering state k arrived before cycle k+1 started; '
           'rtt: state k published -> its command received [ms]; vs bare: rtt p50 / that of '
-          'the bare echo pair with the same executor, measured in this run; timeouts: '
-          'command watchdog trips (10 ms).')
+          'the bare echo pair with the same executor (and priority), measured in this run; '
+          'timeouts: command watchdog trips (10 ms); rt: both processes SCHED_FIFO.')
 
 
 if __name__ == '__main__':

@@ -59,6 +59,7 @@ def source(node, args):
                 late[0] = 0
                 stats.summary()
                 first = cycle
+                cpu0 = (time.process_time(), time.monotonic())
             if measuring:
                 stats.tick(now)
                 if state['answered'] != cycle:
@@ -78,6 +79,8 @@ def source(node, args):
         s = stats.summary()
         cycles = cycle - first
         r = sorted(rtts) or [float('nan')]
+        result['cpu_pct'] = 100.0 * ((time.process_time() - cpu0[0])
+                                     / max(1e-9, time.monotonic() - cpu0[1]))
         result.update(rate=s.rate_hz, period_p99_ms=s.period_p99_ms,
                       in_time=1.0 - late[0] / max(1, cycles),
                       rtt_p50_ms=1e3 * r[len(r) // 2],

@@ -149,9 +149,11 @@ def _diag(probe, name, predicate, timeout=10.0):
 def test_cable_pull_latches_bus_fault_and_drive_watchdog_drops_torque(
         ecat_emulator, processes, tmp_path, probe):
     harness = ecat_emulator(driven_config(amplitude=0.2))
-    start_hardware(processes, tmp_path, harness, {'wkc_error_limit': 10})
+    # the real settings here: 10 cycles to latch, a 100 ms drive watchdog
+    start_hardware(processes, tmp_path, harness, {'wkc_error_limit': 10, 'drive_watchdog': 0.1})
     start_controller(processes, tmp_path, {'pinch.mode': 'hold'})
     probe.record(DiagnosticArray, '/diagnostics')
+    probe.record(ActuatorState, 'actuator_state', OBSERVE_QOS)
     probe.wait_for(lambda: harness.client.torque_applied('pinch_drive'), timeout=30,
                    what='torque applied by the emulated drive')
     harness.client.silent(True)
@@ -161,6 +163,14 @@ def test_cable_pull_latches_bus_fault_and_drive_watchdog_drops_torque(
     probe.wait_for(lambda: not harness.client.torque_applied('pinch_drive'), timeout=10,
                    what='the emulated drive dropping torque')
     assert any('watchdog' in e['text'].lower() for e in harness.client.events())
+    # cable back: frames flow again, but the fault stays latched (zero torque, STATUS_FAULT)
+    # until ~/reset
+    last = probe.messages('actuator_state')[-1].cycle
+    harness.client.silent(False)
+    states = probe.wait_messages('actuator_state', 50, where=lambda m: m.cycle > last)
+    assert all(pinch(m, 'status') & ActuatorState.STATUS_FAULT for m in states)
+    assert all(pinch(m, 'motor_effort') == 0.0 for m in states)
+    assert not harness.client.torque_applied('pinch_drive')
 
 
 def test_controller_killed_gives_zero_torque(ecat_emulator, processes, tmp_path, probe):
