@@ -72,14 +72,14 @@ def classify(frames):
     for func, module, bucket in LEAF_BUCKETS:
         if name == func and module in where:
             return bucket
-    if '/seaforce_ros/' in where:
+    # py-spy names files relative to their sys.path entry: 'seaforce_ros/sim_node.py'
+    if where.startswith('seaforce_ros/'):
         return 'project Python (seaforce_ros)'
-    if '/seaforce_msgs/' in where or '/std_msgs/' in where or '/builtin_interfaces/' in where:
+    if where.split('/')[0] in ('seaforce_msgs', 'std_msgs', 'builtin_interfaces',
+                               'sensor_msgs', 'diagnostic_msgs'):
         return 'generated message classes (Python)'
-    if '/rclpy/' in where:
+    if where.startswith('rclpy/'):
         return 'rclpy Python (other)'
-    if '.py:' not in where:
-        return 'native frame (--native)'
     return 'other Python'
 
 
