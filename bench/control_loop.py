@@ -1,7 +1,9 @@
 #!/usr/bin/env python3
 """Benchmark the 2 kHz closed loop over ROS 2 against the platform's own limit.
 
-Main rows, 60 s each, with the EventsExecutor and the SingleThreadedExecutor:
+Main rows, 60 s each (split into ``--rounds`` interleaved rounds: bare, nodes, nodes, bare, ...,
+so that the host's drifts hit both sides of the ratio), with the EventsExecutor and the
+SingleThreadedExecutor:
 
 * **nodes** - sim_node (realtime) and controller_node as separate processes, pinch in
   dob_full_ff with the finger backdriven 0.5 rad at 1 rad/s, wrist in dob; figures from the
@@ -164,12 +166,28 @@ def run_bare(executor, qos, rate, seconds, prefix=()):
     return result
 
 
+def combine(parts):
+    """One row from interleaved rounds: means of rate / in time / CPU, medians of the
+    rounds' round-trip percentiles, total watchdog trips."""
+    if not parts:
+        return None
+    cpu = {k: statistics.mean(p['cpu'][k] for p in parts) for k in parts[0]['cpu']}
+    return {'rate': statistics.mean(p['rate'] for p in parts),
+            'in_time': statistics.mean(p['in_time'] for p in parts),
+            'rtt_p50_ms': statistics.median(p['rtt_p50_ms'] for p in parts),
+            'rtt_p99_ms': statistics.median(p['rtt_p99_ms'] for p in parts),
+            'timeouts': sum(p['timeouts'] for p in parts), 'cpu': cpu,
+            'rounds_p50': [p['rtt_p50_ms'] for p in parts]}
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--seconds', type=float, default=60.0,
                         help='measurement per main variant (bare/nodes x executor)')
     parser.add_argument('--extra-seconds', type=float, default=20.0,
                         help='measurement per extra variant (QoS, composition, lower rates)')
+    parser.add_argument('--rounds', type=int, default=4,
+                        help='interleaved rounds the main rows are split into')
     parser.add_argument('--no-extras', action='store_true')
     parser.add_argument('--sweep', type=lambda v: [float(x) for x in v.split(',') if x],
                         default=[1500.0, 1000.0, 750.0, 500.0, 250.0],
@@ -184,12 +202,21 @@ def main():
     runs = []   # (label, executor, qos, rate, result)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = pathlib.Path(tmp)
+        # main rows: each variant's time is split into rounds, run interleaved (bare, nodes,
+        # bare, nodes, ...), so that the host's slow drifts hit both sides of the ratio alike
+        chunk = args.seconds / args.rounds
         for executor in ('events', 'single_threaded'):
+            parts = {'bare echo': [], 'nodes': []}
+            for round_ in range(args.rounds):
+                for kind in (('bare echo', 'nodes') if round_ % 2 == 0 else ('nodes', 'bare echo')):
+                    print(f'[bench] {kind} / {executor} / 2000 Hz: round {round_ + 1} of '
+                          f'{args.rounds}, {chunk:.0f} s', flush=True)
+                    r = (run_bare(executor, 'reliable', 2000.0, chunk) if kind == 'bare echo'
+                         else run_nodes('separate', executor, 'reliable', 2000.0, chunk, tmp))
+                    if r is not None:
+                        parts[kind].append(r)
             for kind in ('bare echo', 'nodes'):
-                print(f'[bench] {kind} / {executor} / 2000 Hz: {args.seconds:.0f} s', flush=True)
-                r = (run_bare(executor, 'reliable', 2000.0, args.seconds) if kind == 'bare echo'
-                     else run_nodes('separate', executor, 'reliable', 2000.0, args.seconds, tmp))
-                runs.append((kind, executor, 'reliable', 2000.0, r))
+                runs.append((kind, executor, 'reliable', 2000.0, combine(parts[kind])))
         if not args.no_extras:
             fifo = ['chrt', '-f', str(args.fifo_priority)]
             extras = [('nodes', 'events', 'best_effort', 2000.0, 'separate', ()),
@@ -226,6 +253,10 @@ def main():
         print(f'{kind:13s}{executor:16s}{qos:12s}{rate:7.0f}{r["rate"]:9.0f}'
               f'{100 * r["in_time"]:8.1f}%{r["rtt_p50_ms"]:9.3f}{r["rtt_p99_ms"]:9.2f}'
               f'{ratio:8.2f}{r["timeouts"]:9d}  {cpu}')
+    for kind, executor, qos, rate, r in runs:
+        if r and 'rounds_p50' in r:
+            print(f'rtt p50 per round, {kind} / {executor}: '
+                  + ' '.join(f'{v:.3f}' for v in r['rounds_p50']))
     for what in ('bare echo', 'nodes', 'composed rt'):
         held = [rate for kind, executor, qos, rate, r in runs
                 if kind == what and executor == 'events' and qos == 'reliable' and r
