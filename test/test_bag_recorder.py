@@ -165,13 +165,14 @@ def test_records_sixty_seconds_published_equals_received_equals_written(processe
     np.testing.assert_array_equal(data.cycle, states)
 
 
-def test_sigkill_loses_at_most_the_open_split(processes, tmp_path):
-    """sqlite3 storage here (the 60 s test uses mcap): a sqlite3 split commits on close, so
-    the open one is lost entirely; the closed ones are complete bags."""
+@pytest.mark.parametrize('storage,suffix', [('sqlite3', '*.db3'), ('mcap', '*.mcap')])
+def test_sigkill_loses_at_most_the_open_split(processes, tmp_path, storage, suffix):
+    """Both storages: a sqlite3 split commits on close and an mcap split gets its summary on
+    close, so the open one is lost (or partly readable); the closed ones are complete bags."""
     sim = start_node(processes, 'sim_node', 'sim', tmp_path)
     out = tmp_path / 'bag'
     rec = _start_recorder(processes, out, '-p', 'split_duration:=2.0', '-p',
-                          'topics:=[actuator_state]', '-p', 'storage:=sqlite3')
+                          'topics:=[actuator_state]', '-p', f'storage:={storage}')
     deadline = time.monotonic() + 30.0
     while time.monotonic() < deadline:
         complete = [d for d in out.iterdir() if (d / 'metadata.yaml').is_file()]
@@ -189,7 +190,7 @@ def test_sigkill_loses_at_most_the_open_split(processes, tmp_path):
     assert np.all(np.diff(states[2000:]) == 1)
     assert states.size > 0.5 * 2000 * 2.0 * len(splits)
     for split in splits:
-        assert list(split.glob('*.db3'))
+        assert list(split.glob(suffix))
         with Reader(split) as reader:
             assert reader.message_count > 0
             # recorded message time of one split (2 s splits), not the test's wall clock
