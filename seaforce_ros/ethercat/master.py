@@ -52,7 +52,11 @@ class EthercatBus:
     # --- bring-up ------------------------------------------------------------------------
     def open(self) -> None:
         """Open the interface, find and check every slave, map process data, go to SAFE-OP."""
-        import pysoem
+        try:
+            import pysoem
+        except ImportError as exc:
+            raise BusError('pysoem is not installed (it has no rosdep key): '
+                           '`pip install pysoem` into the Python that runs hardware_node') from exc
         self._pysoem = pysoem
         master = pysoem.Master()
         try:
