@@ -86,8 +86,10 @@ def _stop(procs):
             p.wait()
 
 
-def run_nodes(layout, executor, qos, rate, seconds, workdir, prefix=()):
-    """The project's sim_node + controller_node (or bringup); figures from /diagnostics."""
+def start_scenario(layout, executor, qos, rate, workdir, prefix=()):
+    """Start the benchmark scenario: sim_node (realtime, pinch backdriven 0.5 rad at 1 rad/s)
+    and controller_node (pinch dob_full_ff, wrist dob) as separate processes ('sim', 'ctl'),
+    or composed in bringup ('both'). Returns {name: Popen}."""
     overrides = workdir / f'{layout}-{executor}-{qos}-{rate:.0f}-{len(prefix)}.yaml'
     # node-specific sections: they take precedence over gripper.yaml's sim/controller ones
     common = (f'    executor: {executor}\n    control_qos: {qos}\n    rate: {rate}\n')
@@ -102,10 +104,15 @@ def run_nodes(layout, executor, qos, rate, seconds, workdir, prefix=()):
                  'ctl': [str(LIB / 'controller_node')] + args}
     else:
         argvs = {'both': [str(LIB / 'bringup')] + args}
-    procs = {k: subprocess.Popen(list(prefix) + a, stdout=subprocess.DEVNULL,
-                                 stderr=subprocess.DEVNULL,
-                                 stdin=subprocess.DEVNULL, start_new_session=True)
-             for k, a in argvs.items()}
+    return {k: subprocess.Popen(list(prefix) + a, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL,
+                                stdin=subprocess.DEVNULL, start_new_session=True)
+            for k, a in argvs.items()}
+
+
+def run_nodes(layout, executor, qos, rate, seconds, workdir, prefix=()):
+    """The project's sim_node + controller_node (or bringup); figures from /diagnostics."""
+    procs = start_scenario(layout, executor, qos, rate, workdir, prefix)
     listener = DiagnosticsListener()
     try:
         time.sleep(4.0)  # discovery and settling

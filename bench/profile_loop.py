@@ -28,7 +28,7 @@ import time
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / 'bench'))
 
-from control_loop import CONFIG, LIB, _stop  # noqa: E402
+from control_loop import _stop, start_scenario  # noqa: E402
 
 # Without native frames a sample taken while C/C++ code runs shows the Python line that called
 # into it; these leaves name what that C/C++ code is.
@@ -39,21 +39,6 @@ LEAF_BUCKETS = (
     ('publish', 'publisher.py', 'rclpy publish, in C (convert, serialise, Fast DDS write)'),
     ('wait', 'timing.py', 'cycle thread sleeping until its next deadline'),
 )
-
-
-def start_nodes(workdir: pathlib.Path, rate: float):
-    overrides = workdir / 'profile.yaml'
-    common = f'    executor: events\n    control_qos: reliable\n    rate: {rate}\n'
-    overrides.write_text(
-        'sim:\n  ros__parameters:\n' + common
-        + '    pinch.environment.mode: position_sine\n    pinch.environment.amplitude: 0.5\n'
-        'controller:\n  ros__parameters:\n' + common
-        + '    pinch.mode: dob_full_ff\n    wrist.mode: dob\n    state_timeout: 1.0\n')
-    args = ['--ros-args', '--params-file', str(CONFIG), '--params-file', str(overrides)]
-    return {name: subprocess.Popen([str(LIB / exe)] + args, stdout=subprocess.DEVNULL,
-                                   stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL,
-                                   start_new_session=True)
-            for name, exe in (('sim', 'sim_node'), ('controller', 'controller_node'))}
 
 
 def parse_raw(path: pathlib.Path):
@@ -143,7 +128,8 @@ def main():
     os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
     with tempfile.TemporaryDirectory() as tmp:
         tmp = pathlib.Path(tmp)
-        procs = start_nodes(tmp, args.rate)
+        procs = start_scenario('separate', 'events', 'reliable', args.rate, tmp)
+        procs = {'sim': procs['sim'], 'controller': procs['ctl']}
         spies = {}
         try:
             time.sleep(5.0)

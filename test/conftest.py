@@ -28,6 +28,17 @@ def processes():
 
 
 @pytest.fixture
+def probe(request):
+    """A test-side ROS node (helpers.probe.Probe) on its own context, closed afterwards."""
+    from helpers.probe import Probe
+    p = Probe(f'probe_{request.module.__name__.rsplit(".", 1)[-1]}')
+    try:
+        yield p
+    finally:
+        p.close()
+
+
+@pytest.fixture
 def ros_context():
     """A fresh rclpy Context, shut down after the test."""
     import rclpy

@@ -16,7 +16,6 @@ from seaforce_msgs.msg import ActuatorCommand, ActuatorState, ControllerStatus
 
 from helpers.nodes import start_node
 from helpers.processes import executable
-from helpers.probe import Probe
 
 from seaforce_ros.identification import bagio
 from seaforce_ros.ros_common import RECORD_QOS
@@ -42,15 +41,6 @@ def bag_dir(tmp_path):
             shutil.rmtree(path, ignore_errors=True)
     else:
         yield tmp_path / 'bag'
-
-
-@pytest.fixture
-def probe():
-    p = Probe('recorder_witness')
-    try:
-        yield p
-    finally:
-        p.close()
 
 
 def _cycle_of(data):

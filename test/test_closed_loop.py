@@ -11,22 +11,12 @@ from seaforce_msgs.msg import ActuatorState, ControllerStatus, ActuatorCommand
 from std_srvs.srv import Trigger
 
 from helpers.nodes import start_node
-from helpers.probe import Probe
 
 DRIVE = {'pinch.environment.mode': 'position_sine', 'pinch.environment.amplitude': 0.2,
          'pinch.environment.frequency': 1.0}
 # a loaded 2-core machine delays single samples by 10-20 ms now and then; these tests are
 # about behaviour, not about the stale-state check (which has its own test)
 RELAXED = {'state_timeout': 0.5}
-
-
-@pytest.fixture
-def probe():
-    p = Probe()
-    try:
-        yield p
-    finally:
-        p.close()
 
 
 def pinch(msg, field):
@@ -89,7 +79,11 @@ def test_environment_changes_at_run_time_and_standard_topics_flow(processes, tmp
     assert not ok and 'one of' in reason
     js = probe.wait_messages('joint_states', 3)[-1]
     assert list(js.name) == ['wrist_motor', 'wrist_endpoint', 'pinch_motor', 'pinch_endpoint']
-    assert len(js.position) == 4
+    assert len(js.position) == len(js.velocity) == len(js.effort) == 4
+    assert all(math.isfinite(v) for v in (*js.position, *js.velocity, *js.effort))
+    # the torque-driven pinch finger moves: its endpoint effort is the external torque
+    moving = probe.wait_messages('joint_states', 1, where=lambda j: abs(j.effort[3]) > 0.05)
+    assert abs(moving[-1].effort[3]) <= 0.3
     diag = probe.wait_messages('/diagnostics', 1, timeout=5, where=lambda d: any(
         s.name == 'sim: cycle' for s in d.status))[-1]
     keys = {kv.key for s in diag.status if s.name == 'sim: cycle' for kv in s.values}

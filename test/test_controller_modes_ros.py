@@ -4,25 +4,14 @@ import math
 import time
 
 import numpy as np
-import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from seaforce_msgs.msg import ActuatorCommand, ActuatorState
 from std_srvs.srv import Trigger
 
 from helpers.nodes import start_node
-from helpers.probe import Probe
 from seaforce_ros.core.analysis import impedance_from_position
 
 DT = 5e-4
-
-
-@pytest.fixture
-def probe():
-    p = Probe('modes_probe')
-    try:
-        yield p
-    finally:
-        p.close()
 
 
 def channel(msg, name, field):

@@ -16,7 +16,6 @@ from std_srvs.srv import Trigger
 from ethercat.emulator.config import default_config
 from ethercat.harness import EmulatorHarness
 from helpers.nodes import start_node
-from helpers.probe import Probe
 from seaforce_ros.core.analysis import impedance_from_position
 
 BUS = pathlib.Path(__file__).resolve().parent / 'data' / 'bus_emulated.yaml'
@@ -56,15 +55,6 @@ def ecat_emulator(tmp_path):
             except Exception as exc:
                 print(f'(no emulator events: {exc})')
             harness.stop()
-
-
-@pytest.fixture
-def probe():
-    p = Probe('hardware_test_probe')
-    try:
-        yield p
-    finally:
-        p.close()
 
 
 def emulator_config():

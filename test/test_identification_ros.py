@@ -3,22 +3,12 @@ import pytest
 
 from helpers.nodes import CONFIG
 from helpers.processes import executable
-from helpers.probe import Probe
 
 from seaforce_ros.core.params import PlantParams
 from seaforce_ros.identification.output import write_params_file
 
 KEYS = ("motor_inertia", "motor_damping", "motor_stiffness", "endpoint_inertia",
         "endpoint_damping", "endpoint_stiffness", "hose_damping", "hose_stiffness")
-
-
-@pytest.fixture
-def probe():
-    p = Probe('params_probe')
-    try:
-        yield p
-    finally:
-        p.close()
 
 
 def test_identified_params_file_loads_into_controller_and_sim(processes, tmp_path, probe):
