@@ -166,7 +166,6 @@ def run_bare(executor, qos, rate, seconds, prefix=()):
     if not lines:
         return None
     result = json.loads(lines[-1])
-    result['rate'] = result.pop('rate')
     result['timeouts'] = 0
     result['cpu'] = {k: 100.0 * (c1[k] - c0[k]) / max(1e-9, t1 - t0) for k in procs}
     result['cpu']['src'] = result.pop('cpu_pct', float('nan'))  # it has exited: its own figure

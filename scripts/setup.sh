@@ -38,15 +38,15 @@ _sf_setup() {
     # pip's output goes to a log; shown (without the harmless "find-links location is
     # ignored" lines some machines' pip configuration produces by the hundred) on failure
     mkdir -p "$_sf_root/log"
-    local pip_log="$_sf_root/log/seaforce-pip.txt"
+    local pip_log="$_sf_root/log/seaforce-pip.txt" pip_noise='is ignored: it is neither a file nor a directory'
     if ! "$_sf_venv/bin/python" -m pip install --quiet --disable-pip-version-check \
         -r "$_sf_root/scripts/requirements.txt" -c "$_sf_root/scripts/constraints.txt" \
         > "$pip_log" 2>&1; then
-      grep -v -e 'is ignored: it is neither a file nor a directory' "$pip_log" | tail -40 >&2
+      grep -v -e "$pip_noise" "$pip_log" | tail -40 >&2
       _sf_log "pip install failed; full output in $pip_log"
       return 1
     fi
-    grep -v -e 'is ignored: it is neither a file nor a directory' "$pip_log" >&2 || true
+    grep -v -e "$pip_noise" "$pip_log" >&2 || true
     # 2. CMake-path repair (idempotent)
     "$_sf_venv/bin/python" "$_sf_root/scripts/fix_cmake_paths.py" "$_sf_venv" || return 1
     echo "$req_stamp" > "$_sf_venv/.seaforce-req"

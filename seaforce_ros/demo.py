@@ -121,23 +121,18 @@ class Observer:
     def set_mode(self, mode, timeout=20.0):
         from rclpy.parameter import Parameter
         from rclpy.parameter_client import AsyncParameterClient
+
+        from .ros_common import request_until_answered
         if self.param_client is None:
             self.param_client = AsyncParameterClient(self.node, '/controller')
             if not self.param_client.wait_for_services(timeout_sec=timeout):
                 raise RuntimeError('the controller parameter services did not come up')
-        # re-sent when unanswered: until the controller has discovered our response reader
-        # its answer is dropped (wait_for_services only covers the request side)
-        deadline = time.monotonic() + timeout
-        future = None
-        while future is None or not future.done():
-            if time.monotonic() > deadline:
-                raise RuntimeError(f'no answer setting {CHANNEL}.mode')
-            future = self.param_client.set_parameters(
-                [Parameter(f'{CHANNEL}.mode', value=mode)])
-            resend = time.monotonic() + 2.0
-            while not future.done() and time.monotonic() < min(resend, deadline):
-                time.sleep(0.01)
-        result = future.result().results[0]
+        try:
+            response = request_until_answered(lambda: self.param_client.set_parameters(
+                [Parameter(f'{CHANNEL}.mode', value=mode)]), timeout)
+        except TimeoutError:
+            raise RuntimeError(f'no answer setting {CHANNEL}.mode') from None
+        result = response.results[0]
         if not result.successful:
             raise RuntimeError(f'{CHANNEL}.mode={mode} rejected: {result.reason}')
 

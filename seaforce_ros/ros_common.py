@@ -237,12 +237,7 @@ def run(node_factory: Callable[[], Any], args=None, executor_param: str = 'execu
         code = 2
     finally:
         if executor is not None:
-            executor.shutdown(timeout_sec=1.0)
-            for node in nodes:
-                try:
-                    executor.remove_node(node)
-                except Exception:
-                    pass
+            release_executor(executor, nodes)
         for node in reversed(nodes):
             try:
                 shutdown = getattr(node, 'shutdown', None)
@@ -260,6 +255,43 @@ def run(node_factory: Callable[[], Any], args=None, executor_param: str = 'execu
         sys.stderr.flush()
         os._exit(code)
     return code
+
+
+def release_executor(executor, nodes) -> None:
+    """Shut ``executor`` down and take ``nodes`` off it, before the nodes are destroyed.
+
+    The order matters with the PyPI wheel's EventsExecutor: destroyed while it still spins or
+    still holds a node's callbacks, it aborts the process.
+    """
+    executor.shutdown(timeout_sec=1.0)
+    for node in nodes:
+        try:
+            executor.remove_node(node)
+        except Exception:
+            pass  # never added, or already gone with a shut-down context
+
+
+def request_until_answered(send: Callable[[], Any], timeout: float, resend_after: float = 2.0):
+    """``send()`` a service request (returns a Future) and wait for its result, re-sending it
+    every ``resend_after`` s while unanswered; :class:`TimeoutError` after ``timeout`` s.
+
+    ``wait_for_service`` only says the server's request reader is matched: until the server
+    has also discovered the client's response reader (slow on a loaded host) its answers are
+    dropped, a known ROS 2 discovery race. Only for idempotent requests (parameter get/set,
+    Trigger-style services). The caller's node must be spun by another thread.
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        future = send()
+        resend = min(deadline, time.monotonic() + resend_after)
+        while not future.done():
+            if time.monotonic() >= resend:
+                break
+            time.sleep(0.01)
+        if future.done():
+            return future.result()
+        if time.monotonic() >= deadline:
+            raise TimeoutError(f'no answer within {timeout:g} s')
 
 
 def shutdown_safe(callback):
@@ -321,9 +353,9 @@ class BackgroundNode:
     def close(self) -> None:
         """Stop spinning, release the executor, destroy the node, shut the context down.
 
-        Idempotent. The order matters with the PyPI wheel's EventsExecutor: it aborts the
-        process ("terminate called without an active exception") if it is destroyed while a
-        thread still spins it or while it still holds the node's callbacks.
+        Idempotent. The spin thread must have stopped before the executor is released (see
+        :func:`release_executor`): otherwise the wheel's EventsExecutor aborts the process
+        ("terminate called without an active exception").
         """
         if self._closed:
             return
@@ -332,10 +364,6 @@ class BackgroundNode:
         self._thread.join(timeout=30.0)
         if self._thread.is_alive():
             raise RuntimeError(f'{self.node.get_name()}: spin thread did not stop within 30 s')
-        self.executor.shutdown(timeout_sec=1.0)
-        try:
-            self.executor.remove_node(self.node)
-        except Exception:
-            pass
+        release_executor(self.executor, [self.node])
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)

@@ -72,7 +72,7 @@ def pytest_unconfigure(config):
     leftovers = stop_leftovers()
     if leftovers:
         print(f'conftest: ended {leftovers} process(es) a test left running', file=sys.stderr)
-    if 'status' in _session and os.environ.get('SEAFORCE_TEST_NORMAL_EXIT') != '1':
+    if 'status' in _session:
         from ethercat import harness
         harness._stop_leftovers()
         sys.stdout.flush()

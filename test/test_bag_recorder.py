@@ -28,10 +28,9 @@ FINAL = re.compile(r'final counts: (.*); splits (\d+)')
 def bag_dir(tmp_path):
     """Where the 60 s test records: tmpfs when there is one. On this shared VM the virtual
     disk stalls now and then for up to ~0.5 s; during such a stall the recorder process gets no
-    DDS samples and, for longer stalls, the publishers' 0.5 s history (ros_common.CONTROL_QOS,
-    depth 1000) cannot bridge it, so samples are lost before they reach the recorder (bench/recorder_soak.py
-    measures that on disk: received == written always held, 0.5 % of the states never
-    arrived in 10 minutes). The test is about the recorder, so it records to memory."""
+    DDS samples, and a stall longer than the publishers' 0.5 s history (ros_common.CONTROL_QOS,
+    depth 1000) loses samples before they reach the recorder (bench/recorder_soak.py measures
+    that on disk). The test is about the recorder, so it records to memory."""
     shm = pathlib.Path('/dev/shm')
     if shm.is_dir() and os.access(shm, os.W_OK):
         path = pathlib.Path(tempfile.mkdtemp(prefix='bag_recorder_test_', dir=shm))
@@ -161,7 +160,8 @@ def test_sigkill_loses_at_most_the_open_split(processes, tmp_path, storage, suff
     close, so the open one is lost (or partly readable); the closed ones are complete bags."""
     sim = start_node(processes, 'sim_node', 'sim', tmp_path)
     out = tmp_path / 'bag'
-    rec = _start_recorder(processes, out, '-p', 'split_duration:=2.0', '-p',
+    split_s = 2.0
+    rec = _start_recorder(processes, out, '-p', f'split_duration:={split_s}', '-p',
                           'topics:=[actuator_state]', '-p', f'storage:={storage}')
     deadline = time.monotonic() + 30.0
     while time.monotonic() < deadline:
@@ -183,8 +183,10 @@ def test_sigkill_loses_at_most_the_open_split(processes, tmp_path, storage, suff
         assert list(split.glob(suffix))
         with Reader(split) as reader:
             assert reader.message_count > 0
-            # recorded message time of one split (2 s splits), not the test's wall clock
-            assert reader.duration <= 2.2e9
+            # the split_duration rule, in the bag's own message timestamps: a split spans
+            # at most split_duration (+ the message that crossed the boundary)
+            span_s = (reader.end_time - reader.start_time) * 1e-9
+            assert span_s <= 1.1 * split_s
     # the split being written when the recorder died has no metadata (lost or partial)
     dirs = sorted(d for d in out.iterdir() if d.is_dir())
     assert len(dirs) == len(splits) + 1 and not (dirs[-1] / 'metadata.yaml').exists()

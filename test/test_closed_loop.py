@@ -11,6 +11,7 @@ from seaforce_msgs.msg import ActuatorState, ControllerStatus, ActuatorCommand
 from std_srvs.srv import Trigger
 
 from helpers.nodes import start_node
+from helpers.states import by_cycle, torque_off_after_commands_stop, value
 
 DRIVE = {'pinch.environment.mode': 'position_sine', 'pinch.environment.amplitude': 0.2,
          'pinch.environment.frequency': 1.0}
@@ -20,7 +21,7 @@ RELAXED = {'state_timeout': 0.5}
 
 
 def pinch(msg, field):
-    return getattr(msg, field)[list(msg.name).index('pinch')]
+    return value(msg, 'pinch', field)
 
 
 @pytest.mark.parametrize('executor', ['events', 'single_threaded'])
@@ -135,14 +136,10 @@ def test_sim_zeroes_torque_when_controller_is_killed(processes, tmp_path, probe)
     # then enough later states to see it stay so (counted, not slept for: a loaded host
     # delivers them late)
     probe.wait_messages('actuator_state', 200, where=lambda m: m.cycle > cycle_at_kill + 50)
-    states = sorted({m.cycle: m for m in probe.messages('actuator_state')}.values(),
-                    key=lambda m: m.cycle)
-    cycles = np.array([m.cycle for m in states])
-    flags = np.array([pinch(m, 'status') & ActuatorState.STATUS_COMMAND_TIMEOUT for m in states])
-    efforts = np.array([pinch(m, 'motor_effort') for m in states])
+    states = by_cycle(probe.messages('actuator_state'))
     # the last cycle whose torque came from a command, and the first flagged cycle after it
-    last_driven = int(np.flatnonzero(efforts != 0.0)[-1])
-    first_to = last_driven + int(np.argmax(flags[last_driven:] > 0))
+    cycles, flags, efforts, last_driven, first_to = torque_off_after_commands_stop(states,
+                                                                                   'pinch')
     assert flags[first_to] > 0, list(zip(cycles[-50:], flags[-50:], efforts[-50:]))
     timeout_cycles = 0.01 / 5e-4
     # The last command arrived in the cycle before `last_driven` (or, racing the cycle thread,

@@ -9,13 +9,10 @@ from seaforce_msgs.msg import ActuatorCommand, ActuatorState
 from std_srvs.srv import Trigger
 
 from helpers.nodes import start_node
+from helpers.states import value
 from seaforce_ros.core.analysis import impedance_from_position
 
 DT = 5e-4
-
-
-def channel(msg, name, field):
-    return getattr(msg, field)[list(msg.name).index(name)]
 
 
 def test_impedance_and_chirp_modes_over_ros(processes, tmp_path, probe):
@@ -45,7 +42,7 @@ def test_impedance_and_chirp_modes_over_ros(processes, tmp_path, probe):
     assert len(have) > 0.99 * len(cycles), f'{len(have)} of {len(cycles)} states received'
 
     def series(name, field):
-        values = np.array([channel(by_cycle[c], name, field) for c in have])
+        values = np.array([value(by_cycle[c], name, field) for c in have])
         return np.interp(cycles, have, values)
 
     # pinch: the rendered impedance F_e / V_e equals the target k/(jw) + b
@@ -110,15 +107,15 @@ def test_torque_limit_and_missing_channel_latch_faults(processes, tmp_path, prob
     # a small push: hold resists within the limit (K_p = 20: 0.01 rad -> 0.2 N m)
     send(0.01, n=3)
     cmd = answer()
-    assert -0.5 <= channel(cmd, 'pinch', 'effort') < -0.1
+    assert -0.5 <= value(cmd, 'pinch', 'effort') < -0.1
     # a large push: the hold torque would exceed pinch.max_torque = 0.5 -> latched, zero
     send(0.1, n=3)
     cmd = answer()
-    assert channel(cmd, 'pinch', 'effort') == 0.0
-    assert channel(cmd, 'wrist', 'effort') < -0.5      # wrist (max_torque 20) keeps holding
+    assert value(cmd, 'pinch', 'effort') == 0.0
+    assert value(cmd, 'wrist', 'effort') < -0.5      # wrist (max_torque 20) keeps holding
     fault_reported('pinch', 'max_torque')
     send(0.0, n=5)                                     # back in range: still latched
-    assert channel(answer(), 'pinch', 'effort') == 0.0
+    assert value(answer(), 'pinch', 'effort') == 0.0
     assert ctrl.wait_for_output('pinch: FAULT latched, zero torque: torque beyond max_torque',
                                 timeout=5), ctrl.output()
     # a state without the wrist channel latches a fault on wrist only after reset
@@ -126,9 +123,9 @@ def test_torque_limit_and_missing_channel_latch_faults(processes, tmp_path, prob
     assert response.success and 'pinch' in response.message, response.message
     send(0.0, n=3, names=('pinch',))
     cmd = answer()
-    assert channel(cmd, 'wrist', 'effort') == 0.0
+    assert value(cmd, 'wrist', 'effort') == 0.0
     fault_reported('wrist', 'channel missing')
     send(0.01, n=3)                                    # full state again: wrist stays latched
     cmd = answer()
-    assert channel(cmd, 'wrist', 'effort') == 0.0 and channel(cmd, 'pinch', 'effort') < -0.1
+    assert value(cmd, 'wrist', 'effort') == 0.0 and value(cmd, 'pinch', 'effort') < -0.1
     assert ctrl.wait_for_output('wrist: FAULT latched, zero torque: channel missing', timeout=5)

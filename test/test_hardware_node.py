@@ -16,6 +16,7 @@ from std_srvs.srv import Trigger
 from ethercat.emulator.config import default_config
 from ethercat.harness import EmulatorHarness
 from helpers.nodes import start_node
+from helpers.states import by_cycle, torque_off_after_commands_stop, value
 from seaforce_ros.core.analysis import impedance_from_position
 
 BUS = pathlib.Path(__file__).resolve().parent / 'data' / 'bus_emulated.yaml'
@@ -89,7 +90,7 @@ def start_controller(processes, tmp_path, overrides=None):
 
 
 def pinch(msg, field):
-    return getattr(msg, field)[list(msg.name).index('pinch')]
+    return value(msg, 'pinch', field)
 
 
 def measured_impedance_db(client, omega, periods=1.0, settle=1.0):
@@ -178,13 +179,9 @@ def test_controller_killed_gives_zero_torque(ecat_emulator, processes, tmp_path,
     probe.wait_messages('actuator_state', 1, where=lambda m: m.cycle > cycle_at_kill and (
         pinch(m, 'status') & ActuatorState.STATUS_COMMAND_TIMEOUT))
     probe.wait_messages('actuator_state', 50, where=lambda m: m.cycle > cycle_at_kill + 30)
-    states = sorted({m.cycle: m for m in probe.messages('actuator_state')}.values(),
-                    key=lambda m: m.cycle)
-    efforts = np.array([pinch(m, 'motor_effort') for m in states])
-    flags = np.array([pinch(m, 'status') & ActuatorState.STATUS_COMMAND_TIMEOUT for m in states])
-    cycles = np.array([m.cycle for m in states])
-    last_driven = int(np.flatnonzero(efforts != 0.0)[-1])
-    first_to = last_driven + int(np.argmax(flags[last_driven:] > 0))
+    states = by_cycle(probe.messages('actuator_state'))
+    cycles, flags, efforts, last_driven, first_to = torque_off_after_commands_stop(states,
+                                                                                   'pinch')
     # zero torque from the first flagged cycle, within command_timeout (10 cycles at 1 kHz) + 1
     assert cycles[first_to] - cycles[last_driven] <= 0.01 * RATE + 1, (
         cycles[last_driven], cycles[first_to])

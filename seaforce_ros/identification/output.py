@@ -148,10 +148,7 @@ class Progress:
 def run_cli(prog, run, args):
     """Run an offline tool's ``run(args)``: a bad input is one ``prog: error: ...`` line and exit
     code 2 (never a stack trace), Ctrl-C exit code 130."""
-    import sys
-
     from ..core.errors import SeaforceError
-    from .errors import IdentificationError
 
     try:
         return run(args)

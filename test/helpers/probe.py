@@ -7,7 +7,8 @@ from typing import Any, Callable, Dict, List, Optional
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 
-from seaforce_ros.ros_common import RECORD_QOS, CONTROL_QOS, BackgroundNode
+from seaforce_ros.ros_common import (RECORD_QOS, CONTROL_QOS, BackgroundNode,
+                                     request_until_answered)
 
 
 class Probe:
@@ -98,23 +99,11 @@ class Probe:
         return self._request(lambda: client.call_async(request or srv_type.Request()),
                              timeout, f'call {name}')
 
-    def _request(self, send, timeout, what, attempts=4):
-        """Send, wait, and re-send if unanswered: `wait_for_service` only says the server's
-        request reader is matched; until the server has also discovered our response reader
-        (slow on a loaded host) the response is dropped -- a known ROS 2 race. Every request
-        made here is idempotent."""
-        for _ in range(attempts - 1):
-            try:
-                return self._wait_future(send(), timeout / attempts, what)
-            except AssertionError:
-                pass
-        return self._wait_future(send(), timeout, what)
-
     @staticmethod
-    def _wait_future(future, timeout, what):
-        deadline = time.monotonic() + timeout
-        while not future.done():
-            if time.monotonic() > deadline:
-                raise AssertionError(f'no answer to {what} within {timeout} s')
-            time.sleep(0.01)
-        return future.result()
+    def _request(send, timeout, what):
+        """Send and wait, re-sending while unanswered (see ros_common.request_until_answered:
+        every request made here is idempotent)."""
+        try:
+            return request_until_answered(send, timeout, resend_after=timeout / 4)
+        except TimeoutError:
+            raise AssertionError(f'no answer to {what} within {timeout} s') from None

@@ -1,0 +1,31 @@
+"""Reading recorded ActuatorState messages in tests."""
+from typing import Iterable, List
+
+import numpy as np
+from seaforce_msgs.msg import ActuatorState
+
+
+def value(msg, channel: str, field: str):
+    """``msg.<field>`` of one channel, looked up by name."""
+    return getattr(msg, field)[list(msg.name).index(channel)]
+
+
+def by_cycle(msgs: Iterable) -> List:
+    """One message per cycle (the last one received), in cycle order."""
+    return sorted({m.cycle: m for m in msgs}.values(), key=lambda m: m.cycle)
+
+
+def torque_off_after_commands_stop(states: List, channel: str):
+    """Where the plant zeroed ``channel``'s torque after its commands stopped.
+
+    Returns ``(cycles, flags, efforts, last_driven, first_off)``: arrays over ``states``
+    (STATUS_COMMAND_TIMEOUT bit, applied effort), the index of the last state whose torque came
+    from a command, and the index of the first flagged state after it.
+    """
+    cycles = np.array([m.cycle for m in states])
+    flags = np.array([value(m, channel, 'status') & ActuatorState.STATUS_COMMAND_TIMEOUT
+                      for m in states])
+    efforts = np.array([value(m, channel, 'motor_effort') for m in states])
+    last_driven = int(np.flatnonzero(efforts != 0.0)[-1])
+    first_off = last_driven + int(np.argmax(flags[last_driven:] > 0))
+    return cycles, flags, efforts, last_driven, first_off
