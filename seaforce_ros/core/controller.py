@@ -38,11 +38,15 @@ Discretisation (sample period T = ``dt``):
   non-bumpless transition).
 
 Bumpless transfer: every mode entry (or ``configure``) initialises the new
-mode's state from the last output so that the first output equals it.
+mode's state from the last output so that the first output equals it;
+:meth:`ChannelController.reset` and :meth:`ChannelController.reenter` start
+from a torque the plant reports as applied.
 
-Faults: a NaN/inf input latches ``fault``, the output becomes 0 and
-:class:`~.errors.NonFiniteInputError` is raised; subsequent updates return
-0.0 until :meth:`ChannelController.reset`.
+The controller computes; it does not judge. Input validation (finite,
+plausible, fresh), the ``max_torque`` fault limit and fault latching live in
+:class:`~.control_cycle.ControlCycle`, which calls :meth:`update` only with
+checked inputs. A non-finite input still raises
+:class:`~.errors.NonFiniteInputError` (nothing is latched).
 
 The hot path uses Python floats only (no numpy, no allocation beyond
 float boxing, no logging).
@@ -74,11 +78,7 @@ class ChannelController:
     mode : str
         Active mode.
     torque : float
-        Last output F_a [N m] (after the limit).
-    limited : bool
-        The output was clamped to ``max_torque`` this sample.
-    fault : bool
-        Latched after a non-finite input.
+        Last output F_a [N m].
     disturbance : float
         DOB disturbance estimate ``d_hat = F_a - F_ref`` [N m] (NaN outside
         the DOB modes).
@@ -147,35 +147,17 @@ class ChannelController:
         self._kf = c.force_feedback_gain
         self._bump_decay = math.exp(-dt / _BUMP_TAU)
         self._kt, self._bt = c.target_stiffness, c.target_damping
-        self._max = c.max_torque
         self._use_ff = c.mode in ("dob_linear_ff", "dob_full_ff", "impedance")
         self._use_dahl = c.mode in ("dob_full_ff", "impedance")
 
-    def track_applied(self, applied):
-        """Tell the controller the plant applied ``applied`` [N m] instead of its last output.
-
-        The plant side zeroes the torque on a command timeout or a fault; an integrating mode
-        (the DOB modes) would otherwise keep integrating as if its torque had acted and wind
-        up. This is back-calculation anti-windup with the applied torque: the integrator is
-        shifted so that the last output equals ``applied``, and the next output continues from
-        there. Non-integrating modes only record the value (their next output does not depend
-        on it, except through bumpless entry).
-        """
-        applied = float(applied)
-        if not math.isfinite(applied):
-            return
-        if self._dob_mode and not self._enter:
-            self._integ += applied - self.torque
-        self.torque = applied
-
-    def reset(self):
-        """Clear all state (filters, integrator, fault); output restarts at 0."""
+    def reset(self, applied_torque=0.0):
+        """Clear all state (filters, integrator, estimates); the next :meth:`update` starts
+        afresh from that sample and enters the mode bumplessly from ``applied_torque``
+        [N m], the torque the plant reports it applies (its first output equals it)."""
         if self._pending is not None:
             self._apply_config(self._pending)
             self._pending = None
-        self.fault = False
-        self.torque = 0.0
-        self.limited = False
+        self.torque = float(applied_torque)
         self.disturbance = math.nan
         self.feedforward = 0.0
         self.endpoint_velocity_estimate = 0.0
@@ -193,6 +175,14 @@ class ChannelController:
         self._t_mode = 0.0
         self._enter = True
 
+    def reenter(self, applied_torque):
+        """Re-enter the mode at the next :meth:`update` from ``applied_torque`` [N m] (the
+        plant zeroed or replaced the torque: watchdog, fault), keeping the estimators (hose
+        inversion, Dahl state) running. The next output equals ``applied_torque``; ``hold``
+        re-captures its target there, the DOB integrator starts from it (no windup)."""
+        self.torque = float(applied_torque)
+        self._enter = True
+
     # --- per sample -------------------------------------------------------------
     def update(self, x, v, f_p):
         """One sample: ``(X [rad], V [rad/s], F_p [N m]) -> F_a [N m]``.
@@ -200,14 +190,9 @@ class ChannelController:
         Raises
         ------
         NonFiniteInputError
-            An input is NaN/inf (the fault is latched, output 0).
+            An input is NaN/inf (nothing changes; the caller decides).
         """
-        if self.fault:
-            return 0.0
         if not (math.isfinite(x) and math.isfinite(v) and math.isfinite(f_p)):
-            self.fault = True
-            self.torque = 0.0
-            self.limited = False
             bad = [(n, val) for n, val in (("x", x), ("v", v), ("f_p", f_p))
                    if not math.isfinite(val)][0]
             raise NonFiniteInputError(*bad)
@@ -268,14 +253,6 @@ class ChannelController:
             integ = self._integ + lam_h * (e + self._e_prev)
             self._e_prev = e
             u = f_ref + integ - ramp
-            lim = self._max
-            if u > lim or u < -lim:
-                # back-calculation anti-windup: keep the integrator at the limit
-                u = lim if u > lim else -lim
-                integ = u - f_ref + ramp
-                self.limited = True
-            else:
-                self.limited = False
             self._integ = integ
             self.disturbance = u - f_ref
             self.torque = u
@@ -302,13 +279,6 @@ class ChannelController:
             else:
                 self._t_mode += self.dt
             u = self._bias + self._chirp(self._t_mode)
-        lim = self._max
-        if u > lim:
-            u, self.limited = lim, True
-        elif u < -lim:
-            u, self.limited = -lim, True
-        else:
-            self.limited = False
         self.torque = u
         return u
 

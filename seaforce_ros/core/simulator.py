@@ -21,7 +21,8 @@ all held over the step. The nonlinear forces are integrated robustly:
 * backlash (position drive only): a dead zone of total width ``backlash``
   between the drive and the endpoint; the coupling is switched (two exact
   discretisations) at the start of each step;
-* motor torque saturation ``+-max_torque``.
+* motor torque saturation ``+-torque_saturation`` (the motor and drive's physical
+  limit; ``limited`` says it acted this step).
 
 Sensors (:mod:`.sensors`): 16-bit pressure ADC with noise, quantised motor and
 endpoint encoders, drive velocity = backward difference of the quantised
@@ -127,7 +128,7 @@ class ChannelSimulator:
         Endpoint Coulomb friction [N m] (unobservable from pressure).
     backlash : float >= 0
         Total dead-zone width between the position drive and the endpoint [rad].
-    max_torque : float > 0
+    torque_saturation : float > 0
         Motor torque saturation [N m] (default inf).
     command_delay : int, 0 or 1
         Samples between a command and its application (default 1).
@@ -135,7 +136,7 @@ class ChannelSimulator:
 
     def __init__(self, plant, dahl=None, dt=5e-4, seed=0, environment=None,
                  sensors=None, motor_coulomb=0.0, endpoint_coulomb=0.0, backlash=0.0,
-                 max_torque=math.inf, command_delay=1):
+                 torque_saturation=math.inf, command_delay=1):
         if not isinstance(plant, PlantParams):
             raise TypeError("plant must be a PlantParams")
         if dahl is not None and not isinstance(dahl, DahlParams):
@@ -147,8 +148,8 @@ class ChannelSimulator:
                             ("backlash", backlash)):
             if not (math.isfinite(value) and value >= 0):
                 raise InvalidParameterError(name, value, ">= 0 and finite")
-        if not max_torque > 0:
-            raise InvalidParameterError("max_torque", max_torque, "> 0")
+        if not torque_saturation > 0:
+            raise InvalidParameterError("torque_saturation", torque_saturation, "> 0")
         if command_delay not in (0, 1):
             raise InvalidParameterError("command_delay", command_delay, "0 or 1")
         self.plant = plant
@@ -159,7 +160,7 @@ class ChannelSimulator:
         self.motor_coulomb = float(motor_coulomb)
         self.endpoint_coulomb = float(endpoint_coulomb)
         self.backlash = float(backlash)
-        self.max_torque = float(max_torque)
+        self.torque_saturation = float(torque_saturation)
         self.command_delay = int(command_delay)
         self._hose = (plant.hose_stiffness, plant.hose_damping)
         self._qp = self.sensors.pressure_quantum
@@ -324,7 +325,7 @@ class ChannelSimulator:
             self._pending = torque
         else:
             applied = torque
-        lim = self.max_torque
+        lim = self.torque_saturation
         if applied > lim:
             applied, self.limited = lim, True
         elif applied < -lim:
@@ -420,12 +421,12 @@ def run_closed_loop(sim, controller, n_steps, on_switch=None):
     measurement fields ``x v f_p f_a x_e f_e`` (what the controller saw),
     ``u`` (command), true ``x_true v_true x_e_true v_e_true f_p_true
     dahl_true``, and the controller's ``disturbance feedforward
-    endpoint_velocity_estimate dahl_force limited`` when it has them.
+    endpoint_velocity_estimate dahl_force`` when it has them.
     """
     names = ("t", "x", "v", "f_p", "f_a", "x_e", "f_e", "u", "x_true", "v_true",
              "x_e_true", "v_e_true", "f_p_true", "dahl_true")
     status = ("disturbance", "feedforward", "endpoint_velocity_estimate",
-              "dahl_force", "limited")
+              "dahl_force")
     has_status = all(hasattr(controller, s) for s in status)
     rec = {n: [] for n in names + (status if has_status else ())}
     hooks = on_switch if isinstance(on_switch, dict) else None

@@ -188,7 +188,7 @@ def test_pressure_noise_statistics():
 
 
 def test_command_delay_and_saturation():
-    sim = ChannelSimulator(TABLE_I, None, max_torque=2.0)
+    sim = ChannelSimulator(TABLE_I, None, torque_saturation=2.0)
     assert sim.step(1.0).f_a == 0.0               # one-sample transport delay
     assert sim.step(-5.0).f_a == 1.0
     m = sim.step(0.0)

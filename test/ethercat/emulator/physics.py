@@ -139,7 +139,7 @@ class Channel:
                                     seed=config.seed, environment=env, sensors=sensors,
                                     motor_coulomb=config.motor_coulomb,
                                     endpoint_coulomb=config.endpoint_coulomb,
-                                    max_torque=config.max_torque, command_delay=0)
+                                    torque_saturation=config.max_torque, command_delay=0)
         self.measurement = self.sim.measurement()
         self.torque = 0.0
 

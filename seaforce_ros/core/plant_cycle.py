@@ -1,0 +1,471 @@
+"""Plant side of the real-time cycle: the torque each channel may have, this cycle.
+
+:class:`PlantCycle` is the one place that decides what reaches a motor, for sim_node,
+hardware_node and the direct layout alike (ros2_control's split: this is the safety layer
+between the controller's commands and the hardware interface's write). It is plain Python
+with explicit state; the nodes only feed it and act on its output.
+
+Per cycle, on the plant's cycle thread::
+
+    out = cycle.step(now, velocity, drives)   # commands received since the last step
+    ...apply out.torque (simulator) or out.units (drive PDOs), exchange process data...
+    cycle.exchange(wkc, expected_wkc)         # hardware only: was the frame complete?
+    k = cycle.state_published()               # after a fresh sample went out as cycle k
+
+From any thread: :meth:`PlantCycle.command` (an ``actuator_command``, or the direct call's
+answer), :meth:`PlantCycle.set_publishers` (the graph's publishers of ``actuator_command``),
+:meth:`PlantCycle.request_reset` (``~/reset``), :meth:`PlantCycle.configure` (parameters).
+They only hand data over; everything takes effect at the start of the next :meth:`step`.
+
+Rules (each with a status bit per channel, an event for the log and a counter):
+
+* **command watchdog, per channel**: a channel that no accepted command has named for
+  ``command_timeout`` gets zero torque and ``STATUS_COMMAND_TIMEOUT`` (off in lockstep, where
+  the plant waits for each command). Before the first command every channel is timed out.
+* **freshness**: a command must answer a state this plant published at most
+  ``command_timeout`` ago (its ``cycle``); an answer to an older state, or to a cycle this plant
+  has not published (a controller still answering a plant that was restarted), is ignored.
+* **one command source**: a second publisher of ``actuator_command`` in the graph, two
+  different answers to the same cycle, or answers going back in cycle (only two interleaved
+  sources produce either) latch a conflict: zero torque on every channel, ``STATUS_FAULT``,
+  until ``~/reset`` with a single publisher left.
+* **non-finite command** for a channel latches that channel's fault (zero torque).
+* **torque limit**: a finite command beyond ``+-torque_limit`` is clamped (``STATUS_LIMIT``);
+  with drive units (hardware) the value is then rounded and saturated to int16.
+* **velocity trip**: ``|V| > max_velocity`` (or a non-finite V) latches that channel's fault.
+* **drive fault** (hardware): latches that channel's fault, except during a grace period
+  after a reset, while the drive leaves its Fault state.
+* **bus fault** (hardware): ``wkc_error_limit`` consecutive incomplete exchanges latch a bus
+  fault: zero torque everywhere and the drives disabled.
+* **reset**: clears the latched faults (a conflict only once a single publisher is left),
+  sends one fault reset to every drive, forgets every command: torque resumes only with a
+  new command.
+"""
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+from .episodes import ERROR, INFO, Episode, EventLog
+from .errors import InvalidParameterError
+
+__all__ = ["PlantLimits", "PlantCycle", "PlantOutput", "STATUS_OK", "STATUS_COMMAND_TIMEOUT",
+           "STATUS_LIMIT", "STATUS_FAULT", "INT16_MIN", "INT16_MAX"]
+
+#: Status bits of ``ActuatorState.status`` (same values as the message's constants).
+STATUS_OK = 0
+STATUS_COMMAND_TIMEOUT = 1
+STATUS_LIMIT = 2
+STATUS_FAULT = 4
+
+INT16_MIN, INT16_MAX = -32768, 32767
+
+#: Cycles a drive may still report Fault after a reset before it latches again (0.1 s at
+#: 2 kHz: a drive takes a few cycles to leave Fault after the fault-reset edge).
+RESET_GRACE_CYCLES = 200
+
+
+@dataclass(frozen=True)
+class PlantLimits:
+    """Run-time settings of :class:`PlantCycle` (ROS parameters of the plant nodes).
+
+    Parameters
+    ----------
+    command_timeout : float > 0
+        A channel without an accepted command for this long gets zero torque [s].
+    torque_limit : float > 0
+        Commands are clamped to ``+-torque_limit`` [N m] (``STATUS_LIMIT``).
+    max_velocity : float >= 0
+        ``|V|`` beyond it latches the channel's fault [rad/s]; 0 disables the trip.
+    wkc_error_limit : int >= 1
+        Consecutive incomplete process-data exchanges that latch a bus fault.
+    """
+
+    command_timeout: float = 0.01
+    torque_limit: float = 5.0
+    max_velocity: float = 30.0
+    wkc_error_limit: int = 10
+
+    def __post_init__(self):
+        for name in ("command_timeout", "torque_limit"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                    or not (math.isfinite(value) and value > 0):
+                raise InvalidParameterError(name, value, "> 0 and finite")
+        v = self.max_velocity
+        if isinstance(v, bool) or not isinstance(v, (int, float)) \
+                or not (math.isfinite(v) and v >= 0):
+            raise InvalidParameterError("max_velocity", v, ">= 0 and finite (0: no trip)")
+        n = self.wkc_error_limit
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise InvalidParameterError("wkc_error_limit", n, "an integer >= 1")
+
+
+class PlantOutput:
+    """What :meth:`PlantCycle.step` decided, per channel (lists reused from cycle to cycle).
+
+    torque : float
+        Torque to apply [N m] (after clamp and, with drive units, rounding).
+    units : int
+        Drive units (per mille of rated torque) when the cycle has ``units_per_nm``.
+    status : int
+        ``STATUS_*`` bits for this cycle's ``ActuatorState``.
+    enable : bool
+        The drive should be in Operation enabled (False after a bus fault).
+    fault_reset : bool
+        Send one fault reset to the drive this cycle (after ``~/reset``).
+    """
+
+    def __init__(self, n):
+        self.torque = [0.0] * n
+        self.units = [0] * n
+        self.status = [STATUS_COMMAND_TIMEOUT] * n
+        self.enable = [True] * n
+        self.fault_reset = [False] * n
+
+
+class PlantCycle:
+    """The plant side of the cycle for a set of channels (see module docstring).
+
+    Parameters
+    ----------
+    channels : sequence of str
+        Channel names, in the order of every per-channel list.
+    dt : float > 0
+        Cycle period [s].
+    limits : PlantLimits
+    watchdog : bool
+        Command watchdog on (realtime) or off (lockstep: the plant waits for each command).
+    units_per_nm : sequence of float > 0, optional
+        Per channel, drive units per N m (hardware: 1000 / rated torque); the torque is then
+        rounded to units and saturated to int16.
+    quiet_period : float >= 0
+        Minimum time between two log reports of the same repeated condition [s].
+    """
+
+    def __init__(self, channels, dt, limits=None, watchdog=True, units_per_nm=None,
+                 quiet_period=10.0):
+        self.channels = tuple(channels)
+        n = len(self.channels)
+        if n == 0:
+            raise InvalidParameterError("channels", list(channels), "at least one channel")
+        if len(set(self.channels)) != n:
+            raise InvalidParameterError("channels", list(channels), "unique names")
+        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
+            raise InvalidParameterError("dt", dt, "> 0 and finite")
+        limits = PlantLimits() if limits is None else limits
+        if not isinstance(limits, PlantLimits):
+            raise TypeError("limits must be a PlantLimits")
+        if units_per_nm is not None:
+            units_per_nm = tuple(float(u) for u in units_per_nm)
+            if len(units_per_nm) != n or not all(math.isfinite(u) and u > 0
+                                                 for u in units_per_nm):
+                raise InvalidParameterError("units_per_nm", units_per_nm,
+                                            f"{n} finite values > 0")
+        self.dt = float(dt)
+        self.watchdog = bool(watchdog)
+        self._units_per_nm = units_per_nm
+        self._index = {c: i for i, c in enumerate(self.channels)}
+        self.events = EventLog()
+        self.out = PlantOutput(n)
+        self.cycle = 0                       # newest published state
+        self._inbox = deque(maxlen=64)       # (names, efforts, answers, arrival time)
+        self._pending_limits = None
+        self._reset_requested = False
+        self._publishers = ()
+        self._mapping = ([], ())             # cached (names, index per name)
+        self._apply_limits(limits)
+        self._fault = [""] * n               # latched per-channel fault reason
+        self._grace = [0] * n                # cycles a drive may still report Fault
+        self._bus_fault = ""
+        self._conflict = ""
+        self._wkc_errors = 0                 # consecutive
+        self._timeout_ep = [Episode(self.events, quiet_period) for _ in range(n)]
+        self._reject_ep = {kind: Episode(self.events, quiet_period)
+                           for kind in ("stale", "future", "malformed", "unknown")}
+        self.rejected = {kind: 0 for kind in self._reject_ep}
+        self.faults_latched = 0
+        self.wkc_errors_total = 0
+        self._forget_commands()
+
+    # --- hand-over from other threads ------------------------------------------------------
+    def command(self, names, efforts, answers, now):
+        """Queue one command: efforts [N m] for ``names``, answering state ``answers``,
+        received at monotonic time ``now`` [s]. Checked at the next :meth:`step`."""
+        self._inbox.append((names, efforts, answers, now))
+
+    def set_publishers(self, names):
+        """The publishers of ``actuator_command`` the ROS graph shows now (node names)."""
+        self._publishers = tuple(names)
+
+    def configure(self, limits):
+        """New :class:`PlantLimits`, effective at the start of the next step."""
+        if not isinstance(limits, PlantLimits):
+            raise TypeError("limits must be a PlantLimits")
+        self._pending_limits = limits
+
+    def request_reset(self):
+        """Ask for a reset at the start of the next step; returns what it will clear."""
+        self._reset_requested = True
+        latched = self.latched_faults()
+        return "; ".join(latched) if latched else "no fault was latched"
+
+    # --- status for diagnostics ------------------------------------------------------------
+    @property
+    def limits(self):
+        return self._limits
+
+    @property
+    def bus_fault(self):
+        return self._bus_fault
+
+    @property
+    def conflict(self):
+        return self._conflict
+
+    def channel_fault(self, i):
+        """The latched fault that zeroes channel ``i`` ('' when none)."""
+        return self._fault[i] or self._bus_fault or self._conflict
+
+    def latched_faults(self):
+        """Every latched fault as 'where: reason' strings."""
+        out = [f"{c}: {f}" for c, f in zip(self.channels, self._fault) if f]
+        if self._bus_fault:
+            out.append(f"bus: {self._bus_fault}")
+        if self._conflict:
+            out.append(f"commands: {self._conflict}")
+        return out
+
+    def timeouts(self, i):
+        """Command-timeout episodes of channel ``i`` so far."""
+        return self._timeout_ep[i].count
+
+    # --- the cycle -------------------------------------------------------------------------
+    def step(self, now, velocity=None, drives=None):
+        """Decide this cycle's torques.
+
+        Parameters
+        ----------
+        now : float
+            Monotonic time of the cycle's start [s].
+        velocity : sequence of float, optional
+            Newest measured motor velocity per channel [rad/s] (the velocity trip).
+        drives : sequence of (bool, bool), optional
+            Per channel ``(torque_allowed, faulted)`` of the drive (hardware); without it
+            every channel may have torque and none is faulted.
+
+        Returns
+        -------
+        PlantOutput
+        """
+        if self._pending_limits is not None:
+            self._apply_limits(self._pending_limits)
+            self._pending_limits = None
+        out = self.out
+        reset = self._reset_requested
+        if reset:
+            self._reset_requested = False
+            self._reset(now)
+        else:
+            resets = out.fault_reset
+            for i in range(len(resets)):
+                resets[i] = False
+        if self._inbox:
+            self._take_commands(now)
+        if len(self._publishers) > 1 and not self._conflict:
+            self._latch_conflict(f"{len(self._publishers)} publishers of actuator_command: "
+                                 + ", ".join(self._publishers))
+        lim = self._limits.torque_limit
+        vmax = self._limits.max_velocity
+        timeout = self._limits.command_timeout
+        upn = self._units_per_nm
+        bus_fault = self._bus_fault
+        blocked = bool(bus_fault or self._conflict)
+        for i in range(len(self.channels)):
+            if vmax > 0.0 and velocity is not None:
+                v = velocity[i]
+                if not -vmax <= v <= vmax and not self._fault[i]:
+                    self._latch(i, f"motor speed {v:.2f} rad/s beyond max_velocity {vmax:g}")
+            allowed = True
+            if drives is not None:
+                allowed, drive_faulted = drives[i]
+                if drive_faulted:
+                    if self._grace[i] > 0:
+                        self._grace[i] -= 1
+                    elif not self._fault[i]:
+                        self._latch(i, "drive reports a fault (statusword bit 3)")
+                else:
+                    self._grace[i] = 0
+            fresh_at = self._fresh_at[i]
+            timed_out = self.watchdog and (fresh_at is None or now - fresh_at > timeout)
+            episode = self._timeout_ep[i]
+            if timed_out != episode.active:
+                if timed_out:
+                    if fresh_at is not None:
+                        episode.begin(now, f"{self.channels[i]}: no fresh actuator_command for "
+                                           f"{1e3 * (now - fresh_at):.1f} ms (> command_timeout "
+                                           f"{1e3 * timeout:g} ms): zero torque")
+                else:
+                    episode.end(now, f"{self.channels[i]}: commands back, torque re-enabled")
+            status = STATUS_COMMAND_TIMEOUT if timed_out else STATUS_OK
+            u = self._effort[i]
+            if blocked or self._fault[i]:
+                status |= STATUS_FAULT
+                u = 0.0
+            elif timed_out or not allowed:
+                u = 0.0
+            elif u > lim:
+                u, status = lim, status | STATUS_LIMIT
+            elif u < -lim:
+                u, status = -lim, status | STATUS_LIMIT
+            if upn is not None:
+                units = round(u * upn[i])
+                if units > INT16_MAX:
+                    units, status = INT16_MAX, status | STATUS_LIMIT
+                elif units < INT16_MIN:
+                    units, status = INT16_MIN, status | STATUS_LIMIT
+                out.units[i] = units
+                u = units / upn[i]
+            out.torque[i] = u
+            out.status[i] = status
+            out.enable[i] = not bus_fault
+        return out
+
+    def exchange(self, wkc, expected_wkc):
+        """Result of this cycle's process-data exchange (hardware); True if complete."""
+        if wkc == expected_wkc:
+            self._wkc_errors = 0
+            return True
+        self._wkc_errors += 1
+        self.wkc_errors_total += 1
+        if self._wkc_errors >= self._limits.wkc_error_limit and not self._bus_fault:
+            self._bus_fault = (f"{self._wkc_errors} consecutive working-counter errors "
+                               f"(got {wkc}, expected {expected_wkc})")
+            self.faults_latched += 1
+            self.events.add(ERROR, f"bus FAULT latched: {self._bus_fault}; zero torque, drives "
+                                   "disabled; call ~/reset (std_srvs/Trigger) to retry")
+        return False
+
+    def state_published(self):
+        """A fresh sample went out: it is the new current cycle; returns its number."""
+        self.cycle += 1
+        return self.cycle
+
+    # --- internals -------------------------------------------------------------------------
+    def _apply_limits(self, limits):
+        self._limits = limits
+        self._max_age = max(1, int(math.ceil(limits.command_timeout / self.dt)))
+
+    def _forget_commands(self):
+        """Forget every command (start, and after a reset)."""
+        n = len(self.channels)
+        self._effort = [0.0] * n
+        self._answer = [-1] * n            # cycle answered by the accepted command
+        self._fresh_at = [None] * n        # its arrival time
+
+    def _latch(self, i, reason):
+        self._fault[i] = reason
+        self.faults_latched += 1
+        self.events.add(ERROR, f"{self.channels[i]}: FAULT latched, zero torque: {reason}; "
+                               "call ~/reset (std_srvs/Trigger) to clear")
+
+    def _latch_conflict(self, reason):
+        self._conflict = reason
+        self.faults_latched += 1
+        self.events.add(ERROR, f"two command sources: {reason}; zero torque on every channel "
+                               "until one source is left and ~/reset is called")
+
+    def _reject(self, kind, now, text):
+        self.rejected[kind] += 1
+        episode = self._reject_ep[kind]
+        episode.begin(now, text)
+        episode.end(now)
+
+    def _reset(self, now):
+        cleared = self.latched_faults()
+        n = len(self.channels)
+        for i in range(n):
+            self._fault[i] = ""
+            self._grace[i] = RESET_GRACE_CYCLES
+            self.out.fault_reset[i] = True
+        self._bus_fault = ""
+        self._wkc_errors = 0
+        kept = ""
+        if self._conflict:
+            if len(self._publishers) > 1:
+                kept = (f"; the command conflict stays latched: {len(self._publishers)} "
+                        f"publishers of actuator_command ({', '.join(self._publishers)})")
+            else:
+                self._conflict = ""
+        self._inbox.clear()
+        self._forget_commands()
+        self.events.add(INFO, "reset: " + ("cleared " + "; ".join(cleared) if cleared
+                                           else "no fault was latched") + kept)
+
+    def _take_commands(self, now):
+        inbox = self._inbox
+        current = self.cycle
+        max_age = self._max_age if self.watchdog else current + 1
+        while inbox:
+            names, efforts, answers, arrived = inbox.popleft()
+            if len(efforts) != len(names):
+                self._reject("malformed", now, f"actuator_command ignored: {len(names)} names "
+                                                f"but {len(efforts)} efforts")
+                continue
+            mapping = self._map(names, now)
+            if mapping is None:
+                continue
+            if answers > current:
+                self._reject("future", now, f"actuator_command ignored: it answers cycle "
+                                             f"{answers}, which this plant has not published "
+                                             f"(newest {current}); a controller still "
+                                             "answering an earlier plant?")
+                continue
+            if current - answers > max_age:
+                self._reject("stale", now, f"actuator_command ignored: it answers cycle "
+                                            f"{answers}, {current - answers} cycles old "
+                                            "(> command_timeout); a command must carry the "
+                                            "cycle of the state it answers")
+                continue
+            for value, i in zip(efforts, mapping):
+                if i < 0:
+                    continue
+                last = self._answer[i]
+                if answers <= last:
+                    prev = self._effort[i]
+                    same = value == prev or (value != value and prev != prev)
+                    if answers < last or not same:
+                        if not self._conflict:
+                            how = ("answered twice with different efforts" if answers == last
+                                   else f"answered after cycle {last}")
+                            who = (f" (publishers: {', '.join(self._publishers)})"
+                                   if self._publishers else "")
+                            self._latch_conflict(f"cycle {answers} {how} for "
+                                                 f"{self.channels[i]}{who}")
+                    continue      # the same answer again (a re-published state) or rejected
+                if not math.isfinite(value):
+                    if not self._fault[i]:
+                        self._latch(i, f"non-finite torque command {value!r}")
+                    value = 0.0
+                self._answer[i] = answers
+                self._effort[i] = value
+                self._fresh_at[i] = arrived
+
+    def _map(self, names, now):
+        """Channel index per name of a command (-1: not a channel here); None if malformed."""
+        cached_names, cached = self._mapping
+        if names == cached_names:
+            return cached
+        index = self._index
+        mapping = tuple(index.get(name, -1) for name in names)
+        if len(set(names)) != len(names):
+            self._reject("malformed", now, f"actuator_command ignored: repeated names "
+                                            f"{list(names)}")
+            return None
+        unknown = [name for name, i in zip(names, mapping) if i < 0]
+        if unknown:
+            self._reject("unknown", now, f"actuator_command names unknown channel(s) "
+                                          f"{unknown}: ignored for them (channels here: "
+                                          f"{list(self.channels)})")
+        self._mapping = (list(names), mapping)
+        return mapping
