@@ -11,6 +11,7 @@ CONSOLE_SCRIPTS = [
     'controller_node = seaforce_ros.controller_node:main',
     'bringup = seaforce_ros.bringup:main',
     'hardware_node = seaforce_ros.hardware_node:main',
+    'hardware_bringup = seaforce_ros.bringup:hardware_main',
     'bag_recorder = seaforce_ros.bag_recorder:main',
     'identify = seaforce_ros.identify:main',
     'zwidth = seaforce_ros.zwidth:main',

@@ -1,9 +1,13 @@
 """controller_node (node ``controller``): DOB + endpoint friction feed-forward at 2 kHz.
 
 One instance serves every channel. Each ``actuator_state`` sample is answered by one
-``actuator_command`` carrying the state's ``cycle``; the torques come from one
-:class:`seaforce_ros.core.controller.ChannelController` per channel. ``controller_status`` is
-published at ``status_rate``, ``/diagnostics`` every ``diagnostics_period``.
+``actuator_command`` carrying the state's ``cycle``; what the command says comes from
+:class:`~seaforce_ros.core.control_cycle.ControlCycle`: the state is checked (shapes, names,
+finite and plausible values, stamp neither stale nor in the future, cycle continuity), one
+:class:`~seaforce_ros.core.controller.ChannelController` per channel computes, the torque is
+checked against ``<channel>.max_torque``. ``controller_status`` is published at
+``status_rate`` (with each channel's fault, live during a fault), ``/diagnostics`` every
+``diagnostics_period``.
 
 Parameters per channel (``<channel>.mode``, ``.plant.*``, ``.dahl.*``, ``.dob.*``,
 ``.target.*``, ``.hold.*``, ...) can change at run time: the on-set callback validates the
@@ -11,10 +15,15 @@ whole new channel configuration in the core (passivity, eq. 28, included) and re
 the core's reason, leaving everything as it was; an accepted one takes effect at the start of
 the next cycle, bumplessly.
 
-Safety: a state older than ``state_timeout``, a NaN/inf in a state, a channel missing from
-the state, or a torque beyond ``<channel>.max_torque`` latches a fault: zero torque on that
-channel (every channel for a stale state), reported in ``/diagnostics`` and the log, until
-the ``~/reset`` service (std_srvs/Trigger) clears it.
+Faults: faults of the data (``latched_faults``) give the channel zero torque until the
+``~/reset`` service (std_srvs/Trigger); a stall of the state stream or a plant restart only
+zeroes it until states flow again, then the channel re-arms from the plant's present state
+(its first torque is the torque the plant applies: no step).
+
+Layouts: separate processes (this executable) or composed with the plant in ``bringup`` /
+``hardware_bringup``; with ``loop:=direct`` there the plant's cycle thread calls
+:meth:`DirectPort.step` instead of going through DDS, and parameters and ``~/reset`` still
+work from this node's executor (they hand over to the cycle at its next start).
 """
 from __future__ import annotations
 
@@ -28,16 +37,25 @@ from seaforce_msgs.msg import ActuatorCommand, ActuatorState, ControllerStatus
 from std_srvs.srv import Trigger
 
 from . import param_specs as ps
+from .core.control_cycle import DEFAULT_LATCHED, FAULT_KINDS, ControlCycle, StateChecks
 from .core.controller import ChannelController
-from .core.errors import NonFiniteInputError, SeaforceError
+from .core.episodes import ERROR, WARNING
+from .core.errors import SeaforceError
 from .core.params import ControllerConfig
 from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
                          declare, diagnostic_status, diagnostics_publisher,
                          publish_diagnostics, run, shutdown_safe)
 from .timing import LoopStats
 
+LOOPS = ('topics', 'direct')
+
+_CHECK_PARAMS = {'state_timeout': 'state_timeout', 'state_limits.position': 'position_limit',
+                 'state_limits.velocity': 'velocity_limit', 'state_limits.force': 'force_limit',
+                 'latched_faults': 'latched'}
+
 
 def node_specs():
+    defaults = StateChecks()
     return [
         ps.channels_spec(),
         ps.executor_spec('events'),
@@ -45,9 +63,22 @@ def node_specs():
         ParamSpec('rate', 2000.0, 'control rate the sample period is derived from [Hz]; '
                   'must equal the rate of the state source', low=1.0, high=20000.0,
                   read_only=True),
-        ParamSpec('state_timeout', 0.05,
-                  'a state older than this (header stamp vs now) latches a fault [s]',
-                  low=1e-4, high=10.0),
+        ParamSpec('state_timeout', defaults.state_timeout,
+                  'a state older than this (header stamp vs now), or no state for this long, '
+                  'zeroes the torque until states flow again; a stamp this far in the future '
+                  'is a fault [s]', low=1e-4, high=10.0),
+        ParamSpec('state_limits.position', defaults.position_limit,
+                  'plausible |motor_position| [rad]; beyond it the state is a fault',
+                  low=1e-6),
+        ParamSpec('state_limits.velocity', defaults.velocity_limit,
+                  'plausible |motor_velocity| [rad/s]; beyond it the state is a fault',
+                  low=1e-6),
+        ParamSpec('state_limits.force', defaults.force_limit,
+                  'plausible |pressure_force| and |motor_effort| [N m]; beyond it the state '
+                  'is a fault', low=1e-6),
+        ParamSpec('latched_faults', list(DEFAULT_LATCHED),
+                  'conditions that latch until ~/reset; the others re-arm by themselves: '
+                  + ', '.join(FAULT_KINDS), choices=FAULT_KINDS),
         ParamSpec('status_rate', 100.0, 'controller_status rate [Hz], 0 = off', low=0.0,
                   high=20000.0),
         ParamSpec('diagnostics_period', 1.0, '/diagnostics period [s]', low=0.05, high=60.0,
@@ -55,20 +86,37 @@ def node_specs():
     ]
 
 
-# the plant side reports it applied zero torque on this channel (watchdog or fault)
-_PLANT_STOPPED = ActuatorState.STATUS_COMMAND_TIMEOUT | ActuatorState.STATUS_FAULT
+def _checks_from(values):
+    return StateChecks(**{field: (tuple(values[name]) if name == 'latched_faults'
+                                  else values[name])
+                          for name, field in _CHECK_PARAMS.items()})
 
 
 class ControllerNode(Node):
-    """DOB + friction feed-forward for every channel (see module docstring)."""
+    """DOB + friction feed-forward for every channel (see module docstring).
 
-    def __init__(self, **kwargs):
+    Parameters
+    ----------
+    composed : bool
+        Declare the read-only ``loop`` parameter (``topics`` or ``direct``) of a bringup;
+        with ``direct`` no ``actuator_state`` subscription is made: the plant calls
+        :meth:`direct_port`'s ``step`` from its cycle thread.
+    """
+
+    def __init__(self, composed=False, **kwargs):
         super().__init__('controller', **kwargs)
-        values = declare(self, node_specs())
+        specs = node_specs()
+        if composed:
+            specs.append(ParamSpec('loop', 'topics',
+                                   'topics: states and commands through DDS; direct: the '
+                                   "plant's cycle thread calls the controller (both still "
+                                   'published)', choices=LOOPS, read_only=True))
+        values = declare(self, specs)
+        self._specs = {s.name: s for s in specs}
         self.channels = ps.channels_from(values)
-        self._specs = {}
-        self.controllers = []
+        self.loop = values.get('loop', 'topics')
         self.configs = []                # newest accepted config per channel
+        controllers = []
         self.dt = 1.0 / values['rate']
         for channel in self.channels:
             specs = ps.controller_channel_specs(channel)
@@ -79,25 +127,20 @@ class ControllerNode(Node):
             except SeaforceError as exc:
                 raise StartupError(f'channel {channel}: {exc}') from exc
             self.configs.append(config)
-            self.controllers.append(ChannelController(config, dt=self.dt))
-        self.state_timeout_ns = int(values['state_timeout'] * 1e9)
+            controllers.append(ChannelController(config, dt=self.dt))
+        try:
+            self.cycle = ControlCycle(self.channels, controllers, _checks_from(values))
+        except ValueError as exc:
+            raise StartupError(str(exc)) from exc
+        self.controllers = controllers
         self._status_every = self._decimation(values['status_rate'])
-
-        n = len(self.channels)
-        self.faults = [''] * n           # latched fault reason per channel ('' = none)
-        self._fault_count = 0
-        self._last_cycle = None
-        self._armed = False              # stale-state check armed by the first fresh state
-        self._dropped_stale = 0
-        self._state_names = None         # cached (names, index of each channel in the state)
-        self._states = 0
         self.stats = LoopStats(self.dt)
-        self._compute_sum = 0.0          # callback compute time since the last diagnostics [s]
+        self._states = 0
+        self._compute_sum = 0.0          # compute time since the last diagnostics [s]
         self._compute_max = 0.0
 
         self._cmd = ActuatorCommand()
         self._cmd.name = list(self.channels)
-        self._effort = [0.0] * n
         self._status = ControllerStatus()
         self._status.name = list(self.channels)
 
@@ -105,14 +148,16 @@ class ControllerNode(Node):
         self.cmd_pub = self.create_publisher(ActuatorCommand, 'actuator_command', control_qos(qos))
         self.status_pub = self.create_publisher(ControllerStatus, 'controller_status', STATUS_QOS)
         self.diag_pub = diagnostics_publisher(self)
-        self.create_subscription(ActuatorState, 'actuator_state', self._on_state,
-                                 control_qos(qos, subscriber=True))
+        if self.loop == 'topics':
+            self.create_subscription(ActuatorState, 'actuator_state', self._on_state,
+                                     control_qos(qos, subscriber=True))
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self.create_timer(values['diagnostics_period'], self._publish_diagnostics)
-        modes = ', '.join(f'{c}={ctrl.mode}' for c, ctrl in zip(self.channels, self.controllers))
-        self.get_logger().info(f'controlling {self.channels} at {values["rate"]:.0f} Hz ({modes})')
+        modes = ', '.join(f'{c}={ctrl.mode}' for c, ctrl in zip(self.channels, controllers))
+        self.get_logger().info(f'controlling {self.channels} at {values["rate"]:.0f} Hz '
+                               f'({modes}), loop={self.loop}')
 
     def _decimation(self, rate_hz):
         if rate_hz <= 0:
@@ -121,7 +166,7 @@ class ControllerNode(Node):
 
     # --- parameters ----------------------------------------------------------------------
     def _new_configs(self, params):
-        """{channel index: validated ControllerConfig} for the channels ``params`` touch."""
+        """({channel index: validated ControllerConfig}, StateChecks or None) for ``params``."""
         changed = {}
         for p in params:
             spec = self._specs.get(p.name)
@@ -134,8 +179,15 @@ class ControllerNode(Node):
         for index, channel in enumerate(self.channels):
             mine = ps.channel_values(changed, channel)
             if mine:
-                configs[index] = ControllerConfig.from_dict(mine, base=self.configs[index])
-        return configs
+                try:
+                    configs[index] = ControllerConfig.from_dict(mine, base=self.configs[index])
+                except SeaforceError as exc:
+                    raise SeaforceError(f'{channel}: {exc}') from exc
+        checks = None
+        if any(name in changed for name in _CHECK_PARAMS):
+            current = {name: self.get_parameter(name).value for name in _CHECK_PARAMS}
+            checks = _checks_from({**current, **changed})
+        return configs, checks
 
     def _validate_parameters(self, params):
         try:
@@ -146,11 +198,12 @@ class ControllerNode(Node):
 
     def _apply_parameters(self, params):
         for p in params:
-            if p.name == 'state_timeout':
-                self.state_timeout_ns = int(p.value * 1e9)
-            elif p.name == 'status_rate':
+            if p.name == 'status_rate':
                 self._status_every = self._decimation(p.value)
-        for index, config in self._new_configs(params).items():
+        configs, checks = self._new_configs(params)
+        if checks is not None:
+            self.cycle.configure(checks)
+        for index, config in configs.items():
             old = self.configs[index]
             self.configs[index] = config
             self.controllers[index].configure(config)  # effective at the next cycle's start
@@ -160,131 +213,139 @@ class ControllerNode(Node):
     # --- the 2 kHz path ------------------------------------------------------------------
     @shutdown_safe
     def _on_state(self, msg):
+        """(topics layout) One state in, one command out."""
         t0 = time.perf_counter()
         self.stats.tick()
         self._states += 1
-        cmd = self._cmd
-        if msg.cycle == self._last_cycle:
-            self.cmd_pub.publish(cmd)  # a re-published state: same answer, no new sample
-            return
-        self._last_cycle = msg.cycle
-        names = msg.name
-        index = self._state_index(names)
-        now_ns = time.time_ns()  # system clock, as the stamps (ros_common.stamp_now)
         stamp = msg.header.stamp
-        stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
-        if now_ns - stamp_ns > self.state_timeout_ns:
-            if not self._armed:
-                # before the first fresh sample (start-up, discovery backlog): drop, count
-                self._dropped_stale += 1
-                return
-            age_ms = (now_ns - stamp_ns) * 1e-6
-            self._latch_all(f'stale state: {age_ms:.1f} ms old (> state_timeout)')
-        self._armed = True
-        effort = self._effort
-        xs, vs, fps, status = (msg.motor_position, msg.motor_velocity, msg.pressure_force,
-                               msg.status)
-        n_state = len(names)
-        for i, ctrl in enumerate(self.controllers):
-            j = index[i]
-            if self.faults[i] or j < 0:
-                if j < 0 and not self.faults[i]:
-                    self._latch(i, 'channel missing from actuator_state')
-                effort[i] = 0.0
-                continue
-            try:
-                if len(xs) != n_state or len(vs) != n_state or len(fps) != n_state:
-                    raise ValueError('actuator_state arrays differ in length from name')
-                if status and status[j] & _PLANT_STOPPED:
-                    ctrl.track_applied(0.0)  # the plant side zeroed the torque: no windup
-                u = ctrl.update(xs[j], vs[j], fps[j])
-            except (NonFiniteInputError, ValueError) as exc:
-                self._latch(i, f'bad state: {exc}')
-                effort[i] = 0.0
-                continue
-            if ctrl.limited:
-                self._latch(i, f'torque beyond max_torque ({ctrl.config.max_torque:g} N m)')
-                u = 0.0
-            effort[i] = u
-        cmd.header.stamp = msg.header.stamp
-        cmd.cycle = msg.cycle
-        cmd.effort = effort
-        self.cmd_pub.publish(cmd)
-        if self._status_every and msg.cycle % self._status_every == 0:
-            self._publish_status(msg)
+        out = self.cycle.step(msg.name, msg.cycle, stamp.sec * 1_000_000_000 + stamp.nanosec,
+                              msg.motor_position, msg.motor_velocity, msg.pressure_force,
+                              msg.motor_effort, msg.status, time.time_ns(), time.monotonic())
+        if out.answered:
+            cmd = self._cmd
+            cmd.header.stamp = stamp
+            cmd.cycle = msg.cycle
+            cmd.effort = out.effort
+            self.cmd_pub.publish(cmd)
+            if self._status_every and msg.cycle % self._status_every == 0:
+                self._publish_status(self._status_values(), msg.cycle, stamp)
+        if self.cycle.events:
+            self._log_events()
         elapsed = time.perf_counter() - t0
         self._compute_sum += elapsed
         if elapsed > self._compute_max:
             self._compute_max = elapsed
 
-    def _state_index(self, names):
-        cached = self._state_names
-        if cached is not None and cached[0] == names:
-            return cached[1]
-        index = [names.index(c) if c in names else -1 for c in self.channels]
-        self._state_names = (list(names), index)
-        return index
+    def direct_port(self):
+        """The controller's cycle for a plant's cycle thread (direct layout)."""
+        return DirectPort(self)
 
-    def _publish_status(self, state):
+    def _status_values(self):
+        """Per-channel status fields now (lists: safe to publish later from another thread)."""
+        ctrls, cycle = self.controllers, self.cycle
+        return ([c.mode for c in ctrls], [c.disturbance for c in ctrls],
+                [c.feedforward for c in ctrls], [c.endpoint_velocity_estimate for c in ctrls],
+                [c.dahl_force for c in ctrls], [cycle.fault(i) for i in range(len(ctrls))])
+
+    def _publish_status(self, values, cycle, stamp):
         s = self._status
-        s.header.stamp = state.header.stamp
-        s.cycle = state.cycle
-        ctrls = self.controllers
-        s.mode = [c.mode for c in ctrls]
-        s.disturbance = [c.disturbance for c in ctrls]
-        s.feedforward = [c.feedforward for c in ctrls]
-        s.endpoint_velocity_estimate = [c.endpoint_velocity_estimate for c in ctrls]
-        s.dahl_force = [c.dahl_force for c in ctrls]
+        s.header.stamp = stamp
+        s.cycle = cycle
+        (s.mode, s.disturbance, s.feedforward, s.endpoint_velocity_estimate, s.dahl_force,
+         s.fault) = values
         self.status_pub.publish(s)
 
+    def _log_events(self):
+        logger = self.get_logger()
+        for severity, text in self.cycle.events.drain():
+            if severity == ERROR:
+                logger.error(text)
+            elif severity == WARNING:
+                logger.warning(text)
+            else:
+                logger.info(text)
+
     # --- faults --------------------------------------------------------------------------
-    def _latch(self, index, reason):
-        if not self.faults[index]:
-            self.faults[index] = reason
-            self._fault_count += 1
-            self.get_logger().error(
-                f'{self.channels[index]}: FAULT latched, zero torque: {reason}; '
-                f'call ~/reset (std_srvs/Trigger) to clear')
-
-    def _latch_all(self, reason):
-        for i in range(len(self.channels)):
-            self._latch(i, reason)
-
     def _on_reset(self, request, response):
-        cleared = [c for c, f in zip(self.channels, self.faults) if f]
-        for i, ctrl in enumerate(self.controllers):
-            if self.faults[i]:
-                ctrl.reset()
-                self.faults[i] = ''
         response.success = True
-        response.message = (f'cleared faults on {", ".join(cleared)}' if cleared
-                            else 'no fault was latched')
+        response.message = self.cycle.request_reset()
         self.get_logger().info(f'reset: {response.message}')
         return response
 
     @shutdown_safe
     def _publish_diagnostics(self):
         s = self.stats.summary()
+        cycle = self.cycle
+        n_faults = sum(1 for i in range(len(self.channels)) if cycle.latched(i))
+        level = DiagnosticStatus.OK if s.cycles else DiagnosticStatus.WARN
+        message = 'running' if s.cycles else 'no actuator_state received'
+        if n_faults:
+            level, message = DiagnosticStatus.ERROR, f'{n_faults} channel(s) faulted'
         statuses = [diagnostic_status(
-            'controller: loop', 'seaforce_controller',
-            DiagnosticStatus.OK if s.cycles else DiagnosticStatus.WARN,
-            'running' if s.cycles else 'no actuator_state received',
+            'controller: loop', 'seaforce_controller', level, message,
             {'state_rate_hz': s.rate_hz, 'period_p50_ms': s.period_p50_ms,
              'period_p99_ms': s.period_p99_ms, 'jitter_p99_ms': s.jitter_p99_ms,
              'missed_deadlines': s.missed, 'states_received': self._states,
-             'stale_dropped_before_start': self._dropped_stale,
+             'states_dropped': cycle.dropped, 'loop': self.loop,
              'compute_mean_us': 1e6 * self._compute_sum / max(1, s.cycles),
              'compute_max_us': 1e6 * self._compute_max,
-             'faults_latched_total': self._fault_count})]
+             'faults_latched_total': cycle.faults_latched,
+             **{f'{kind}_total': count for kind, count in cycle.counts.items()}})]
         self._compute_sum = self._compute_max = 0.0
-        for channel, ctrl, fault in zip(self.channels, self.controllers, self.faults):
+        for i, (channel, ctrl) in enumerate(zip(self.channels, self.controllers)):
+            fault = cycle.fault(i)
             statuses.append(diagnostic_status(
                 f'controller: {channel}', 'seaforce_controller',
-                DiagnosticStatus.ERROR if fault else DiagnosticStatus.OK,
-                f'FAULT: {fault}' if fault else ctrl.mode,
+                DiagnosticStatus.ERROR if cycle.latched(i) else (
+                    DiagnosticStatus.WARN if fault else DiagnosticStatus.OK),
+                f'FAULT: {fault}' if cycle.latched(i) else (fault or ctrl.mode),
                 {'mode': ctrl.mode, 'fault': fault or 'none', 'torque': ctrl.torque,
                  'disturbance': ctrl.disturbance, 'feedforward': ctrl.feedforward}))
         publish_diagnostics(self, self.diag_pub, statuses)
+
+
+class DirectPort:
+    """The controller's cycle called by a plant's cycle thread (the direct layout).
+
+    :meth:`step` runs :class:`ControlCycle` on the plant's fresh sample and returns
+    ``(efforts, status)`` (new lists the plant keeps; ``status`` only every ``status_rate``)
+    or None when the state was dropped; :meth:`publish`, on the plant's publisher thread,
+    publishes the ``actuator_command`` (and ``controller_status``) of that cycle, so
+    recorders and observers see the same topics as with separate processes.
+    """
+
+    def __init__(self, node: ControllerNode):
+        self._node = node
+        self._cmd = ActuatorCommand()
+        self._cmd.name = list(node.channels)
+
+    def step(self, names, cycle, stamp_ns, x, v, f_p, f_a, status, now_ns, now):
+        node = self._node
+        t0 = time.perf_counter()
+        node.stats.tick(now)
+        node._states += 1
+        out = node.cycle.step(names, cycle, stamp_ns, x, v, f_p, f_a, status, now_ns, now)
+        if node.cycle.events:
+            node._log_events()
+        elapsed = time.perf_counter() - t0
+        node._compute_sum += elapsed
+        if elapsed > node._compute_max:
+            node._compute_max = elapsed
+        if not out.answered:
+            return None
+        every = node._status_every
+        status_values = node._status_values() if every and cycle % every == 0 else None
+        return list(out.effort), status_values
+
+    def publish(self, cycle, stamp, command):
+        efforts, status_values = command
+        cmd = self._cmd
+        cmd.header.stamp = stamp
+        cmd.cycle = cycle
+        cmd.effort = efforts
+        self._node.cmd_pub.publish(cmd)
+        if status_values is not None:
+            self._node._publish_status(status_values, cycle, stamp)
 
 
 def main(args=None):

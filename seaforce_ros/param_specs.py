@@ -59,7 +59,8 @@ SIM_CHANNEL_SPECS = (
     ('sim.endpoint_coulomb', 0.0,
      'endpoint Coulomb friction [N m] (unobservable from pressure)', (0.0, 100.0)),
     ('sim.backlash', 0.0, 'dead zone between position drive and endpoint [rad]', (0.0, 10.0)),
-    ('sim.max_torque', 10.0, 'motor torque saturation [N m]', (1e-6, 1e3)),
+    ('sim.torque_saturation', 10.0, 'motor and drive torque saturation of the simulated '
+     'plant [N m] (physics; the safety clamp is the node\'s torque_limit)', (1e-6, 1e3)),
     ('sensors.pressure_range', float(_SENSORS.pressure_range),
      'pressure ADC full scale, as +-F_p [N m]', (1e-6, 1e4)),
     ('sensors.pressure_noise', float(_SENSORS.pressure_noise),

@@ -18,6 +18,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType)
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
@@ -106,8 +107,14 @@ class ParamSpec:
         finiteness and the allowed strings, which descriptors cannot express.)"""
         if isinstance(value, float) and not math.isfinite(value):
             return f'{self.name} must be finite, got {value}'
-        if self.choices and value not in self.choices:
-            return f'{self.name} must be one of {", ".join(self.choices)}; got {value!r}'
+        if self.choices:
+            if isinstance(value, (list, tuple)):
+                bad = [item for item in value if item not in self.choices]
+                if bad:
+                    return (f'{self.name}: every entry must be one of '
+                            f'{", ".join(self.choices)}; got {bad!r}')
+            elif value not in self.choices:
+                return f'{self.name} must be one of {", ".join(self.choices)}; got {value!r}'
         return None
 
 
@@ -119,9 +126,16 @@ def declare(node, specs: Iterable[ParamSpec]) -> Dict[str, Any]:
         default = spec.default
         if isinstance(default, tuple):
             default = list(default)
-        node.declare_parameter(spec.name, default, spec.descriptor(),
-                               ignore_override=False)
-        values[spec.name] = node.get_parameter(spec.name).value
+        try:
+            node.declare_parameter(spec.name, default, spec.descriptor(),
+                                   ignore_override=False)
+        except (ParameterException, ValueError, TypeError) as exc:
+            raise StartupError(f'{spec.name}: {exc}') from None
+        value = node.get_parameter(spec.name).value
+        reason = spec.check(value)
+        if reason:
+            raise StartupError(reason)
+        values[spec.name] = value
     return values
 
 

@@ -28,7 +28,9 @@ def pinch(msg, field):
 def test_mode_change_by_parameter_changes_behaviour(processes, tmp_path, probe, executor):
     """With either executor the parameter services answer; the first change goes through
     SetParameters (what `ros2 param set` calls), the second through SetParametersAtomically."""
-    start_node(processes, 'sim_node', 'sim', tmp_path, DRIVE)
+    # (a generous command watchdog: a loaded host delays commands now and then, and each
+    # plant-side stop makes hold re-capture its target where the finger is)
+    start_node(processes, 'sim_node', 'sim', tmp_path, {**DRIVE, 'command_timeout': 0.1})
     start_node(processes, 'controller_node', 'controller', tmp_path,
                {**RELAXED, 'executor': executor})
     probe.record(ControllerStatus, 'controller_status')
@@ -215,34 +217,6 @@ def test_nan_state_latches_fault_until_reset(processes, tmp_path, probe):
     assert pinch(last_answer(), 'effort') < -0.1
 
 
-def test_stale_state_latches_fault(processes, tmp_path, probe):
-    start_node(processes, 'controller_node', 'controller', tmp_path, {'pinch.mode': 'hold'})
-    probe.record(ActuatorCommand, 'actuator_command')
-    pub = probe.publisher(ActuatorState, 'actuator_state')
-    clock = probe.node.get_clock()
-    old = clock.now() - rclpy_duration(0.5)
-    cycle = [0]
-
-    def send(stamp):
-        cycle[0] += 1
-        pub.publish(_state(cycle[0], 0.01 * cycle[0], stamp=stamp.to_msg()))
-
-    probe.wait_for(lambda: (send(clock.now()) or bool(probe.messages('actuator_command'))),
-                   what='first command')
-    send(old)
-    probe.wait_for(lambda: probe.messages('actuator_command')[-1].cycle == cycle[0])
-    for _ in range(5):
-        send(clock.now())
-        time.sleep(0.002)
-    probe.wait_for(lambda: probe.messages('actuator_command')[-1].cycle == cycle[0])
-    assert list(probe.messages('actuator_command')[-1].effort) == [0.0, 0.0]
-
-
-def rclpy_duration(seconds):
-    from rclpy.duration import Duration
-    return Duration(seconds=seconds)
-
-
 def test_lockstep_loop_reproduces_offline_simulation(processes, tmp_path, probe):
     """Same config, same seeds: the ROS loop and run_closed_loop give identical samples."""
     from seaforce_ros.core.controller import ChannelController
@@ -273,7 +247,7 @@ def test_lockstep_loop_reproduces_offline_simulation(processes, tmp_path, probe)
     for index, (channel, mode, env) in enumerate(
             [('wrist', 'dob', None), ('pinch', 'dob_full_ff', position_sine(0.5, 1.0))]):
         sim = ChannelSimulator(plant, dahl=DahlParams(), seed=7 + index, environment=env,
-                               max_torque=20.0)
+                               torque_saturation=20.0)
         ctrl = ChannelController(ControllerConfig(plant=plant, mode=mode, max_torque=20.0))
         offline[channel] = run_closed_loop(sim, ctrl, n_cycles)
     worst = 0.0

@@ -116,7 +116,7 @@ def test_torque_limit_and_missing_channel_latch_faults(processes, tmp_path, prob
     fault_reported('pinch', 'max_torque')
     send(0.0, n=5)                                     # back in range: still latched
     assert value(answer(), 'pinch', 'effort') == 0.0
-    assert ctrl.wait_for_output('pinch: FAULT latched, zero torque: torque beyond max_torque',
+    assert ctrl.wait_for_output('pinch: FAULT latched, zero torque: torque -',
                                 timeout=5), ctrl.output()
     # a state without the wrist channel latches a fault on wrist only after reset
     response = probe.call(Trigger, '/controller/reset')

@@ -24,6 +24,10 @@ kind                 condition                                              defa
 ``non_finite_torque`` computed torque NaN/inf (an intermediate overflowed)   latches
 ==================== ====================================================== ===========
 
+States the plant produced but this controller never saw (a late loop answers only the newest)
+are not a condition: the controllers integrate over the real number of cycles since the
+previous state (``steps``), up to ``state_timeout``.
+
 A *latched* fault gives the channel zero torque until :meth:`ControlCycle.request_reset`;
 a *re-arming* condition gives zero torque while it holds and re-initialises the channel from
 the plant's present state on the next clean sample. Either way the channel restarts
@@ -256,7 +260,8 @@ class ControlCycle:
             out.answered = False
             return out
         out.answered = True
-        if last is not None and cycle == last and mapping is not None:
+        if last is not None and cycle == last and mapping is not None \
+                and names == self._mapping[0]:
             return out             # a re-published state: the same answer again
         stream = ""                # a condition of the whole stream this sample
         stream_kind = None
@@ -277,6 +282,7 @@ class ControlCycle:
                 stream_kind = STALE_STATE
                 stream = (f"no state for {1e3 * (now - self._last_arrival):.1f} ms "
                           "(> state_timeout)")
+        steps = cycle - last if last is not None and 0 < cycle - last <= self._gap_cycles else 1
         self._last_cycle = cycle
         self._last_arrival = now
         if stream_kind is not None:
@@ -317,7 +323,7 @@ class ControlCycle:
                 continue
             if self._latched[i] or stream_kind is not None:
                 ctrl.reenter(fai)          # estimators stay live; no windup meanwhile
-                ctrl.update(xi, vi, fpi)
+                ctrl.update(xi, vi, fpi, steps)
                 effort[i] = 0.0
                 continue
             if self._needs_reset[i]:
@@ -329,7 +335,7 @@ class ControlCycle:
                 self._rearming[i] = ""
                 self._channel_ep[i].end(now, f"{self.channels[i]}: re-armed from the plant's "
                                              "present state")
-            u = ctrl.update(xi, vi, fpi)
+            u = ctrl.update(xi, vi, fpi, steps)
             if not -ctrl.config.max_torque <= u <= ctrl.config.max_torque:
                 if math.isfinite(u):
                     kind = TORQUE_LIMIT

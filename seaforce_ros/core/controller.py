@@ -127,13 +127,7 @@ class ChannelController:
         self._dob_mode = c.mode in DOB_MODES
         ks, bs = p.hose_stiffness, p.hose_damping
         self._ks, self._inv_bs = ks, 1.0 / bs
-        # exact first-order-hold discretisation of delta' = (F_p - k_s delta)/b_s
-        pT = ks / bs * dt
-        a = math.exp(-pT)
-        i1 = (1.0 - a) - (1.0 - a - pT * a) / pT
-        self._h_a = a
-        self._h_c0 = (1.0 - a - i1) / ks
-        self._h_c1 = i1 / ks
+        self._h_a, self._h_c0, self._h_c1 = self._hose_coefficients(dt)
         self._be, self._ke = p.endpoint_damping, p.endpoint_stiffness
         self._rest = c.rest_position
         self._dahl_hw = 0.5 * c.dahl_deadband
@@ -149,6 +143,15 @@ class ChannelController:
         self._kt, self._bt = c.target_stiffness, c.target_damping
         self._use_ff = c.mode in ("dob_linear_ff", "dob_full_ff", "impedance")
         self._use_dahl = c.mode in ("dob_full_ff", "impedance")
+
+    def _hose_coefficients(self, period):
+        """Exact first-order-hold discretisation of ``delta' = (F_p - k_s delta)/b_s`` over
+        ``period`` [s]: ``delta_k = a delta_{k-1} + c0 F_p,{k-1} + c1 F_p,k``."""
+        ks = self._ks
+        pT = ks * self._inv_bs * period
+        a = math.exp(-pT)
+        i1 = (1.0 - a) - (1.0 - a - pT * a) / pT
+        return a, (1.0 - a - i1) / ks, i1 / ks
 
     def reset(self, applied_torque=0.0):
         """Clear all state (filters, integrator, estimates); the next :meth:`update` starts
@@ -178,14 +181,23 @@ class ChannelController:
     def reenter(self, applied_torque):
         """Re-enter the mode at the next :meth:`update` from ``applied_torque`` [N m] (the
         plant zeroed or replaced the torque: watchdog, fault), keeping the estimators (hose
-        inversion, Dahl state) running. The next output equals ``applied_torque``; ``hold``
-        re-captures its target there, the DOB integrator starts from it (no windup)."""
+        inversion, Dahl state) running. The next output equals ``applied_torque``: the DOB
+        integrator starts from it (no windup), ``hold`` re-captures its target where the
+        finger is now (after an interruption the finger never moves by itself back to an
+        old target), ``impedance`` its rest position."""
         self.torque = float(applied_torque)
         self._enter = True
 
     # --- per sample -------------------------------------------------------------
-    def update(self, x, v, f_p):
+    def update(self, x, v, f_p, steps=1):
         """One sample: ``(X [rad], V [rad/s], F_p [N m]) -> F_a [N m]``.
+
+        ``steps`` (int >= 1) is the number of sample periods since the previous update: a
+        plant that lost or skipped samples (a late loop answers only the newest state) is
+        integrated over the real elapsed time -- the hose inversion (first-order hold over
+        ``steps * dt``), the DOB integrator, the force-feedback transfer decay and the chirp
+        clock -- instead of one ``dt``, which would turn a pressure change over many samples
+        into a huge velocity estimate and, repeated, destabilise the DOB.
 
         Raises
         ------
@@ -207,8 +219,11 @@ class ChannelController:
             delta = f_p / self._ks
             self._dahl_in = x + delta
             self._dahl.reset(x + delta, 0.0)
-        else:
+        elif steps == 1:
             delta = self._h_a * self._delta + self._h_c0 * self._fp_prev + self._h_c1 * f_p
+        else:
+            a, c0, c1 = self._hose_coefficients(steps * self.dt)
+            delta = a * self._delta + c0 * self._fp_prev + c1 * f_p
         self._delta = delta
         self._fp_prev = f_p
         xe_hat = x + delta
@@ -244,7 +259,7 @@ class ChannelController:
                     self._x0 = xe_hat
                 f_ref = fcmp + fd - self._kt * (xe_hat - self._x0) - self._bt * ve_hat
             e = f_ref + f_p - self._kn * x
-            lam_h = self._lam_half_dt
+            lam_h = self._lam_half_dt * steps
             ramp = self._lam_mn * v + self._lam_bn * x
             if enter:
                 # bumpless: choose I_{k-1} so that this output equals u_prev
@@ -270,14 +285,14 @@ class ChannelController:
             if enter:
                 self._bias = u_prev - self._kf * f_p
             else:
-                self._bias *= self._bump_decay
+                self._bias *= self._bump_decay if steps == 1 else self._bump_decay ** steps
             u = self._kf * f_p + self._bias
         else:   # chirp
             if enter:
                 self._bias = u_prev
                 self._t_mode = 0.0
             else:
-                self._t_mode += self.dt
+                self._t_mode += self.dt * steps
             u = self._bias + self._chirp(self._t_mode)
         self.torque = u
         return u

@@ -19,16 +19,21 @@ They only hand data over; everything takes effect at the start of the next :meth
 
 Rules (each with a status bit per channel, an event for the log and a counter):
 
-* **command watchdog, per channel**: a channel that no accepted command has named for
-  ``command_timeout`` gets zero torque and ``STATUS_COMMAND_TIMEOUT`` (off in lockstep, where
-  the plant waits for each command). Before the first command every channel is timed out.
+* **command watchdog, per channel**: a channel whose newest accepted command answers a state
+  more than ``command_timeout`` old (counted in the plant's own cycles, ``command_timeout /
+  dt`` of them) gets zero torque and ``STATUS_COMMAND_TIMEOUT``. Before the first command
+  every channel is timed out. Counting cycles rather than wall time means a stall of the
+  plant's own cycle (or a lockstep simulation waiting for its command) is never blamed on
+  the controller; a plant that keeps cycling while commands stop times out on schedule.
 * **freshness**: a command must answer a state this plant published at most
   ``command_timeout`` ago (its ``cycle``); an answer to an older state, or to a cycle this plant
   has not published (a controller still answering a plant that was restarted), is ignored.
-* **one command source**: a second publisher of ``actuator_command`` in the graph, two
-  different answers to the same cycle, or answers going back in cycle (only two interleaved
-  sources produce either) latch a conflict: zero torque on every channel, ``STATUS_FAULT``,
-  until ``~/reset`` with a single publisher left.
+* **one command source**: two different answers to the same cycle, or answers going back in
+  cycle (only two interleaved sources produce either), latch a conflict: zero torque on every
+  channel, ``STATUS_FAULT``, until ``~/reset`` with a single publisher left. A second
+  publisher of ``actuator_command`` in the graph alone gives the same zero torque and status
+  for as long as the graph lists it (it may be a process killed a moment ago, which DDS
+  lists until its lease expires): no command is applied while two could be.
 * **non-finite command** for a channel latches that channel's fault (zero torque).
 * **torque limit**: a finite command beyond ``+-torque_limit`` is clamped (``STATUS_LIMIT``);
   with drive units (hardware) the value is then rounded and saturated to int16.
@@ -72,7 +77,7 @@ class PlantLimits:
     Parameters
     ----------
     command_timeout : float > 0
-        A channel without an accepted command for this long gets zero torque [s].
+        A channel whose newest command answers a state older than this gets zero torque [s].
     torque_limit : float > 0
         Commands are clamped to ``+-torque_limit`` [N m] (``STATUS_LIMIT``).
     max_velocity : float >= 0
@@ -134,8 +139,6 @@ class PlantCycle:
     dt : float > 0
         Cycle period [s].
     limits : PlantLimits
-    watchdog : bool
-        Command watchdog on (realtime) or off (lockstep: the plant waits for each command).
     units_per_nm : sequence of float > 0, optional
         Per channel, drive units per N m (hardware: 1000 / rated torque); the torque is then
         rounded to units and saturated to int16.
@@ -143,8 +146,7 @@ class PlantCycle:
         Minimum time between two log reports of the same repeated condition [s].
     """
 
-    def __init__(self, channels, dt, limits=None, watchdog=True, units_per_nm=None,
-                 quiet_period=10.0):
+    def __init__(self, channels, dt, limits=None, units_per_nm=None, quiet_period=10.0):
         self.channels = tuple(channels)
         n = len(self.channels)
         if n == 0:
@@ -163,13 +165,12 @@ class PlantCycle:
                 raise InvalidParameterError("units_per_nm", units_per_nm,
                                             f"{n} finite values > 0")
         self.dt = float(dt)
-        self.watchdog = bool(watchdog)
         self._units_per_nm = units_per_nm
         self._index = {c: i for i, c in enumerate(self.channels)}
         self.events = EventLog()
         self.out = PlantOutput(n)
         self.cycle = 0                       # newest published state
-        self._inbox = deque(maxlen=64)       # (names, efforts, answers, arrival time)
+        self._inbox = deque(maxlen=64)       # (names, efforts, answers)
         self._pending_limits = None
         self._reset_requested = False
         self._publishers = ()
@@ -181,6 +182,7 @@ class PlantCycle:
         self._conflict = ""
         self._wkc_errors = 0                 # consecutive
         self._timeout_ep = [Episode(self.events, quiet_period) for _ in range(n)]
+        self._crowded_ep = Episode(self.events, quiet_period, severity=ERROR)
         self._reject_ep = {kind: Episode(self.events, quiet_period)
                            for kind in ("stale", "future", "malformed", "unknown")}
         self.rejected = {kind: 0 for kind in self._reject_ep}
@@ -189,10 +191,10 @@ class PlantCycle:
         self._forget_commands()
 
     # --- hand-over from other threads ------------------------------------------------------
-    def command(self, names, efforts, answers, now):
-        """Queue one command: efforts [N m] for ``names``, answering state ``answers``,
-        received at monotonic time ``now`` [s]. Checked at the next :meth:`step`."""
-        self._inbox.append((names, efforts, answers, now))
+    def command(self, names, efforts, answers):
+        """Queue one command: efforts [N m] for ``names``, answering state ``answers``.
+        Checked at the next :meth:`step`. ``efforts`` must not change afterwards."""
+        self._inbox.append((names, efforts, answers))
 
     def set_publishers(self, names):
         """The publishers of ``actuator_command`` the ROS graph shows now (node names)."""
@@ -221,11 +223,17 @@ class PlantCycle:
 
     @property
     def conflict(self):
-        return self._conflict
+        """The latched conflict, else the graph's second publisher, else ''."""
+        if self._conflict:
+            return self._conflict
+        if len(self._publishers) > 1:
+            return (f"{len(self._publishers)} publishers of actuator_command: "
+                    + ", ".join(self._publishers))
+        return ""
 
     def channel_fault(self, i):
-        """The latched fault that zeroes channel ``i`` ('' when none)."""
-        return self._fault[i] or self._bus_fault or self._conflict
+        """The fault that zeroes channel ``i`` ('' when none)."""
+        return self._fault[i] or self._bus_fault or self.conflict
 
     def latched_faults(self):
         """Every latched fault as 'where: reason' strings."""
@@ -272,15 +280,25 @@ class PlantCycle:
                 resets[i] = False
         if self._inbox:
             self._take_commands(now)
-        if len(self._publishers) > 1 and not self._conflict:
-            self._latch_conflict(f"{len(self._publishers)} publishers of actuator_command: "
-                                 + ", ".join(self._publishers))
+        current = self.cycle
+        max_age = self._max_age
+        crowded = len(self._publishers) > 1
+        if crowded != self._crowded_ep.active:
+            if crowded:
+                self._crowded_ep.begin(now, f"{self.conflict}: zero torque on every channel "
+                                            "while more than one can command (a process "
+                                            "killed a moment ago stays listed until its DDS "
+                                            "lease expires)")
+            else:
+                self._crowded_ep.end(now, "one publisher of actuator_command left: commands "
+                                          "accepted again")
+                self._forget_commands()
         lim = self._limits.torque_limit
         vmax = self._limits.max_velocity
         timeout = self._limits.command_timeout
         upn = self._units_per_nm
         bus_fault = self._bus_fault
-        blocked = bool(bus_fault or self._conflict)
+        blocked = bool(bus_fault or self._conflict or crowded)
         for i in range(len(self.channels)):
             if vmax > 0.0 and velocity is not None:
                 v = velocity[i]
@@ -296,15 +314,16 @@ class PlantCycle:
                         self._latch(i, "drive reports a fault (statusword bit 3)")
                 else:
                     self._grace[i] = 0
-            fresh_at = self._fresh_at[i]
-            timed_out = self.watchdog and (fresh_at is None or now - fresh_at > timeout)
+            answer = self._answer[i]
+            timed_out = answer < 0 or current - answer > max_age
             episode = self._timeout_ep[i]
             if timed_out != episode.active:
                 if timed_out:
-                    if fresh_at is not None:
-                        episode.begin(now, f"{self.channels[i]}: no fresh actuator_command for "
-                                           f"{1e3 * (now - fresh_at):.1f} ms (> command_timeout "
-                                           f"{1e3 * timeout:g} ms): zero torque")
+                    if answer >= 0:
+                        episode.begin(now, f"{self.channels[i]}: no fresh actuator_command: the "
+                                           f"newest answers a state {current - answer} cycles "
+                                           f"old (> command_timeout {1e3 * timeout:g} ms): zero "
+                                           "torque")
                 else:
                     episode.end(now, f"{self.channels[i]}: commands back, torque re-enabled")
             status = STATUS_COMMAND_TIMEOUT if timed_out else STATUS_OK
@@ -361,7 +380,6 @@ class PlantCycle:
         n = len(self.channels)
         self._effort = [0.0] * n
         self._answer = [-1] * n            # cycle answered by the accepted command
-        self._fresh_at = [None] * n        # its arrival time
 
     def _latch(self, i, reason):
         self._fault[i] = reason
@@ -405,9 +423,9 @@ class PlantCycle:
     def _take_commands(self, now):
         inbox = self._inbox
         current = self.cycle
-        max_age = self._max_age if self.watchdog else current + 1
+        max_age = self._max_age
         while inbox:
-            names, efforts, answers, arrived = inbox.popleft()
+            names, efforts, answers = inbox.popleft()
             if len(efforts) != len(names):
                 self._reject("malformed", now, f"actuator_command ignored: {len(names)} names "
                                                 f"but {len(efforts)} efforts")
@@ -449,7 +467,6 @@ class PlantCycle:
                     value = 0.0
                 self._answer[i] = answers
                 self._effort[i] = value
-                self._fresh_at[i] = arrived
 
     def _map(self, names, now):
         """Channel index per name of a command (-1: not a channel here); None if malformed."""

@@ -168,10 +168,6 @@ class EthercatBus:
                 self._inputs[i] = slaves[i].input
         return wkc
 
-    def zero_outputs(self) -> None:
-        for data in self._outputs:
-            data[:] = bytes(len(data))
-
     # --- shut-down -----------------------------------------------------------------------
     def to_init(self) -> bool:
         """Request INIT on every slave; True when they report it."""

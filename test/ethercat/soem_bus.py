@@ -8,6 +8,7 @@ Analog terminal inputs (8 bytes): per channel status u16, value i16.
 """
 
 import struct
+import time
 from collections import namedtuple
 
 import pysoem
@@ -25,6 +26,9 @@ CW_DISABLE_VOLTAGE = 0x0000
 CW_QUICK_STOP = 0x0002
 CW_FAULT_RESET = 0x0080
 MODE_CST = 10
+# The process-data period: 2 kHz, the hardware node's rate and the emulator's default
+# cycle_time (one 0.5 ms plant step per frame).
+CYCLE_PERIOD = 0.0005
 
 
 def cia402_state(statusword):
@@ -50,14 +54,19 @@ def cia402_state(statusword):
 
 
 class SoemBus:
-    """A pysoem master with helpers for the default emulated bus."""
+    """A pysoem master with helpers for the default emulated bus.
 
-    def __init__(self, master):
+    :meth:`cycle` paces the process data at :attr:`period` (default 2 kHz) with absolute
+    deadlines, as a hardware master does; ``period = 0`` sends back to back."""
+
+    def __init__(self, master, period=CYCLE_PERIOD):
         self.master = master
         self.slaves = []
         self.iomap_size = None
         self.drives = []          # slave indexes with 5-byte outputs
         self.receive_timeout_us = 100000
+        self.period = period
+        self._deadline = None     # start of the next cycle (time.monotonic())
 
     def configure(self):
         """config_init + config_map; returns (slave count, IOmap size)."""
@@ -91,15 +100,27 @@ class SoemBus:
         return [AI_CHANNEL.unpack_from(data, 4 * k) for k in range(2)]
 
     def cycle(self, n=1, timeout_us=None):
-        """``n`` send/receive cycles; returns the list of working counters.
+        """``n`` send/receive cycles, one per :attr:`period`; returns the working counters.
 
+        Cycle k starts at the previous cycle's start + ``period``; a cycle that would start
+        more than a period late starts now instead (no catch-up burst), and so does the
+        first cycle after a pause of the master (a test's own work between calls).
         ``timeout_us`` defaults to :attr:`receive_timeout_us` (100 ms: the tests check
         correctness, not timing, and the emulator shares a loaded host)."""
         if timeout_us is None:
             timeout_us = self.receive_timeout_us
         wkcs = []
         m = self.master
+        period = self.period
         for _ in range(n):
+            if period:
+                now = time.monotonic()
+                deadline = self._deadline
+                if deadline is None or now > deadline + period:
+                    deadline = now
+                elif deadline > now:
+                    time.sleep(deadline - now)
+                self._deadline = deadline + period
             m.send_processdata()
             wkcs.append(m.receive_processdata(timeout_us))
         return wkcs

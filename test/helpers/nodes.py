@@ -18,12 +18,15 @@ def params_file(node_name: str, values: Dict[str, Any], directory: pathlib.Path)
 
 def start_node(processes: ProcessGroup, name: str, node_name: str, tmp_path: pathlib.Path,
                overrides: Optional[Dict[str, Any]] = None, config: pathlib.Path = CONFIG,
-               wait: bool = True, prefix=()):
+               wait: bool = True, prefix=(), ros_args=()):
     """Start an installed executable with config + overrides; ``prefix`` goes before it
-    (e.g. ``('chrt', '-f', '40')``: chrt execs, so the PID stays the node's)."""
+    (e.g. ``('chrt', '-f', '40')``: chrt execs, so the PID stays the node's); ``ros_args``
+    go after them (e.g. ``('-r', '__node:=controller_b')``; the overrides then go to that
+    node name)."""
     argv = [*prefix, str(executable(name)), '--ros-args', '--params-file', str(config)]
     if overrides:
         argv += ['--params-file', str(params_file(node_name, overrides, tmp_path))]
+    argv += list(ros_args)
     proc = processes.start(argv, name=name)
     if wait:
         assert proc.wait_for_output('spinning with', timeout=60), proc.output()

@@ -1,0 +1,333 @@
+"""What sim_node and hardware_node share: the plant side of the loop around PlantCycle.
+
+:class:`PlantNode` owns the parts of a plant node that are not about the plant itself:
+
+* the cycle (:meth:`PlantNode.run_cycle`): :class:`~seaforce_ros.core.plant_cycle.PlantCycle`
+  decides the torques, the subclass applies them and samples the plant (``_actuate`` /
+  ``_sample``, ros2_control's write / read), the sample goes to the publisher thread; in the
+  direct layout the controller's cycle is called right there, on the cycle thread;
+* the ``actuator_command`` subscription (commands are only handed to PlantCycle), the graph
+  watch for a second command publisher, ``~/reset``, the run-time parameters;
+* a publisher thread for ``actuator_state`` / ``joint_states`` (and, in the direct layout,
+  the controller's ``actuator_command`` / ``controller_status``): a reliable DDS writer can
+  block for up to 100 ms when a subscriber lags, which must never hold up the cycle;
+* the log lines PlantCycle reports (once per episode, throttled) and the common
+  ``/diagnostics`` figures.
+"""
+from __future__ import annotations
+
+import collections
+import threading
+import time
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from seaforce_msgs.msg import ActuatorCommand, ActuatorState
+from std_srvs.srv import Trigger
+
+from . import param_specs as ps
+from .core.episodes import ERROR, WARNING
+from .core.plant_cycle import PlantCycle, PlantLimits
+from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
+                         declare, diagnostic_status, diagnostics_publisher, publish_diagnostics,
+                         shutdown_safe)
+from .timing import CommandTiming, Deadline, LoopStats
+
+NAN = float('nan')
+GRAPH_PERIOD = 0.2          # s between two looks at the publishers of actuator_command
+
+
+def plant_specs(torque_limit=5.0):
+    """Parameters every plant node declares (the PlantCycle limits among them)."""
+    return [
+        ps.channels_spec(),
+        ParamSpec('rate', 2000.0, 'cycle rate [Hz]', low=1.0, high=20000.0, read_only=True),
+        ParamSpec('command_timeout', 0.01,
+                  'a channel that no fresh actuator_command names for this long gets zero '
+                  'torque and STATUS_COMMAND_TIMEOUT [s]; a command is fresh when it answers a '
+                  'state at most this old', low=1e-4, high=10.0),
+        ParamSpec('torque_limit', torque_limit,
+                  'commands are clamped to +-torque_limit (STATUS_LIMIT) [N m]',
+                  low=1e-6, high=1e3),
+        ParamSpec('max_velocity', 30.0,
+                  'motor speed |V| beyond which the channel\'s torque is removed and a fault '
+                  'latched [rad/s]; 0 disables the trip', low=0.0, high=1e4),
+        ParamSpec('joint_state_rate', 100.0, 'sensor_msgs/JointState rate [Hz], 0 = off',
+                  low=0.0, high=20000.0),
+        ParamSpec('diagnostics_period', 1.0, '/diagnostics period [s]', low=0.05, high=60.0,
+                  read_only=True),
+        ps.executor_spec('events'),
+        control_qos_spec(),
+    ]
+
+
+_LIMIT_PARAMS = ('command_timeout', 'torque_limit', 'max_velocity', 'wkc_error_limit')
+
+
+class PlantNode(Node):
+    """Base class of the plant nodes (see module docstring).
+
+    Subclasses call :meth:`_start_plant` once their plant is ready and implement
+    ``_actuate(out) -> bool`` (apply ``out``; False when no fresh sample came back),
+    ``_sample(out)`` (fill the sample lists, see :meth:`_new_sample`) and optionally
+    ``_drives()`` and ``_extra_diagnostics()``.
+
+    Parameters
+    ----------
+    name : str
+        Node name.
+    values : dict
+        The declared parameter values (:func:`plant_specs` and the subclass's own).
+    direct : object, optional
+        The controller's direct port (``controller_node.DirectPort``): the direct layout.
+    """
+
+    def __init__(self, name, specs, direct=None, **kwargs):
+        super().__init__(name, **kwargs)
+        values = declare(self, specs)
+        self.values = values
+        self.channels = ps.channels_from(values)
+        self.dt = 1.0 / values['rate']
+        self._direct = direct
+        self._js_every = self._decimation(values['joint_state_rate'])
+        self.stats = LoopStats(self.dt)
+        self.timing = CommandTiming()
+        self._running = False
+        self._thread = None
+        self._publisher = None
+        self._velocity = [0.0] * len(self.channels)
+
+    # --- construction (subclasses call these) -------------------------------------------------
+    def _make_plant_cycle(self, units_per_nm=None):
+        try:
+            limits = self._limits_from(self.values)
+            self.plant = PlantCycle(self.channels, self.dt, limits, units_per_nm=units_per_nm)
+        except ValueError as exc:
+            raise StartupError(str(exc)) from exc
+
+    def _limits_from(self, values):
+        kwargs = {k: values[k] for k in _LIMIT_PARAMS if k in values}
+        return PlantLimits(**kwargs)
+
+    def _start_plant(self):
+        """Publishers, subscription, services, timers and the publisher thread."""
+        qos = self.values['control_qos']
+        self._state_msg = ActuatorState()
+        self._state_msg.name = list(self.channels)
+        self._js_msg = JointState()
+        self._js_msg.name = [f'{c}_{j}' for c in self.channels for j in ('motor', 'endpoint')]
+        self.state_pub = self.create_publisher(ActuatorState, 'actuator_state', control_qos(qos))
+        self.js_pub = self.create_publisher(JointState, 'joint_states', STATUS_QOS)
+        self.diag_pub = diagnostics_publisher(self)
+        if self._direct is None:
+            sub = self.create_subscription(ActuatorCommand, 'actuator_command',
+                                           self._on_command, control_qos(qos, subscriber=True))
+            self._command_topic = sub.topic_name
+        else:
+            self._command_topic = self.resolve_topic_name('actuator_command')
+        self.create_service(Trigger, '~/reset', self._on_reset)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+        self.create_timer(self.values['diagnostics_period'], self._publish_diagnostics)
+        self.create_timer(GRAPH_PERIOD, self._watch_graph)
+        self._outbox = collections.deque(maxlen=4096)
+        self._outbox_ready = threading.Event()
+        self._publishing = True
+        self._publisher = threading.Thread(target=self._publisher_loop, name='state_publisher',
+                                           daemon=True)
+        self._publisher.start()
+
+    def _start_cycle_thread(self):
+        self._running = True
+        self._thread = threading.Thread(target=self._cycle_loop, name='plant_cycle',
+                                        daemon=True)
+        self._thread.start()
+
+    def _decimation(self, rate_hz):
+        return 0 if rate_hz <= 0 else max(1, int(round(1.0 / (self.dt * rate_hz))))
+
+    # --- parameters, commands, reset, graph (executor thread) ---------------------------------
+    def _apply_parameters(self, params):
+        changed = {p.name: p.value for p in params}
+        if any(k in changed for k in _LIMIT_PARAMS):
+            current = {k: self.get_parameter(k).value for k in _LIMIT_PARAMS
+                       if self.has_parameter(k)}
+            self.plant.configure(self._limits_from({**current, **changed}))
+        if 'joint_state_rate' in changed:
+            self._js_every = self._decimation(changed['joint_state_rate'])
+
+    @shutdown_safe
+    def _on_command(self, msg):
+        now = time.monotonic()
+        self.plant.command(msg.name, msg.effort, msg.cycle)
+        self.timing.on_command(msg.cycle, self.plant.cycle, now)
+
+    def _on_reset(self, request, response):
+        response.message = 'reset requested; ' + self.plant.request_reset()
+        response.success = True
+        self.get_logger().info(response.message)
+        return response
+
+    @shutdown_safe
+    def _watch_graph(self):
+        infos = self.get_publishers_info_by_topic(self._command_topic)
+        self.plant.set_publishers(
+            sorted(f'{i.node_namespace.rstrip("/")}/{i.node_name}' for i in infos))
+
+    # --- the cycle ------------------------------------------------------------------------------
+    def _cycle_loop(self):
+        deadline = Deadline(self.dt)
+        try:
+            while self._running:
+                now = deadline.wait()
+                if not self._running:
+                    break
+                self.run_cycle(now)
+        except Exception as exc:  # never die silently: report; the drives' own watchdog acts
+            if self._running and self.context.ok():
+                self.get_logger().fatal(f'plant cycle stopped: {exc!r}')
+            self._running = False
+
+    def run_cycle(self, now):
+        """One cycle at monotonic time ``now``: decide, apply, sample, (control), publish."""
+        self.stats.tick(now)
+        plant = self.plant
+        self.timing.on_tick(plant.cycle)
+        out = plant.step(now, self._velocity, self._drives())
+        if self._actuate(out):
+            cycle = plant.state_published()
+            stamp_ns = time.time_ns()
+            sample = self._new_sample()
+            self._sample(out, sample)
+            x, v, fp, fa, xe, fe, status = sample
+            self._velocity = v
+            command = None
+            if self._direct is not None:
+                command = self._direct.step(self.channels, cycle, stamp_ns, x, v, fp, fa,
+                                            status, stamp_ns, now)
+                if command is not None:
+                    t = time.monotonic()
+                    self.timing.on_publish(cycle, now)
+                    plant.command(self.channels, command[0], cycle)
+                    self.timing.on_command(cycle, cycle, t)
+            self._outbox.append((cycle, stamp_ns, sample, command))
+            self._outbox_ready.set()
+        if plant.events:
+            self._log_events(plant.events.drain())
+
+    def _new_sample(self):
+        n = len(self.channels)
+        return ([0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n, [NAN] * n, [NAN] * n, [0] * n)
+
+    def _drives(self):
+        """Per channel (torque_allowed, faulted) of the drives; None: no drives (simulation)."""
+        return None
+
+    def _log_events(self, events):
+        logger = self.get_logger()
+        for severity, text in events:
+            if severity == ERROR:
+                logger.error(text)
+            elif severity == WARNING:
+                logger.warning(text)
+            else:
+                logger.info(text)
+
+    # --- publishing (publisher thread) ----------------------------------------------------------
+    def _publisher_loop(self):
+        outbox, ready = self._outbox, self._outbox_ready
+        msg, js = self._state_msg, self._js_msg
+        direct = self._direct
+        n = len(self.channels)
+        try:
+            while self._publishing:
+                ready.wait(0.1)
+                ready.clear()
+                while outbox:
+                    cycle, stamp_ns, sample, command = outbox.popleft()
+                    x, v, fp, fa, xe, fe, status = sample
+                    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 10**9)
+                    msg.cycle = cycle
+                    msg.motor_position, msg.motor_velocity, msg.pressure_force = x, v, fp
+                    msg.motor_effort, msg.endpoint_position = fa, xe
+                    msg.external_force, msg.status = fe, status
+                    if direct is None:
+                        self.timing.on_publish(cycle, time.monotonic())
+                    self.state_pub.publish(msg)
+                    if command is not None:
+                        direct.publish(cycle, msg.header.stamp, command)
+                    if self._js_every and cycle % self._js_every == 0:
+                        js.header.stamp = msg.header.stamp
+                        js.position = [val for i in range(n) for val in (x[i], xe[i])]
+                        js.velocity = [val for i in range(n) for val in (v[i], self._ve(i))]
+                        js.effort = [val for i in range(n) for val in (fa[i], fe[i])]
+                        self.js_pub.publish(js)
+        except Exception as exc:
+            if self._publishing and self.context.ok():
+                self.get_logger().fatal(f'state publisher stopped: {exc!r}')
+
+    def _ve(self, i):
+        """Endpoint velocity of channel ``i`` for joint_states (NaN where not measured)."""
+        return NAN
+
+    # --- monitoring -----------------------------------------------------------------------------
+    def _common_diagnostics(self, name, hardware_id, running_message, warning=None,
+                            extra=None):
+        """The node-level status: ERROR on a stopped cycle or a latched fault, WARN with
+        ``warning`` if given, else OK with ``running_message``; ``extra`` values appended."""
+        plant = self.plant
+        s = self.stats.summary()
+        rtt50, rtt99 = self.timing.round_trip_ms()
+        latched = plant.latched_faults()
+        level = DiagnosticStatus.OK
+        message = running_message
+        if not self._running and self._thread is not None:
+            level, message = DiagnosticStatus.ERROR, 'cycle stopped'
+        elif plant.bus_fault or plant.conflict:
+            level, message = DiagnosticStatus.ERROR, 'FAULT: ' + (plant.bus_fault
+                                                                 or plant.conflict)
+        elif latched:
+            level, message = DiagnosticStatus.ERROR, 'FAULT: ' + '; '.join(latched)
+        elif warning:
+            level, message = DiagnosticStatus.WARN, warning
+        values = {'cycle': plant.cycle, 'rate_hz': s.rate_hz, 'period_p50_ms': s.period_p50_ms,
+                  'period_p99_ms': s.period_p99_ms, 'period_max_ms': s.period_max_ms,
+                  'jitter_p99_ms': s.jitter_p99_ms, 'missed_deadlines': s.missed,
+                  'round_trip_p50_ms': rtt50, 'round_trip_p99_ms': rtt99,
+                  'late_commands_total': self.timing.late,
+                  'command_timeouts': sum(plant.timeouts(i) for i in range(len(self.channels))),
+                  'commands_rejected': sum(plant.rejected.values()),
+                  'command_publishers': ', '.join(plant._publishers) or 'none',
+                  'faults_latched_total': plant.faults_latched,
+                  'layout': 'direct' if self._direct is not None else 'topics',
+                  **(extra or {})}
+        return diagnostic_status(name, hardware_id, level, message, values)
+
+    def _channel_diagnostics(self, prefix, hardware_ids, extra=None):
+        plant = self.plant
+        statuses = []
+        for i, channel in enumerate(self.channels):
+            fault = plant.channel_fault(i)
+            values = {'fault': fault or 'none', 'command_timeouts': plant.timeouts(i),
+                      'torque_applied': plant.out.torque[i]}
+            if extra is not None:
+                values.update(extra(i))
+            statuses.append(diagnostic_status(
+                f'{prefix}: {channel}', hardware_ids[i],
+                DiagnosticStatus.ERROR if fault else DiagnosticStatus.OK,
+                f'FAULT: {fault}' if fault else values.get('state', 'ok'), values))
+        return statuses
+
+    @shutdown_safe
+    def _publish_diagnostics(self):
+        publish_diagnostics(self, self.diag_pub, self._diagnostics())
+
+    # --- shut-down ------------------------------------------------------------------------------
+    def _stop_threads(self):
+        self._running = False
+        if self._thread is not None:
+            self._thread.join(timeout=1.0)
+        self._publishing = False
+        if self._publisher is not None:
+            self._outbox_ready.set()
+            self._publisher.join(timeout=1.0)
