@@ -1,15 +1,22 @@
 #!/usr/bin/env python3
-"""Benchmark hardware_node's EtherCAT cycle next to sim_node, in one run.
+"""Benchmark hardware_node's EtherCAT cycle in both layouts, next to sim_node, in one run.
 
 Starts the software EtherCAT slave emulator (test/ethercat) on a veth pair in its own network
-namespace, then `hardware_node` + `controller_node` (pinch in dob_full_ff, finger backdriven
-0.5 rad at 1 rad/s by the emulated plant) for `--seconds`, reading the node's /diagnostics:
-cycle rate, period p50/p99, working-counter errors, round trip state -> command, commands in
-time. Then the same controller against `sim_node` for the same time. Needs root (veth,
-namespaces, raw sockets). `--rt PRIO` runs the hardware node, the sim node and the emulator
-with SCHED_FIFO priority PRIO, as a real rig would (README, first power-on checklist).
+namespace, then, for `--seconds` each (pinch in dob_full_ff, finger backdriven 0.5 rad at
+1 rad/s by the emulated plant), reading the plant's /diagnostics:
 
-Usage: source scripts/setup.sh; python bench/hardware_loop.py [--seconds 60] [--rt 40]
+* ``hardware topics``: `hardware_node` + `controller_node` as separate processes;
+* ``hardware direct``: `hardware_bringup loop:=direct` (the cycle thread calls the controller);
+* ``sim topics`` / ``sim direct``: the same with `sim_node` / `bringup`.
+
+Columns: cycle rate, period p50/p99, working-counter errors, round trip state -> command,
+"fresh": cycles whose torque came from the command answering the state just before (the one
+modelled frame), CPU per process. Needs root (veth, namespaces, raw sockets). `--rt PRIO` runs
+the plant processes and the emulator (at PRIO + 10) under SCHED_FIFO, as a real rig would
+(README); the separate controller then runs at PRIO - 10. `--hog` adds a CPU-burning process
+per core at normal priority for the whole run.
+
+Usage: source scripts/setup.sh; python bench/hardware_loop.py [--seconds 60] [--rt 40] [--hog]
 """
 import argparse
 import os
@@ -54,6 +61,7 @@ def measure(argvs, name, seconds, listener):
     wkc = (int(last['wkc_errors_total']) - int(first['wkc_errors_total'])
            if 'wkc_errors_total' in last else 0)
     return {'rate': med('rate_hz'), 'p50': med('period_p50_ms'), 'p99': med('period_p99_ms'),
+            'busy50': med('busy_p50_ms'), 'busy99': med('busy_p99_ms'),
             'rtt50': med('round_trip_p50_ms'), 'rtt99': med('round_trip_p99_ms'),
             'in_time': 1.0 - late / max(1, cycles), 'wkc': wkc, 'cycles': cycles,
             'cpu': {k: 100.0 * (c1[k] - c0[k]) / (t1 - t0) for k in procs}}
@@ -63,7 +71,22 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--seconds', type=float, default=60.0)
     parser.add_argument('--rt', type=int, default=0, help='SCHED_FIFO priority (0: normal)')
+    parser.add_argument('--only', choices=('hardware', 'sim', 'direct', 'topics'),
+                        help='run only these rows')
+    parser.add_argument('--hog', action='store_true',
+                        help='one CPU-burning process per core (normal priority) meanwhile')
     args = parser.parse_args()
+    hogs = []
+    if args.hog:
+        hogs = [subprocess.Popen([sys.executable, '-c', 'while True: pass'],
+                                 start_new_session=True) for _ in range(os.cpu_count() or 1)]
+    try:
+        run(args)
+    finally:
+        _stop(hogs)
+
+
+def run(args):
     if os.geteuid() != 0:
         sys.exit('needs root: veth pair, network namespace, raw EtherCAT socket')
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
@@ -72,54 +95,71 @@ def main():
     from ethercat.harness import EmulatorHarness
 
     prefix = ['chrt', '-f', str(args.rt)] if args.rt else []
+    ctl_prefix = ['chrt', '-f', str(max(1, args.rt - 10))] if args.rt else []
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = pathlib.Path(tmp)
-        ctl_file = tmp / 'controller.yaml'
-        ctl_file.write_text('controller:\n  ros__parameters:\n    pinch.mode: dob_full_ff\n'
-                            '    wrist.mode: dob\n    state_timeout: 1.0\n')
-        ctl = [str(LIB / 'controller_node'), '--ros-args', '--params-file', str(CONFIG),
-               '--params-file', str(ctl_file)]
+        common = ('    pinch.mode: dob_full_ff\n    wrist.mode: dob\n    state_timeout: 1.0\n'
+                  '    torque_limit: 5.0\n    pinch.environment.mode: position_sine\n'
+                  '    pinch.environment.amplitude: 0.5\n')
         config = default_config()
         config['channels']['pinch']['environment'] = {
             'mode': 'position_sine', 'amplitude': 0.5, 'frequency': 1.0}
-        harness = EmulatorHarness(config, workdir=tmp / 'emulator', realtime=args.rt)
+        harness = EmulatorHarness(config, workdir=tmp / 'emulator',
+                                  realtime=args.rt + 10 if args.rt else 0)
         listener = DiagnosticsListener()
+
+        def argv(executable, extra, name):
+            path = tmp / f'{name}.yaml'
+            path.write_text('/**:\n  ros__parameters:\n' + common + extra)
+            pre = ctl_prefix if executable == 'controller_node' else prefix
+            return pre + [str(LIB / executable), '--ros-args', '--params-file', str(CONFIG),
+                          '--params-file', str(path)]
+
         try:
             harness.start()
-            hw_file = tmp / 'hardware.yaml'
-            hw_file.write_text('hardware:\n  ros__parameters:\n'
-                               f'    interface: {harness.master_interface}\n'
-                               f'    bus_config: {BUS}\n    max_torque: 5.0\n')
-            hw = prefix + [str(LIB / 'hardware_node'), '--ros-args', '--params-file',
-                           str(CONFIG), '--params-file', str(hw_file)]
-            print(f'[bench] hardware_node over EtherCAT (emulator on {harness.master_interface})'
-                  f': {args.seconds:.0f} s', flush=True)
-            results['hardware_node'] = measure({'hardware': hw, 'controller': ctl},
-                                               'hardware: bus', args.seconds, listener)
+            hw = (f'    interface: {harness.master_interface}\n    bus_config: {BUS}\n')
+            for layout in ('topics', 'direct'):
+                if args.only in ('sim', 'direct' if layout == 'topics' else 'topics'):
+                    continue
+                print(f'[bench] hardware {layout} over EtherCAT (emulator on '
+                      f'{harness.master_interface}): {args.seconds:.0f} s', flush=True)
+                if layout == 'topics':
+                    argvs = {'hardware': argv('hardware_node', hw, 'hw'),
+                             'controller': argv('controller_node', '', 'ctl')}
+                else:
+                    argvs = {'bringup': argv('hardware_bringup', hw + '    loop: direct\n',
+                                             'hwb')}
+                results[f'hardware {layout}'] = measure(argvs, 'hardware: bus', args.seconds,
+                                                        listener)
         finally:
             harness.stop()
-        sim_file = tmp / 'sim.yaml'
-        sim_file.write_text('sim:\n  ros__parameters:\n    pinch.environment.mode: position_sine\n'
-                            '    pinch.environment.amplitude: 0.5\n')
-        sim = prefix + [str(LIB / 'sim_node'), '--ros-args', '--params-file', str(CONFIG),
-                        '--params-file', str(sim_file)]
-        print(f'[bench] sim_node: {args.seconds:.0f} s', flush=True)
-        results['sim_node'] = measure({'sim': sim, 'controller': ctl}, 'sim: cycle',
-                                      args.seconds, listener)
+        for layout in ('topics', 'direct'):
+            if args.only in ('hardware', 'direct' if layout == 'topics' else 'topics'):
+                continue
+            print(f'[bench] sim {layout}: {args.seconds:.0f} s', flush=True)
+            if layout == 'topics':
+                argvs = {'sim': argv('sim_node', '', 'sim'),
+                         'controller': argv('controller_node', '', 'ctl')}
+            else:
+                argvs = {'bringup': argv('bringup', '    loop: direct\n', 'simb')}
+            results[f'sim {layout}'] = measure(argvs, 'sim: cycle', args.seconds, listener)
         listener.close()
-    print(f'\n{"plant node":15s}{"rate Hz":>9s}{"per p50":>9s}{"per p99":>9s}{"wkc err":>9s}'
-          f'{"rtt p50":>9s}{"rtt p99":>9s}{"in time":>9s}  CPU % per process')
+    print(f'\n{"plant, layout":18s}{"rate Hz":>9s}{"per p50":>9s}{"per p99":>9s}{"busy50":>8s}'
+          f'{"busy99":>8s}{"wkc err":>9s}'
+          f'{"rtt p50":>9s}{"rtt p99":>9s}{"fresh":>9s}  CPU % per process')
     for name, r in results.items():
         if r is None:
-            print(f'{name:15s}  no diagnostics received')
+            print(f'{name:18s}  no diagnostics received')
             continue
         cpu = ' '.join(f'{k}={v:.0f}' for k, v in r['cpu'].items())
-        print(f'{name:15s}{r["rate"]:9.0f}{r["p50"]:9.3f}{r["p99"]:9.3f}{r["wkc"]:9d}'
+        print(f'{name:18s}{r["rate"]:9.0f}{r["p50"]:9.3f}{r["p99"]:9.3f}{r["busy50"]:8.3f}'
+              f'{r["busy99"]:8.3f}{r["wkc"]:9d}'
               f'{r["rtt50"]:9.3f}{r["rtt99"]:9.2f}{100 * r["in_time"]:8.1f}%  {cpu}')
     print(f'\nperiods and round trips in ms; wkc err: working-counter errors in '
-          f'{args.seconds:.0f} s; in time: the command for cycle k arrived before cycle k+1; '
-          f'scheduling: {"SCHED_FIFO " + str(args.rt) if args.rt else "normal"}')
+          f'{args.seconds:.0f} s; fresh: the command for cycle k arrived before cycle k+1; '
+          f'scheduling: {"SCHED_FIFO " + str(args.rt) if args.rt else "normal"}'
+          f'{", with a CPU hog per core" if args.hog else ""}')
 
 
 if __name__ == '__main__':

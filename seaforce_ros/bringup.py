@@ -21,6 +21,7 @@ Usage: bringup --ros-args --params-file config/gripper.yaml -p loop:=direct
 import sys
 
 from .controller_node import ControllerNode
+from .plant_node import prepare_process
 from .ros_common import run
 
 
@@ -39,13 +40,13 @@ def _compose(plant_class):
 
 def main(args=None):
     from .sim_node import SimNode
-    sys.setswitchinterval(2e-4)  # the plant's cycle thread shares the GIL with the executor
+    prepare_process()
     sys.exit(run(_compose(SimNode), args=args, name='bringup'))
 
 
 def hardware_main(args=None):
     from .hardware_node import HardwareNode
-    sys.setswitchinterval(2e-4)
+    prepare_process()
     sys.exit(run(_compose(HardwareNode), args=args, name='hardware_bringup'))
 
 

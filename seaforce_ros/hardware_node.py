@@ -1,7 +1,8 @@
 """hardware_node (node ``hardware``): the gripper over EtherCAT, a drop-in for ``sim_node``.
 
 Owns the bus through pysoem (SOEM). Its cycle thread runs at ``rate`` with absolute
-deadlines: one process-data exchange per cycle (pysoem releases the GIL for it), scaling of
+deadlines: one process-data frame per cycle, sent at the end of a cycle and received at the
+start of the next (it travels during the sleep; pysoem releases the GIL), scaling of
 the raw PDO values to SI units (``bus_config`` YAML), an ``actuator_state`` sample with the
 same semantics as the sim's, and the torques :class:`~seaforce_ros.core.plant_cycle.PlantCycle`
 allows applied as CiA 402 target torque (object 0x6071, per mille of the rated torque, int16)
@@ -27,7 +28,7 @@ import time
 from .ethercat.bus_config import BusConfig, BusConfigError
 from .ethercat.cia402 import CW_DISABLE_VOLTAGE, MODE_CST, DriveSequencer
 from .ethercat.master import BusError, EthercatBus
-from .plant_node import PlantNode, plant_specs
+from .plant_node import PlantNode, plant_specs, prepare_process
 from .ros_common import ParamSpec, StartupError, run
 
 
@@ -116,6 +117,7 @@ class HardwareNode(PlantNode):
                                    f'{src} is not in the node\'s channels')
         self._make_plant_cycle(units_per_nm=[c.units_per_nm for c in self.ch])
         self._drive_reports = [(False, False)] * len(self.ch)
+        self._in_flight = False          # a process-data frame was sent and not yet received
 
         self.bus = EthercatBus(self.bus_config, values['interface'],
                                int(values['receive_timeout'] * 1e6))
@@ -155,7 +157,15 @@ class HardwareNode(PlantNode):
             reports[i] = (seq.torque_allowed, seq.faulted)
         return reports
 
-    def _actuate(self, out):
+    def _read(self):
+        """Receive the frame sent at the end of the previous cycle (it came back meanwhile)."""
+        if not self._in_flight:
+            return False
+        self._in_flight = False
+        bus = self.bus
+        return self.plant.exchange(bus.receive(), bus.expected_wkc)
+
+    def _write(self, out):
         bus = self.bus
         for i, c in enumerate(self.ch):
             seq = c.sequencer
@@ -166,7 +176,8 @@ class HardwareNode(PlantNode):
             bus.set_output(c.drive, 'target_torque', out.units[i])
             if c.has_mode_output:
                 bus.set_output(c.drive, 'mode_of_operation', MODE_CST)
-        return self.plant.exchange(bus.exchange(), bus.expected_wkc)
+        bus.send()
+        self._in_flight = True
 
     def _sample(self, out, sample):
         """Scale this cycle's inputs to SI units."""
@@ -221,7 +232,7 @@ class HardwareNode(PlantNode):
 
 
 def main(args=None):
-    sys.setswitchinterval(2e-4)  # the cycle thread must get the GIL promptly
+    prepare_process()
     sys.exit(run(HardwareNode, args=args, name='hardware_node'))
 
 

@@ -2,10 +2,11 @@
 
 :class:`PlantNode` owns the parts of a plant node that are not about the plant itself:
 
-* the cycle (:meth:`PlantNode.run_cycle`): :class:`~seaforce_ros.core.plant_cycle.PlantCycle`
-  decides the torques, the subclass applies them and samples the plant (``_actuate`` /
-  ``_sample``, ros2_control's write / read), the sample goes to the publisher thread; in the
-  direct layout the controller's cycle is called right there, on the cycle thread;
+* the cycle (:meth:`PlantNode.run_cycle`): the subclass reads the plant (``_read`` /
+  ``_sample``), the sample goes to the publisher thread (in the direct layout the
+  controller's cycle is called right there, on the cycle thread),
+  :class:`~seaforce_ros.core.plant_cycle.PlantCycle` decides the torques and the subclass
+  writes them (``_write``): ros2_control's read / update / write;
 * the ``actuator_command`` subscription (commands are only handed to PlantCycle), the graph
   watch for a second command publisher, ``~/reset``, the run-time parameters;
 * a publisher thread for ``actuator_state`` / ``joint_states`` (and, in the direct layout,
@@ -17,6 +18,8 @@
 from __future__ import annotations
 
 import collections
+import os
+import sys
 import threading
 import time
 
@@ -32,10 +35,18 @@ from .core.plant_cycle import PlantCycle, PlantLimits
 from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
                          declare, diagnostic_status, diagnostics_publisher, publish_diagnostics,
                          shutdown_safe)
-from .timing import CommandTiming, Deadline, LoopStats
+from .timing import BusyTime, CommandTiming, Deadline, LoopStats
 
 NAN = float('nan')
 GRAPH_PERIOD = 0.2          # s between two looks at the publishers of actuator_command
+#: How long another thread may keep the GIL once the cycle thread wants it [s]. Python's
+#: default, 5 ms, is ten cycles; a C call that holds the GIL (rclpy's publish) is not cut.
+GIL_SWITCH_INTERVAL = 5e-5
+
+
+def prepare_process():
+    """Interpreter settings of a process that runs a plant cycle thread (call in main())."""
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL)
 
 
 def plant_specs(torque_limit=5.0):
@@ -65,13 +76,28 @@ def plant_specs(torque_limit=5.0):
 _LIMIT_PARAMS = ('command_timeout', 'torque_limit', 'max_velocity', 'wkc_error_limit')
 
 
+def _raise_thread_priority(logger):
+    """Under SCHED_FIFO (``chrt -f P``, as on a rig), run the calling thread one priority above
+    the process's other threads (DDS, executor, publisher), so that they never delay a cycle
+    by holding the core it wakes up on. Without real-time scheduling: nothing."""
+    try:
+        if os.sched_getscheduler(0) != os.SCHED_FIFO:
+            return
+        priority = min(os.sched_get_priority_max(os.SCHED_FIFO),
+                       os.sched_getparam(0).sched_priority + 1)
+        os.sched_setscheduler(threading.get_native_id(), os.SCHED_FIFO,
+                              os.sched_param(priority))
+    except OSError as exc:
+        logger.warning(f'cycle thread stays at the process priority: {exc}')
+
+
 class PlantNode(Node):
     """Base class of the plant nodes (see module docstring).
 
     Subclasses call :meth:`_start_plant` once their plant is ready and implement
-    ``_actuate(out) -> bool`` (apply ``out``; False when no fresh sample came back),
-    ``_sample(out)`` (fill the sample lists, see :meth:`_new_sample`) and optionally
-    ``_drives()`` and ``_extra_diagnostics()``.
+    ``_write(out)`` (apply PlantCycle's output), ``_sample(out, sample)`` (fill the sample
+    lists of :meth:`_new_sample`; ``out`` is the output being applied) and ``_diagnostics()``,
+    optionally ``_read()`` and ``_drives()``.
 
     Parameters
     ----------
@@ -92,6 +118,7 @@ class PlantNode(Node):
         self._direct = direct
         self._js_every = self._decimation(values['joint_state_rate'])
         self.stats = LoopStats(self.dt)
+        self.busy = BusyTime()
         self.timing = CommandTiming()
         self._running = False
         self._thread = None
@@ -176,6 +203,7 @@ class PlantNode(Node):
 
     # --- the cycle ------------------------------------------------------------------------------
     def _cycle_loop(self):
+        _raise_thread_priority(self.get_logger())
         deadline = Deadline(self.dt)
         try:
             while self._running:
@@ -183,37 +211,54 @@ class PlantNode(Node):
                 if not self._running:
                     break
                 self.run_cycle(now)
+                self.busy.add(time.monotonic() - now)
         except Exception as exc:  # never die silently: report; the drives' own watchdog acts
             if self._running and self.context.ok():
                 self.get_logger().fatal(f'plant cycle stopped: {exc!r}')
             self._running = False
 
     def run_cycle(self, now):
-        """One cycle at monotonic time ``now``: decide, apply, sample, (control), publish."""
+        """One realtime cycle at monotonic time ``now``: read the plant and publish the sample
+        (direct layout: and run the controller on it), then decide the torques and write
+        them. Reading first lets a bus frame sent at the end of a cycle come back during the
+        sleep instead of being waited for (ros2_control's read / update / write)."""
         self.stats.tick(now)
+        self._read_and_publish(now)
+        self._decide_and_write(now, answered=self.plant.cycle - (self._direct is None))
+        if self.plant.events:
+            self._log_events(self.plant.events.drain())
+
+    def _read_and_publish(self, now):
         plant = self.plant
-        self.timing.on_tick(plant.cycle)
-        out = plant.step(now, self._velocity, self._drives())
-        if self._actuate(out):
-            cycle = plant.state_published()
-            stamp_ns = time.time_ns()
-            sample = self._new_sample()
-            self._sample(out, sample)
-            x, v, fp, fa, xe, fe, status = sample
-            self._velocity = v
-            command = None
-            if self._direct is not None:
-                command = self._direct.step(self.channels, cycle, stamp_ns, x, v, fp, fa,
-                                            status, stamp_ns, now)
-                if command is not None:
-                    t = time.monotonic()
-                    self.timing.on_publish(cycle, now)
-                    plant.command(self.channels, command[0], cycle)
-                    self.timing.on_command(cycle, cycle, t)
-            self._outbox.append((cycle, stamp_ns, sample, command))
-            self._outbox_ready.set()
-        if plant.events:
-            self._log_events(plant.events.drain())
+        if not self._read():
+            return
+        cycle = plant.state_published()
+        stamp_ns = time.time_ns()
+        sample = self._new_sample()
+        self._sample(plant.out, sample)
+        x, v, fp, fa, xe, fe, status = sample
+        self._velocity = v
+        command = None
+        if self._direct is not None:
+            command = self._direct.step(self.channels, cycle, stamp_ns, x, v, fp, fa, status,
+                                        stamp_ns, now)
+            if command is not None:
+                t = time.monotonic()
+                self.timing.on_publish(cycle, now)
+                plant.command(self.channels, command[0], cycle)
+                self.timing.on_command(cycle, cycle, t)
+        self._outbox.append((cycle, stamp_ns, sample, command))
+        self._outbox_ready.set()
+
+    def _decide_and_write(self, now, answered):
+        """PlantCycle decides from the commands received so far; the plant applies it.
+        ``answered``: the cycle whose answer should be in by now (timing statistics)."""
+        self.timing.on_tick(answered)
+        self._write(self.plant.step(now, self._velocity, self._drives()))
+
+    def _read(self):
+        """Take a fresh sample of the plant; False when none came (hardware: lost frame)."""
+        return True
 
     def _new_sample(self):
         n = len(self.channels)
@@ -278,6 +323,7 @@ class PlantNode(Node):
         plant = self.plant
         s = self.stats.summary()
         rtt50, rtt99 = self.timing.round_trip_ms()
+        busy50, busy99, busy_max = self.busy.percentiles_ms()
         latched = plant.latched_faults()
         level = DiagnosticStatus.OK
         message = running_message
@@ -293,6 +339,7 @@ class PlantNode(Node):
         values = {'cycle': plant.cycle, 'rate_hz': s.rate_hz, 'period_p50_ms': s.period_p50_ms,
                   'period_p99_ms': s.period_p99_ms, 'period_max_ms': s.period_max_ms,
                   'jitter_p99_ms': s.jitter_p99_ms, 'missed_deadlines': s.missed,
+                  'busy_p50_ms': busy50, 'busy_p99_ms': busy99, 'busy_max_ms': busy_max,
                   'round_trip_p50_ms': rtt50, 'round_trip_p99_ms': rtt99,
                   'late_commands_total': self.timing.late,
                   'command_timeouts': sum(plant.timeouts(i) for i in range(len(self.channels))),

@@ -33,7 +33,7 @@ from .core.params import DahlParams, PlantParams
 from .core.plant_cycle import STATUS_COMMAND_TIMEOUT, STATUS_LIMIT
 from .core.sensors import SensorParams
 from .core.simulator import ChannelSimulator
-from .plant_node import PlantNode, plant_specs
+from .plant_node import PlantNode, plant_specs, prepare_process
 from .ros_common import ParamSpec, StartupError, declare, run, shutdown_safe
 
 LOCKSTEP_REPUBLISH = 0.1     # s without progress after which lockstep re-publishes its state
@@ -150,17 +150,21 @@ class SimNode(PlantNode):
     def _on_command(self, msg):
         super()._on_command(msg)
         if self.lockstep and msg.cycle == self.plant.cycle:
-            self._last_progress = time.monotonic()
-            self.run_cycle(self._last_progress)
+            # one sample per answer: apply it, then publish the state it leads to
+            now = self._last_progress = time.monotonic()
+            self.stats.tick(now)
+            self._decide_and_write(now, answered=self.plant.cycle)
+            self._read_and_publish(now)
+            if self.plant.events:
+                self._log_events(self.plant.events.drain())
 
-    def _actuate(self, out):
+    def _write(self, out):
         pending = self._pending_env
         if pending:
             for index in list(pending):
                 self.sims[index].set_environment(pending.pop(index))
         for sim, torque in zip(self.sims, out.torque):
             sim.step(torque)
-        return True
 
     def _sample(self, out, sample):
         x, v, fp, fa, xe, fe, status = sample
@@ -206,7 +210,7 @@ class SimNode(PlantNode):
 
 
 def main(args=None):
-    sys.setswitchinterval(2e-4)  # the cycle thread must get the GIL promptly
+    prepare_process()
     sys.exit(run(SimNode, args=args, name='sim_node'))
 
 

@@ -166,3 +166,27 @@ class CommandTiming:
             return float('nan'), float('nan')
         values = sorted(self._rtt[:n])
         return 1e3 * values[n // 2], 1e3 * values[min(n - 1, int(0.99 * n))]
+
+
+class BusyTime:
+    """Ring of per-cycle busy times (wake-up to end of the cycle's work), for diagnostics:
+    how much of the period the cycle uses, and how close its tail comes to the deadline."""
+
+    def __init__(self, capacity: int = 8192):
+        self._values = array.array('d', bytes(8 * capacity))
+        self._n = 0
+
+    def add(self, seconds: float) -> None:
+        self._values[self._n % len(self._values)] = seconds
+        self._n += 1
+
+    def percentiles_ms(self, reset: bool = True):
+        """(p50, p99, max) since the last reset [ms] (NaN if none)."""
+        n = min(self._n, len(self._values))
+        if reset:
+            self._n = 0
+        if n == 0:
+            return float('nan'), float('nan'), float('nan')
+        values = sorted(self._values[:n])
+        return (1e3 * values[n // 2], 1e3 * values[min(n - 1, int(0.99 * n))],
+                1e3 * values[-1])

@@ -17,6 +17,35 @@ from helpers.processes import ProcessGroup, stop_leftovers  # noqa: E402
 from ethercat.fixtures import ecat_bus, ecat_emulator, soem_master  # noqa: E402,F401
 
 
+def pytest_addoption(parser):
+    parser.addoption('--cpu-hog', action='store_true',
+                     help='run the whole session next to one CPU-burning process per core '
+                          '(normal priority): the tests must pass on a busy host')
+
+
+def _start_hogs(group):
+    """One busy-looping process per core, ended by PID with the group."""
+    for _ in range(os.cpu_count() or 1):
+        group.start([sys.executable, '-c', 'while True: pass'], name='cpu_hog')
+
+
+@pytest.fixture(scope='session', autouse=True)
+def _session_cpu_hog(request):
+    group = ProcessGroup()
+    if request.config.getoption('--cpu-hog'):
+        _start_hogs(group)
+    try:
+        yield
+    finally:
+        group.stop_all()
+
+
+@pytest.fixture
+def cpu_hog(processes):
+    """One CPU-burning process per core, at normal priority, for this test."""
+    _start_hogs(processes)
+
+
 @pytest.fixture
 def processes():
     """Start processes for a test and end every one of them by PID afterwards, pass or fail."""

@@ -288,8 +288,9 @@ def test_commands_for_one_channel_do_not_keep_another_alive(processes, tmp_path,
     seen = []
     while time.monotonic() < deadline and len(seen) < 20:
         for _ in range(200):
-            newest = probe.messages('actuator_state')[-1]
-            cmd.cycle = newest.cycle           # answer the newest state, as a controller does
+            # answer the newest state, as a controller does (never an older one: that would
+            # look like a second source to the plant)
+            cmd.cycle = max(cmd.cycle, probe.messages('actuator_state')[-1].cycle)
             pub.publish(cmd)
             time.sleep(0.001)
         seen = [m for m in probe.messages('actuator_state')

@@ -35,7 +35,7 @@ def test_message_fields_match_design():
         ('header', 'std_msgs/Header'), ('cycle', 'uint64'), ('name', 'sequence<string>'),
         ('mode', 'sequence<string>'), ('disturbance', 'sequence<double>'),
         ('feedforward', 'sequence<double>'), ('endpoint_velocity_estimate', 'sequence<double>'),
-        ('dahl_force', 'sequence<double>')]
+        ('dahl_force', 'sequence<double>'), ('fault', 'sequence<string>')]
 
 
 def test_messages_cross_process_field_for_field(processes, ros_context):

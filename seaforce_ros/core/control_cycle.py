@@ -13,8 +13,8 @@ kind                 condition                                              defa
 ==================== ====================================================== ===========
 ``stale_state``      stamp older than ``state_timeout``, or no state for    re-arms
                      longer than that (a stall)
-``state_gap``        cycle went backwards (plant restarted) or jumped by    re-arms
-                     more than ``state_timeout``
+``state_gap``        cycle went backwards by more than ``state_timeout``    re-arms
+                     (plant restarted) or jumped forwards by more than it
 ``future_stamp``     stamp more than ``state_timeout`` in the future        latches
 ``malformed_state``  arrays shorter/longer than ``name``, repeated names    latches
 ``missing_channel``  a channel of this controller is not in the state       latches
@@ -24,8 +24,10 @@ kind                 condition                                              defa
 ``non_finite_torque`` computed torque NaN/inf (an intermediate overflowed)   latches
 ==================== ====================================================== ===========
 
-States the plant produced but this controller never saw (a late loop answers only the newest)
-are not a condition: the controllers integrate over the real number of cycles since the
+A state older than the newest answered, by less than ``state_timeout``, arrived out of order:
+it is dropped unanswered (answering it would look like a second command source to the
+plant). States the plant produced but this controller never saw (a late loop answers only
+the newest) are not a condition: the controllers integrate over the real number of cycles since the
 previous state (``steps``), up to ``state_timeout``.
 
 A *latched* fault gives the channel zero torque until :meth:`ControlCycle.request_reset`;
@@ -168,6 +170,7 @@ class ControlCycle:
         self._channel_ep = [Episode(self.events, quiet_period) for _ in range(n)]
         self._drop_ep = Episode(self.events, quiet_period)
         self._mapping = ([], ())
+        self._answered_names = None        # names of the state out.effort answers
         self._last_cycle = None
         self._last_arrival = None
         self.counts = {kind: 0 for kind in FAULT_KINDS}
@@ -259,9 +262,15 @@ class ControlCycle:
             self.dropped += 1      # start-up backlog: states older than the first fresh one
             out.answered = False
             return out
+        if last is not None and last - self._gap_cycles <= cycle < last:
+            # older than the newest state already answered: delivered out of order. Answering
+            # it would look like a second command source to the plant; a restarted plant
+            # starts far lower (its cycles start at 1, and it takes longer than that to start)
+            self.dropped += 1
+            out.answered = False
+            return out
         out.answered = True
-        if last is not None and cycle == last and mapping is not None \
-                and names == self._mapping[0]:
+        if cycle == out.cycle and names == self._answered_names:
             return out             # a re-published state: the same answer again
         stream = ""                # a condition of the whole stream this sample
         stream_kind = None
@@ -349,6 +358,8 @@ class ControlCycle:
                 u = 0.0
             effort[i] = u
         out.cycle = cycle
+        self._answered_names = list(names) if names != self._answered_names else \
+            self._answered_names
         return out
 
     # --- internals -------------------------------------------------------------------------
@@ -383,6 +394,7 @@ class ControlCycle:
             self.out.effort[i] = 0.0
             self._condition(i, now, kind, reason)
         self.out.cycle = self._last_cycle
+        self._answered_names = None
 
     def _latch(self, i, reason):
         if self._latched[i]:

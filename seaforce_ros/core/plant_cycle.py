@@ -400,7 +400,7 @@ class PlantCycle:
         episode.end(now)
 
     def _reset(self, now):
-        cleared = self.latched_faults()
+        cleared = [f for f in self.latched_faults() if not f.startswith("commands: ")]
         n = len(self.channels)
         for i in range(n):
             self._fault[i] = ""
@@ -414,6 +414,7 @@ class PlantCycle:
                 kept = (f"; the command conflict stays latched: {len(self._publishers)} "
                         f"publishers of actuator_command ({', '.join(self._publishers)})")
             else:
+                cleared.append(f"commands: {self._conflict}")
                 self._conflict = ""
         self._inbox.clear()
         self._forget_commands()

@@ -154,19 +154,31 @@ class EthercatBus:
         offset, fmt = self._in_offsets[slave][entry]
         return struct.unpack_from(fmt, self._inputs[slave], offset)[0]
 
-    def exchange(self) -> int:
-        """Write outputs, send/receive one process-data frame, read inputs; return the WKC."""
+    def send(self) -> None:
+        """Write the outputs and send one process-data frame (it comes back with the inputs,
+        which :meth:`receive` reads)."""
         master = self.master
         slaves = master.slaves
         for i, data in enumerate(self._outputs):
             if data:
                 slaves[i].output = bytes(data)
         master.send_processdata()
+
+    def receive(self) -> int:
+        """Receive the frame :meth:`send` sent and read its inputs; return the working
+        counter (inputs are only taken from a complete frame)."""
+        master = self.master
         wkc = master.receive_processdata(self.receive_timeout_us)
         if wkc == self.expected_wkc:
+            slaves = master.slaves
             for i in range(len(self._inputs)):
                 self._inputs[i] = slaves[i].input
         return wkc
+
+    def exchange(self) -> int:
+        """:meth:`send` then :meth:`receive` (bring-up and shut-down); returns the WKC."""
+        self.send()
+        return self.receive()
 
     # --- shut-down -----------------------------------------------------------------------
     def to_init(self) -> bool:

@@ -75,8 +75,7 @@ def chirp_experiment(plant=None, dahl=None, sensors=None, amplitude=0.3, start_f
                                motor_coulomb=motor_coulomb)
         config = ControllerConfig(mode="chirp", plant=plant, chirp_amplitude=amplitude,
                                   chirp_start_frequency=start_frequency,
-                                  chirp_end_frequency=end_frequency, chirp_duration=duration,
-                                  torque_saturation=max(5.0, 2 * amplitude))
+                                  chirp_end_frequency=end_frequency, chirp_duration=duration)
         rec = run_closed_loop(sim, ChannelController(config, dt), n)
     else:
         raise ValueError(f"excitation must be 'external' or 'motor', not {excitation!r}")

@@ -75,4 +75,5 @@ def sample_messages():
     status.feedforward = [0.0, 5.5]
     status.endpoint_velocity_estimate = [-1.0, float('nan')]
     status.dahl_force = [0.032, -0.031999]
+    status.fault = ['', 'torque 7.5 N m beyond max_torque 5 N m']
     return {'actuator_state': state, 'actuator_command': command, 'controller_status': status}
