@@ -42,6 +42,13 @@ sys.path.insert(0, str(ROOT))
 LIB = ROOT / 'install' / 'seaforce_ros' / 'lib' / 'seaforce_ros'
 CONFIG = ROOT / 'config' / 'gripper.yaml'
 
+def start_hogs():
+    """One busy-looping process per core (normal priority); end them with _stop()."""
+    return [subprocess.Popen([sys.executable, '-c', 'while True: pass'],
+                             stdin=subprocess.DEVNULL, start_new_session=True)
+            for _ in range(os.cpu_count() or 1)]
+
+
 def cpu_seconds(pid):
     try:
         fields = pathlib.Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
@@ -89,7 +96,8 @@ def _stop(procs):
 def start_scenario(layout, executor, qos, rate, workdir, prefix=()):
     """Start the benchmark scenario: sim_node (realtime, pinch backdriven 0.5 rad at 1 rad/s)
     and controller_node (pinch dob_full_ff, wrist dob) as separate processes ('sim', 'ctl'),
-    or composed in bringup ('both'). Returns {name: Popen}."""
+    or composed in bringup ('both'; layout 'direct': bringup loop:=direct). Returns
+    {name: Popen}."""
     overrides = workdir / f'{layout}-{executor}-{qos}-{rate:.0f}-{len(prefix)}.yaml'
     # node-specific sections: they take precedence over gripper.yaml's sim/controller ones
     common = (f'    executor: {executor}\n    control_qos: {qos}\n    rate: {rate}\n')
@@ -97,7 +105,8 @@ def start_scenario(layout, executor, qos, rate, workdir, prefix=()):
         'sim:\n  ros__parameters:\n' + common
         + '    pinch.environment.mode: position_sine\n    pinch.environment.amplitude: 0.5\n'
         'controller:\n  ros__parameters:\n' + common
-        + '    pinch.mode: dob_full_ff\n    wrist.mode: dob\n    state_timeout: 1.0\n')
+        + '    pinch.mode: dob_full_ff\n    wrist.mode: dob\n    state_timeout: 1.0\n'
+        + ('    loop: direct\n' if layout == 'direct' else ''))
     args = ['--ros-args', '--params-file', str(CONFIG), '--params-file', str(overrides)]
     if layout == 'separate':
         argvs = {'sim': [str(LIB / 'sim_node')] + args,
@@ -137,6 +146,8 @@ def run_nodes(layout, executor, qos, rate, seconds, workdir, prefix=()):
         'rtt_p50_ms': statistics.median(f('round_trip_p50_ms') or [float('nan')]),
         'rtt_p99_ms': statistics.median(f('round_trip_p99_ms') or [float('nan')]),
         'timeouts': int(sim[-1]['command_timeouts']) - int(sim[0]['command_timeouts']),
+        'period_p99_ms': statistics.median(f('period_p99_ms') or [float('nan')]),
+        'period_max_ms': max(f('period_max_ms') or [float('nan')]),
         'cpu': {k: 100.0 * (c1[k] - c0[k]) / (t1 - t0) for k in procs},
     }
 
@@ -183,6 +194,8 @@ def combine(parts):
             'rtt_p50_ms': statistics.median(p['rtt_p50_ms'] for p in parts),
             'rtt_p99_ms': statistics.median(p['rtt_p99_ms'] for p in parts),
             'timeouts': sum(p['timeouts'] for p in parts), 'cpu': cpu,
+            'period_p99_ms': statistics.median(p.get('period_p99_ms', float('nan'))
+                                               for p in parts),
             'rounds_p50': [p['rtt_p50_ms'] for p in parts]}
 
 
@@ -200,6 +213,8 @@ def main():
                         help='lower rates [Hz] tried for bare echo and nodes (events)')
     parser.add_argument('--fifo-priority', type=int, default=40,
                         help='SCHED_FIFO priority of the "rt" rows (chrt -f)')
+    parser.add_argument('--only-direct', action='store_true',
+                        help='only the direct-layout rows (quiet and with a CPU hog per core)')
     args = parser.parse_args()
     if not (LIB / 'bringup').exists():
         sys.exit('install/ is missing: run `source scripts/setup.sh` first')
@@ -211,7 +226,19 @@ def main():
         # main rows: each variant's time is split into rounds, run interleaved (bare, nodes,
         # bare, nodes, ...), so that the host's slow drifts hit both sides of the ratio alike
         chunk = args.seconds / args.rounds
-        for executor in ('events', 'single_threaded'):
+        fifo = ['chrt', '-f', str(args.fifo_priority)]
+        # the direct layout (bringup loop:=direct): the sim's cycle thread calls the controller
+        for hog in (False, True):
+            tag = ', a CPU hog per core' if hog else ''
+            print(f'[bench] direct / events / 2000 Hz / SCHED_FIFO{tag}: {args.seconds:.0f} s',
+                  flush=True)
+            hogs = start_hogs() if hog else []
+            try:
+                r = run_nodes('direct', 'events', 'reliable', 2000.0, args.seconds, tmp, fifo)
+            finally:
+                _stop(hogs)
+            runs.append(('direct rt' + (' hog' if hog else ''), 'events', 'reliable', 2000.0, r))
+        for executor in (() if args.only_direct else ('events', 'single_threaded')):
             parts = {'bare echo': [], 'nodes': []}
             for round_ in range(args.rounds):
                 for kind in (('bare echo', 'nodes') if round_ % 2 == 0 else ('nodes', 'bare echo')):
@@ -223,8 +250,7 @@ def main():
                         parts[kind].append(r)
             for kind in ('bare echo', 'nodes'):
                 runs.append((kind, executor, 'reliable', 2000.0, combine(parts[kind])))
-        if not args.no_extras:
-            fifo = ['chrt', '-f', str(args.fifo_priority)]
+        if not (args.no_extras or args.only_direct):
             extras = [('nodes', 'events', 'best_effort', 2000.0, 'separate', ()),
                       ('composed', 'events', 'reliable', 2000.0, 'composed', ()),
                       ('nodes', 'events', 'reliable', 2000.0, 'separate', fifo),
@@ -244,21 +270,21 @@ def main():
                 runs.append((kind + (' rt' if prefix else ''), executor, qos, rate, r))
     bare = {(k.endswith(' rt'), e, q, rt): r
             for k, e, q, rt, r in runs if k.startswith('bare echo') and r}
-    print(f'\n{"what":13s}{"executor":16s}{"qos":12s}{"target":>7s}{"rate Hz":>9s}'
-          f'{"in time":>9s}{"rtt p50":>9s}{"rtt p99":>9s}{"vs bare":>8s}{"timeouts":>9s}'
-          '  CPU % per process')
+    print(f'\n{"what":16s}{"executor":16s}{"qos":12s}{"target":>7s}{"rate Hz":>9s}'
+          f'{"in time":>9s}{"per p99":>8s}{"rtt p50":>9s}{"rtt p99":>9s}{"vs bare":>8s}'
+          f'{"timeouts":>9s}  CPU % per process')
     for kind, executor, qos, rate, r in runs:
         if r is None:
-            print(f'{kind:13s}{executor:16s}{qos:12s}{rate:7.0f}  no figures (see logs)')
+            print(f'{kind:16s}{executor:16s}{qos:12s}{rate:7.0f}  no figures (see logs)')
             continue
-        rt = kind.endswith(' rt')
+        rt = ' rt' in kind
         ref = bare.get((rt, executor, qos, rate)) or bare.get((rt, executor, 'reliable', rate))
         ratio = (r['rtt_p50_ms'] / ref['rtt_p50_ms'] if ref and not kind.startswith('bare')
                  else float('nan'))
         cpu = ' '.join(f'{k}={v:.0f}' for k, v in r['cpu'].items())
-        print(f'{kind:13s}{executor:16s}{qos:12s}{rate:7.0f}{r["rate"]:9.0f}'
-              f'{100 * r["in_time"]:8.1f}%{r["rtt_p50_ms"]:9.3f}{r["rtt_p99_ms"]:9.2f}'
-              f'{ratio:8.2f}{r["timeouts"]:9d}  {cpu}')
+        print(f'{kind:16s}{executor:16s}{qos:12s}{rate:7.0f}{r["rate"]:9.0f}'
+              f'{100 * r["in_time"]:8.2f}%{r.get("period_p99_ms", float("nan")):8.3f}'
+              f'{r["rtt_p50_ms"]:9.3f}{r["rtt_p99_ms"]:9.2f}{ratio:8.2f}{r["timeouts"]:9d}  {cpu}')
     for kind, executor, qos, rate, r in runs:
         if r and 'rounds_p50' in r:
             print(f'rtt p50 per round, {kind} / {executor}: '
@@ -269,10 +295,13 @@ def main():
                 and r['in_time'] >= 0.99 and r['rate'] >= 0.98 * rate]
         print(f'highest rate with >= 99 % of commands in time, {what} (events, reliable): '
               + (f'{max(held):.0f} Hz' if held else 'none of those tried'))
-    print('\nin time: the command answering state k arrived before cycle k+1 started; '
-          'rtt: state k published -> its command received [ms]; vs bare: rtt p50 / that of '
-          'the bare echo pair with the same executor (and priority), measured in this run; '
-          'timeouts: command watchdog trips (10 ms); rt: both processes SCHED_FIFO.')
+    print('\nin time: the command answering state k arrived before cycle k+1 started (direct: '
+          'the torque of cycle k+1 was computed from state k); per p99: the plant\'s cycle '
+          'period p99 [ms]; rtt: state k published -> its command received [ms] (direct: '
+          'cycle start -> command computed); vs bare: rtt p50 / that of the bare echo pair with '
+          'the same executor (and priority), measured in this run; timeouts: command watchdog '
+          'trips (10 ms); rt: SCHED_FIFO; hog: a CPU-burning process per core, normal '
+          'priority.')
 
 
 if __name__ == '__main__':

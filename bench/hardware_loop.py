@@ -31,7 +31,8 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / 'test'))
 sys.path.insert(0, str(ROOT / 'bench'))
 
-from control_loop import CONFIG, LIB, DiagnosticsListener, _stop, cpu_seconds  # noqa: E402
+from control_loop import (CONFIG, LIB, DiagnosticsListener, _stop, cpu_seconds,  # noqa: E402
+                          start_hogs)
 
 BUS = ROOT / 'test' / 'data' / 'bus_emulated.yaml'
 
@@ -76,10 +77,7 @@ def main():
     parser.add_argument('--hog', action='store_true',
                         help='one CPU-burning process per core (normal priority) meanwhile')
     args = parser.parse_args()
-    hogs = []
-    if args.hog:
-        hogs = [subprocess.Popen([sys.executable, '-c', 'while True: pass'],
-                                 start_new_session=True) for _ in range(os.cpu_count() or 1)]
+    hogs = start_hogs() if args.hog else []
     try:
         run(args)
     finally:

@@ -76,6 +76,13 @@ def plant_specs(torque_limit=5.0):
 _LIMIT_PARAMS = ('command_timeout', 'torque_limit', 'max_velocity', 'wkc_error_limit')
 
 
+def _node_label(info):
+    """'/namespace/node' of a graph endpoint (DDS knows the endpoint before its node's name)."""
+    if info.node_name == '_NODE_NAME_UNKNOWN_':
+        return '(a node not yet discovered)'
+    return f'{info.node_namespace.rstrip("/")}/{info.node_name}'
+
+
 def _raise_thread_priority(logger):
     """Under SCHED_FIFO (``chrt -f P``, as on a rig), run the calling thread one priority above
     the process's other threads (DDS, executor, publisher), so that they never delay a cycle
@@ -198,8 +205,7 @@ class PlantNode(Node):
     @shutdown_safe
     def _watch_graph(self):
         infos = self.get_publishers_info_by_topic(self._command_topic)
-        self.plant.set_publishers(
-            sorted(f'{i.node_namespace.rstrip("/")}/{i.node_name}' for i in infos))
+        self.plant.set_publishers(sorted(_node_label(i) for i in infos))
 
     # --- the cycle ------------------------------------------------------------------------------
     def _cycle_loop(self):

@@ -102,7 +102,8 @@ def test_zwidth_from_backdrive_bags_matches_direct_computation(tmp_path, capsys)
             status = store.serialize_cdr(S(header=H(stamp=T(sec=0, nanosec=0), frame_id=""),
                                            cycle=0, name=["pinch"], mode=["hold"],
                                            disturbance=one, feedforward=one,
-                                           endpoint_velocity_estimate=one, dahl_force=one),
+                                           endpoint_velocity_estimate=one, dahl_force=one,
+                                           fault=[""]),
                                          "seaforce_msgs/msg/ControllerStatus")
             w.write(c_status, 0, status)
             for i in range(n):

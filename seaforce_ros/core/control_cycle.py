@@ -35,7 +35,10 @@ a *re-arming* condition gives zero torque while it holds and re-initialises the 
 the plant's present state on the next clean sample. Either way the channel restarts
 bumplessly: its first torque after a reset, a re-arm, a plant restart or a plant-side stop
 (``STATUS_COMMAND_TIMEOUT``/``STATUS_FAULT``) equals the torque the plant reports it applies
-(``motor_effort``): ``hold`` re-captures its target, the DOB integrator starts from it.
+(``motor_effort``), and the DOB integrator starts from it. ``hold`` re-captures its target
+where the finger is after a reset, a re-arm, a restart or a plant-side stop longer than
+``state_timeout``; after a shorter stop it returns to its target through a 50 ms ramp (a
+ratchet otherwise: a loaded finger would give way a little at every blip).
 
 While a channel is faulted its estimators keep running on valid samples, so
 ``controller_status`` shows live values.
@@ -166,6 +169,7 @@ class ControlCycle:
         self._latched = [""] * n           # latched fault reason per channel
         self._rearming = [""] * n          # re-arming condition holding this sample
         self._needs_reset = [True] * n     # full re-initialisation at the next clean sample
+        self._stopped = [0] * n            # cycles the plant has been applying fai, not ours
         self._stream_ep = Episode(self.events, quiet_period)
         self._channel_ep = [Episode(self.events, quiet_period) for _ in range(n)]
         self._drop_ep = Episode(self.events, quiet_period)
@@ -337,9 +341,18 @@ class ControlCycle:
                 continue
             if self._needs_reset[i]:
                 self._needs_reset[i] = False
+                self._stopped[i] = 0
                 ctrl.reset(fai)
             elif status[j] & _PLANT_STOPPED:
-                ctrl.reenter(fai)
+                # the plant applies fai instead of our torque: follow it (no windup); a brief
+                # stop keeps the targets, a longer one than state_timeout re-captures them
+                self._stopped[i] += steps
+                if self._stopped[i] > self._gap_cycles:
+                    ctrl.reset(fai)
+                else:
+                    ctrl.reenter(fai)
+            else:
+                self._stopped[i] = 0
             if self._rearming[i]:
                 self._rearming[i] = ""
                 self._channel_ep[i].end(now, f"{self.channels[i]}: re-armed from the plant's "

@@ -60,7 +60,8 @@ from .params import ControllerConfig, DOB_MODES
 
 __all__ = ["ChannelController"]
 
-_BUMP_TAU = 0.05      # s, decay of the force-feedback transfer offset
+_BUMP_TAU = 0.05      # s, decay of the force-feedback and hold transfer offsets
+_ENTER, _REENTER = 2, 1   # pending entry into the mode: full (targets captured) / re-entry
 _CHIRP_FADE = 0.05    # s, raised-cosine fade of the chirp envelope
 
 
@@ -175,18 +176,22 @@ class ChannelController:
         self._e_prev = 0.0
         self._x0 = 0.0
         self._bias = 0.0
+        self._transfer = 0.0
         self._t_mode = 0.0
-        self._enter = True
+        self._enter = _ENTER
 
     def reenter(self, applied_torque):
-        """Re-enter the mode at the next :meth:`update` from ``applied_torque`` [N m] (the
-        plant zeroed or replaced the torque: watchdog, fault), keeping the estimators (hose
-        inversion, Dahl state) running. The next output equals ``applied_torque``: the DOB
-        integrator starts from it (no windup), ``hold`` re-captures its target where the
-        finger is now (after an interruption the finger never moves by itself back to an
-        old target), ``impedance`` its rest position."""
+        """Continue the mode at the next :meth:`update` from ``applied_torque`` [N m]: the
+        plant zeroed or replaced the torque for a moment (a command timeout). The estimators
+        (hose inversion, Dahl state) and the mode's targets are kept; the next output equals
+        ``applied_torque``. The DOB integrator starts from it (no windup) and returns to its
+        equilibrium within ~1/lambda; ``hold`` returns to its target through a transfer
+        offset that decays in 50 ms: no step, and a finger under load is not pushed away a
+        little more at every blip. After a longer interruption use :meth:`reset`, which
+        re-captures the targets where the finger is."""
         self.torque = float(applied_torque)
-        self._enter = True
+        if self._enter != _ENTER:
+            self._enter = _REENTER
 
     # --- per sample -------------------------------------------------------------
     def update(self, x, v, f_p, steps=1):
@@ -211,7 +216,7 @@ class ChannelController:
         if self._pending is not None:
             self._apply_config(self._pending)
             self._pending = None
-            self._enter = True
+            self._enter = _ENTER
 
         # hose inversion: delta = F_p/(b_s s + k_s), exact FOH
         if self._first:
@@ -244,8 +249,9 @@ class ChannelController:
         self.feedforward = fcmp + fd
 
         mode = self.mode
-        enter = self._enter
-        self._enter = False
+        enter = self._enter == _ENTER
+        reenter = self._enter == _REENTER
+        self._enter = 0
         u_prev = self.torque
         if self._dob_mode:
             if mode == "dob":
@@ -261,7 +267,7 @@ class ChannelController:
             e = f_ref + f_p - self._kn * x
             lam_h = self._lam_half_dt * steps
             ramp = self._lam_mn * v + self._lam_bn * x
-            if enter:
+            if enter or reenter:
                 # bumpless: choose I_{k-1} so that this output equals u_prev
                 self._integ = u_prev - f_ref + ramp - 2.0 * lam_h * e
                 self._e_prev = e
@@ -280,15 +286,21 @@ class ChannelController:
             if enter:
                 self._x0 = x
                 self._bias = u_prev + self._kd * v
+                self._transfer = 0.0
             u = self._bias - self._kp * (x - self._x0) - self._kd * v
+            if reenter:
+                self._transfer = u_prev - u
+            elif self._transfer:
+                self._transfer *= self._bump_decay if steps == 1 else self._bump_decay ** steps
+            u += self._transfer
         elif mode == "force_feedback":
-            if enter:
+            if enter or reenter:
                 self._bias = u_prev - self._kf * f_p
             else:
                 self._bias *= self._bump_decay if steps == 1 else self._bump_decay ** steps
             u = self._kf * f_p + self._bias
         else:   # chirp
-            if enter:
+            if enter or reenter:
                 self._bias = u_prev
                 self._t_mode = 0.0
             else:

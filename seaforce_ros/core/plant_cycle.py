@@ -223,8 +223,11 @@ class PlantCycle:
 
     @property
     def conflict(self):
-        """The latched conflict, else the graph's second publisher, else ''."""
+        """The latched conflict (with the publishers the graph lists now), else the graph's
+        second publisher, else ''."""
         if self._conflict:
+            if self._publishers:
+                return f"{self._conflict}; publishers now: {', '.join(self._publishers)}"
             return self._conflict
         if len(self._publishers) > 1:
             return (f"{len(self._publishers)} publishers of actuator_command: "

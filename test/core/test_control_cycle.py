@@ -238,19 +238,28 @@ def test_repeated_state_gets_the_same_answer():
 
 @pytest.mark.parametrize('bits', [STATUS_COMMAND_TIMEOUT, STATUS_FAULT])
 def test_plant_side_stop_makes_the_channel_follow_the_applied_torque(bits):
-    """While the plant reports it zeroed a channel, the controller re-enters from the applied
-    torque each sample: when the plant takes commands again there is no step, and hold holds
-    where the finger is now (no windup, no return to the old target)."""
-    cc, feed = make(('dob', 'hold'))
-    feed.state(fp=(0.2, 0.0))
-    for _ in range(100):
-        effort, _ = feed.state(fp=(0.2, 0.0), x=(0.0, 0.005))
-    assert abs(effort[0]) > 0.1 and effort[1] < -0.5
-    for _ in range(100):
-        effort, _ = feed.state(fp=(0.2, 0.0), x=(0.0, 0.3), fa=(0.0, 0.0), status=(bits, bits))
-        assert effort == pytest.approx([0.0, 0.0], abs=1e-12)
-    effort, _ = feed.state(fp=(0.2, 0.0), x=(0.0, 0.3))
-    assert abs(effort[0]) < 0.05 and abs(effort[1]) < 0.05
+    """While the plant reports it zeroed a channel, the controller follows the applied torque
+    (no windup) and resumes without a step: after a brief stop hold ramps back to its target,
+    after one longer than state_timeout it holds where the finger is now."""
+    for stop, recaptured in ((10, False), (300, True)):
+        cc, feed = make(('dob', 'hold'))
+        feed.state(fp=(0.2, 0.0))
+        for _ in range(100):
+            effort, _ = feed.state(fp=(0.2, 0.0), x=(0.0, 0.005))
+        held = effort[1]
+        assert abs(effort[0]) > 0.1 and held < -0.5
+        for _ in range(stop):
+            effort, _ = feed.state(fp=(0.2, 0.0), x=(0.0, 0.006), fa=(0.0, 0.0),
+                                   status=(bits, bits))
+            assert effort == pytest.approx([0.0, 0.0], abs=1e-12)
+        resumed = [feed.state(fp=(0.2, 0.0), x=(0.0, 0.006))[0] for _ in range(400)]
+        assert abs(resumed[0][0]) < 0.05 and abs(resumed[0][1]) < 0.05
+        steps = [abs(a[1] - b[1]) for a, b in zip(resumed, resumed[1:])]
+        assert max(steps) < 0.05                               # a ramp, not a step
+        if recaptured:
+            assert resumed[-1][1] == pytest.approx(0.0, abs=1e-9)
+        else:                                                  # K_p (0.006 - 0) N m
+            assert resumed[-1][1] == pytest.approx(held - 150.0 * 0.001, rel=0.05)
 
 
 def test_new_checks_take_effect_at_the_next_step():
