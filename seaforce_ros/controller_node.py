@@ -39,11 +39,10 @@ from std_srvs.srv import Trigger
 from . import param_specs as ps
 from .core.control_cycle import DEFAULT_LATCHED, FAULT_KINDS, ControlCycle, StateChecks
 from .core.controller import ChannelController
-from .core.episodes import ERROR, WARNING
 from .core.errors import SeaforceError
 from .core.params import ControllerConfig
 from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
-                         declare, diagnostic_status, diagnostics_publisher,
+                         declare, diagnostic_status, diagnostics_publisher, log_events,
                          publish_diagnostics, run, shutdown_safe)
 from .timing import LoopStats
 
@@ -214,11 +213,8 @@ class ControllerNode(Node):
     @shutdown_safe
     def _on_state(self, msg):
         """(topics layout) One state in, one command out."""
-        t0 = time.perf_counter()
-        self.stats.tick()
-        self._states += 1
         stamp = msg.header.stamp
-        out = self.cycle.step(msg.name, msg.cycle, stamp.sec * 1_000_000_000 + stamp.nanosec,
+        out = self._run_cycle(msg.name, msg.cycle, stamp.sec * 1_000_000_000 + stamp.nanosec,
                               msg.motor_position, msg.motor_velocity, msg.pressure_force,
                               msg.motor_effort, msg.status, time.time_ns(), time.monotonic())
         if out.answered:
@@ -229,12 +225,6 @@ class ControllerNode(Node):
             self.cmd_pub.publish(cmd)
             if self._status_every and msg.cycle % self._status_every == 0:
                 self._publish_status(self._status_values(), msg.cycle, stamp)
-        if self.cycle.events:
-            self._log_events()
-        elapsed = time.perf_counter() - t0
-        self._compute_sum += elapsed
-        if elapsed > self._compute_max:
-            self._compute_max = elapsed
 
     def direct_port(self):
         """The controller's cycle for a plant's cycle thread (direct layout)."""
@@ -255,15 +245,19 @@ class ControllerNode(Node):
          s.fault) = values
         self.status_pub.publish(s)
 
-    def _log_events(self):
-        logger = self.get_logger()
-        for severity, text in self.cycle.events.drain():
-            if severity == ERROR:
-                logger.error(text)
-            elif severity == WARNING:
-                logger.warning(text)
-            else:
-                logger.info(text)
+    def _run_cycle(self, names, cycle, stamp_ns, x, v, f_p, f_a, status, now_ns, now):
+        """ControlCycle.step, timed, its reports logged (both layouts)."""
+        t0 = time.perf_counter()
+        self.stats.tick(now)
+        self._states += 1
+        out = self.cycle.step(names, cycle, stamp_ns, x, v, f_p, f_a, status, now_ns, now)
+        if self.cycle.events:
+            log_events(self.get_logger(), self.cycle.events.drain())
+        elapsed = time.perf_counter() - t0
+        self._compute_sum += elapsed
+        if elapsed > self._compute_max:
+            self._compute_max = elapsed
+        return out
 
     # --- faults --------------------------------------------------------------------------
     def _on_reset(self, request, response):
@@ -309,9 +303,9 @@ class DirectPort:
 
     :meth:`step` runs :class:`ControlCycle` on the plant's fresh sample and returns
     ``(efforts, status)`` (new lists the plant keeps; ``status`` only every ``status_rate``)
-    or None when the state was dropped; :meth:`publish`, on the plant's publisher thread,
-    publishes the ``actuator_command`` (and ``controller_status``) of that cycle, so
-    recorders and observers see the same topics as with separate processes.
+    or None when the state was dropped; :meth:`publish`, on the plant's cycle thread after it
+    wrote the torque, publishes the ``actuator_command`` (and ``controller_status``) of that
+    cycle, so recorders and observers see the same topics as with separate processes.
     """
 
     def __init__(self, node: ControllerNode):
@@ -321,16 +315,7 @@ class DirectPort:
 
     def step(self, names, cycle, stamp_ns, x, v, f_p, f_a, status, now_ns, now):
         node = self._node
-        t0 = time.perf_counter()
-        node.stats.tick(now)
-        node._states += 1
-        out = node.cycle.step(names, cycle, stamp_ns, x, v, f_p, f_a, status, now_ns, now)
-        if node.cycle.events:
-            node._log_events()
-        elapsed = time.perf_counter() - t0
-        node._compute_sum += elapsed
-        if elapsed > node._compute_max:
-            node._compute_max = elapsed
+        out = node._run_cycle(names, cycle, stamp_ns, x, v, f_p, f_a, status, now_ns, now)
         if not out.answered:
             return None
         every = node._status_every

@@ -3,21 +3,20 @@
 :class:`PlantNode` owns the parts of a plant node that are not about the plant itself:
 
 * the cycle (:meth:`PlantNode.run_cycle`): the subclass reads the plant (``_read`` /
-  ``_sample``), the sample goes to the publisher thread (in the direct layout the
-  controller's cycle is called right there, on the cycle thread),
+  ``_sample``), the sample is published (in the direct layout the controller's cycle is called
+  right there, on the cycle thread),
   :class:`~seaforce_ros.core.plant_cycle.PlantCycle` decides the torques and the subclass
   writes them (``_write``): ros2_control's read / update / write;
 * the ``actuator_command`` subscription (commands are only handed to PlantCycle), the graph
   watch for a second command publisher, ``~/reset``, the run-time parameters;
-* a publisher thread for ``actuator_state`` / ``joint_states`` (and, in the direct layout,
-  the controller's ``actuator_command`` / ``controller_status``): a reliable DDS writer can
-  block for up to 100 ms when a subscriber lags, which must never hold up the cycle;
+* publishing ``actuator_state`` / ``joint_states`` (and, in the direct layout, the
+  controller's ``actuator_command`` / ``controller_status``) from the cycle;
 * the log lines PlantCycle reports (once per episode, throttled) and the common
   ``/diagnostics`` figures.
 """
 from __future__ import annotations
 
-import collections
+import gc
 import os
 import sys
 import threading
@@ -30,11 +29,10 @@ from seaforce_msgs.msg import ActuatorCommand, ActuatorState
 from std_srvs.srv import Trigger
 
 from . import param_specs as ps
-from .core.episodes import ERROR, WARNING
 from .core.plant_cycle import PlantCycle, PlantLimits
 from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
-                         declare, diagnostic_status, diagnostics_publisher, publish_diagnostics,
-                         shutdown_safe)
+                         declare, diagnostic_status, diagnostics_publisher, log_events,
+                         publish_diagnostics, shutdown_safe)
 from .timing import BusyTime, CommandTiming, Deadline, LoopStats
 
 NAN = float('nan')
@@ -129,7 +127,6 @@ class PlantNode(Node):
         self.timing = CommandTiming()
         self._running = False
         self._thread = None
-        self._publisher = None
         self._velocity = [0.0] * len(self.channels)
 
     # --- construction (subclasses call these) -------------------------------------------------
@@ -145,7 +142,7 @@ class PlantNode(Node):
         return PlantLimits(**kwargs)
 
     def _start_plant(self):
-        """Publishers, subscription, services, timers and the publisher thread."""
+        """Publishers, subscription, services and timers."""
         qos = self.values['control_qos']
         self._state_msg = ActuatorState()
         self._state_msg.name = list(self.channels)
@@ -164,12 +161,6 @@ class PlantNode(Node):
         self.add_post_set_parameters_callback(self._apply_parameters)
         self.create_timer(self.values['diagnostics_period'], self._publish_diagnostics)
         self.create_timer(GRAPH_PERIOD, self._watch_graph)
-        self._outbox = collections.deque(maxlen=4096)
-        self._outbox_ready = threading.Event()
-        self._publishing = True
-        self._publisher = threading.Thread(target=self._publisher_loop, name='state_publisher',
-                                           daemon=True)
-        self._publisher.start()
 
     def _start_cycle_thread(self):
         self._running = True
@@ -210,6 +201,9 @@ class PlantNode(Node):
     # --- the cycle ------------------------------------------------------------------------------
     def _cycle_loop(self):
         _raise_thread_priority(self.get_logger())
+        # everything built so far (nodes, messages, rclpy) is long-lived: keep it out of the
+        # collector's generations, so a full collection during the cycle stays short
+        gc.freeze()
         deadline = Deadline(self.dt)
         try:
             while self._running:
@@ -224,37 +218,44 @@ class PlantNode(Node):
             self._running = False
 
     def run_cycle(self, now):
-        """One realtime cycle at monotonic time ``now``: read the plant and publish the sample
-        (direct layout: and run the controller on it), then decide the torques and write
-        them. Reading first lets a bus frame sent at the end of a cycle come back during the
-        sleep instead of being waited for (ros2_control's read / update / write)."""
+        """One realtime cycle at monotonic time ``now``: read the plant, then decide the
+        torques and write them (ros2_control's read / update / write). Reading first lets a
+        bus frame sent at the end of a cycle come back during the sleep instead of being
+        waited for. The sample is published at once for a controller in another process; in
+        the direct layout the controller runs on it right here, and the state and its
+        command are published after the write."""
         self.stats.tick(now)
-        self._read_and_publish(now)
+        sample = self._read_sample(now)
         self._decide_and_write(now, answered=self.plant.cycle - (self._direct is None))
+        if sample is not None and self._direct is not None:
+            self._publish(*sample)
         if self.plant.events:
-            self._log_events(self.plant.events.drain())
+            log_events(self.get_logger(), self.plant.events.drain())
 
-    def _read_and_publish(self, now):
+    def _read_sample(self, now):
+        """Read the plant into a new sample; topics layout: publish it, direct layout: run the
+        controller on it. Returns ``(cycle, stamp_ns, sample, command)`` or None (no
+        fresh sample: a lost frame)."""
         plant = self.plant
         if not self._read():
-            return
+            return None
         cycle = plant.state_published()
         stamp_ns = time.time_ns()
         sample = self._new_sample()
         self._sample(plant.out, sample)
         x, v, fp, fa, xe, fe, status = sample
         self._velocity = v
-        command = None
-        if self._direct is not None:
-            command = self._direct.step(self.channels, cycle, stamp_ns, x, v, fp, fa, status,
-                                        stamp_ns, now)
-            if command is not None:
-                t = time.monotonic()
-                self.timing.on_publish(cycle, now)
-                plant.command(self.channels, command[0], cycle)
-                self.timing.on_command(cycle, cycle, t)
-        self._outbox.append((cycle, stamp_ns, sample, command))
-        self._outbox_ready.set()
+        if self._direct is None:
+            self._publish(cycle, stamp_ns, sample, None)
+            return None
+        command = self._direct.step(self.channels, cycle, stamp_ns, x, v, fp, fa, status,
+                                    stamp_ns, now)
+        if command is not None:
+            t = time.monotonic()
+            self.timing.on_publish(cycle, now)
+            plant.command(self.channels, command[0], cycle)
+            self.timing.on_command(cycle, cycle, t)
+        return cycle, stamp_ns, sample, command
 
     def _decide_and_write(self, now, answered):
         """PlantCycle decides from the commands received so far; the plant applies it.
@@ -274,48 +275,34 @@ class PlantNode(Node):
         """Per channel (torque_allowed, faulted) of the drives; None: no drives (simulation)."""
         return None
 
-    def _log_events(self, events):
-        logger = self.get_logger()
-        for severity, text in events:
-            if severity == ERROR:
-                logger.error(text)
-            elif severity == WARNING:
-                logger.warning(text)
-            else:
-                logger.info(text)
 
-    # --- publishing (publisher thread) ----------------------------------------------------------
-    def _publisher_loop(self):
-        outbox, ready = self._outbox, self._outbox_ready
-        msg, js = self._state_msg, self._js_msg
-        direct = self._direct
-        n = len(self.channels)
-        try:
-            while self._publishing:
-                ready.wait(0.1)
-                ready.clear()
-                while outbox:
-                    cycle, stamp_ns, sample, command = outbox.popleft()
-                    x, v, fp, fa, xe, fe, status = sample
-                    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 10**9)
-                    msg.cycle = cycle
-                    msg.motor_position, msg.motor_velocity, msg.pressure_force = x, v, fp
-                    msg.motor_effort, msg.endpoint_position = fa, xe
-                    msg.external_force, msg.status = fe, status
-                    if direct is None:
-                        self.timing.on_publish(cycle, time.monotonic())
-                    self.state_pub.publish(msg)
-                    if command is not None:
-                        direct.publish(cycle, msg.header.stamp, command)
-                    if self._js_every and cycle % self._js_every == 0:
-                        js.header.stamp = msg.header.stamp
-                        js.position = [val for i in range(n) for val in (x[i], xe[i])]
-                        js.velocity = [val for i in range(n) for val in (v[i], self._ve(i))]
-                        js.effort = [val for i in range(n) for val in (fa[i], fe[i])]
-                        self.js_pub.publish(js)
-        except Exception as exc:
-            if self._publishing and self.context.ok():
-                self.get_logger().fatal(f'state publisher stopped: {exc!r}')
+    # --- publishing -----------------------------------------------------------------------------
+    def _publish(self, cycle, stamp_ns, sample, command):
+        """Publish one sample (and, direct layout, the controller's command for it); every
+        ``joint_state_rate`` also as sensor_msgs/JointState. In the cycle thread: rclpy's
+        publish() holds the GIL, so a thread of its own would not keep a publish that blocks
+        (a subscriber descheduled mid-receive holds Fast DDS's shared-memory lock) from
+        stalling the cycle, and it added a hand-over to every sample."""
+        msg = self._state_msg
+        x, v, fp, fa, xe, fe, status = sample
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 10**9)
+        msg.cycle = cycle
+        msg.motor_position, msg.motor_velocity, msg.pressure_force = x, v, fp
+        msg.motor_effort, msg.endpoint_position = fa, xe
+        msg.external_force, msg.status = fe, status
+        if command is None:
+            self.timing.on_publish(cycle, time.monotonic())
+        self.state_pub.publish(msg)
+        if command is not None:
+            self._direct.publish(cycle, msg.header.stamp, command)
+        if self._js_every and cycle % self._js_every == 0:
+            n = len(self.channels)
+            js = self._js_msg
+            js.header.stamp = msg.header.stamp
+            js.position = [val for i in range(n) for val in (x[i], xe[i])]
+            js.velocity = [val for i in range(n) for val in (v[i], self._ve(i))]
+            js.effort = [val for i in range(n) for val in (fa[i], fe[i])]
+            self.js_pub.publish(js)
 
     def _ve(self, i):
         """Endpoint velocity of channel ``i`` for joint_states (NaN where not measured)."""
@@ -380,7 +367,3 @@ class PlantNode(Node):
         self._running = False
         if self._thread is not None:
             self._thread.join(timeout=1.0)
-        self._publishing = False
-        if self._publisher is not None:
-            self._outbox_ready.set()
-            self._publisher.join(timeout=1.0)

@@ -22,6 +22,8 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
+from .core.episodes import ERROR, WARNING
+
 #: Control-rate topics (actuator_state, actuator_command), publisher side: reliable (lockstep
 #: simulation advances one sample per command and must never lose a step), and a history of
 #: 1000 samples (0.5 s at 2 kHz) so that a recorder stalled by a slow disk still gets every sample.
@@ -137,6 +139,18 @@ def declare(node, specs: Iterable[ParamSpec]) -> Dict[str, Any]:
             raise StartupError(reason)
         values[spec.name] = value
     return values
+
+
+def log_events(logger, events) -> None:
+    """Pass the core's ``(severity, text)`` reports (:mod:`seaforce_ros.core.episodes`) to a
+    ROS logger."""
+    for severity, text in events:
+        if severity == ERROR:
+            logger.error(text)
+        elif severity == WARNING:
+            logger.warning(text)
+        else:
+            logger.info(text)
 
 
 def stamp_now(stamp) -> int:

@@ -34,7 +34,7 @@ from .core.plant_cycle import STATUS_COMMAND_TIMEOUT, STATUS_LIMIT
 from .core.sensors import SensorParams
 from .core.simulator import ChannelSimulator
 from .plant_node import PlantNode, plant_specs, prepare_process
-from .ros_common import ParamSpec, StartupError, declare, run, shutdown_safe
+from .ros_common import ParamSpec, StartupError, declare, log_events, run, shutdown_safe
 
 LOCKSTEP_REPUBLISH = 0.1     # s without progress after which lockstep re-publishes its state
 
@@ -154,9 +154,9 @@ class SimNode(PlantNode):
             now = self._last_progress = time.monotonic()
             self.stats.tick(now)
             self._decide_and_write(now, answered=self.plant.cycle)
-            self._read_and_publish(now)
+            self._read_sample(now)
             if self.plant.events:
-                self._log_events(self.plant.events.drain())
+                log_events(self.get_logger(), self.plant.events.drain())
 
     def _write(self, out):
         pending = self._pending_env
@@ -182,8 +182,7 @@ class SimNode(PlantNode):
         self._sample(self.plant.out, sample)
         if self.plant.cycle == 0:
             sample[6][:] = [STATUS_COMMAND_TIMEOUT] * len(self.channels)
-        self._outbox.append((self.plant.cycle, time.time_ns(), sample, None))
-        self._outbox_ready.set()
+        self._publish(self.plant.cycle, time.time_ns(), sample, None)
 
     @shutdown_safe
     def _lockstep_kick(self):
@@ -205,7 +204,7 @@ class SimNode(PlantNode):
             lambda i: {'environment': self.sims[i].environment.mode})
 
     def shutdown(self):
-        """Stop the cycle and publisher threads (called by :func:`~seaforce_ros.ros_common.run`)."""
+        """Stop the cycle thread (called by :func:`~seaforce_ros.ros_common.run`)."""
         self._stop_threads()
 
 

@@ -159,13 +159,24 @@ class CommandTiming:
 
     def round_trip_ms(self, reset: bool = True):
         """(p50, p99) of the round trips since the last reset [ms] (NaN if none)."""
-        n = min(self._n, len(self._rtt))
+        values = _ring_values(self._rtt, self._n)
         if reset:
             self._n = 0
-        if n == 0:
-            return float('nan'), float('nan')
-        values = sorted(self._rtt[:n])
-        return 1e3 * values[n // 2], 1e3 * values[min(n - 1, int(0.99 * n))]
+        return _percentiles_ms(values)[:2]
+
+
+def _ring_values(ring, count):
+    """The values a ring of ``len(ring)`` slots holds after ``count`` writes."""
+    return ring[:min(count, len(ring))]
+
+
+def _percentiles_ms(values):
+    """(p50, p99, max) of ``values`` [s] in ms (NaN if none)."""
+    n = len(values)
+    if n == 0:
+        return float('nan'), float('nan'), float('nan')
+    values = sorted(values)
+    return (1e3 * values[n // 2], 1e3 * values[min(n - 1, int(0.99 * n))], 1e3 * values[-1])
 
 
 class BusyTime:
@@ -182,11 +193,7 @@ class BusyTime:
 
     def percentiles_ms(self, reset: bool = True):
         """(p50, p99, max) since the last reset [ms] (NaN if none)."""
-        n = min(self._n, len(self._values))
+        values = _ring_values(self._values, self._n)
         if reset:
             self._n = 0
-        if n == 0:
-            return float('nan'), float('nan'), float('nan')
-        values = sorted(self._values[:n])
-        return (1e3 * values[n // 2], 1e3 * values[min(n - 1, int(0.99 * n))],
-                1e3 * values[-1])
+        return _percentiles_ms(values)

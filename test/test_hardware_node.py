@@ -10,10 +10,11 @@ import pytest
 import yaml
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from seaforce_msgs.msg import ActuatorState
+from seaforce_msgs.msg import ActuatorCommand, ActuatorState
 from std_srvs.srv import Trigger
 
 from ethercat.emulator.config import default_config
+from helpers.commands import command_only
 from helpers.nodes import CONFIG, start_node
 from helpers.processes import executable
 from helpers.states import by_cycle, torque_off_after_commands_stop, value
@@ -229,7 +230,6 @@ def test_commands_naming_only_wrist_do_not_keep_pinch_torque(ecat_emulator, proc
     """Defect: any actuator_command fed one shared watchdog, so after the controller was gone
     a publisher naming only wrist kept pinch at its last torque (2 N m) with no timeout
     status. Now each channel has its own watchdog."""
-    from seaforce_msgs.msg import ActuatorCommand
     harness = ecat_emulator(driven_config(amplitude=0.2))
     # a generous command_timeout: this (CPU-starved) test process answers states late
     start_hardware(processes, tmp_path, harness, {'command_timeout': 0.25})
@@ -240,24 +240,9 @@ def test_commands_naming_only_wrist_do_not_keep_pinch_torque(ecat_emulator, proc
     ctrl.stop()
     probe.wait_for(lambda: probe.node.count_publishers('/actuator_command') == 0, timeout=60,
                    what='the stopped controller gone from the graph')
-    pub = probe.publisher(ActuatorCommand, 'actuator_command')
-    cmd = ActuatorCommand()
-    cmd.name = ['wrist']
-    cmd.effort = [0.3]
-    deadline = time.monotonic() + 60
     # from here on the only commands are the test's: past command_timeout, pinch has none
     settled = probe.messages('actuator_state')[-1].cycle + int(0.25 * RATE) + 1
-    seen = []
-    while time.monotonic() < deadline and len(seen) < 20:
-        for _ in range(200):
-            # answer the newest state, as a controller does (never an older one: that would
-            # look like a second source to the plant)
-            cmd.cycle = max(cmd.cycle, probe.messages('actuator_state')[-1].cycle)
-            pub.publish(cmd)
-            time.sleep(0.001)
-        seen = [m for m in probe.messages('actuator_state') if m.cycle > settled
-                and value(m, 'wrist', 'motor_effort') == pytest.approx(0.3)]
-    assert len(seen) >= 20, 'the wrist commands never took effect'
+    seen = command_only(probe, {'wrist': 0.3}, after_cycle=settled)
     assert all(pinch(m, 'motor_effort') == 0.0
                and pinch(m, 'status') & ActuatorState.STATUS_COMMAND_TIMEOUT for m in seen)
     assert not harness.client.torque_applied('pinch_drive')
@@ -268,7 +253,6 @@ def test_direct_layout_over_ethercat(ecat_emulator, processes, tmp_path, probe):
     and writing the bus. The feed-forward lowers |Z| over real frames, every state and command
     is published, each cycle's torque is the command answering the state just before, and
     parameters and ~/reset work from the executor."""
-    from seaforce_msgs.msg import ActuatorCommand
     harness = ecat_emulator(driven_config())
     start_bringup(processes, tmp_path, harness)
     probe.record(DiagnosticArray, '/diagnostics')
