@@ -336,7 +336,10 @@ class ControlCycle:
                 continue
             if self._latched[i] or stream_kind is not None:
                 ctrl.reenter(fai)          # estimators stay live; no windup meanwhile
-                ctrl.update(xi, vi, fpi, steps)
+                try:
+                    ctrl.update(xi, vi, fpi, steps)
+                except ArithmeticError:
+                    pass
                 effort[i] = 0.0
                 continue
             if self._needs_reset[i]:
@@ -357,7 +360,10 @@ class ControlCycle:
                 self._rearming[i] = ""
                 self._channel_ep[i].end(now, f"{self.channels[i]}: re-armed from the plant's "
                                              "present state")
-            u = ctrl.update(xi, vi, fpi, steps)
+            try:
+                u = ctrl.update(xi, vi, fpi, steps)
+            except ArithmeticError:        # an overflow the checks above did not foresee
+                u = math.nan
             if not -ctrl.config.max_torque <= u <= ctrl.config.max_torque:
                 if math.isfinite(u):
                     kind = TORQUE_LIMIT

@@ -194,6 +194,24 @@ def test_torque_beyond_max_torque_latches_and_reset_resumes_bumplessly():
     assert -0.5 <= effort[1] < 0.0
 
 
+def test_an_arithmetic_error_in_the_controller_latches_instead_of_escaping():
+    class Overflowing(ChannelController):
+        def update(self, x, v, f_p, steps=1):
+            if x > 0.5:
+                raise OverflowError('math range error')
+            return super().update(x, v, f_p, steps)
+
+    ctrls = [ChannelController(ControllerConfig(mode='hold'), dt=DT),
+             Overflowing(ControllerConfig(mode='hold'), dt=DT)]
+    cc = ControlCycle(CH, ctrls)
+    feed = Feed(cc)
+    feed.state()
+    effort, answered = feed.state(x=(0.001, 0.6))
+    assert answered and effort[1] == 0.0 and effort[0] < 0.0
+    assert 'overflowed' in cc.latched(1)
+    assert feed.state(x=(0.001, 0.7))[0][1] == 0.0       # latched: still served, still zero
+
+
 def test_malformed_state_faults_every_channel_and_the_node_keeps_serving():
     """Defect: a status array shorter than name crashed controller_node (IndexError)."""
     cc, feed = make()
