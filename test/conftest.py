@@ -41,9 +41,11 @@ def _session_cpu_hog(request):
 
 
 @pytest.fixture
-def cpu_hog(processes):
-    """One CPU-burning process per core, at normal priority, for this test."""
-    _start_hogs(processes)
+def cpu_hog(request, processes):
+    """One CPU-burning process per core, at normal priority, for this test (unless the whole
+    session already runs next to them: --cpu-hog)."""
+    if not request.config.getoption('--cpu-hog'):
+        _start_hogs(processes)
 
 
 @pytest.fixture

@@ -95,6 +95,10 @@ def test_op_and_cyclic_working_counter(ecat_bus, soem_master):
     bus = SoemBus(master)
     bus.configure()
     assert master.state_check(pysoem.SAFEOP_STATE, 500000) == pysoem.SAFEOP_STATE
+    # the drives' process-data watchdog (tested on its own below) must not expire while this
+    # busy test process reads the emulator's status after the cycles
+    for i in bus.drives:
+        bus.slaves[i].set_watchdog("processdata", SAFE_WATCHDOG_MS)
     assert bus.cycle() == [EXPECTED_WKC]
     assert bus.request_state(pysoem.OP_STATE) == pysoem.OP_STATE
     steps0 = ecat_bus.client.status()["physics_steps"]
