@@ -153,7 +153,7 @@ def run(args):
         cpu = ' '.join(f'{k}={v:.0f}' for k, v in r['cpu'].items())
         print(f'{name:18s}{r["rate"]:9.0f}{r["p50"]:9.3f}{r["p99"]:9.3f}{r["busy50"]:8.3f}'
               f'{r["busy99"]:8.3f}{r["wkc"]:9d}'
-              f'{r["rtt50"]:9.3f}{r["rtt99"]:9.2f}{100 * r["in_time"]:8.1f}%  {cpu}')
+              f'{r["rtt50"]:9.3f}{r["rtt99"]:9.2f}{100 * r["in_time"]:8.2f}%  {cpu}')
     print(f'\nperiods and round trips in ms; wkc err: working-counter errors in '
           f'{args.seconds:.0f} s; fresh: the command for cycle k arrived before cycle k+1; '
           f'scheduling: {"SCHED_FIFO " + str(args.rt) if args.rt else "normal"}'
