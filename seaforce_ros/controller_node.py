@@ -42,8 +42,8 @@ from .core.controller import ChannelController
 from .core.errors import SeaforceError
 from .core.params import ControllerConfig
 from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
-                         declare, diagnostic_status, diagnostics_publisher, log_events,
-                         publish_diagnostics, run, shutdown_safe)
+                         GRAPH_PERIOD, declare, diagnostic_status, diagnostics_publisher,
+                         log_events, node_label, publish_diagnostics, run, shutdown_safe)
 from .timing import LoopStats
 
 LOOPS = ('topics', 'direct')
@@ -151,6 +151,8 @@ class ControllerNode(Node):
             self.create_subscription(ActuatorState, 'actuator_state', self._on_state,
                                      control_qos(qos, subscriber=True))
         self.create_service(Trigger, '~/reset', self._on_reset)
+        self._state_topic = self.resolve_topic_name('actuator_state')
+        self.create_timer(GRAPH_PERIOD, self._watch_graph)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self.create_timer(values['diagnostics_period'], self._publish_diagnostics)
@@ -202,10 +204,11 @@ class ControllerNode(Node):
         configs, checks = self._new_configs(params)
         if checks is not None:
             self.cycle.configure(checks)
+        if configs:
+            self.cycle.configure_channels(configs)   # all of them at the next cycle's start
         for index, config in configs.items():
             old = self.configs[index]
             self.configs[index] = config
-            self.controllers[index].configure(config)  # effective at the next cycle's start
             if config.mode != old.mode:
                 self.get_logger().info(f'{self.channels[index]}: mode {old.mode} -> {config.mode}')
 
@@ -258,6 +261,11 @@ class ControllerNode(Node):
         if elapsed > self._compute_max:
             self._compute_max = elapsed
         return out
+
+    @shutdown_safe
+    def _watch_graph(self):
+        self.cycle.set_state_publishers(sorted(
+            node_label(i) for i in self.get_publishers_info_by_topic(self._state_topic)))
 
     # --- faults --------------------------------------------------------------------------
     def _on_reset(self, request, response):

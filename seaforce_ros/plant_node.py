@@ -31,12 +31,11 @@ from std_srvs.srv import Trigger
 from . import param_specs as ps
 from .core.plant_cycle import PlantCycle, PlantLimits
 from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
-                         declare, diagnostic_status, diagnostics_publisher, log_events,
-                         publish_diagnostics, shutdown_safe)
+                         GRAPH_PERIOD, declare, diagnostic_status, diagnostics_publisher,
+                         log_events, node_label, publish_diagnostics, shutdown_safe)
 from .timing import BusyTime, CommandTiming, Deadline, LoopStats
 
 NAN = float('nan')
-GRAPH_PERIOD = 0.2          # s between two looks at the publishers of actuator_command
 #: How long another thread may keep the GIL once the cycle thread wants it [s]. Python's
 #: default, 5 ms, is ten cycles; a C call that holds the GIL (rclpy's publish) is not cut.
 GIL_SWITCH_INTERVAL = 5e-5
@@ -72,13 +71,6 @@ def plant_specs(torque_limit=5.0):
 
 
 _LIMIT_PARAMS = ('command_timeout', 'torque_limit', 'max_velocity', 'wkc_error_limit')
-
-
-def _node_label(info):
-    """'/namespace/node' of a graph endpoint (DDS knows the endpoint before its node's name)."""
-    if info.node_name == '_NODE_NAME_UNKNOWN_':
-        return '(a node not yet discovered)'
-    return f'{info.node_namespace.rstrip("/")}/{info.node_name}'
 
 
 def _raise_thread_priority(logger):
@@ -196,7 +188,7 @@ class PlantNode(Node):
     @shutdown_safe
     def _watch_graph(self):
         infos = self.get_publishers_info_by_topic(self._command_topic)
-        self.plant.set_publishers(sorted(_node_label(i) for i in infos))
+        self.plant.set_publishers(sorted(node_label(i) for i in infos))
 
     # --- the cycle ------------------------------------------------------------------------------
     def _cycle_loop(self):
@@ -226,7 +218,13 @@ class PlantNode(Node):
         command are published after the write."""
         self.stats.tick(now)
         sample = self._read_sample(now)
-        self._decide_and_write(now, answered=self.plant.cycle - (self._direct is None))
+        # the answer that should be in by now: to the previous state from another process, to
+        # this cycle's state in the direct layout (none at all when no sample came: late)
+        if self._direct is None:
+            answered = self.plant.cycle - 1
+        else:
+            answered = self.plant.cycle if sample is not None else -1
+        self._decide_and_write(now, answered=answered)
         if sample is not None and self._direct is not None:
             self._publish(*sample)
         if self.plant.events:

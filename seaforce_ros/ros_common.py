@@ -141,6 +141,17 @@ def declare(node, specs: Iterable[ParamSpec]) -> Dict[str, Any]:
     return values
 
 
+#: Seconds between two looks at the ROS graph for a second publisher of a control topic.
+GRAPH_PERIOD = 0.2
+
+
+def node_label(info) -> str:
+    """'/namespace/node' of a graph endpoint (DDS knows the endpoint before its node's name)."""
+    if info.node_name == '_NODE_NAME_UNKNOWN_':
+        return '(a node not yet discovered)'
+    return f'{info.node_namespace.rstrip("/")}/{info.node_name}'
+
+
 def log_events(logger, events) -> None:
     """Pass the core's ``(severity, text)`` reports (:mod:`seaforce_ros.core.episodes`) to a
     ROS logger."""

@@ -15,6 +15,8 @@ kind                 condition                                              defa
                      longer than that (a stall)
 ``state_gap``        cycle went backwards by more than ``state_timeout``    re-arms
                      (plant restarted) or jumped forwards by more than it
+``state_sources``    more than one publisher of ``actuator_state`` in the   re-arms
+                     graph: whose state would the torque answer?
 ``future_stamp``     stamp more than ``state_timeout`` in the future        latches
 ``malformed_state``  arrays shorter/longer than ``name``, repeated names    latches
 ``missing_channel``  a channel of this controller is not in the state       latches
@@ -45,20 +47,24 @@ While a channel is faulted its estimators keep running on valid samples, so
 """
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 from .controller import ChannelController
 from .episodes import ERROR, Episode, EventLog
 from .errors import InvalidParameterError
+from .handover import Mailbox
 from .plant_cycle import STATUS_COMMAND_TIMEOUT, STATUS_FAULT
 
 __all__ = ["StateChecks", "ControlCycle", "ControlOutput", "FAULT_KINDS",
-           "DEFAULT_LATCHED", "STALE_STATE", "STATE_GAP", "FUTURE_STAMP", "MALFORMED_STATE",
+           "DEFAULT_LATCHED", "STALE_STATE", "STATE_GAP", "STATE_SOURCES", "FUTURE_STAMP",
+           "MALFORMED_STATE",
            "MISSING_CHANNEL", "NON_FINITE_STATE", "IMPLAUSIBLE_STATE", "TORQUE_LIMIT",
            "NON_FINITE_TORQUE"]
 
 STALE_STATE = "stale_state"
 STATE_GAP = "state_gap"
+STATE_SOURCES = "state_sources"
 FUTURE_STAMP = "future_stamp"
 MALFORMED_STATE = "malformed_state"
 MISSING_CHANNEL = "missing_channel"
@@ -68,12 +74,13 @@ TORQUE_LIMIT = "torque_limit"
 NON_FINITE_TORQUE = "non_finite_torque"
 
 #: Every condition kind, in the order of the table above.
-FAULT_KINDS = (STALE_STATE, STATE_GAP, FUTURE_STAMP, MALFORMED_STATE, MISSING_CHANNEL,
-               NON_FINITE_STATE, IMPLAUSIBLE_STATE, TORQUE_LIMIT, NON_FINITE_TORQUE)
+FAULT_KINDS = (STALE_STATE, STATE_GAP, STATE_SOURCES, FUTURE_STAMP, MALFORMED_STATE,
+               MISSING_CHANNEL, NON_FINITE_STATE, IMPLAUSIBLE_STATE, TORQUE_LIMIT,
+               NON_FINITE_TORQUE)
 
 #: Kinds that latch by default: faults of the data itself. A stall or a restart of the plant
 #: is not one: the plant's own watchdog has already zeroed the torque.
-DEFAULT_LATCHED = FAULT_KINDS[2:]
+DEFAULT_LATCHED = FAULT_KINDS[3:]
 
 #: The plant reports it applies something other than our command on this channel.
 _PLANT_STOPPED = STATUS_COMMAND_TIMEOUT | STATUS_FAULT
@@ -163,8 +170,10 @@ class ControlCycle:
         self.dt = dts.pop()
         self.events = EventLog()
         self.out = ControlOutput(n)
-        self._pending_checks = None
-        self._reset_requested = False
+        self._checks_box = Mailbox()
+        self._reset_box = Mailbox()
+        self._configs = deque()            # {channel index: ControllerConfig} hand-overs
+        self._state_publishers = ()
         self._apply_checks(StateChecks() if checks is None else checks)
         self._latched = [""] * n           # latched fault reason per channel
         self._rearming = [""] * n          # re-arming condition holding this sample
@@ -186,11 +195,21 @@ class ControlCycle:
         """New :class:`StateChecks`, effective at the start of the next step."""
         if not isinstance(checks, StateChecks):
             raise TypeError("checks must be a StateChecks")
-        self._pending_checks = checks
+        self._checks_box.put(checks)
+
+    def configure_channels(self, configs):
+        """New configurations ``{channel index: ControllerConfig}`` (validated), taken together
+        at the start of the next step: a change that sets several channels reaches all of them
+        in the same cycle."""
+        self._configs.append(dict(configs))
+
+    def set_state_publishers(self, names):
+        """The publishers of ``actuator_state`` the ROS graph shows now (node names)."""
+        self._state_publishers = tuple(names)
 
     def request_reset(self):
         """Clear every latched fault at the start of the next step; returns what it clears."""
-        self._reset_requested = True
+        self._reset_box.put(True)
         cleared = [c for c, f in zip(self.channels, self._latched) if f]
         return ("cleared faults on " + ", ".join(cleared)) if cleared else "no fault was latched"
 
@@ -236,11 +255,14 @@ class ControlCycle:
         -------
         ControlOutput
         """
-        if self._pending_checks is not None:
-            self._apply_checks(self._pending_checks)
-            self._pending_checks = None
-        if self._reset_requested:
-            self._reset_requested = False
+        checks = self._checks_box.take()
+        if checks is not None:
+            self._apply_checks(checks)
+        configs = self._configs
+        while configs:
+            for i, config in configs.popleft().items():
+                self.controllers[i].configure(config)
+        if self._reset_box.take():
             self._reset()
         out = self.out
         effort = out.effort
@@ -274,6 +296,13 @@ class ControlCycle:
             out.answered = False
             return out
         out.answered = True
+        if len(self._state_publishers) > 1:
+            # two plants (or a bag played into a running one): whose state would we answer?
+            self.counts[STATE_SOURCES] += 1
+            self._condition_all(now, STATE_SOURCES,
+                                f"{len(self._state_publishers)} publishers of actuator_state: "
+                                + ", ".join(self._state_publishers))
+            return out
         if cycle == out.cycle and names == self._answered_names:
             return out             # a re-published state: the same answer again
         stream = ""                # a condition of the whole stream this sample

@@ -33,7 +33,9 @@ Discretisation (sample period T = ``dt``):
   B_t V_e_hat``, X_e0 captured at mode entry: the endpoint renders the target
   stiffness/damping (plus the endpoint inertia).
 * chirp: ``F_a = u_0 + A w(t) sin(phi(t))``, log chirp, u_0 the torque at
-  entry, w a 50 ms raised-cosine fade-in/out.
+  entry, w a 50 ms raised-cosine fade-in/out. It plays once per selection of
+  the mode (``configure``): a chirp that finished, or that the plant
+  interrupted, never plays again by itself after a reset or re-entry.
 * off: zero torque, immediately (the safe state; the one deliberate
   non-bumpless transition).
 
@@ -55,6 +57,7 @@ float boxing, no logging).
 import math
 
 from .dahl import DahlState
+from .handover import Mailbox
 from .errors import NonFiniteInputError
 from .params import ControllerConfig, DOB_MODES
 
@@ -101,7 +104,10 @@ class ChannelController:
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
             raise ValueError(f"dt = {dt!r} must be > 0 and finite")
         self.dt = float(dt)
-        self._pending = None
+        self._pending = Mailbox()
+        self._chirp_played = False
+        self._t_mode = 0.0
+        self.mode = config.mode
         self._dahl = DahlState(config.dahl)
         self._apply_config(config)
         self.reset()
@@ -113,7 +119,7 @@ class ChannelController:
         if not isinstance(config, ControllerConfig):
             raise TypeError("config must be a ControllerConfig")
         config.validate()
-        self._pending = config
+        self._pending.put(config)
 
     @property
     def config(self):
@@ -158,9 +164,11 @@ class ChannelController:
         """Clear all state (filters, integrator, estimates); the next :meth:`update` starts
         afresh from that sample and enters the mode bumplessly from ``applied_torque``
         [N m], the torque the plant reports it applies (its first output equals it)."""
-        if self._pending is not None:
-            self._apply_config(self._pending)
-            self._pending = None
+        pending = self._pending.take()
+        if pending is not None:
+            self._apply_config(pending)
+            self._chirp_played = False
+        self._interrupt_chirp()
         self.torque = float(applied_torque)
         self.disturbance = math.nan
         self.feedforward = 0.0
@@ -189,9 +197,16 @@ class ChannelController:
         offset that decays in 50 ms: no step, and a finger under load is not pushed away a
         little more at every blip. After a longer interruption use :meth:`reset`, which
         re-captures the targets where the finger is."""
+        self._interrupt_chirp()
         self.torque = float(applied_torque)
         if self._enter != _ENTER:
             self._enter = _REENTER
+
+    def _interrupt_chirp(self):
+        """A chirp under way when the plant interrupts it is over: it never replays by itself
+        (a new ``configure`` into ``chirp`` plays it again)."""
+        if self.mode == "chirp" and self._t_mode > 0.0:
+            self._chirp_played = True
 
     # --- per sample -------------------------------------------------------------
     def update(self, x, v, f_p, steps=1):
@@ -213,9 +228,10 @@ class ChannelController:
             bad = [(n, val) for n, val in (("x", x), ("v", v), ("f_p", f_p))
                    if not math.isfinite(val)][0]
             raise NonFiniteInputError(*bad)
-        if self._pending is not None:
-            self._apply_config(self._pending)
-            self._pending = None
+        pending = self._pending.take()
+        if pending is not None:
+            self._apply_config(pending)
+            self._chirp_played = False
             self._enter = _ENTER
 
         # hose inversion: delta = F_p/(b_s s + k_s), exact FOH
@@ -302,9 +318,11 @@ class ChannelController:
         else:   # chirp
             if enter or reenter:
                 self._bias = u_prev
-                self._t_mode = 0.0
+                self._t_mode = self._config.chirp_duration if self._chirp_played else 0.0
             else:
                 self._t_mode += self.dt * steps
+            if self._t_mode >= self._config.chirp_duration:
+                self._chirp_played = True
             u = self._bias + self._chirp(self._t_mode)
         self.torque = u
         return u

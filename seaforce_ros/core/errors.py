@@ -62,14 +62,13 @@ class NonPassiveError(InvalidParameterError):
 class NonFiniteInputError(SeaforceError, ValueError):
     """A per-sample input (position, velocity, pressure force) is NaN or inf.
 
-    Raised by :meth:`seaforce_ros.core.controller.ChannelController.update`;
-    the controller latches its ``fault`` flag and its output stays zero until
-    :meth:`~seaforce_ros.core.controller.ChannelController.reset`.
+    Raised by :meth:`seaforce_ros.core.controller.ChannelController.update` (which
+    changes nothing: validating and latching is
+    :class:`~seaforce_ros.core.control_cycle.ControlCycle`'s job) and by the simulator's
+    ``step`` for a non-finite torque.
     """
 
     def __init__(self, name, value):
         self.name = name
         self.value = value
-        super().__init__(
-            f"non-finite controller input {name} = {value!r}; the channel is "
-            "faulted (zero torque) until reset()")
+        super().__init__(f"non-finite input {name} = {value!r}")

@@ -20,11 +20,12 @@ They only hand data over; everything takes effect at the start of the next :meth
 Rules (each with a status bit per channel, an event for the log and a counter):
 
 * **command watchdog, per channel**: a channel whose newest accepted command answers a state
-  more than ``command_timeout`` old (counted in the plant's own cycles, ``command_timeout /
-  dt`` of them) gets zero torque and ``STATUS_COMMAND_TIMEOUT``. Before the first command
-  every channel is timed out. Counting cycles rather than wall time means a stall of the
-  plant's own cycle (or a lockstep simulation waiting for its command) is never blamed on
-  the controller; a plant that keeps cycling while commands stop times out on schedule.
+  more than ``command_timeout`` old (counted in the plant's own steps, ``command_timeout /
+  dt`` of them, lost frames included) gets zero torque and ``STATUS_COMMAND_TIMEOUT``.
+  Before the first command every channel is timed out. Counting steps rather than wall time
+  means a stall of the plant's own cycle (or a lockstep simulation waiting for its command)
+  is never blamed on the controller; a plant that keeps cycling while commands stop times
+  out on schedule.
 * **freshness**: a command must answer a state this plant published at most
   ``command_timeout`` ago (its ``cycle``); an answer to an older state, or to a cycle this plant
   has not published (a controller still answering a plant that was restarted), is ignored.
@@ -37,9 +38,13 @@ Rules (each with a status bit per channel, an event for the log and a counter):
 * **non-finite command** for a channel latches that channel's fault (zero torque).
 * **torque limit**: a finite command beyond ``+-torque_limit`` is clamped (``STATUS_LIMIT``);
   with drive units (hardware) the value is then rounded and saturated to int16.
-* **velocity trip**: ``|V| > max_velocity`` (or a non-finite V) latches that channel's fault.
-* **drive fault** (hardware): latches that channel's fault, except during a grace period
-  after a reset, while the drive leaves its Fault state.
+* **velocity trip**: ``|V| > max_velocity`` (0 turns this off), or a non-finite V, latches
+  that channel's fault.
+* **drives** (hardware): a drive that is not in Operation enabled gets zero torque and its
+  channel ``STATUS_FAULT`` (the controller then follows the applied torque); one that leaves
+  Operation enabled without being told to, or reports a fault (except during a grace period
+  after a reset, while it leaves its Fault state), latches that channel's fault. A latched
+  channel fault also disables that channel's drive.
 * **bus fault** (hardware): ``wkc_error_limit`` consecutive incomplete exchanges latch a bus
   fault: zero torque everywhere and the drives disabled.
 * **reset**: clears the latched faults (a conflict only once a single publisher is left),
@@ -48,11 +53,13 @@ Rules (each with a status bit per channel, an event for the log and a counter):
 """
 
 import math
+from array import array
 from collections import deque
 from dataclasses import dataclass
 
 from .episodes import ERROR, INFO, Episode, EventLog
 from .errors import InvalidParameterError
+from .handover import Mailbox
 
 __all__ = ["PlantLimits", "PlantCycle", "PlantOutput", "STATUS_OK", "STATUS_COMMAND_TIMEOUT",
            "STATUS_LIMIT", "STATUS_FAULT", "INT16_MIN", "INT16_MAX"]
@@ -68,6 +75,9 @@ INT16_MIN, INT16_MAX = -32768, 32767
 #: Cycles a drive may still report Fault after a reset before it latches again (0.1 s at
 #: 2 kHz: a drive takes a few cycles to leave Fault after the fault-reset edge).
 RESET_GRACE_CYCLES = 200
+
+#: States whose publication time (in steps) is remembered, for the age of the commands.
+_TICK_RING = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -171,12 +181,15 @@ class PlantCycle:
         self.out = PlantOutput(n)
         self.cycle = 0                       # newest published state
         self._inbox = deque(maxlen=64)       # (names, efforts, answers)
-        self._pending_limits = None
-        self._reset_requested = False
+        self._limits_box = Mailbox()
+        self._reset_box = Mailbox()
+        self.ticks = 0                       # steps so far: the watchdog's clock
+        self._published_at = array("q", bytes(8 * _TICK_RING))   # cycle -> ticks then
         self._publishers = ()
         self._mapping = ([], ())             # cached (names, index per name)
         self._apply_limits(limits)
         self._fault = [""] * n               # latched per-channel fault reason
+        self._was_allowed = [False] * n      # the drive was in Operation enabled last cycle
         self._grace = [0] * n                # cycles a drive may still report Fault
         self._bus_fault = ""
         self._conflict = ""
@@ -204,11 +217,11 @@ class PlantCycle:
         """New :class:`PlantLimits`, effective at the start of the next step."""
         if not isinstance(limits, PlantLimits):
             raise TypeError("limits must be a PlantLimits")
-        self._pending_limits = limits
+        self._limits_box.put(limits)
 
     def request_reset(self):
         """Ask for a reset at the start of the next step; returns what it will clear."""
-        self._reset_requested = True
+        self._reset_box.put(True)
         latched = self.latched_faults()
         return "; ".join(latched) if latched else "no fault was latched"
 
@@ -269,13 +282,13 @@ class PlantCycle:
         -------
         PlantOutput
         """
-        if self._pending_limits is not None:
-            self._apply_limits(self._pending_limits)
-            self._pending_limits = None
+        limits = self._limits_box.take()
+        if limits is not None:
+            self._apply_limits(limits)
+        self.ticks += 1
+        ticks = self.ticks
         out = self.out
-        reset = self._reset_requested
-        if reset:
-            self._reset_requested = False
+        if self._reset_box.take():
             self._reset(now)
         else:
             resets = out.fault_reset
@@ -283,7 +296,6 @@ class PlantCycle:
                 resets[i] = False
         if self._inbox:
             self._take_commands(now)
-        current = self.cycle
         max_age = self._max_age
         crowded = len(self._publishers) > 1
         if crowded != self._crowded_ep.active:
@@ -303,9 +315,11 @@ class PlantCycle:
         bus_fault = self._bus_fault
         blocked = bool(bus_fault or self._conflict or crowded)
         for i in range(len(self.channels)):
-            if vmax > 0.0 and velocity is not None:
+            if velocity is not None and not self._fault[i]:
                 v = velocity[i]
-                if not -vmax <= v <= vmax and not self._fault[i]:
+                if not math.isfinite(v):
+                    self._latch(i, f"non-finite motor velocity {v!r}")
+                elif vmax > 0.0 and not -vmax <= v <= vmax:
                     self._latch(i, f"motor speed {v:.2f} rad/s beyond max_velocity {vmax:g}")
             allowed = True
             if drives is not None:
@@ -317,40 +331,51 @@ class PlantCycle:
                         self._latch(i, "drive reports a fault (statusword bit 3)")
                 else:
                     self._grace[i] = 0
+                    if self._was_allowed[i] and not allowed and out.enable[i] \
+                            and not self._fault[i]:
+                        self._latch(i, "drive left Operation enabled without being told to "
+                                       "(quick stop, safe torque off, mode change?)")
+                self._was_allowed[i] = allowed
             answer = self._answer[i]
-            timed_out = answer < 0 or current - answer > max_age
+            age = ticks - self._answer_tick[i]
+            timed_out = answer < 0 or age > max_age
             episode = self._timeout_ep[i]
             if timed_out != episode.active:
                 if timed_out:
                     if answer >= 0:
                         episode.begin(now, f"{self.channels[i]}: no fresh actuator_command: the "
-                                           f"newest answers a state {current - answer} cycles "
-                                           f"old (> command_timeout {1e3 * timeout:g} ms): zero "
+                                           f"newest answers a state {age} cycles old "
+                                           f"(> command_timeout {1e3 * timeout:g} ms): zero "
                                            "torque")
                 else:
                     episode.end(now, f"{self.channels[i]}: commands back, torque re-enabled")
             status = STATUS_COMMAND_TIMEOUT if timed_out else STATUS_OK
             u = self._effort[i]
-            if blocked or self._fault[i]:
-                status |= STATUS_FAULT
+            if blocked or self._fault[i] or not allowed:
+                status |= STATUS_FAULT     # the plant applies none of the controller's torque
                 u = 0.0
-            elif timed_out or not allowed:
+            elif timed_out:
                 u = 0.0
             elif u > lim:
                 u, status = lim, status | STATUS_LIMIT
             elif u < -lim:
                 u, status = -lim, status | STATUS_LIMIT
             if upn is not None:
-                units = round(u * upn[i])
+                k = upn[i]
+                units = round(u * k)
+                if units / k > lim:          # rounding must not cross the limit either
+                    units -= 1
+                elif units / k < -lim:
+                    units += 1
                 if units > INT16_MAX:
                     units, status = INT16_MAX, status | STATUS_LIMIT
                 elif units < INT16_MIN:
                     units, status = INT16_MIN, status | STATUS_LIMIT
                 out.units[i] = units
-                u = units / upn[i]
+                u = units / k
             out.torque[i] = u
             out.status[i] = status
-            out.enable[i] = not bus_fault
+            out.enable[i] = not (bus_fault or self._fault[i])
         return out
 
     def exchange(self, wkc, expected_wkc):
@@ -371,18 +396,22 @@ class PlantCycle:
     def state_published(self):
         """A fresh sample went out: it is the new current cycle; returns its number."""
         self.cycle += 1
+        self._published_at[self.cycle % _TICK_RING] = self.ticks
         return self.cycle
 
     # --- internals -------------------------------------------------------------------------
     def _apply_limits(self, limits):
         self._limits = limits
-        self._max_age = max(1, int(math.ceil(limits.command_timeout / self.dt)))
+        self._max_age = min(_TICK_RING // 2,
+                            max(1, int(math.ceil(limits.command_timeout / self.dt))))
 
     def _forget_commands(self):
         """Forget every command (start, and after a reset)."""
         n = len(self.channels)
-        self._effort = [0.0] * n
+        self._effort = [0.0] * n           # accepted effort (0.0 for a non-finite one)
+        self._raw = [0.0] * n              # as received: a repeated answer must match it
         self._answer = [-1] * n            # cycle answered by the accepted command
+        self._answer_tick = [0] * n        # ticks when that state was published
 
     def _latch(self, i, reason):
         self._fault[i] = reason
@@ -408,7 +437,9 @@ class PlantCycle:
         for i in range(n):
             self._fault[i] = ""
             self._grace[i] = RESET_GRACE_CYCLES
+            self._was_allowed[i] = False     # the drive walks up to Operation enabled again
             self.out.fault_reset[i] = True
+            self.out.enable[i] = True
         self._bus_fault = ""
         self._wkc_errors = 0
         kept = ""
@@ -427,6 +458,8 @@ class PlantCycle:
     def _take_commands(self, now):
         inbox = self._inbox
         current = self.cycle
+        ticks = self.ticks
+        published_at = self._published_at
         max_age = self._max_age
         while inbox:
             names, efforts, answers = inbox.popleft()
@@ -443,18 +476,20 @@ class PlantCycle:
                                              f"(newest {current}); a controller still "
                                              "answering an earlier plant?")
                 continue
-            if current - answers > max_age:
+            age = (ticks - published_at[answers % _TICK_RING] if current - answers < _TICK_RING
+                   else current - answers)
+            if answers < 0 or age > max_age:
                 self._reject("stale", now, f"actuator_command ignored: it answers cycle "
-                                            f"{answers}, {current - answers} cycles old "
-                                            "(> command_timeout); a command must carry the "
-                                            "cycle of the state it answers")
+                                            f"{answers}, {age} cycles old (> command_timeout); "
+                                            "a command must carry the cycle of the state it "
+                                            "answers")
                 continue
             for value, i in zip(efforts, mapping):
                 if i < 0:
                     continue
                 last = self._answer[i]
                 if answers <= last:
-                    prev = self._effort[i]
+                    prev = self._raw[i]
                     same = value == prev or (value != value and prev != prev)
                     if answers < last or not same:
                         if not self._conflict:
@@ -465,11 +500,13 @@ class PlantCycle:
                             self._latch_conflict(f"cycle {answers} {how} for "
                                                  f"{self.channels[i]}{who}")
                     continue      # the same answer again (a re-published state) or rejected
+                self._answer[i] = answers
+                self._answer_tick[i] = published_at[answers % _TICK_RING]
+                self._raw[i] = value
                 if not math.isfinite(value):
                     if not self._fault[i]:
                         self._latch(i, f"non-finite torque command {value!r}")
                     value = 0.0
-                self._answer[i] = answers
                 self._effort[i] = value
 
     def _map(self, names, now):

@@ -280,6 +280,33 @@ def test_plant_side_stop_makes_the_channel_follow_the_applied_torque(bits):
             assert resumed[-1][1] == pytest.approx(held - 150.0 * 0.001, rel=0.05)
 
 
+def test_configs_of_several_channels_arrive_in_the_same_cycle():
+    cc, feed = make(('off', 'off'))
+    feed.state()
+    cc.configure_channels({0: ControllerConfig(mode='hold')})
+    cc.configure_channels({1: ControllerConfig(mode='hold')})      # before the next step
+    assert [c.mode for c in cc.controllers] == ['off', 'off']
+    effort, _ = feed.state(x=(0.0, 0.0))
+    assert [c.mode for c in cc.controllers] == ['hold', 'hold']
+    effort, _ = feed.state(x=(0.001, 0.001))
+    assert effort[0] < 0.0 and effort[1] < 0.0
+
+
+def test_two_publishers_of_the_state_zero_every_channel_until_one_is_left():
+    """Two plants on one topic (or a bag played into a running one): whose state would the
+    torque answer? Zero everywhere while the graph lists two; then re-armed, bumplessly."""
+    cc, feed = make()
+    feed.state()
+    assert feed.state(x=(0.001, 0.001))[0][0] < 0.0
+    cc.set_state_publishers(['/sim', '/sim_2'])
+    effort, answered = feed.state(x=(0.001, 0.001), fa=(-0.15, -0.15))
+    assert answered and effort == [0.0, 0.0] and '/sim_2' in cc.fault(0)
+    assert feed.state(cycle=feed.cycle, x=(0.001, 0.001))[0] == [0.0, 0.0]   # no old answer
+    cc.set_state_publishers(['/sim'])
+    effort, _ = feed.state(x=(0.002, 0.002), fa=(0.0, 0.0))
+    assert effort == pytest.approx([0.0, 0.0], abs=1e-12) and not cc.latched(0)
+
+
 def test_new_checks_take_effect_at_the_next_step():
     cc, feed = make()
     feed.state()
@@ -435,6 +462,7 @@ def test_random_fault_mix_reaches_every_condition_and_never_misbehaves():
                 kwargs['cycle'] = 1
             elif r < 0.16:
                 kwargs['fp'] = (50.0, 0.0)
+            cc.set_state_publishers(['/sim', '/other'] if 0.16 <= r < 0.18 else ['/sim'])
             effort, _ = feed.state(**kwargs)
             assert all(math.isfinite(e) and abs(e) <= 5.0 for e in effort)
             if rng.random() < 0.05:

@@ -267,3 +267,25 @@ def test_updates_every_nth_sample_integrate_the_real_elapsed_time(every):
     assert aware < 2.0 * ref_peak + 0.05, (aware, ref_peak)
     if every == 16:
         assert run(False) > 1.8 * aware          # the defect the steps argument removes
+
+
+def test_chirp_plays_once_per_selection_never_again_by_itself():
+    """An identification chirp that ended (or was interrupted) must not replay after a
+    plant-side stop or a reset: an open-loop torque nobody asked for again."""
+    cfg = ControllerConfig(mode="chirp", chirp_amplitude=0.3, chirp_duration=0.2,
+                           chirp_start_frequency=5.0, chirp_end_frequency=50.0)
+    ctl = ChannelController(cfg)
+    played = [ctl.update(0.0, 0.0, 0.0) for _ in range(600)]     # 0.3 s: the whole chirp
+    assert max(map(abs, played)) > 0.2 and played[-1] == 0.0
+    for restart in (ctl.reenter, ctl.reset):
+        restart(0.0)
+        assert max(abs(ctl.update(0.0, 0.0, 0.0)) for _ in range(600)) == 0.0
+    # interrupted half-way: over as well
+    ctl.configure(cfg)
+    head = [ctl.update(0.0, 0.0, 0.0) for _ in range(200)]
+    assert max(map(abs, head)) > 0.1
+    ctl.reenter(0.05)
+    assert all(ctl.update(0.0, 0.0, 0.0) == 0.05 for _ in range(600))
+    # selecting the mode again plays it again
+    ctl.configure(cfg)
+    assert max(abs(ctl.update(0.0, 0.0, 0.0)) for _ in range(600)) > 0.2

@@ -130,10 +130,11 @@ def test_command_answering_an_old_state_is_ignored():
     for _ in range(50):
         clock.cycle()
     max_age = int(LIMITS.command_timeout / DT)
-    clock.send(CH, [1.0, 1.0], answers=plant.cycle - max_age - 1)
+    # (the age counts the plant's steps until the command is taken, at the next step)
+    clock.send(CH, [1.0, 1.0], answers=plant.cycle - max_age)
     torque, *_ = clock.cycle()
     assert torque == [0.0, 0.0] and plant.rejected['stale'] == 1
-    clock.send(CH, [1.0, 1.0], answers=plant.cycle - max_age)
+    clock.send(CH, [1.0, 1.0], answers=plant.cycle - max_age + 1)
     torque, *_ = clock.cycle()
     assert torque == [1.0, 1.0]
 
@@ -240,14 +241,14 @@ def test_velocity_trip_latches_that_channel(v):
     clock.send(CH, [1.0, 1.0])
     torque, *_ = clock.cycle(velocity=[0.0, 0.0])
     assert torque == [1.0, 0.0]
-    assert 'max_velocity' in plant.channel_fault(1)
+    assert ('non-finite' if math.isnan(v) else 'max_velocity') in plant.channel_fault(1)
 
 
 def test_velocity_trip_off_when_max_velocity_is_zero():
     plant, clock = make(limits=PlantLimits(max_velocity=0.0))
     clock.cycle()
     clock.send(CH, [1.0, 1.0])
-    torque, *_ = clock.cycle(velocity=[1e6, math.nan])
+    torque, *_ = clock.cycle(velocity=[1e6, -1e6])
     assert torque == [1.0, 1.0]
 
 
@@ -270,12 +271,73 @@ def test_drive_fault_latches_and_reset_sends_one_fault_reset_with_grace():
     assert plant.channel_fault(1)
 
 
-def test_drive_not_ready_gets_zero_torque_without_a_fault():
+def test_drive_not_enabled_gets_zero_torque_and_says_so():
+    """A drive on its way to Operation enabled gets zero torque, and STATUS_FAULT tells the
+    controller its torque is not applied (else it would wind up meanwhile), without a latch."""
     plant, clock = make()
     clock.cycle()
     clock.send(CH, [1.0, 1.0])
     torque, status, *_ = clock.cycle(drives=[(True, False), (False, False)])
-    assert torque == [1.0, 0.0] and status == [0, 0]
+    assert torque == [1.0, 0.0] and status == [0, STATUS_FAULT]
+    assert not plant.channel_fault(1)
+    clock.send(CH, [1.0, 1.0])
+    torque, status, *_ = clock.cycle(drives=[(True, False), (True, False)])
+    assert torque == [1.0, 1.0] and status == [0, 0]
+
+
+def test_drive_leaving_operation_enabled_by_itself_latches():
+    """Quick stop, safe torque off, a mode drop: the drive leaves Operation enabled without the
+    node asking. It must not come back with torque by itself."""
+    plant, clock = make()
+    clock.cycle(drives=[(True, False)] * 2)
+    for allowed in (True, False, True, True):
+        clock.send(CH, [1.0, 1.0])
+        torque, status, enable, *_ = clock.cycle(drives=[(True, False), (allowed, False)])
+    assert torque == [1.0, 0.0] and status == [0, STATUS_FAULT]
+    assert 'left Operation enabled' in plant.channel_fault(1)
+    assert enable == [True, False]                      # and its drive is disabled
+    plant.request_reset()
+    clock.cycle(drives=[(True, False), (False, False)])
+    clock.send(CH, [1.0, 1.0])
+    torque, status, enable, *_ = clock.cycle(drives=[(True, False), (True, False)])
+    assert torque == [1.0, 1.0] and enable == [True, True]
+
+
+def test_lost_frames_count_toward_the_command_timeout():
+    """The watchdog counts the plant's steps, lost frames included: commands stop, every
+    other frame is lost, the channel still times out after command_timeout."""
+    plant, clock = make()
+    clock.cycle()
+    clock.send(CH, [1.0, 1.0])
+    n = int(LIMITS.command_timeout / DT)
+    torques = [clock.cycle(publish=k % 2 == 0)[0] for k in range(n + 3)]
+    assert torques[0] == [1.0, 1.0] and torques[-1] == [0.0, 0.0]
+
+
+def test_repeated_non_finite_command_is_no_conflict():
+    plant, clock = make()
+    clock.cycle()
+    clock.send(CH, [0.5, math.nan])
+    clock.send(CH, [0.5, math.nan])
+    torque, status, *_ = clock.cycle()
+    assert not plant.conflict and torque == [0.5, 0.0]
+    assert 'non-finite torque command' in plant.channel_fault(1)
+
+
+def test_rounding_to_drive_units_never_crosses_the_limit():
+    plant, clock = make(units_per_nm=(1000.0, 1000.0), limits=PlantLimits(torque_limit=0.0006))
+    clock.cycle()
+    clock.send(CH, [0.001, -0.001])
+    torque, status, _, _, units = clock.cycle()
+    assert units == [0, 0] and torque == [0.0, 0.0]
+
+
+def test_non_finite_velocity_latches_even_without_the_speed_trip():
+    plant, clock = make(limits=PlantLimits(max_velocity=0.0))
+    clock.cycle()
+    clock.send(CH, [0.5, 0.5])
+    torque, *_ = clock.cycle(velocity=[0.0, math.inf])
+    assert torque == [0.5, 0.0] and 'non-finite motor velocity' in plant.channel_fault(1)
 
 
 def test_consecutive_working_counter_errors_latch_a_bus_fault():
