@@ -30,7 +30,7 @@ from seaforce_ros.core.plant import PlantModel
 DT = 5e-4
 FREQS = (0.3, 1.0, 3.0, 10.0, 30.0)
 ZW_FREQS = (1.0, 3.0, 10.0)
-MODES = (("off", {}), ("hold", {}), ("force_feedback", {"force_feedback_gain": 1.0}),
+MODES = (("passive", {}), ("hold", {}), ("force_feedback", {"force_feedback_gain": 1.0}),
          ("dob", {}), ("dob_linear_ff", {}), ("dob_full_ff", {}))
 
 
@@ -67,8 +67,8 @@ def main():
         "full_ff, +5 mNm endpt Coulomb": np.array([
             measure("dob_full_ff", {}, w, plant, dahl, 0.5, endpoint_coulomb=0.005)
             for w in FREQS]),
-        "off, +20 mNm motor Coulomb": np.array([
-            measure("off", {}, w, plant, dahl, 0.5, motor_coulomb=0.02) for w in FREQS]),
+        "passive, +20 mNm motor Coulomb": np.array([
+            measure("passive", {}, w, plant, dahl, 0.5, motor_coulomb=0.02) for w in FREQS]),
         "dob, +20 mNm motor Coulomb": np.array([
             measure("dob", {}, w, plant, dahl, 0.5, motor_coulomb=0.02) for w in FREQS]),
         "dob, lambda = 20 rad/s": np.array([
@@ -78,7 +78,7 @@ def main():
     elapsed = time.perf_counter() - t0
 
     print("Simulated endpoint impedance |Z(jw)| [dB re 1 N m s/rad], Table I + Dahl")
-    print("(position-sine drive 0.5 rad, hold 0.05 rad; delta = change vs 'off')\n")
+    print("(position-sine drive 0.5 rad, hold 0.05 rad; delta = change vs 'passive')\n")
     head = "mode".ljust(16) + "".join(f"{w:>9.1f}" for w in FREQS) + "   rad/s"
     print(head)
     print("-" * len(head))
@@ -87,14 +87,14 @@ def main():
         print(mode.ljust(16) + "".join(f"{v:9.2f}" for v in magnitude_db(table[mode])))
     print()
     for mode in ("dob", "dob_linear_ff", "dob_full_ff", "force_feedback"):
-        d = magnitude_db(table[mode]) - magnitude_db(table["off"])
+        d = magnitude_db(table[mode]) - magnitude_db(table["passive"])
         print(("delta " + mode).ljust(16) + "".join(f"{v:9.2f}" for v in d))
     print()
     print("sensitivity (simulated plant differs from the controller's model;")
-    print("delta vs 'off' on the same simulated plant):")
+    print("delta vs 'passive' on the same simulated plant):")
     for name, row in extra_rows.items():
-        ref = extra_rows["off, +20 mNm motor Coulomb"] if "motor Coulomb" in name \
-            else table["off"]
+        ref = extra_rows["passive, +20 mNm motor Coulomb"] if "motor Coulomb" in name \
+            else table["passive"]
         d = magnitude_db(row) - magnitude_db(ref)
         print(f"  {name:32s}" + "".join(f"{v:8.2f}" for v in magnitude_db(row))
               + "   delta:" + "".join(f"{v:7.1f}" for v in d))

@@ -4,7 +4,7 @@
 asserts nothing.
 
 The pinch finger runs the identification experiment during the soak (sim environment
-``torque_chirp`` 0.3 N m, 0.01-1000 Hz over the soak duration, controller mode ``off``), so the
+``torque_chirp`` 0.3 N m, 0.01-1000 Hz over the soak duration, controller mode ``passive``), so the
 10-minute bag is a real identification input.
 
 Figures: per topic received / written by the recorder and messages in the bag; actuator_state

@@ -56,7 +56,7 @@ _sf_setup() {
   # 3. colcon build, when an input of the build changed. Python modules are symlinked
   # (--symlink-install), so editing them needs no rebuild; adding or removing one does.
   local build_stamp
-  build_stamp="$( (cat "$_sf_venv/.seaforce-req"; cd "$_sf_root" && find msg_defs config resource package.xml setup.py setup.cfg -type f -print0 | sort -z | xargs -0 sha256sum; find seaforce_ros -name '*.py' | sort) | sha256sum | cut -c1-16)"
+  build_stamp="$( (cat "$_sf_venv/.seaforce-req"; cd "$_sf_root" && find msg_defs config launch resource package.xml setup.py setup.cfg -type f -print0 | sort -z | xargs -0 sha256sum; find seaforce_ros -name '*.py' | sort) | sha256sum | cut -c1-16)"
   if [ ! -f "$_sf_root/install/setup.bash" ] || [ "$(cat "$_sf_root/install/.seaforce-build" 2>/dev/null)" != "$build_stamp" ]; then
     local t0=$SECONDS
     _sf_log "building seaforce_msgs and seaforce_ros with colcon"

@@ -76,6 +76,22 @@ def node_specs():
     ]
 
 
+def check_output(path: pathlib.Path) -> None:
+    """The ``output`` directory must be new or empty and creatable: StartupError naming the
+    parameter otherwise (before anything is created or subscribed)."""
+    if path.exists() and not path.is_dir():
+        raise StartupError(f'output: {path} exists and is not a directory; give a new '
+                           'directory for the bag splits')
+    if path.is_dir() and any(path.iterdir()):
+        raise StartupError(f'output: {path} exists and is not empty; give a new or empty '
+                           'directory')
+    parent = path.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise StartupError(f'output: cannot create {path}: {parent} is not a directory')
+
+
 def message_class(msgtype: str):
     """The Python message class of ``pkg/msg/Type``."""
     pkg, kind, name = msgtype.split('/')
@@ -93,6 +109,7 @@ class BagRecorderNode(Node):
             raise StartupError('topics is empty: nothing to record')
         output = values['output'] or f'bag_recorder_{datetime.datetime.now():%Y%m%d_%H%M%S}'
         self.output = pathlib.Path(output).resolve()
+        check_output(self.output)
         qos = QoSProfile(history=RECORD_QOS.history, depth=RECORD_QOS.depth,
                          durability=RECORD_QOS.durability,
                          reliability=(ReliabilityPolicy.RELIABLE
@@ -103,7 +120,7 @@ class BagRecorderNode(Node):
             self.writer = SplitBagWriter(self.output, {}, storage=values['storage'],
                                          split_duration=values['split_duration'])
         except IdentificationError as exc:
-            raise StartupError(str(exc)) from exc
+            raise StartupError(f'output: {exc}') from None
         self.received = {}
         self._queue = queue.SimpleQueue()
         self._pending = []            # (resolved topic, requested name) awaiting a publisher
@@ -227,7 +244,7 @@ class BagRecorderNode(Node):
 
 
 def main(args=None):
-    sys.exit(run(BagRecorderNode, args=args))
+    sys.exit(run(BagRecorderNode, args=args, name='bag_recorder'))
 
 
 if __name__ == '__main__':

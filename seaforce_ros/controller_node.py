@@ -124,7 +124,7 @@ class ControllerNode(Node):
             try:
                 config = ControllerConfig.from_dict(ps.channel_values(channel_values, channel))
             except SeaforceError as exc:
-                raise StartupError(f'channel {channel}: {exc}') from exc
+                raise StartupError(ps.channel_error(exc, channel)) from None
             self.configs.append(config)
             controllers.append(ChannelController(config, dt=self.dt))
         try:
@@ -183,7 +183,7 @@ class ControllerNode(Node):
                 try:
                     configs[index] = ControllerConfig.from_dict(mine, base=self.configs[index])
                 except SeaforceError as exc:
-                    raise SeaforceError(f'{channel}: {exc}') from exc
+                    raise SeaforceError(ps.channel_error(exc, channel)) from None
         checks = None
         if any(name in changed for name in _CHECK_PARAMS):
             current = {name: self.get_parameter(name).value for name in _CHECK_PARAMS}

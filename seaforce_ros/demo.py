@@ -3,7 +3,7 @@
 Starts ``sim_node`` and ``controller_node`` as separate processes on one parameter file,
 backdrives the ``pinch`` finger with the paper's quasi-static position drive (0.5 rad at
 1 rad/s, the bonded-finger experiment of Fig. 5A-B), switches ``pinch.mode`` through
-``off, hold, dob, dob_linear_ff, dob_full_ff`` with the controller's parameter service (what
+``passive, hold, dob, dob_linear_ff, dob_full_ff`` with the controller's parameter service (what
 ``ros2 param set`` does), and for each mode measures from ``actuator_state``:
 
 * the peak external torque |F_e| over the work loop and within +-0.2 rad,
@@ -31,7 +31,7 @@ from typing import Dict, List
 
 import numpy as np
 
-MODES = ('off', 'hold', 'dob', 'dob_linear_ff', 'dob_full_ff')
+MODES = ('passive', 'hold', 'dob', 'dob_linear_ff', 'dob_full_ff')
 CHANNEL = 'pinch'
 DT = 5e-4
 
@@ -168,7 +168,7 @@ def plot(results, path, amplitude):
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
-    colours = {'off': '#f2b705', 'hold': '#d62728', 'dob': '#17becf',
+    colours = {'passive': '#f2b705', 'hold': '#d62728', 'dob': '#17becf',
                'dob_linear_ff': '#c51b8a', 'dob_full_ff': '#1f77b4'}
     fig, (ax_e, ax_p, ax_h) = plt.subplots(1, 3, figsize=(16, 5), sharex=True)
     for mode, (window, m) in results.items():
@@ -245,7 +245,7 @@ def main(argv=None):
                 raise RuntimeError('no actuator_state/controller_status within 60 s')
             time.sleep(0.1)
 
-        observer.set_mode('off')  # also connects the parameter client before measuring
+        observer.set_mode('passive')  # also connects the parameter client before measuring
         results = {}
         settle = int(round(1.0 / DT))
         for mode in MODES:
@@ -291,14 +291,14 @@ def report(results, args):
     soft = min((m for m in results if m != 'hold'), key=lambda m: results[m][1]['z_db'])
     print(f'\nPinch finger backdriven {args.amplitude} rad at {args.frequency} rad/s; '
           'the controller only measures motor position and hose pressure.\n')
-    print(f'{"mode":15s}{"|Z| [dB]":>10s}{"vs off":>9s}{"peak |F_e|":>13s}'
+    print(f'{"mode":15s}{"|Z| [dB]":>10s}{"vs passive":>11s}{"peak |F_e|":>13s}'
           f'{"|F_e| in +-0.2":>16s}{"F_p loop area":>15s}')
-    print(f'{"":15s}{"re N m s/rad":>10s}{"[dB]":>9s}{"[N m]":>13s}{"rad [N m]":>16s}'
+    print(f'{"":15s}{"re N m s/rad":>10s}{"[dB]":>11s}{"[N m]":>13s}{"rad [N m]":>16s}'
           f'{"[N m rad]":>15s}')
-    z_off = results['off'][1]['z_db'] if 'off' in results else float('nan')
+    z_passive = results['passive'][1]['z_db'] if 'passive' in results else float('nan')
     for mode, (window, m) in results.items():
         flag = '' if not window['status'] else '  (status flags seen: see sim log)'
-        print(f'{mode:15s}{m["z_db"]:10.1f}{m["z_db"] - z_off:9.1f}{m["peak"]:13.3f}'
+        print(f'{mode:15s}{m["z_db"]:10.1f}{m["z_db"] - z_passive:11.1f}{m["peak"]:13.3f}'
               f'{m["peak_centre"]:16.4f}{m["fp_area"]:15.4f}{flag}')
     if 'hold' in results:
         width = results['hold'][1]['z_db'] - results[soft][1]['z_db']

@@ -124,25 +124,28 @@ class HardwareNode(PlantNode):
         self.get_logger().info(f'bringing up EtherCAT on {values["interface"]} '
                                f'({len(self.bus_config.slaves)} slaves)')
         try:
-            self.bus.open()      # identities checked, process data mapped, SAFE-OP
-            self.bus.set_process_data_watchdog(values['drive_watchdog'])
+            self._bring_up(values)
         except BusError as exc:
+            self.bus.to_init()
             self.bus.close()
-            raise StartupError(str(exc)) from exc
+            raise StartupError(str(exc)) from None
+        except BaseException:
+            self.bus.to_init()
+            self.bus.close()     # never leave the interface promiscuous or a slave in OP
+            raise
+        self._start_cycle_thread()
+        self.get_logger().info(f'bus in OP, expected working counter {self.bus.expected_wkc}, '
+                               f'loop={"direct" if direct else "topics"}')
+
+    def _bring_up(self, values):
+        self.bus.open()      # identities checked, process data mapped, SAFE-OP
+        self.bus.set_process_data_watchdog(values['drive_watchdog'])
         self._start_plant()
         for c in self.ch:
             c.sequencer.enable = True
         # OP last, and the cycle right after it: once in OP the slaves' process-data
         # watchdogs (typically 100 ms) expect a frame every cycle
-        try:
-            self.bus.request_op()
-        except BusError as exc:
-            self.bus.to_init()
-            self.bus.close()
-            raise StartupError(str(exc)) from exc
-        self._start_cycle_thread()
-        self.get_logger().info(f'bus in OP, expected working counter {self.bus.expected_wkc}, '
-                               f'loop={"direct" if direct else "topics"}')
+        self.bus.request_op()
 
     # --- the cycle (PlantNode hooks) -----------------------------------------------------
     def _drives(self):

@@ -23,6 +23,7 @@ __all__ = ["main", "build_parser"]
 
 
 def build_parser():
+    from .identification.output import positive_float
     p = argparse.ArgumentParser(
         prog="identify",
         description="Identify the eight linear plant parameters (Table I) from a chirp bag, "
@@ -38,9 +39,9 @@ def build_parser():
                    "instead of a chirp bag (for --dahl-bag alone)")
     p.add_argument("--topic", default="actuator_state", help="state topic (default "
                    "actuator_state)")
-    p.add_argument("--band", nargs=2, type=float, default=(0.5, 400.0), metavar=("LO", "HI"),
-                   help="fit band of plants A-C [rad/s] (default 0.5 400)")
-    p.add_argument("--rational-band", nargs=2, type=float, default=None,
+    p.add_argument("--band", nargs=2, type=positive_float, default=(0.5, 400.0),
+                   metavar=("LO", "HI"), help="fit band of plants A-C [rad/s] (default 0.5 400)")
+    p.add_argument("--rational-band", nargs=2, type=positive_float, default=None,
                    metavar=("LO", "HI"), help="band of the 2-zero/4-pole X_e/F_e fit [rad/s] "
                    "(default: --band; the paper: 0-400)")
     p.add_argument("--excitation", choices=("auto", "external", "motor"), default="auto",
@@ -48,7 +49,8 @@ def build_parser():
     p.add_argument("--external-force", choices=("held", "instant"), default="held",
                    help="held: F_e was held over the sample interval after its sample (the "
                         "sim's environment); instant: a sampled force sensor")
-    p.add_argument("--rate", type=float, help="sample rate [Hz] (default: from the stamps)")
+    p.add_argument("--rate", type=positive_float, help="sample rate [Hz] (default: from the "
+                   "stamps)")
     p.add_argument("--no-dahl", action="store_true", help="fit the endpoint as purely "
                    "linear (as the paper did; hysteresis then biases m_e, b_e, k_e)")
     p.add_argument("--fit-exponent", action="store_true", help="fit the Dahl exponent n too")
@@ -133,32 +135,37 @@ def _dahl(args, plant, progress):
     return fit
 
 
+def check_arguments(args):
+    """Combinations and values argparse cannot check (UsageError naming the option)."""
+    from .identification.errors import UsageError
+    if args.bag is not None and args.plant_params:
+        raise UsageError("--plant-params replaces the chirp bag: give one of them, not both")
+    if args.bag is None and not (args.plant_params and args.dahl_bag):
+        raise UsageError("give a chirp bag, or --plant-params with --dahl-bag")
+    for option, band in (("--band", args.band), ("--rational-band", args.rational_band)):
+        if band is not None and not band[0] < band[1]:
+            raise UsageError(f"{option}: LO must be below HI, got {band[0]:g} {band[1]:g}")
+
+
 def run(args):
-    from .core.params import PlantParams
-    from .identification.errors import IdentificationError
-    from .identification.output import (Progress, check_output_dir, check_output_file,
-                                        read_params_file, write_params_file)
+    from .identification.output import (Progress, check_output_dir, check_params_update,
+                                        read_plant, write_params_file)
 
     progress = Progress("identify", quiet=args.quiet)
-    if args.bag is None and not (args.plant_params and args.dahl_bag):
-        raise IdentificationError("give a chirp bag, or --plant-params with --dahl-bag")
-    check_output_file(args.out)
+    check_arguments(args)
+    # every input file and the output are checked before the long work
+    truth = read_plant(args.truth, args.channel, "--truth") if args.truth else None
+    plant = (read_plant(args.plant_params, args.channel, "--plant-params")
+             if args.plant_params else None)
+    check_params_update(args.out, args.channel, plant=args.bag is not None,
+                        dahl=bool(args.dahl_bag), option="--out")
     plots = check_output_dir(args.plots) if args.plots else None
-    truth = None
-    if args.truth:
-        t_plant, _ = read_params_file(args.truth, args.channel)
-        try:
-            truth = PlantParams(**{k: float(v) for k, v in t_plant.items()})
-        except TypeError:
-            raise IdentificationError(f"{args.truth}: no complete {args.channel}.plant.* "
-                                      "parameter set") from None
-    plant = None
     comments = []
     if args.bag is not None:
         record, series, result = _identify_chirp(args, progress)
         plant = result.params
         _print_plant_table(result, truth, series, record)
-        comments.append(f"plant: chirp bag {args.bag} ({series.duration:.1f} s, "
+        comments.append(f"{args.channel}.plant: chirp bag {args.bag} ({series.duration:.1f} s, "
                         f"{result.excitation} excitation, fits over {result.band[0]:g}-"
                         f"{result.band[1]:g} rad/s)")
         if plots is not None:
@@ -166,13 +173,6 @@ def run(args):
             path = bode_fig4(result, plots / f"{args.channel}_fig4_bode.png",
                              f"channel {args.channel}: identification ({args.bag})")
             print(f"wrote {path}")
-    else:
-        p_plant, _ = read_params_file(args.plant_params, args.channel)
-        try:
-            plant = PlantParams(**{k: float(v) for k, v in p_plant.items()})
-        except TypeError:
-            raise IdentificationError(f"{args.plant_params}: no complete {args.channel}.plant.* "
-                                      "parameter set") from None
     dahl = None
     if args.dahl_bag:
         fit = _dahl(args, plant, progress)
@@ -184,7 +184,7 @@ def run(args):
               + (f" +- {fit.exponent_1s:.2g}" if args.fit_exponent else " (fixed)")
               + f"; loop residual rms {fit.rms:.3g} N m (linear terms only: "
                 f"{fit.rms_linear_only:.3g} N m)")
-        comments.append(f"dahl: work-loop bag {args.dahl_bag}")
+        comments.append(f"{args.channel}.dahl: work-loop bag {args.dahl_bag}")
         if plots is not None:
             from .identification.plots import dahl_fig6
             path = dahl_fig6(fit, plots / f"{args.channel}_fig6_dahl.png",
@@ -192,7 +192,7 @@ def run(args):
             print(f"wrote {path}")
     out = write_params_file(args.out, args.channel,
                             plant=plant if args.bag is not None else None, dahl=dahl,
-                            comments=comments)
+                            comments=comments, option="--out")
     print(f"wrote {out}")
     progress("done", 1.0)
     return 0

@@ -11,11 +11,13 @@ import math
 from typing import Dict, List
 
 from .core.environment import DRIVE_DAMPING, DRIVE_STIFFNESS, ENVIRONMENT_MODES
+from .core.errors import InvalidParameterError
 from .core.params import MODES, PARAMETER_DESCRIPTIONS, ControllerConfig, PlantParams
 from .core.sensors import SensorParams
 from .ros_common import EXECUTORS, ParamSpec, StartupError
 
-BIG = 1e9
+#: The zero-torque mode was called ``off``, which YAML 1.1 reads as a boolean.
+MODE_RENAMED = 'the zero-torque mode formerly called off is passive'
 
 #: [low, high] of the controller keys (rclpy enforces these; the core enforces the rest).
 CONTROLLER_RANGES = {
@@ -94,7 +96,8 @@ def controller_channel_specs(channel: str) -> List[ParamSpec]:
             default = float(default)
         low, high = CONTROLLER_RANGES.get(key, (None, None))
         specs.append(ParamSpec(f'{channel}.{key}', default, description, low=low, high=high,
-                               choices=MODES if key == 'mode' else ()))
+                               choices=MODES if key == 'mode' else (),
+                               choice_hint=MODE_RENAMED if key == 'mode' else ''))
     return specs
 
 
@@ -139,6 +142,14 @@ def channels_from(values: Dict[str, object]) -> List[str]:
     if len(set(channels)) != len(channels):
         raise StartupError(f'channel names must be unique: {channels}')
     return channels
+
+
+def channel_error(exc: Exception, channel: str) -> str:
+    """The core's rejection of one channel's setting, naming every parameter in full
+    (``pinch.dob.nominal_inertia``, ``pinch.allow_non_passive``) as a ROS user sets it."""
+    if isinstance(exc, InvalidParameterError):
+        return str(exc.in_channel(channel))
+    return f'channel {channel}: {exc}'
 
 
 def is_finite_number(value) -> bool:

@@ -20,6 +20,8 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 ParameterType)
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
 from .core.episodes import ERROR, WARNING
@@ -74,7 +76,8 @@ _TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEG
 @dataclass(frozen=True)
 class ParamSpec:
     """One ROS parameter: name, default (its Python type is the parameter type), description
-    with units, optional numeric range [low, high], allowed string values, read-only flag."""
+    with units, optional numeric range [low, high], allowed string values, read-only flag.
+    The descriptor (:meth:`descriptor`) and every check (:meth:`check`) derive from it."""
 
     name: str
     default: Any
@@ -83,6 +86,8 @@ class ParamSpec:
     high: Optional[float] = None
     choices: Tuple[str, ...] = ()
     read_only: bool = False
+    #: appended to a rejection of a value outside ``choices`` (e.g. a renamed value)
+    choice_hint: str = ''
 
     def descriptor(self) -> ParameterDescriptor:
         d = ParameterDescriptor(name=self.name, description=self.description,
@@ -104,11 +109,47 @@ class ParamSpec:
                                                 to_value=int(min(high, 2**63 - 1)), step=1)]
         return d
 
+    def kind(self) -> str:
+        """The parameter type in words, as a message names it."""
+        if isinstance(self.default, (list, tuple)):
+            return 'a list of strings'
+        return {bool: 'a boolean (true/false)', int: 'an integer', float: 'a number',
+                str: 'a string'}[type(self.default)]
+
+    def coerce(self, value):
+        """``value`` as this parameter's type where that loses nothing: an integer for a float
+        parameter (a user writes ``max_torque: 20``, not 20.0); anything else unchanged."""
+        if isinstance(self.default, float) and type(value) is int:
+            return float(value)
+        return value
+
     def check(self, value) -> Optional[str]:
-        """Reason to reject ``value``, or None. (rclpy enforces ranges itself; this adds
-        finiteness and the allowed strings, which descriptors cannot express.)"""
+        """Reason to reject ``value`` (already :meth:`coerce`-d), or None: the type, finiteness,
+        the range [low, high] and the allowed strings. The same check runs at declaration and on
+        every later set, so a value a node starts with obeys what a later set would."""
+        default = self.default
+        if isinstance(default, (list, tuple)):
+            ok = isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value)
+        elif isinstance(default, bool):
+            ok = isinstance(value, bool)
+        elif isinstance(default, (int, float)):
+            ok = isinstance(value, type(default)) and not isinstance(value, bool)
+        else:
+            ok = isinstance(value, str)
+        if not ok:
+            hint = ''
+            if isinstance(value, bool) and isinstance(default, str):
+                hint = (' (YAML 1.1 reads an unquoted yes/no/on/off/true/false as a boolean: '
+                        'quote the string)')
+            return f'{self.name} must be {self.kind()}, got {value!r}{hint}'
         if isinstance(value, float) and not math.isfinite(value):
             return f'{self.name} must be finite, got {value}'
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            if (self.low is not None and value < self.low) or \
+                    (self.high is not None and value > self.high):
+                low = '-inf' if self.low is None else f'{self.low:g}'
+                high = 'inf' if self.high is None else f'{self.high:g}'
+                return f'{self.name} must be within [{low}, {high}], got {value!r}'
         if self.choices:
             if isinstance(value, (list, tuple)):
                 bad = [item for item in value if item not in self.choices]
@@ -116,29 +157,57 @@ class ParamSpec:
                     return (f'{self.name}: every entry must be one of '
                             f'{", ".join(self.choices)}; got {bad!r}')
             elif value not in self.choices:
-                return f'{self.name} must be one of {", ".join(self.choices)}; got {value!r}'
+                return (f'{self.name} must be one of {", ".join(self.choices)}; got {value!r}'
+                        + (f' ({self.choice_hint})' if self.choice_hint else ''))
         return None
 
 
 def declare(node, specs: Iterable[ParamSpec]) -> Dict[str, Any]:
-    """Declare every spec on ``node`` (values from --params-file override the defaults) and
-    return name -> current value. Integers given for float parameters in YAML are accepted."""
+    """Declare every spec on ``node`` and return name -> value.
+
+    The value is the one given by ``--params-file`` / ``-p`` (an integer given for a float
+    parameter is converted), else the default. Every value is checked by
+    :meth:`ParamSpec.check` *before* it is declared; a bad one raises :class:`StartupError`
+    naming the parameter (``run`` prints it and exits 2): a node never starts on a value it
+    would refuse on a later set.
+    """
+    # rclpy keeps the command line's and params files' values in Node._parameter_overrides
+    # (public only as a constructor argument); reading it is how an int can become a float.
+    overrides = getattr(node, '_parameter_overrides', {})
     values = {}
     for spec in specs:
-        default = spec.default
-        if isinstance(default, tuple):
-            default = list(default)
-        try:
-            node.declare_parameter(spec.name, default, spec.descriptor(),
-                                   ignore_override=False)
-        except (ParameterException, ValueError, TypeError) as exc:
-            raise StartupError(f'{spec.name}: {exc}') from None
-        value = node.get_parameter(spec.name).value
+        value = list(spec.default) if isinstance(spec.default, tuple) else spec.default
+        given = overrides.get(spec.name)
+        if given is not None:
+            if given.type_ == given.Type.NOT_SET:
+                raise StartupError(f'{spec.name} has no value (an empty list [] or ~ in the '
+                                   f'params file?); it must be {spec.kind()}, like '
+                                   f'{spec.default!r}')
+            value = spec.coerce(given.value)
         reason = spec.check(value)
         if reason:
             raise StartupError(reason)
-        values[spec.name] = value
+        try:
+            node.declare_parameter(spec.name, value, spec.descriptor(), ignore_override=True)
+        except (ParameterException, ValueError, TypeError) as exc:
+            raise StartupError(f'{spec.name}: {exc}') from None
+        values[spec.name] = node.get_parameter(spec.name).value
+    if not getattr(node, '_seaforce_coerces', False):
+        node._seaforce_coerces = True
+        node.add_pre_set_parameters_callback(functools.partial(_ints_as_floats, node))
     return values
+
+
+def _ints_as_floats(node, params):
+    """Pre-set callback: an integer set on a float parameter (``ros2 param set /controller
+    pinch.max_torque 20``) becomes that float instead of a type error."""
+    out = []
+    for p in params:
+        if p.type_ == Parameter.Type.INTEGER and node.has_parameter(p.name) and \
+                node.describe_parameter(p.name).type == ParameterType.PARAMETER_DOUBLE:
+            p = Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
+        out.append(p)
+    return out
 
 
 #: Seconds between two looks at the ROS graph for a second publisher of a control topic.
@@ -254,7 +323,17 @@ def run(node_factory: Callable[[], Any], args=None, executor_param: str = 'execu
     # 2 kHz is inside a callback, half-way through a cycle.
     signal.signal(signal.SIGINT, _ignore_signal)
     signal.signal(signal.SIGTERM, _ignore_signal)
-    rclpy.init(args=args)
+    problem = ros_arguments_problem(sys.argv if args is None else args)
+    if problem is None:
+        try:
+            rclpy.init(args=args)
+        except _rclpy.RCLError as exc:
+            # rcl's own parser found what the check above let through; its message names
+            # the argument and the file
+            problem = str(exc).split(', at /')[0].replace('failed to initialize rcl: ', '')
+    if problem is not None:
+        print(f'[{name}] cannot start: {problem}', file=sys.stderr)
+        return 2
     nodes = []
     executor = None
     kind = 'single_threaded'
@@ -294,6 +373,78 @@ def run(node_factory: Callable[[], Any], args=None, executor_param: str = 'execu
         sys.stderr.flush()
         os._exit(code)
     return code
+
+
+def ros_arguments_problem(argv: Sequence[str]) -> Optional[str]:
+    """What is wrong with the ``--params-file`` files named in ``argv``'s ``--ros-args``
+    sections (missing, unreadable, not YAML, empty, not ``node: {ros__parameters: {...}}``),
+    or None. rcl would stop at each of these with a traceback, or silently run on defaults
+    (an empty file)."""
+    files, in_ros, tokens = [], False, iter(argv)
+    for token in tokens:
+        if token == '--ros-args':
+            in_ros = True
+        elif token == '--':
+            in_ros = False
+        elif in_ros and token == '--params-file':
+            files.append(next(tokens, None))
+    for path in files:
+        if path is None:
+            return '--params-file needs a file name'
+        reason = params_file_problem(path)
+        if reason:
+            return f'--params-file {path}: {reason}'
+    return None
+
+
+def params_file_problem(path: str) -> Optional[str]:
+    """Why ``path`` is not a usable ROS 2 params file, or None."""
+    import yaml
+    if not os.path.exists(path):
+        return 'no such file'
+    if os.path.isdir(path):
+        return 'is a directory, not a params file'
+    try:
+        with open(path, encoding='utf-8') as stream:
+            data = yaml.safe_load(stream)
+    except OSError as exc:
+        return f'cannot be read: {exc.strerror}'
+    except UnicodeDecodeError:
+        return 'is not a text (UTF-8) file'
+    except yaml.YAMLError as exc:
+        where = getattr(exc, 'problem_mark', None)
+        line = f' at line {where.line + 1}' if where is not None else ''
+        return f'is not valid YAML{line}: {getattr(exc, "problem", None) or exc}'
+    layout = ('the layout is <node name>: {ros__parameters: {<parameter>: <value>}}, '
+              'as in config/gripper.yaml')
+    if data is None:
+        return f'is empty; {layout}'
+    if not isinstance(data, dict):
+        return f'must be a mapping of node names, got a {type(data).__name__}; {layout}'
+
+    def walk(entry, where):
+        if not isinstance(entry, dict):
+            return f'{where}: {entry!r} is outside any ros__parameters section; {layout}', 0
+        found = 0
+        for key, value in entry.items():
+            inner = f'{where}.{key}' if where else str(key)
+            if key == 'ros__parameters':
+                if not isinstance(value, dict):
+                    return f'{inner} must be a mapping of parameter: value', 0
+                found += 1
+            else:
+                reason, count = walk(value, inner)
+                if reason:
+                    return reason, 0
+                found += count
+        return None, found
+
+    reason, found = walk(data, '')
+    if reason:
+        return reason
+    if not found:
+        return f'has no ros__parameters section; {layout}'
+    return None
 
 
 def release_executor(executor, nodes) -> None:

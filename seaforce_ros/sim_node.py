@@ -78,7 +78,7 @@ class SimNode(PlantNode):
             try:
                 self.sims.append(self._make_sim(values, channel, values['seed'] + index))
             except (SeaforceError, ValueError) as exc:
-                raise StartupError(f'channel {channel}: {exc}') from exc
+                raise StartupError(ps.channel_error(exc, channel)) from None
         self._make_plant_cycle()
         self._pending_env = {}           # channel index -> Environment, applied next cycle
         self.add_on_set_parameters_callback(self._validate_parameters)
@@ -126,7 +126,7 @@ class SimNode(PlantNode):
                     self._environment_with(channel, changed)
                 except (SeaforceError, ValueError) as exc:
                     return SetParametersResult(successful=False,
-                                               reason=f'{channel}.environment: {exc}')
+                                               reason=ps.channel_error(exc, channel))
         return SetParametersResult(successful=True)
 
     def _environment_with(self, channel, changed):

@@ -22,14 +22,18 @@ from __future__ import annotations
 import argparse
 import collections
 import math
+import os
 import sys
 
 import numpy as np
+
+from .identification.zwidth_lib import DEFAULT_MODES
 
 __all__ = ["main", "build_parser"]
 
 
 def build_parser():
+    from .identification.output import positive_float
     p = argparse.ArgumentParser(prog="zwidth", description="Endpoint impedance per mode and "
                                 "Z-width (minimum-impedance mode vs hold).")
     p.add_argument("bags", nargs="*", help="backdrive bags, BAG or MODE=BAG")
@@ -41,19 +45,26 @@ def build_parser():
                    "with (e.g. the true values)")
     p.add_argument("--true-params", help="parameters of the simulated gripper (default "
                    "Table I, Dahl sigma 12.8 N m/rad, F_c 0.032 N m)")
-    p.add_argument("--modes", default="off,hold,dob,dob_linear_ff,dob_full_ff",
-                   help="modes for --simulate (comma separated)")
+    p.add_argument("--modes", default=None,
+                   help="modes for --simulate (comma separated; hold is always added; "
+                        "default: " + ",".join(DEFAULT_MODES) + ")")
     p.add_argument("--frequencies", default="dc,1,3,10",
                    help="drive frequencies [rad/s] for --simulate; dc = 0.1 rad/s")
-    p.add_argument("--amplitude", type=float, default=0.2, help="drive amplitude [rad]")
+    p.add_argument("--amplitude", type=positive_float, default=0.2,
+                   help="drive amplitude [rad] for --simulate (default 0.2)")
     p.add_argument("--topic", default="actuator_state")
     p.add_argument("--plot", help="PNG file for the Fig. 5C-style plot")
     p.add_argument("--quiet", action="store_true")
     return p
 
 
+#: drive frequencies --simulate accepts [rad/s]: below, one period takes hours of simulated
+#: time; above, fewer than 10 samples of the simulation's 2 kHz per period
+MIN_OMEGA, MAX_OMEGA = 0.01, 1000.0
+
+
 def _frequencies(text):
-    from .identification.errors import IdentificationError
+    from .identification.errors import UsageError
     from .identification.zwidth_lib import DC_OMEGA
     out = []
     for item in text.split(","):
@@ -61,17 +72,53 @@ def _frequencies(text):
         try:
             w = DC_OMEGA if item == "dc" else float(item)
         except ValueError:
-            raise IdentificationError(f"bad frequency {item!r} (numbers in rad/s or dc)") \
+            raise UsageError(f"--frequencies: bad frequency {item!r} (numbers in rad/s, or dc)") \
                 from None
-        if not w > 0:
-            raise IdentificationError(f"frequencies must be > 0, got {w}")
+        if not MIN_OMEGA <= w <= MAX_OMEGA:
+            raise UsageError(f"--frequencies: {item} is outside {MIN_OMEGA:g}-{MAX_OMEGA:g} "
+                             "rad/s")
         out.append(w)
     return out
 
 
-def _params(path, channel):
+def _check_mode(mode, what):
+    """``mode`` if it is a controller mode (core.params.MODES), else a UsageError."""
+    from .core.params import MODES
+    from .identification.errors import UsageError
+    if mode not in MODES:
+        raise UsageError(f"{what}: unknown mode {mode!r}; the modes are {', '.join(MODES)}")
+    return mode
+
+
+def _modes(text):
+    """The --modes list: known modes, hold first if not given, no repeats, at least one mode
+    besides hold (the Z-width compares the lowest-impedance mode with hold)."""
+    from .identification.errors import UsageError
+    items = DEFAULT_MODES if text is None else [m.strip() for m in text.split(",")
+                                                if m.strip()]
+    modes = list(dict.fromkeys(_check_mode(m, "--modes") for m in items))
+    if "hold" not in modes:
+        modes.insert(0, "hold")
+    if len(modes) < 2:
+        raise UsageError("--modes: give at least one mode besides hold (the Z-width compares "
+                         "the lowest-impedance mode with hold)")
+    return modes
+
+
+def _params(path, channel, option):
     from .identification.output import read_params_file
-    return read_params_file(path, channel)
+    return read_params_file(path, channel, option)
+
+
+def _bag_item(item):
+    """``(mode or '', path)`` of a positional BAG or MODE=BAG."""
+    if "=" not in item or os.path.exists(item):
+        return "", item
+    mode, _, path = item.partition("=")
+    if not path:
+        from .identification.errors import UsageError
+        raise UsageError(f"{item}: no bag after '=' (give BAG or MODE=BAG)")
+    return _check_mode(mode, f"{item}"), path
 
 
 def _mode_in_bag(path, channel):
@@ -106,8 +153,7 @@ def _from_bags(args, progress):
     from .identification.zwidth_lib import impedance_from_record
 
     points = collections.defaultdict(list)     # mode -> [(omega, Z)]
-    for item in args.bags:
-        mode, _, path = item.rpartition("=") if "=" in item else ("", "", item)
+    for mode, path in [_bag_item(item) for item in args.bags]:
         progress(f"reading {path}", None)
         record = read_channel(path, args.channel, args.topic)
         series = prepare(record, ("x_e", "f_e"))
@@ -148,12 +194,29 @@ def _print_rows(title, rows, modes):
     print(format_table(headers, table, [None] * len(headers)))
 
 
+def _plant_dahl(path, channel, option, plant, dahl):
+    """``(PlantParams, DahlParams)`` of ``channel`` in a params file; a group the file does not
+    have is the given default."""
+    from .identification.output import read_params_file
+    from .identification.params_file import dahl_params, plant_params, where
+    p, d = read_params_file(path, channel, option)
+    w = where(path, option)
+    return (plant_params(p, w, channel) if p else plant,
+            dahl_params(d, w, channel) if d else dahl)
+
+
+def _config(path, channel, option, base):
+    """ControllerConfig of ``base`` with the plant/dahl of ``channel`` in a params file."""
+    from dataclasses import replace
+    plant, dahl = _plant_dahl(path, channel, option, base.plant, base.dahl)
+    return base.replace(plant=plant, dahl=dahl,
+                        dob=replace(base.dob, nominal_inertia=plant.motor_inertia))
+
+
 def run(args):
     from .core.params import ControllerConfig, DahlParams, PlantParams
-    from .identification.errors import IdentificationError
+    from .identification.errors import UsageError
     from .identification.output import Progress, check_output_file
-    from .identification.zwidth_lib import (config_from_params, simulate_impedance,
-                                            zwidth_rows)
 
     progress = Progress("zwidth", quiet=args.quiet)
     if args.plot:
@@ -161,28 +224,26 @@ def run(args):
     curves = {}
     if args.simulate:
         if args.bags:
-            raise IdentificationError("give bags or --simulate, not both")
+            raise UsageError("give bags or --simulate, not both")
+        # every option is checked before the first (long) simulation
+        omegas = _frequencies(args.frequencies)
+        modes = _modes(args.modes)
         if args.true_params:
-            tp, td = _params(args.true_params, args.channel)
-            plant = PlantParams(**{k: float(v) for k, v in tp.items()}) if tp \
-                else PlantParams.table_i()
-            dahl = DahlParams(**{k: float(v) for k, v in td.items()}) if td else DahlParams()
+            plant, dahl = _plant_dahl(args.true_params, args.channel, "--true-params",
+                                      PlantParams.table_i(), DahlParams())
         else:
             plant, dahl = PlantParams.table_i(), DahlParams()
         truth_config = ControllerConfig(plant=plant, dahl=dahl)
         sets = []
         if args.params:
-            sets.append(("params", config_from_params(*_params(args.params, args.channel),
-                                                      base=truth_config)))
+            sets.append(("params", _config(args.params, args.channel, "--params",
+                                           truth_config)))
         else:
             sets.append(("true parameters", truth_config))
         if args.reference_params:
-            sets.append(("reference", config_from_params(
-                *_params(args.reference_params, args.channel), base=truth_config)))
-        omegas = _frequencies(args.frequencies)
-        modes = [m.strip() for m in args.modes.split(",") if m.strip()]
-        if "hold" not in modes:
-            modes.insert(0, "hold")
+            sets.append(("reference", _config(args.reference_params, args.channel,
+                                              "--reference-params", truth_config)))
+        from .identification.zwidth_lib import simulate_impedance, zwidth_rows
         results = []
         for i, (label, cfg) in enumerate(sets):
             z = simulate_impedance(plant, dahl, cfg, modes, omegas, amplitude=args.amplitude,
@@ -200,7 +261,16 @@ def run(args):
         z_plot = curves[sets[0][0]]
     else:
         if not args.bags:
-            raise IdentificationError("give backdrive bags (BAG or MODE=BAG) or --simulate")
+            raise UsageError("give backdrive bags (BAG or MODE=BAG) or --simulate")
+        given = [o for o, v in (("--params", args.params), ("--true-params", args.true_params),
+                                ("--reference-params", args.reference_params),
+                                ("--modes", args.modes)) if v is not None]
+        if given:
+            raise UsageError(f"{given[0]} is for --simulate; the bags carry the mode and "
+                             "parameters they were recorded with")
+        for item in args.bags:
+            _bag_item(item)
+        from .identification.zwidth_lib import zwidth_rows
         omegas, z_plot = _from_bags(args, progress)
         modes = list(z_plot)
         rows = zwidth_rows(omegas, z_plot)

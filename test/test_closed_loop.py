@@ -36,8 +36,8 @@ def test_mode_change_by_parameter_changes_behaviour(processes, tmp_path, probe, 
     probe.record(ControllerStatus, 'controller_status')
     probe.record(ActuatorState, 'actuator_state')
     probe.wait_messages('controller_status', 5)
-    assert pinch(probe.messages('controller_status')[-1], 'mode') == 'off'
-    # off: zero torque while the finger is backdriven
+    assert pinch(probe.messages('controller_status')[-1], 'mode') == 'passive'
+    # passive: zero torque while the finger is backdriven
     probe.wait_messages('actuator_state', 200)
     assert all(pinch(m, 'motor_effort') == 0.0 for m in probe.messages('actuator_state')[-200:])
 

@@ -245,7 +245,7 @@ def test_two_controllers_give_zero_torque_and_never_chatter(processes, tmp_path,
     probe.wait_messages('actuator_state', 1, timeout=30,
                         where=lambda m: abs(pinch(m, 'motor_effort')) > 0.05)
     second = start_node(processes, 'controller_node', 'controller_b', tmp_path,
-                        {**RELAXED, 'pinch.mode': 'off'},
+                        {**RELAXED, 'pinch.mode': 'passive'},
                         ros_args=('-r', '__node:=controller_b'))
     first_fault = probe.wait_messages('actuator_state', 1, timeout=30, where=lambda m: pinch(
         m, 'status') & STATUS_FAULT)[0].cycle

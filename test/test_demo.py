@@ -32,13 +32,13 @@ def test_demo_prints_the_table_writes_the_png_and_stops_its_nodes(processes, tmp
     text = demo.output()
     assert code == 0, text
     rows = {}
-    for mode in ('off', 'hold', 'dob', 'dob_linear_ff', 'dob_full_ff'):
+    for mode in ('passive', 'hold', 'dob', 'dob_linear_ff', 'dob_full_ff'):
         match = re.search(rf'^{mode}\s+(-?\d+\.\d)\s+(-?\d+\.\d)\s+(\d+\.\d+)', text, re.M)
         assert match, f'no table row for {mode}:\n{text}'
         rows[mode] = float(match.group(1))
-    # the paper's ordering: hold >> off > dob > dob_linear_ff > dob_full_ff
-    assert rows['hold'] > rows['off'] + 10, rows
-    assert rows['off'] > rows['dob'] > rows['dob_linear_ff'] > rows['dob_full_ff'], rows
+    # the paper's ordering: hold >> passive > dob > dob_linear_ff > dob_full_ff
+    assert rows['hold'] > rows['passive'] + 10, rows
+    assert rows['passive'] > rows['dob'] > rows['dob_linear_ff'] > rows['dob_full_ff'], rows
     width = float(re.search(r'impedance range at 3\.0 rad/s: (\d+\.\d) dB', text).group(1))
     assert width > 30.0, text
     png = out / 'work_loops.png'

@@ -265,14 +265,14 @@ def test_direct_layout_over_ethercat(ecat_emulator, processes, tmp_path, probe):
     diag = _diag(probe, 'hardware: bus', lambda s: any(
         kv.key == 'layout' and kv.value == 'direct' for kv in s.values), timeout=30)
     assert diag.level == DiagnosticStatus.OK, diag.message
-    z_off = measured_impedance_db(harness.client, 1.0)
+    z_passive = measured_impedance_db(harness.client, 1.0)
     ok, reason = probe.set_parameters('/controller', {'pinch.mode': 'dob_full_ff'},
                                       timeout=TIMEOUT)
     assert ok, reason
     z_ff = measured_impedance_db(harness.client, 1.0)
-    print(f'|Z| at 1 rad/s, direct layout over EtherCAT: off {z_off:.1f} dB, '
+    print(f'|Z| at 1 rad/s, direct layout over EtherCAT: passive {z_passive:.1f} dB, '
           f'dob_full_ff {z_ff:.1f} dB')
-    assert z_ff <= z_off - 7.0, (z_off, z_ff)
+    assert z_ff <= z_passive - 7.0, (z_passive, z_ff)
     # every command published answers a state; each state's torque came from the command
     # answering the state before it (the one modelled frame of delay)
     probe.record(ActuatorState, 'actuator_state', OBSERVE_QOS)

@@ -135,9 +135,9 @@ def test_drive_frequency_estimate():
 
 def test_zwidth_rows_pick_the_lowest_mode():
     z = {"hold": np.array([10.0, 5.0]), "dob": np.array([0.1, 0.2]),
-         "off": np.array([0.5, 0.1])}
+         "passive": np.array([0.5, 0.1])}
     rows = zwidth_rows([1.0, 3.0], z)
-    assert [r.min_mode for r in rows] == ["dob", "off"]
+    assert [r.min_mode for r in rows] == ["dob", "passive"]
     assert rows[0].width_db == pytest.approx(40.0)
     assert rows[1].width_db == pytest.approx(20 * math.log10(50.0))
 

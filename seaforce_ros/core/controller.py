@@ -36,7 +36,7 @@ Discretisation (sample period T = ``dt``):
   entry, w a 50 ms raised-cosine fade-in/out. It plays once per selection of
   the mode (``configure``): a chirp that finished, or that the plant
   interrupted, never plays again by itself after a reset or re-entry.
-* off: zero torque, immediately (the safe state; the one deliberate
+* passive: zero torque, immediately (the safe state; the one deliberate
   non-bumpless transition).
 
 Bumpless transfer: every mode entry (or ``configure``) initialises the new
@@ -296,7 +296,7 @@ class ChannelController:
             return u
 
         self.disturbance = math.nan
-        if mode == "off":
+        if mode == "passive":
             u = 0.0
         elif mode == "hold":
             if enter:

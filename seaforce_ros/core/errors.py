@@ -19,27 +19,49 @@ class InvalidParameterError(SeaforceError, ValueError):
     Parameters
     ----------
     name : str
-        Parameter name, preferably the flat ROS-style key (``plant.motor_inertia``).
+        Parameter name: the flat key relative to the channel (``plant.motor_inertia``);
+        :meth:`in_channel` qualifies it with the channel (``pinch.plant.motor_inertia``).
     value : object
         The rejected value.
     bound : str
         Human-readable description of the allowed range (``"> 0 and finite"``).
     hint : str, optional
-        What to do about it; appended to the message.
+        Why the bound exists; appended to the message.
+    override : str, optional
+        Key of the boolean parameter that lifts the bound (``allow_non_passive``), named
+        in the message as the way to go outside it deliberately.
 
     Attributes
     ----------
-    name, value, bound : as given.
+    name, value, bound, hint, override : as given.
     """
 
-    def __init__(self, name, value, bound, hint=""):
+    def __init__(self, name, value, bound, hint="", override=""):
         self.name = name
         self.value = value
         self.bound = bound
-        message = f"invalid parameter {name} = {value!r}: must be {bound}"
-        if hint:
-            message += f"; {hint}"
-        super().__init__(message)
+        self.hint = hint
+        self.override = override
+        super().__init__(self._message())
+
+    def _message(self):
+        message = f"invalid parameter {self.name} = {self.value!r}: must be {self.bound}"
+        if self.hint:
+            message += f"; {self.hint}"
+        if self.override:
+            message += f"; set {self.override} to true to override"
+        return message
+
+    def in_channel(self, channel):
+        """The same error with every parameter it names qualified by ``channel``
+        (``dob.nominal_inertia`` -> ``pinch.dob.nominal_inertia``), as a ROS user sets it."""
+        qualified = Exception.__new__(type(self))
+        qualified.__dict__.update(self.__dict__)
+        qualified.name = f"{channel}.{self.name}"
+        if self.override:
+            qualified.override = f"{channel}.{self.override}"
+        Exception.__init__(qualified, qualified._message())
+        return qualified
 
 
 class NonPassiveError(InvalidParameterError):
@@ -55,8 +77,8 @@ class NonPassiveError(InvalidParameterError):
         super().__init__(
             name, value, bound,
             hint=("the closed loop would not be passive (coupled stability with "
-                  "any passive environment is lost); set allow_non_passive to "
-                  "true to override"))
+                  "any passive environment is lost)"),
+            override="allow_non_passive")
 
 
 class NonFiniteInputError(SeaforceError, ValueError):

@@ -37,7 +37,7 @@ __all__ = [
 ]
 
 #: Controller modes (DESIGN.md "Control").
-MODES = ("off", "hold", "force_feedback", "dob", "dob_linear_ff", "dob_full_ff",
+MODES = ("passive", "hold", "force_feedback", "dob", "dob_linear_ff", "dob_full_ff",
          "impedance", "chirp")
 
 #: Modes that run the disturbance observer (eq. 19).
@@ -323,7 +323,7 @@ class ControllerConfig:
         Accept settings outside the passivity bounds.
     """
 
-    mode: str = "off"
+    mode: str = "passive"
     plant: PlantParams = field(default_factory=PlantParams.table_i)
     dahl: DahlParams = field(default_factory=DahlParams)
     dob: DobParams = field(default_factory=DobParams)
@@ -378,18 +378,19 @@ class ControllerConfig:
             # endpoint free and driven); the free endpoint went unstable at
             # K_t ~ 2 k_s and at B_t ~ 25 b_s (V_e_hat amplifies the pressure
             # noise and the hose dynamics by B_t/b_s)
-            hint = "set allow_non_passive to true to override"
             if self.target_stiffness > self.plant.hose_stiffness:
                 raise InvalidParameterError(
                     "target.stiffness", self.target_stiffness,
                     f"<= k_s = {self.plant.hose_stiffness:.6g} N m/rad (the hose "
-                    "stiffness; stiffer targets destabilise a free endpoint)", hint)
+                    "stiffness; stiffer targets destabilise a free endpoint)",
+                    override="allow_non_passive")
             b_max = 10.0 * self.plant.hose_damping
             if self.target_damping > b_max:
                 raise InvalidParameterError(
                     "target.damping", self.target_damping,
                     f"<= 10 b_s = {b_max:.6g} N m s/rad (the velocity estimate "
-                    "amplifies pressure noise by 1/b_s)", hint)
+                    "amplifies pressure noise by 1/b_s)",
+                    override="allow_non_passive")
             if not -1.0 <= self.force_feedback_gain <= 1.0:
                 raise NonPassiveError("force_feedback.gain", self.force_feedback_gain,
                                       "-1 <= K_f <= 1 (Section III-A, internal force "

@@ -7,6 +7,8 @@ bytes objects pysoem itself returns.
 """
 from __future__ import annotations
 
+import fcntl
+import socket
 import struct
 import time
 from typing import Dict, List, Tuple
@@ -20,6 +22,25 @@ class BusError(RuntimeError):
 
 class IdentityError(BusError):
     """A slave on the bus is not the one the configuration expects."""
+
+
+_SIOCGIFFLAGS, _SIOCSIFFLAGS, IFF_PROMISC = 0x8913, 0x8914, 0x100
+
+
+def interface_flags(interface: str) -> int:
+    """The interface's flags (``IFF_*``, as ``ip link`` shows them); OSError if there is no
+    such interface."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        request = struct.pack('16sH14x', interface.encode()[:15], 0)
+        return struct.unpack('16sH14x', fcntl.ioctl(sock, _SIOCGIFFLAGS, request))[1]
+
+
+def set_promiscuous(interface: str, on: bool) -> None:
+    """Set or clear the interface's promiscuous flag, leaving the others as they are now."""
+    flags = interface_flags(interface)
+    flags = (flags | IFF_PROMISC) if on else (flags & ~IFF_PROMISC)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        fcntl.ioctl(sock, _SIOCSIFFLAGS, struct.pack('16sH14x', interface.encode()[:15], flags))
 
 
 def _hex(value):
@@ -43,6 +64,7 @@ class EthercatBus:
         self.interface = interface
         self.receive_timeout_us = int(receive_timeout_us)
         self.master = None
+        self._was_promiscuous = None     # the interface's flag before open(); None: not opened
         self.expected_wkc = None
         self._outputs: List[bytearray] = [bytearray(s.outputs.size) for s in config.slaves]
         self._out_offsets = [s.outputs.offsets() for s in config.slaves]
@@ -58,6 +80,13 @@ class EthercatBus:
             raise BusError('pysoem is not installed (it has no rosdep key): '
                            '`pip install pysoem` into the Python that runs hardware_node') from exc
         self._pysoem = pysoem
+        try:
+            # SOEM switches the interface to promiscuous mode and never switches it back:
+            # close() restores what it was
+            self._was_promiscuous = bool(interface_flags(self.interface) & IFF_PROMISC)
+        except OSError as exc:
+            raise BusError(f'no network interface {self.interface!r} ({exc.strerror}); '
+                           '`ip link` lists them') from None
         master = pysoem.Master()
         try:
             master.open(self.interface)
@@ -194,11 +223,22 @@ class EthercatBus:
             return False
 
     def close(self) -> None:
-        if self.master is not None:
-            try:
-                self.master.close()
-            finally:
-                self.master = None
+        """Close the master (if open) and give the interface back its promiscuous flag as it
+        was before :meth:`open`. Idempotent; safe on every exit path."""
+        try:
+            if self.master is not None:
+                try:
+                    self.master.close()
+                finally:
+                    self.master = None
+        finally:
+            was = self._was_promiscuous
+            self._was_promiscuous = None
+            if was is not None:
+                try:
+                    set_promiscuous(self.interface, was)
+                except OSError:
+                    pass  # the interface went away meanwhile: nothing to restore
 
     def slave_states(self) -> Dict[str, Tuple[int, int]]:
         """name -> (AL state, AL status code), read from the bus."""

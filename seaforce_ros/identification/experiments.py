@@ -83,7 +83,7 @@ def chirp_experiment(plant=None, dahl=None, sensors=None, amplitude=0.3, start_f
 
 
 def work_loop_experiment(plant=None, dahl=None, sensors=None, amplitude=0.5, frequency=1.0,
-                         cycles=3.0, mode="off", config=None, seed=0, dt=5e-4,
+                         cycles=3.0, mode="passive", config=None, seed=0, dt=5e-4,
                          settle_cycles=1.0):
     """Backdrive the endpoint with the stiff position drive in controller ``mode``.
 
@@ -112,7 +112,7 @@ def work_loop_experiment(plant=None, dahl=None, sensors=None, amplitude=0.5, fre
     n = int(round((cycles + settle_cycles) * period / dt))
     sim = ChannelSimulator(plant, dahl=dahl, dt=dt, seed=seed,
                            environment=position_sine(amplitude, frequency), sensors=sensors)
-    if mode == "off" and config is None:
+    if mode == "passive" and config is None:
         ctl = ZeroTorque()
     else:
         if config is None:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import argparse
 import datetime
+import math
 import os
 import pathlib
 import sys
@@ -11,9 +13,12 @@ import time
 import yaml
 
 from .errors import IdentificationError
+from .params_file import (ALL_NODES, DAHL_KEYS, HEADER_MARK, PLANT_KEYS, channel_groups, load,
+                          plant_params, read_text, update_text, where)
 
-__all__ = ["check_output_file", "check_output_dir", "write_params_file", "format_table",
-           "Progress", "read_params_file"]
+__all__ = ["check_output_file", "check_output_dir", "check_params_update", "write_params_file",
+           "format_table", "Progress", "read_params_file", "read_plant", "positive_float",
+           "run_cli"]
 
 
 def check_output_file(path):
@@ -47,63 +52,89 @@ def _float(v):
     return float(f"{float(v):.6g}")
 
 
-def write_params_file(path, channel, plant=None, dahl=None, comments=(), merge=True):
-    """Write ``/**: ros__parameters: <channel>: {plant: ..., dahl: ...}``.
-
-    ``plant`` is a PlantParams (or None), ``dahl`` a dict ``{sigma, coulomb_force,
-    exponent}`` (or None). With ``merge``, values already in an existing file (other channels,
-    other keys) are kept and only the given groups are replaced.
-    """
-    p = check_output_file(path)
-    data = {}
-    if merge and p.exists():
-        try:
-            data = yaml.safe_load(p.read_text()) or {}
-        except (OSError, yaml.YAMLError):
-            data = {}
-        if not isinstance(data, dict):
-            data = {}
-    node = data.setdefault("/**", {}).setdefault("ros__parameters", {})
-    ch = node.setdefault(channel, {})
+def _values(channel, plant=None, dahl=None):
+    """``{dotted parameter name: value}`` of the groups to write (6 significant digits)."""
+    values = {}
     if plant is not None:
-        ch["plant"] = {k: _float(getattr(plant, k)) for k in (
-            "motor_inertia", "motor_damping", "motor_stiffness", "endpoint_inertia",
-            "endpoint_damping", "endpoint_stiffness", "hose_damping", "hose_stiffness")}
+        values.update({f"{channel}.plant.{k}": _float(getattr(plant, k)) for k in PLANT_KEYS})
     if dahl is not None:
-        ch["dahl"] = {k: _float(dahl[k]) for k in ("sigma", "coulomb_force", "exponent")}
-    header = [f"# seaforce_ros parameters identified {datetime.datetime.now():%Y-%m-%d %H:%M}",
-              "# load with: --ros-args --params-file " + p.name]
-    header += [f"# {c}" for c in comments]
-    text = "\n".join(header) + "\n" + yaml.safe_dump(data, sort_keys=False)
-    try:
-        p.write_text(text)
-    except OSError as exc:
-        raise IdentificationError(f"cannot write {p}: {exc.strerror}") from None
+        values.update({f"{channel}.dahl.{k}": _float(dahl[k]) for k in
+                       ("sigma", "coulomb_force", "exponent")})
+    return values
+
+
+def _existing_text(p, option):
+    """The text of an existing, non-blank output file (None: write a new file)."""
+    if not p.exists():
+        return None
+    text = read_text(p, option)
+    return text if text.strip() else None
+
+
+def check_params_update(path, channel, plant=False, dahl=False, option=None):
+    """Fail early (before long work) if the params file ``path`` cannot be written, or exists
+    with a layout :func:`write_params_file` cannot update in place."""
+    p = check_output_file(path)
+    text = _existing_text(p, option)
+    if text is not None:
+        values = {}
+        if plant:
+            values.update({f"{channel}.plant.{k}": 1.0 for k in PLANT_KEYS})
+        if dahl:
+            values.update({f"{channel}.dahl.{k}": 1.0 for k in DAHL_KEYS})
+        update_text(text, values, where(p, option))
     return p
 
 
-def read_params_file(path, channel):
-    """``(plant dict, dahl dict)`` of ``channel`` from a params file (any node section)."""
-    p = pathlib.Path(path)
+def write_params_file(path, channel, plant=None, dahl=None, comments=(), merge=True,
+                      option=None):
+    """Write ``<channel>.plant.*`` (``plant``: a PlantParams) and ``<channel>.dahl.*``
+    (``dahl``: a dict ``{sigma, coulomb_force, exponent}``) for ``--ros-args --params-file``.
+
+    A new file (or, without ``merge``, any file) becomes ``/**: ros__parameters: <channel>:
+    {plant: ..., dahl: ...}`` under a header of ``comments``. An existing file is updated in
+    place (:func:`~.params_file.update_text`): only these values change; every comment, other
+    parameter and the layout stay. A file whose layout cannot be updated safely is refused
+    (ParamsFileError, naming ``option`` and the file) and left as it is.
+    """
+    p = check_output_file(path)
+    w = where(p, option)
+    values = _values(channel, plant, dahl)
+    header = [f"{HEADER_MARK} {datetime.datetime.now():%Y-%m-%d %H:%M}",
+              "# load with: --ros-args --params-file " + p.name]
+    header += [f"# {c}" for c in comments]
+    text = _existing_text(p, option) if merge else None
+    if text is None:
+        data = {}
+        for name, value in values.items():
+            node = data.setdefault(ALL_NODES, {}).setdefault("ros__parameters", {})
+            parts = name.split(".")
+            for part in parts[:-1]:
+                node = node.setdefault(part, {})
+            node[parts[-1]] = value
+        text = "\n".join(header) + "\n" + yaml.safe_dump(data, sort_keys=False)
+    else:
+        text = update_text(text, values, w, header=header)
     try:
-        data = yaml.safe_load(p.read_text())
+        p.write_text(text)
     except OSError as exc:
-        raise IdentificationError(f"cannot read {p}: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise IdentificationError(f"{p} is not valid YAML: {exc}") from None
-    plant, dahl = {}, {}
-    for section in (data or {}).values():
-        params = (section or {}).get("ros__parameters", {}) if isinstance(section, dict) else {}
-        ch = params.get(channel, {}) if isinstance(params, dict) else {}
-        if isinstance(ch, dict):
-            plant.update(ch.get("plant", {}) or {})
-            dahl.update(ch.get("dahl", {}) or {})
-        for key, value in (params.items() if isinstance(params, dict) else ()):
-            if key.startswith(channel + ".plant."):
-                plant[key.split(".", 2)[2]] = value
-            elif key.startswith(channel + ".dahl."):
-                dahl[key.split(".", 2)[2]] = value
-    return plant, dahl
+        raise IdentificationError(f"cannot write {w}: {exc.strerror}") from None
+    return p
+
+
+def read_params_file(path, channel, option=None):
+    """``(plant dict, dahl dict)`` of ``channel`` from a params file (every node section).
+
+    Errors (ParamsFileError, naming ``option`` and the file): missing file, a directory, not
+    YAML, not a ROS params file, no parameters of ``channel`` (the message lists the channels
+    the file has)."""
+    return channel_groups(load(path, option), channel, where(path, option))
+
+
+def read_plant(path, channel, option=None):
+    """PlantParams of ``channel`` in a params file (all eight of Table I)."""
+    plant, _ = read_params_file(path, channel, option)
+    return plant_params(plant, where(path, option), channel)
 
 
 def format_table(headers, rows, formats):
@@ -143,6 +174,18 @@ class Progress:
         def cb(message, fraction=None):
             self(message, None if fraction is None else lo + (hi - lo) * fraction)
         return cb
+
+
+def positive_float(text):
+    """argparse ``type``: a finite number > 0 (argparse then reports ``argument --x: ...``
+    and exits 2)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = None
+    if value is None or not math.isfinite(value) or not value > 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return value
 
 
 def run_cli(prog, run, args):

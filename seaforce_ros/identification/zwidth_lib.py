@@ -34,7 +34,7 @@ __all__ = ["DC_OMEGA", "DEFAULT_MODES", "simulate_impedance", "impedance_from_re
            "zwidth", "ZWidthRow", "zwidth_rows", "drive_frequency", "config_from_params"]
 
 DC_OMEGA = 0.1
-DEFAULT_MODES = ("off", "hold", "dob", "dob_linear_ff", "dob_full_ff")
+DEFAULT_MODES = ("passive", "hold", "dob", "dob_linear_ff", "dob_full_ff")
 
 
 def simulate_impedance(plant, dahl, config, modes=DEFAULT_MODES, omegas=(DC_OMEGA, 1, 3, 10),

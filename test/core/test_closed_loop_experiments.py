@@ -68,11 +68,11 @@ def loop_area(force, position):
 
 
 def test_work_loops_dob_and_full_feedforward():
-    loops = {mode: work_loop(mode) for mode in ("off", "dob", "dob_full_ff")}
+    loops = {mode: work_loop(mode) for mode in ("passive", "dob", "dob_full_ff")}
     # internal force (F_p vs X_e) hysteresis: the DOB removes >= 90 % of the loop area
     area = {m: loop_area(r["f_p"], r["x_e"]) for m, r in loops.items()}
-    assert area["off"] > 0.01                       # a real loop to shrink (N m rad)
-    assert area["dob"] <= 0.1 * area["off"], area
+    assert area["passive"] > 0.01                       # a real loop to shrink (N m rad)
+    assert area["dob"] <= 0.1 * area["passive"], area
     # external force within +-0.2 rad: full feed-forward removes >= 80 % of the peak
     peak = {}
     for m, r in loops.items():

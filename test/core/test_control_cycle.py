@@ -281,11 +281,11 @@ def test_plant_side_stop_makes_the_channel_follow_the_applied_torque(bits):
 
 
 def test_configs_of_several_channels_arrive_in_the_same_cycle():
-    cc, feed = make(('off', 'off'))
+    cc, feed = make(('passive', 'passive'))
     feed.state()
     cc.configure_channels({0: ControllerConfig(mode='hold')})
     cc.configure_channels({1: ControllerConfig(mode='hold')})      # before the next step
-    assert [c.mode for c in cc.controllers] == ['off', 'off']
+    assert [c.mode for c in cc.controllers] == ['passive', 'passive']
     effort, _ = feed.state(x=(0.0, 0.0))
     assert [c.mode for c in cc.controllers] == ['hold', 'hold']
     effort, _ = feed.state(x=(0.001, 0.001))
@@ -343,7 +343,7 @@ def test_checks_are_validated():
 
 
 # --- properties over arbitrary state sequences ------------------------------------------------
-ACTIVE = [m for m in MODES if m != 'off']
+ACTIVE = [m for m in MODES if m != 'passive']
 
 
 def rarely(value, normal, one_in):
@@ -391,7 +391,7 @@ def test_properties_over_arbitrary_states(ops, modes):
        and plausible and whose stamp was fresh;
     4. no step: the first effort after the start, a reset, a re-arm (stall, gap, restart,
        transient condition) or a plant-side stop equals the applied torque the state reports
-       (except in 'off', the deliberate zero).
+       (except in 'passive', the deliberate zero).
     """
     max_torque = 3.0
     ctrls = [ChannelController(ControllerConfig(mode=m, max_torque=max_torque,
@@ -430,7 +430,7 @@ def test_properties_over_arbitrary_states(ops, modes):
             assert all(math.isfinite(a[j]) and abs(a[j]) < 1e3 for a in (x, v, fp, fa))
             assert -0.05 <= age <= 0.05
             if (before[i] or stopped.get(channel, 0)) and active_before[i] == ctrls[i].mode \
-                    and ctrls[i].mode != 'off':
+                    and ctrls[i].mode != 'passive':
                 assert e == pytest.approx(fa[j], abs=1e-9)                         # 4
                 resumed += 1
     event('a channel resumed from the applied torque' if resumed else 'no resume seen')

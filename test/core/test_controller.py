@@ -21,15 +21,15 @@ def switch_to(mode):
     return lambda sim, ctl: ctl.configure(ctl.config.replace(mode=mode))
 
 
-@pytest.mark.parametrize("start", ["off", "dob", "hold", "dob_full_ff"])
+@pytest.mark.parametrize("start", ["passive", "dob", "hold", "dob_full_ff"])
 def test_bumpless_switching_at_rest(start):
     """At rest against a static load (endpoint held at 0.5 rad), every switch
     between active modes changes the torque by less than the pressure-sensor
     noise, although the holding torque is mostly 100x larger."""
     env = position_sine(0.0, 0.0, offset=0.5)       # static position drive
-    # every active mode, then back to the start ("off" is the immediate safe
+    # every active mode, then back to the start ("passive" is the immediate safe
     # state by design, tested separately)
-    targets = [m for m in MODES if m not in ("off", start)] + ([start] if start != "off" else [])
+    targets = [m for m in MODES if m not in ("passive", start)] + ([start] if start != "passive" else [])
     sim = ChannelSimulator(TABLE_I, DahlParams(), seed=11, environment=env)
     ctl = ChannelController(ControllerConfig(mode="dob"))
     hooks = {3000: switch_to(start)}
@@ -46,23 +46,23 @@ def test_bumpless_switching_at_rest(start):
         # (afterwards the torque moves continuously to the new mode's own
         # equilibrium, e.g. the DOB makes F_p track -F_ref within ~1/lambda)
     # most switches happen while holding a torque far above the noise (from
-    # "off", hold/force feedback keep the passive equilibrium: ~0 torque)
+    # "passive", hold/force feedback keep the passive equilibrium: ~0 torque)
     assert np.mean(np.array(holdings) > 100 * PRESSURE_NOISE) >= 0.5, holdings
 
 
 def test_off_is_immediate_zero_torque():
     sim = ChannelSimulator(TABLE_I, None, environment=position_sine(0.0, 0.0, offset=0.5))
     ctl = ChannelController(ControllerConfig(mode="dob"))
-    rec = run_closed_loop(sim, ctl, 3000, on_switch={2000: switch_to("off")})
+    rec = run_closed_loop(sim, ctl, 3000, on_switch={2000: switch_to("passive")})
     assert abs(rec["u"][1999]) > 0.05
     assert np.all(rec["u"][2000:] == 0.0)
 
 
 def test_configure_takes_effect_at_next_update():
-    ctl = ChannelController(ControllerConfig(mode="off"))
+    ctl = ChannelController(ControllerConfig(mode="passive"))
     ctl.update(0.0, 0.0, 0.1)
     ctl.configure(ControllerConfig(mode="force_feedback", force_feedback_gain=0.5))
-    assert ctl.mode == "off" and ctl.config.mode == "off"
+    assert ctl.mode == "passive" and ctl.config.mode == "passive"
     u = ctl.update(0.0, 0.0, 0.1)
     assert ctl.mode == "force_feedback"
     assert u == pytest.approx(0.0)          # bumpless entry from 0
@@ -87,7 +87,7 @@ def test_non_finite_input_raises_and_changes_nothing(bad):
         assert ctl.update(0.01, 0.1, 0.2) == twin.update(0.01, 0.1, 0.2) != 0.0
 
 
-@pytest.mark.parametrize("mode", [m for m in MODES if m != "off"])
+@pytest.mark.parametrize("mode", [m for m in MODES if m != "passive"])
 def test_reset_and_reenter_start_from_the_applied_torque(mode):
     """After reset(applied) or reenter(applied) the next output equals the applied torque,
     in every active mode and whatever the controller did before (no step)."""
@@ -146,7 +146,7 @@ def test_dob_matches_integral_form_eq19():
 
 def test_endpoint_state_estimate_tracks_truth():
     sim = ChannelSimulator(TABLE_I, DahlParams(), environment=torque_sine(0.3, 6.0))
-    ctl = ChannelController(ControllerConfig(mode="off"))
+    ctl = ChannelController(ControllerConfig(mode="passive"))
     rec = run_closed_loop(sim, ctl, 12000)
     late = slice(4000, None)
     ve_err = rec["endpoint_velocity_estimate"][late] - rec["v_e_true"][late]

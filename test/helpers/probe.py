@@ -20,6 +20,10 @@ class Probe:
         self._subscriptions: Dict[str, Any] = {}
 
     def close(self):
+        # subscriptions first: a 2 kHz topic from a node that still runs (the processes
+        # fixture ends after this one) can keep a CPU-starved spin thread from returning
+        for topic in list(self._subscriptions):
+            self.stop_recording(topic)
         self.background.close()
 
     # --- topics ------------------------------------------------------------------------

@@ -1,0 +1,263 @@
+"""Start-up validation and the ROS user's parameter path (issue 10).
+
+Every bad configuration of a node ends in ``[<executable>] cannot start: <parameter>: <reason>``,
+exit code 2 and no traceback; a value is checked at declaration exactly as a later set would
+check it; an integer for a float parameter is accepted; mode names are strings in YAML
+(``passive``, never the YAML boolean ``off``), so a params file with every mode written
+unquoted loads, and a ``ros2 param dump`` of the controller loads back (``ros2 param load``)
+and starts a new controller; rejections name the whole parameter (``pinch.dob...``).
+The processes are started as a user starts them: the installed executables with
+``--ros-args``.
+"""
+import itertools
+import subprocess
+
+import pytest
+import yaml
+
+from helpers.nodes import CONFIG, params_file, start_node
+from helpers.processes import executable
+
+from seaforce_ros import bag_recorder, controller_node, hardware_node, param_specs, sim_node
+from seaforce_ros.core.environment import ENVIRONMENT_MODES
+from seaforce_ros.core.params import MODES
+from seaforce_ros.ethercat.master import IFF_PROMISC, interface_flags
+
+#: YAML 1.1 reads these (any capitalisation) as booleans: no string value the package uses
+#: or suggests may be one of them.
+YAML_BOOLEAN_WORDS = {'y', 'n', 'yes', 'no', 'on', 'off', 'true', 'false'}
+
+
+def run_until_exit(argv, timeout=60):
+    """Run an installed executable to its end; (exit code, stdout + stderr). Ended by its own
+    PID if it outlives ``timeout`` (it must not: a bad configuration stops it at once)."""
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            stdin=subprocess.DEVNULL, start_new_session=True, text=True)
+    try:
+        out, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, _ = proc.communicate()
+        pytest.fail(f'{argv} still ran after {timeout} s:\n{out}')
+    return proc.returncode, out
+
+
+def assert_refused(code, out, *names):
+    assert code == 2, f'exit code {code}, expected 2:\n{out}'
+    assert 'Traceback' not in out, out
+    assert 'cannot start:' in out, out
+    for name in names:
+        assert name in out, f'{name!r} not named in:\n{out}'
+
+
+# --- one bad value per case: (executable, node name, overrides, words the message names) ---
+BAD_VALUES = [
+    ('sim_node', 'sim', {'clock_mode': 'lockstepp'}, ['clock_mode', 'lockstep']),
+    ('bag_recorder', 'bag_recorder', {'reliability': 'fast'}, ['reliability', 'best_effort']),
+    ('controller_node', 'controller', {'executor': 'multi'}, ['executor', 'single_threaded']),
+    ('controller_node', 'controller', {'control_qos': 'fast'}, ['control_qos']),
+    ('sim_node', 'sim', {'control_qos': 'fast'}, ['control_qos']),
+    ('controller_node', 'controller', {'channels': []}, ['channels']),
+    ('sim_node', 'sim', {'channels': ['pinch', 'pinch']}, ['channel', 'unique']),
+    ('controller_node', 'controller', {'pinch.max_torque': 2000}, ['pinch.max_torque', '1000']),
+    ('controller_node', 'controller', {'pinch.max_torque': 'big'}, ['pinch.max_torque',
+                                                                     'a number']),
+    ('controller_node', 'controller', {'pinch.hold.stiffness': float('nan')},
+     ['pinch.hold.stiffness', 'finite']),
+    ('sim_node', 'sim', {'rate': True}, ['rate', 'a number']),
+    ('sim_node', 'sim', {'seed': 1.5}, ['seed', 'integer']),
+    ('sim_node', 'sim', {'pinch.environment.mode': 'wobble'}, ['pinch.environment.mode',
+                                                                'position_sine']),
+    ('controller_node', 'controller', {'latched_faults': ['stale_state', 'gremlins']},
+     ['latched_faults', 'gremlins']),
+    ('controller_node', 'controller', {'status_rate': -1.0}, ['status_rate']),
+    # an unquoted `off` is the YAML boolean false
+    ('controller_node', 'controller', {'pinch.mode': False}, ['pinch.mode', 'quote']),
+    # the old name, quoted: says what it is called now
+    ('controller_node', 'controller', {'pinch.mode': 'off'}, ['pinch.mode', 'passive']),
+    # the core's whole-configuration rejection, naming both parameters in full
+    ('controller_node', 'controller', {'pinch.dob.nominal_inertia': 0.0},
+     ['pinch.dob.nominal_inertia', 'set pinch.allow_non_passive to true']),
+    ('bringup', 'controller', {'loop': 'dma'}, ['loop', 'direct']),
+    ('hardware_node', 'hardware', {'command_timeout': 0.0}, ['command_timeout']),
+]
+
+
+@pytest.mark.parametrize('exe,node,overrides,names', BAD_VALUES,
+                         ids=[f'{exe}-{"-".join(map(str, o))}' for exe, _, o, _ in BAD_VALUES])
+def test_bad_value_is_refused_at_start(tmp_path, exe, node, overrides, names):
+    argv = [str(executable(exe)), '--ros-args', '--params-file', str(CONFIG),
+            '--params-file', str(params_file(node, overrides, tmp_path))]
+    if exe == 'hardware_node':
+        argv += ['-p', 'interface:=lo']     # checked before the bus is touched
+    code, out = run_until_exit(argv)
+    assert_refused(code, out, *names)
+
+
+# --- params files that are not params files ---------------------------------------------
+PARAMS_FILES = {
+    'missing': None,
+    'directory': 'DIR',
+    'empty': '',
+    'comment_only': '# nothing here\n',
+    'a_list': '- controller\n- sim\n',
+    'a_scalar': 'controller\n',
+    'not_yaml': 'controller: [\n',
+    'no_ros__parameters': 'controller:\n  channels: [pinch]\n',
+    'ros__parameters_a_list': 'controller:\n  ros__parameters: [1, 2]\n',
+    'binary': b'\xff\xfe\x00garbage',
+}
+
+
+@pytest.mark.parametrize('case', sorted(PARAMS_FILES))
+def test_unusable_params_file_is_refused(tmp_path, case):
+    content = PARAMS_FILES[case]
+    path = tmp_path / f'{case}.yaml'
+    if content == 'DIR':
+        path.mkdir()
+    elif isinstance(content, bytes):
+        path.write_bytes(content)
+    elif content is not None:
+        path.write_text(content)
+    code, out = run_until_exit([str(executable('controller_node')), '--ros-args',
+                                '--params-file', str(path)])
+    assert_refused(code, out, '--params-file', str(path))
+
+
+def test_missing_interface_is_refused(tmp_path):
+    code, out = run_until_exit([str(executable('hardware_node')), '--ros-args',
+                                '--params-file', str(CONFIG)])
+    assert_refused(code, out, 'interface')
+
+
+@pytest.mark.parametrize('promiscuous_before', [False, True])
+def test_failed_hardware_start_restores_the_interface(promiscuous_before):
+    """SOEM switches the interface to promiscuous mode; a start that fails (no slave answers
+    on loopback) must leave the flag as it was."""
+    subprocess.run(['ip', 'link', 'set', 'lo', 'promisc', 'on' if promiscuous_before else 'off'],
+                   check=True)
+    try:
+        code, out = run_until_exit([str(executable('hardware_node')), '--ros-args',
+                                    '--params-file', str(CONFIG), '-p', 'interface:=lo'])
+        assert_refused(code, out, 'no EtherCAT slave answered on lo')
+        assert bool(interface_flags('lo') & IFF_PROMISC) == promiscuous_before
+    finally:
+        subprocess.run(['ip', 'link', 'set', 'lo', 'promisc', 'off'], check=True)
+
+
+def test_unknown_interface_is_refused():
+    code, out = run_until_exit([str(executable('hardware_node')), '--ros-args',
+                                '--params-file', str(CONFIG), '-p', 'interface:=nosuch7'])
+    assert_refused(code, out, "no network interface 'nosuch7'")
+
+
+# --- integers for float parameters -----------------------------------------------------
+def test_integer_for_a_float_parameter_is_accepted(processes, tmp_path, probe):
+    proc = start_node(processes, 'controller_node', 'controller', tmp_path,
+                      {'pinch.max_torque': 20, 'state_timeout': 1})
+    assert 'Traceback' not in proc.output()
+    got = probe.get_parameters('/controller', ['pinch.max_torque', 'state_timeout'])
+    assert got == {'pinch.max_torque': 20.0, 'state_timeout': 1.0}
+    assert all(type(v) is float for v in got.values())
+    # what `ros2 param set /controller pinch.max_torque 15` sends: an INTEGER parameter
+    ok, reason = probe.set_parameters('/controller', {'pinch.max_torque': 15}, atomic=False)
+    assert ok, reason
+    assert probe.get_parameters('/controller', ['pinch.max_torque']) == {'pinch.max_torque': 15.0}
+    # and the checks still hold for integers
+    ok, reason = probe.set_parameters('/controller', {'pinch.max_torque': 5000}, atomic=False)
+    assert not ok
+
+
+def test_set_rejection_names_the_whole_parameter(processes, tmp_path, probe):
+    start_node(processes, 'controller_node', 'controller', tmp_path)
+    ok, reason = probe.set_parameters('/controller', {'pinch.dob.nominal_inertia': 1e-5},
+                                      atomic=False)
+    assert not ok
+    assert 'pinch.dob.nominal_inertia' in reason, reason
+    assert 'set pinch.allow_non_passive to true' in reason, reason
+    ok, reason = probe.set_parameters('/controller', {'wrist.target.stiffness': 1e3},
+                                      atomic=False)
+    assert not ok and 'wrist.target.stiffness' in reason and 'wrist.allow_non_passive' in reason
+
+
+# --- mode names that survive YAML, dump and load ----------------------------------------
+def _all_specs():
+    specs = (controller_node.node_specs() + sim_node.node_specs() + bag_recorder.node_specs()
+             + hardware_node.node_specs())
+    for channel in ('pinch',):
+        specs += param_specs.controller_channel_specs(channel)
+        specs += param_specs.sim_channel_specs(channel)
+    return specs
+
+
+def test_no_string_value_is_a_yaml_boolean():
+    """Every string default and choice of every parameter, every mode and environment name,
+    read back from YAML unquoted, stays the same string."""
+    words = set(MODES) | set(ENVIRONMENT_MODES)
+    for spec in _all_specs():
+        words |= set(spec.choices)
+        if isinstance(spec.default, str) and spec.default:
+            words.add(spec.default)
+        if isinstance(spec.default, list):
+            words |= set(spec.default)
+    assert 'passive' in words and len(words) > 20
+    for word in sorted(words):
+        assert word.lower() not in YAML_BOOLEAN_WORDS, word
+        assert yaml.safe_load(f'key: {word}') == {'key': word}, word
+
+
+MODE_PAIRS = list(itertools.zip_longest(MODES[0::2], MODES[1::2], fillvalue=MODES[0]))
+
+
+def _dump(probe, node):
+    """What `ros2 param dump <node>` writes: every parameter, nested at the dots, under
+    ``<node>: ros__parameters:``."""
+    from rclpy.parameter import parameter_value_to_python
+    client = probe._param_client(node)
+    names = probe._request(lambda: client.list_parameters(), 10, 'list').result.names
+    values = probe._request(lambda: client.get_parameters(names), 10, 'get').values
+    tree = {}
+    for name, value in sorted(zip(names, values)):
+        *heads, leaf = name.split('.')
+        branch = tree
+        for head in heads:
+            branch = branch.setdefault(head, {})
+        branch[leaf] = parameter_value_to_python(value)
+    return yaml.dump({node: {'ros__parameters': tree}}, default_flow_style=False)
+
+
+@pytest.mark.parametrize('wrist_mode,pinch_mode', MODE_PAIRS)
+def test_unquoted_modes_load_and_dump_load_round_trip(processes, tmp_path, probe,
+                                                      wrist_mode, pinch_mode):
+    unquoted = tmp_path / 'modes.yaml'
+    unquoted.write_text('controller:\n  ros__parameters:\n'
+                        f'    wrist:\n      mode: {wrist_mode}\n'
+                        f'    pinch:\n      mode: {pinch_mode}\n')
+    proc = start_node(processes, 'controller_node', 'controller', tmp_path,
+                      ros_args=('--params-file', str(unquoted)))
+    modes = ['wrist.mode', 'pinch.mode']
+    assert probe.get_parameters('/controller', modes) == {'wrist.mode': wrist_mode,
+                                                          'pinch.mode': pinch_mode}
+    dumped = tmp_path / 'dump.yaml'
+    dumped.write_text(_dump(probe, '/controller'))
+    assert f'mode: {pinch_mode}\n' in dumped.read_text()      # written unquoted
+
+    # `ros2 param load /controller dump.yaml`: every parameter that may change at run time
+    # is set from the file; the read-only ones are refused as read-only, nothing else
+    client = probe._param_client('/controller')
+    results = probe._request(lambda: client.load_parameter_file(str(dumped)), 10,
+                             'load').results
+    loaded = yaml.safe_load(dumped.read_text())
+    assert len(results) > 50
+    for result in results:
+        assert result.successful or 'read-only' in result.reason, result.reason
+    assert sum(r.successful for r in results) > 40
+
+    # and a new controller starts from the dump with the same modes
+    proc.stop()
+    start_node(processes, 'controller_node', 'controller', tmp_path,
+               ros_args=('--params-file', str(dumped)))
+    assert probe.get_parameters('/controller', modes) == {'wrist.mode': wrist_mode,
+                                                          'pinch.mode': pinch_mode}
+    assert loaded['/controller']['ros__parameters']['pinch']['mode'] == pinch_mode
+
