@@ -11,6 +11,7 @@ The processes are started as a user starts them: the installed executables with
 """
 import itertools
 import subprocess
+from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 import yaml
@@ -83,14 +84,29 @@ BAD_VALUES = [
 ]
 
 
-@pytest.mark.parametrize('exe,node,overrides,names', BAD_VALUES,
-                         ids=[f'{exe}-{"-".join(map(str, o))}' for exe, _, o, _ in BAD_VALUES])
-def test_bad_value_is_refused_at_start(tmp_path, exe, node, overrides, names):
-    argv = [str(executable(exe)), '--ros-args', '--params-file', str(CONFIG),
-            '--params-file', str(params_file(node, overrides, tmp_path))]
-    if exe == 'hardware_node':
-        argv += ['-p', 'interface:=lo']     # checked before the bus is touched
-    code, out = run_until_exit(argv)
+BAD_VALUE_IDS = [f'{exe}-{"-".join(f"{k}={v}" for k, v in o.items())}'
+                 for exe, _, o, _ in BAD_VALUES]
+
+
+@pytest.fixture(scope='module')
+def bad_value_runs(tmp_path_factory):
+    """Every BAD_VALUES case run to its end, four at a time (each is a Python start-up)."""
+    def run(case):
+        index, (exe, node, overrides, _) = case
+        directory = tmp_path_factory.mktemp(f'bad{index}')
+        argv = [str(executable(exe)), '--ros-args', '--params-file', str(CONFIG),
+                '--params-file', str(params_file(node, overrides, directory))]
+        if exe == 'hardware_node':
+            argv += ['-p', 'interface:=lo']     # refused before the bus is touched
+        return run_until_exit(argv)
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        return list(pool.map(run, enumerate(BAD_VALUES)))
+
+
+@pytest.mark.parametrize('case,names', [(i, c[3]) for i, c in enumerate(BAD_VALUES)],
+                         ids=BAD_VALUE_IDS)
+def test_bad_value_is_refused_at_start(bad_value_runs, case, names):
+    code, out = bad_value_runs[case]
     assert_refused(code, out, *names)
 
 
@@ -109,18 +125,30 @@ PARAMS_FILES = {
 }
 
 
+@pytest.fixture(scope='module')
+def params_file_runs(tmp_path_factory):
+    """controller_node started on each PARAMS_FILES case, four at a time: {case: (path,
+    exit code, output)}."""
+    directory = tmp_path_factory.mktemp('params_files')
+
+    def run(case):
+        content = PARAMS_FILES[case]
+        path = directory / f'{case}.yaml'
+        if content == 'DIR':
+            path.mkdir()
+        elif isinstance(content, bytes):
+            path.write_bytes(content)
+        elif content is not None:
+            path.write_text(content)
+        return (path, *run_until_exit([str(executable('controller_node')), '--ros-args',
+                                       '--params-file', str(path)]))
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        return dict(zip(sorted(PARAMS_FILES), pool.map(run, sorted(PARAMS_FILES))))
+
+
 @pytest.mark.parametrize('case', sorted(PARAMS_FILES))
-def test_unusable_params_file_is_refused(tmp_path, case):
-    content = PARAMS_FILES[case]
-    path = tmp_path / f'{case}.yaml'
-    if content == 'DIR':
-        path.mkdir()
-    elif isinstance(content, bytes):
-        path.write_bytes(content)
-    elif content is not None:
-        path.write_text(content)
-    code, out = run_until_exit([str(executable('controller_node')), '--ros-args',
-                                '--params-file', str(path)])
+def test_unusable_params_file_is_refused(params_file_runs, case):
+    path, code, out = params_file_runs[case]
     assert_refused(code, out, '--params-file', str(path))
 
 
