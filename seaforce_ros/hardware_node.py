@@ -25,9 +25,10 @@ import pathlib
 import sys
 import time
 
-from .ethercat.bus_config import BusConfig, BusConfigError
+from .ethercat.bus_config import BusConfig
 from .ethercat.cia402 import CW_DISABLE_VOLTAGE, MODE_CST, DriveSequencer
-from .ethercat.master import BusError, EthercatBus
+from .ethercat.errors import BusConfigError, BusError
+from .ethercat.master import EthercatBus
 from .plant_node import PlantNode, plant_specs, prepare_process
 from .ros_common import ParamSpec, StartupError, run
 

@@ -39,14 +39,12 @@ import struct
 from dataclasses import dataclass
 from typing import Dict, Optional, Tuple
 
+from .errors import BusConfigError
+
 KINDS = ('cia402_drive', 'analog_input', 'encoder')
 DTYPES = {'u8': 'B', 'i8': 'b', 'u16': 'H', 'i16': 'h', 'u32': 'I', 'i32': 'i'}
 DRIVE_OUTPUTS = ('controlword', 'target_torque')
 DRIVE_INPUTS = ('statusword', 'position', 'velocity')
-
-
-class BusConfigError(ValueError):
-    """The bus YAML is inconsistent; the message names the item and the fix."""
 
 
 @dataclass(frozen=True)

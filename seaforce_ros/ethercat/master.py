@@ -14,14 +14,7 @@ import time
 from typing import Dict, List, Tuple
 
 from .bus_config import BusConfig, SlaveConfig
-
-
-class BusError(RuntimeError):
-    """The bus cannot be brought up or has failed; the message says what to check."""
-
-
-class IdentityError(BusError):
-    """A slave on the bus is not the one the configuration expects."""
+from .errors import BusError, IdentityError
 
 
 _SIOCGIFFLAGS, _SIOCSIFFLAGS, IFF_PROMISC = 0x8913, 0x8914, 0x100
