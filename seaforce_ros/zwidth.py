@@ -27,8 +27,6 @@ import sys
 
 import numpy as np
 
-from .identification.zwidth_lib import DEFAULT_MODES
-
 __all__ = ["main", "build_parser"]
 
 
@@ -47,7 +45,8 @@ def build_parser():
                    "Table I, Dahl sigma 12.8 N m/rad, F_c 0.032 N m)")
     p.add_argument("--modes", default=None,
                    help="modes for --simulate (comma separated; hold is always added; "
-                        "default: " + ",".join(DEFAULT_MODES) + ")")
+                        "default: the passive (motor off) mode, hold, dob, dob_linear_ff, "
+                        "dob_full_ff)")
     p.add_argument("--frequencies", default="dc,1,3,10",
                    help="drive frequencies [rad/s] for --simulate; dc = 0.1 rad/s")
     p.add_argument("--amplitude", type=positive_float, default=0.2,
@@ -94,6 +93,7 @@ def _modes(text):
     """The --modes list: known modes, hold first if not given, no repeats, at least one mode
     besides hold (the Z-width compares the lowest-impedance mode with hold)."""
     from .identification.errors import UsageError
+    from .identification.zwidth_lib import DEFAULT_MODES
     items = DEFAULT_MODES if text is None else [m.strip() for m in text.split(",")
                                                 if m.strip()]
     modes = list(dict.fromkeys(_check_mode(m, "--modes") for m in items))
@@ -115,9 +115,10 @@ def _bag_item(item):
     if "=" not in item or os.path.exists(item):
         return "", item
     mode, _, path = item.partition("=")
-    if not path:
+    if not path or not mode:
         from .identification.errors import UsageError
-        raise UsageError(f"{item}: no bag after '=' (give BAG or MODE=BAG)")
+        raise UsageError(f"{item}: no {'bag after' if mode else 'mode before'} '=' (give BAG "
+                         "or MODE=BAG)")
     return _check_mode(mode, f"{item}"), path
 
 
@@ -225,9 +226,8 @@ def run(args):
     if args.simulate:
         if args.bags:
             raise UsageError("give bags or --simulate, not both")
-        # every option is checked before the first (long) simulation
-        omegas = _frequencies(args.frequencies)
-        modes = _modes(args.modes)
+        # every option is checked before the first (long) simulation; the files first (the
+        # simulation's modules take a second or two to import)
         if args.true_params:
             plant, dahl = _plant_dahl(args.true_params, args.channel, "--true-params",
                                       PlantParams.table_i(), DahlParams())
@@ -243,6 +243,8 @@ def run(args):
         if args.reference_params:
             sets.append(("reference", _config(args.reference_params, args.channel,
                                               "--reference-params", truth_config)))
+        omegas = _frequencies(args.frequencies)
+        modes = _modes(args.modes)
         from .identification.zwidth_lib import simulate_impedance, zwidth_rows
         results = []
         for i, (label, cfg) in enumerate(sets):

@@ -149,10 +149,10 @@ def test_zwidth_errors(tmp_path, capsys):
     assert code == 2 and "MODE=BAG" in err
     code, _, err = _run(capsys, "--channel", "pinch")
     assert code == 2 and "--simulate" in err
-    code, _, err = _run(capsys, f"off={tmp_path / 'bag'}", "--channel", "thumb")
+    code, _, err = _run(capsys, f"hold={tmp_path / 'bag'}", "--channel", "thumb")
     assert code == 2 and "unknown channel" in err
     code, _, err = _run(capsys, "--simulate", "--channel", "pinch", "--frequencies", "1,x")
     assert code == 2 and "bad frequency" in err
-    code, _, err = _run(capsys, f"off={tmp_path / 'bag'}", "--channel", "pinch", "--plot",
+    code, _, err = _run(capsys, f"hold={tmp_path / 'bag'}", "--channel", "pinch", "--plot",
                         tmp_path / "no" / "z.png")
     assert code == 2 and "does not exist" in err

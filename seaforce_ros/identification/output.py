@@ -118,7 +118,7 @@ def write_params_file(path, channel, plant=None, dahl=None, comments=(), merge=T
     try:
         p.write_text(text)
     except OSError as exc:
-        raise IdentificationError(f"cannot write {w}: {exc.strerror}") from None
+        raise IdentificationError(f"{w}: cannot write it ({exc.strerror})") from None
     return p
 
 

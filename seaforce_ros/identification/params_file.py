@@ -154,10 +154,12 @@ def channel_groups(data, channel, w):
     """``(plant, dahl)``: the ``<channel>.plant.*`` and ``<channel>.dahl.*`` values of a parsed
     params file (every node section; a later one overrides an earlier one). A channel with
     neither is an error that lists the channels the file has."""
-    plant, dahl, known = {}, {}, []
+    plant, dahl, known, named = {}, {}, [], False
     for _names, params in sections(data, w):
         for name, value in flatten(params).items():
             parts = name.split(".")
+            if parts[0] == channel:
+                named = True
             if parts == ["channels"] and isinstance(value, list):
                 known += [str(v) for v in value]
             if len(parts) < 2 or parts[1] not in ("plant", "dahl"):
@@ -173,7 +175,7 @@ def channel_groups(data, channel, w):
             (plant if parts[1] == "plant" else dahl)[".".join(parts[2:])] = value
     if not plant and not dahl:
         known = list(dict.fromkeys(known))
-        if channel in known:
+        if channel in known or named:
             raise ParamsFileError(f"{w}: channel {channel!r} has no plant.* or dahl.* "
                                   "parameters in this file")
         listed = (f"the file has parameters of {', '.join(known)}" if known else
@@ -469,16 +471,16 @@ def _update(text, values, w, header):
         if where_name is None or where_name[1] not in values:
             continue
         section, name = where_name
-        if not k.value or k.value[:1] in "[{|>" or (section, name) not in old:
+        if not k.value or k.value[:1] in "[{|>":
             raise ParamsFileError(f"{w}: line {k.index + 1}: {name} is not written as "
                                   "'key: value' on one line")
         try:
             current = yaml.safe_load(k.value)
         except yaml.YAMLError:
             current = None
-        if not _same(current, old[(section, name)]):
+        if (section, name) not in old or not _same(current, old[(section, name)]):
             raise ParamsFileError(f"{w}: line {k.index + 1}: could not follow the file's layout "
-                                  f"there ({name})")
+                                  f"there ({name}; a key given twice?)")
         edits[k.index] = _replace_value(lines[k.index], k, format_value(values[name]))
         expected[(section, name)] = float(values[name])
         found.add(name)
@@ -503,7 +505,7 @@ def _update(text, values, w, header):
                     label = ".".join(map(str, full[2:d])) or "/".join(map(str, full[:d]))
                     raise ParamsFileError(
                         f"{w}: line {leaves[full[:d]].index + 1}: {label} is written on one "
-                        f"line; cannot add {name} to it")
+                        f"line; cannot set {name} in it")
             groups.setdefault(full[:depth], []).append((full[depth:], values[name]))
             expected[((ALL_NODES, "ros__parameters"), name)] = float(values[name])
             for d in range(1, len(full)):       # an empty block becomes a mapping
@@ -514,7 +516,9 @@ def _update(text, values, w, header):
                     key = (prefix[:-1], prefix[-1])
                 if key in expected and expected[key] in (None, {}):
                     del expected[key]
-        for prefix, items in groups.items():
+        # deeper groups first: an inner block that ends where its parent ends gets its lines
+        # before the parent's new keys
+        for prefix, items in sorted(groups.items(), key=lambda g: -len(g[0])):
             tree = {}
             for rest, value in items:
                 node = tree
@@ -524,10 +528,9 @@ def _update(text, values, w, header):
             if prefix:
                 k = blocks[prefix]
                 indent = _child_indent(lines, k)
-                if indent is None:
-                    indent = k.indent + 2
+                step = 2 if indent is None else indent - k.indent
                 at = _block_end(lines, k)
-                inserts.setdefault(at, []).extend(_render(tree, indent, 2))
+                inserts.setdefault(at, []).extend(_render(tree, k.indent + step, step))
             else:
                 at = len(lines)
                 block = ([""] if lines and lines[-1].strip() else []) + _render(tree, 0, 2)
