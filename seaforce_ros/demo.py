@@ -31,7 +31,8 @@ from typing import Dict, List
 
 import numpy as np
 
-MODES = ('passive', 'hold', 'dob', 'dob_linear_ff', 'dob_full_ff')
+from .identification.zwidth_lib import DEFAULT_MODES as MODES  # the paper's Fig. 5 modes
+
 CHANNEL = 'pinch'
 DT = 5e-4
 
