@@ -1,9 +1,10 @@
 """The ROS parameters of the nodes, generated from the core's parameter tables.
 
 Per-channel keys are ``<channel>.<key>`` with ``<key>`` from
-:data:`seaforce_ros.core.params.PARAMETER_DESCRIPTIONS` (controller) and the simulator tables
-below. Ranges given here are what rclpy enforces before any callback runs; cross-parameter
-rules (DOB passivity, eq. 28) are checked by the core in the nodes' on-set callbacks.
+:data:`seaforce_ros.core.params.PARAMETERS` (controller: description and range per key) and
+the simulator tables below. A value is checked against its range (and type, finiteness,
+allowed strings) at declaration and on every set; cross-parameter rules (DOB passivity,
+eq. 28) are checked by the core in the nodes' on-set callbacks.
 """
 from __future__ import annotations
 
@@ -12,33 +13,15 @@ from typing import Dict, List
 
 from .core.environment import DRIVE_DAMPING, DRIVE_STIFFNESS, ENVIRONMENT_MODES
 from .core.errors import InvalidParameterError
-from .core.params import MODES, PARAMETER_DESCRIPTIONS, ControllerConfig, PlantParams
+from .core.params import MODES, PARAMETERS, ControllerConfig, PlantParams
 from .core.sensors import SensorParams
 from .ros_common import EXECUTORS, ParamSpec, StartupError
 
 #: The zero-torque mode was called ``off``, which YAML 1.1 reads as a boolean.
 MODE_RENAMED = 'the zero-torque mode formerly called off is passive'
 
-#: [low, high] of the controller keys (rclpy enforces these; the core enforces the rest).
-CONTROLLER_RANGES = {
-    'plant.motor_inertia': (0.0, 10.0), 'plant.motor_damping': (0.0, 1e3),
-    'plant.motor_stiffness': (0.0, 1e4), 'plant.endpoint_inertia': (0.0, 10.0),
-    'plant.endpoint_damping': (0.0, 1e3), 'plant.endpoint_stiffness': (0.0, 1e4),
-    'plant.hose_damping': (0.0, 1e3), 'plant.hose_stiffness': (0.0, 1e6),
-    'dahl.sigma': (0.0, 1e6), 'dahl.coulomb_force': (0.0, 1e3), 'dahl.exponent': (0.0, 10.0),
-    'dob.cutoff': (0.0, 1e4), 'dob.nominal_inertia': (0.0, 10.0),
-    'dob.nominal_damping': (-1e3, 1e3), 'dob.nominal_stiffness': (0.0, 1e4),
-    'target.stiffness': (0.0, 1e4), 'target.damping': (0.0, 1e3),
-    'hold.stiffness': (0.0, 1e5), 'hold.damping': (0.0, 1e3),
-    'force_feedback.gain': (-100.0, 100.0),
-    'chirp.amplitude': (0.0, 100.0), 'chirp.start_frequency': (0.0, 1e4),
-    'chirp.end_frequency': (0.0, 1e4), 'chirp.duration': (0.0, 1e5),
-    'feedforward.rest_position': (-100.0, 100.0), 'feedforward.dahl_deadband': (0.0, 1.0),
-    'max_torque': (0.0, 1e3),
-}
-
-PLANT_KEYS = tuple(k for k in PARAMETER_DESCRIPTIONS if k.startswith('plant.'))
-DAHL_KEYS = tuple(k for k in PARAMETER_DESCRIPTIONS if k.startswith('dahl.'))
+PLANT_KEYS = tuple(k for k in PARAMETERS if k.startswith('plant.'))
+DAHL_KEYS = tuple(k for k in PARAMETERS if k.startswith('dahl.'))
 
 ENVIRONMENT_SPECS = (
     ('environment.mode', 'free', 'endpoint environment: ' + ', '.join(ENVIRONMENT_MODES), None),
@@ -90,12 +73,12 @@ def controller_channel_specs(channel: str) -> List[ParamSpec]:
     """Every controller parameter of one channel, defaults = Table I config."""
     defaults = ControllerConfig(plant=PlantParams.table_i()).to_dict()
     specs = []
-    for key, description in PARAMETER_DESCRIPTIONS.items():
+    for key, info in PARAMETERS.items():
         default = defaults[key]
         if isinstance(default, int) and not isinstance(default, bool):
             default = float(default)
-        low, high = CONTROLLER_RANGES.get(key, (None, None))
-        specs.append(ParamSpec(f'{channel}.{key}', default, description, low=low, high=high,
+        specs.append(ParamSpec(f'{channel}.{key}', default, info.description, low=info.low,
+                               high=info.high,
                                choices=MODES if key == 'mode' else (),
                                choice_hint=MODE_RENAMED if key == 'mode' else ''))
     return specs
@@ -106,10 +89,10 @@ def sim_channel_specs(channel: str) -> List[ParamSpec]:
     defaults = ControllerConfig(plant=PlantParams.table_i()).to_dict()
     specs = []
     for key in PLANT_KEYS + DAHL_KEYS:
-        low, high = CONTROLLER_RANGES[key]
+        info = PARAMETERS[key]
         specs.append(ParamSpec(f'{channel}.{key}', float(defaults[key]),
-                               PARAMETER_DESCRIPTIONS[key] + ' (simulated plant)',
-                               low=low, high=high, read_only=True))
+                               info.description + ' (simulated plant)',
+                               low=info.low, high=info.high, read_only=True))
     for key, default, description, rng in SIM_CHANNEL_SPECS:
         low, high = rng
         specs.append(ParamSpec(f'{channel}.{key}', default, description, low=low, high=high,

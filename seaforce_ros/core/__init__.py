@@ -19,7 +19,7 @@ simulator   ChannelSimulator, run_closed_loop
 from .errors import (SeaforceError, InvalidParameterError, NonPassiveError,
                      NonFiniteInputError)
 from .params import (MODES, DOB_MODES, PlantParams, DahlParams, DobParams,
-                     ControllerConfig, PARAMETER_DESCRIPTIONS)
+                     ControllerConfig, PARAMETERS)
 from .dahl import DahlState
 from .controller import ChannelController
 from .sensors import SensorParams
@@ -30,7 +30,7 @@ from .simulator import Measurement, ChannelSimulator, run_closed_loop
 __all__ = [
     "SeaforceError", "InvalidParameterError", "NonPassiveError", "NonFiniteInputError",
     "MODES", "DOB_MODES", "PlantParams", "DahlParams", "DobParams", "ControllerConfig",
-    "PARAMETER_DESCRIPTIONS", "DahlState", "ChannelController", "SensorParams",
+    "PARAMETERS", "DahlState", "ChannelController", "SensorParams",
     "Environment", "free", "torque_sine", "torque_chirp", "position_sine",
     "environment_from_dict", "Measurement", "ChannelSimulator", "run_closed_loop",
 ]

@@ -27,12 +27,13 @@ keys below are relative to ``<channel>.``)::
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import Optional
 
 from .errors import InvalidParameterError, NonPassiveError
 
 __all__ = [
     "MODES", "DOB_MODES", "PlantParams", "DahlParams", "DobParams",
-    "ControllerConfig", "PARAMETER_DESCRIPTIONS", "DEFAULT_CUTOFF",
+    "ControllerConfig", "PARAMETERS", "ParameterInfo", "DEFAULT_CUTOFF",
     "DEFAULT_HOLD_STIFFNESS", "DEFAULT_HOLD_DAMPING",
 ]
 
@@ -227,62 +228,110 @@ def check_dob_passivity(plant, dob):
             f"{k_max:.6g} N m/rad (eq. 28)")
 
 
-# --- flat key table: key -> (attribute path, type, description) ----------
-_PLANT_KEYS = {
-    "plant.motor_inertia": "m, motor inertia [N m s^2/rad], > 0",
-    "plant.motor_damping": "b, motor damping [N m s/rad], >= 0",
-    "plant.motor_stiffness": "k, motor stiffness [N m/rad], >= 0",
-    "plant.endpoint_inertia": "m_e, endpoint inertia [N m s^2/rad], > 0",
-    "plant.endpoint_damping": "b_e, endpoint damping [N m s/rad], >= 0",
-    "plant.endpoint_stiffness": "k_e, endpoint stiffness [N m/rad], >= 0",
-    "plant.hose_damping": "b_s, hose damping [N m s/rad], > 0 for the controller",
-    "plant.hose_stiffness": "k_s, hose stiffness [N m/rad], > 0 for the controller",
-}
-_OTHER_KEYS = {
-    "mode": "controller mode, one of " + ", ".join(MODES),
-    "dahl.sigma": "sigma, Dahl stiffness at F_d = 0 [N m/rad], >= 0 (eq. 14)",
-    "dahl.coulomb_force": "F_c, Dahl hysteresis amplitude [N m], > 0 (eq. 14)",
-    "dahl.exponent": "n, Dahl exponent [dimensionless], >= 0 (1 gives eq. 15)",
-    "dob.cutoff": "lambda, DOB low-pass cut-off [rad/s], > 0 (eq. 18)",
-    "dob.nominal_inertia": "m_n, DOB nominal inertia [N m s^2/rad], >= m - b/lambda (eq. 28)",
-    "dob.nominal_damping": "b_n, DOB nominal damping [N m s/rad], > -k/lambda",
-    "dob.nominal_stiffness": "k_n, DOB nominal stiffness [N m/rad], 0..k + lambda b_n (eq. 28)",
-    "target.stiffness": "rendered endpoint stiffness in impedance mode [N m/rad], 0..k_s",
-    "target.damping": "rendered endpoint damping in impedance mode [N m s/rad], 0..10 b_s",
-    "hold.stiffness": "hold-mode PD stiffness K_p on the motor position [N m/rad], >= 0",
-    "hold.damping": "hold-mode PD damping K_d on the motor velocity [N m s/rad], >= 0",
-    "force_feedback.gain": "K_f of F_a = K_f F_p (eq. 20) [dimensionless], -1..1 unless allow_non_passive",
-    "chirp.amplitude": "open-loop chirp torque amplitude [N m], >= 0",
-    "chirp.start_frequency": "chirp start frequency [Hz], > 0",
-    "chirp.end_frequency": "chirp end frequency [Hz], > 0",
-    "chirp.duration": "chirp duration [s], > 0",
-    "feedforward.rest_position": "motor-frame endpoint position where k_e is relaxed [rad]",
-    "feedforward.dahl_deadband": ("width of the dead zone (play) on the estimated endpoint "
-                                  "position driving the Dahl feed-forward [rad], >= 0"),
-    "max_torque": "motor torque limit |F_a| [N m], > 0",
-    "allow_non_passive": "accept DOB / force-feedback settings outside eq. 28 (bool)",
+# --- the parameter table ----------------------------------------------------
+@dataclass(frozen=True)
+class ParameterInfo:
+    """One per-channel controller parameter (key relative to ``<channel>.``).
+
+    Attributes
+    ----------
+    field : str
+        Where the value lives: an attribute of :class:`ControllerConfig`, or
+        ``"<plant|dahl|dob>.<attribute>"`` of its parameter group.
+    description : str
+        Symbol, meaning, units and the equation it comes from (a ROS descriptor's text).
+    low, high : float or None
+        The range a ROS descriptor advertises (and a node enforces before the core's own
+        checks, which add the cross-parameter rules such as eq. 28).
+    """
+
+    field: str
+    description: str
+    low: Optional[float] = None
+    high: Optional[float] = None
+
+
+#: Every per-channel controller parameter: flat key -> :class:`ParameterInfo`. The ROS
+#: descriptors, ranges and the flat-dict conversions all derive from this one table.
+PARAMETERS = {
+    "mode": ParameterInfo("mode", "controller mode, one of " + ", ".join(MODES)),
+    "plant.motor_inertia": ParameterInfo(
+        "plant.motor_inertia", "m, motor inertia [N m s^2/rad], > 0", 0.0, 10.0),
+    "plant.motor_damping": ParameterInfo(
+        "plant.motor_damping", "b, motor damping [N m s/rad], >= 0", 0.0, 1e3),
+    "plant.motor_stiffness": ParameterInfo(
+        "plant.motor_stiffness", "k, motor stiffness [N m/rad], >= 0", 0.0, 1e4),
+    "plant.endpoint_inertia": ParameterInfo(
+        "plant.endpoint_inertia", "m_e, endpoint inertia [N m s^2/rad], > 0", 0.0, 10.0),
+    "plant.endpoint_damping": ParameterInfo(
+        "plant.endpoint_damping", "b_e, endpoint damping [N m s/rad], >= 0", 0.0, 1e3),
+    "plant.endpoint_stiffness": ParameterInfo(
+        "plant.endpoint_stiffness", "k_e, endpoint stiffness [N m/rad], >= 0", 0.0, 1e4),
+    "plant.hose_damping": ParameterInfo(
+        "plant.hose_damping", "b_s, hose damping [N m s/rad], > 0 for the controller",
+        0.0, 1e3),
+    "plant.hose_stiffness": ParameterInfo(
+        "plant.hose_stiffness", "k_s, hose stiffness [N m/rad], > 0 for the controller",
+        0.0, 1e6),
+    "dahl.sigma": ParameterInfo(
+        "dahl.sigma", "sigma, Dahl stiffness at F_d = 0 [N m/rad], >= 0 (eq. 14)", 0.0, 1e6),
+    "dahl.coulomb_force": ParameterInfo(
+        "dahl.coulomb_force", "F_c, Dahl hysteresis amplitude [N m], > 0 (eq. 14)",
+        0.0, 1e3),
+    "dahl.exponent": ParameterInfo(
+        "dahl.exponent", "n, Dahl exponent [dimensionless], >= 0 (1 gives eq. 15)",
+        0.0, 10.0),
+    "dob.cutoff": ParameterInfo(
+        "dob.cutoff", "lambda, DOB low-pass cut-off [rad/s], > 0 (eq. 18)", 0.0, 1e4),
+    "dob.nominal_inertia": ParameterInfo(
+        "dob.nominal_inertia",
+        "m_n, DOB nominal inertia [N m s^2/rad], >= m - b/lambda (eq. 28)", 0.0, 10.0),
+    "dob.nominal_damping": ParameterInfo(
+        "dob.nominal_damping", "b_n, DOB nominal damping [N m s/rad], > -k/lambda",
+        -1e3, 1e3),
+    "dob.nominal_stiffness": ParameterInfo(
+        "dob.nominal_stiffness",
+        "k_n, DOB nominal stiffness [N m/rad], 0..k + lambda b_n (eq. 28)", 0.0, 1e4),
+    "target.stiffness": ParameterInfo(
+        "target_stiffness",
+        "rendered endpoint stiffness in impedance mode [N m/rad], 0..k_s", 0.0, 1e4),
+    "target.damping": ParameterInfo(
+        "target_damping",
+        "rendered endpoint damping in impedance mode [N m s/rad], 0..10 b_s", 0.0, 1e3),
+    "hold.stiffness": ParameterInfo(
+        "hold_stiffness",
+        "hold-mode PD stiffness K_p on the motor position [N m/rad], >= 0", 0.0, 1e5),
+    "hold.damping": ParameterInfo(
+        "hold_damping",
+        "hold-mode PD damping K_d on the motor velocity [N m s/rad], >= 0", 0.0, 1e3),
+    "force_feedback.gain": ParameterInfo(
+        "force_feedback_gain",
+        "K_f of F_a = K_f F_p (eq. 20) [dimensionless], -1..1 unless allow_non_passive",
+        -100.0, 100.0),
+    "chirp.amplitude": ParameterInfo(
+        "chirp_amplitude", "open-loop chirp torque amplitude [N m], >= 0", 0.0, 100.0),
+    "chirp.start_frequency": ParameterInfo(
+        "chirp_start_frequency", "chirp start frequency [Hz], > 0", 0.0, 1e4),
+    "chirp.end_frequency": ParameterInfo(
+        "chirp_end_frequency", "chirp end frequency [Hz], > 0", 0.0, 1e4),
+    "chirp.duration": ParameterInfo(
+        "chirp_duration", "chirp duration [s], > 0", 0.0, 1e5),
+    "feedforward.rest_position": ParameterInfo(
+        "rest_position", "motor-frame endpoint position where k_e is relaxed [rad]",
+        -100.0, 100.0),
+    "feedforward.dahl_deadband": ParameterInfo(
+        "dahl_deadband", "width of the dead zone (play) on the estimated endpoint position "
+        "driving the Dahl feed-forward [rad], >= 0", 0.0, 1.0),
+    "max_torque": ParameterInfo(
+        "max_torque", "the controller's fault limit: a computed |F_a| above it latches a "
+        "torque_limit fault (zero torque) [N m], > 0", 0.0, 1e3),
+    "allow_non_passive": ParameterInfo(
+        "allow_non_passive", "accept DOB / force-feedback / impedance settings outside the "
+        "passivity bounds (eq. 28) (bool)"),
 }
 
-#: Flat parameter key -> description (units, range), for ROS descriptors.
-PARAMETER_DESCRIPTIONS = {**{"mode": _OTHER_KEYS["mode"]}, **_PLANT_KEYS,
-                          **{k: v for k, v in _OTHER_KEYS.items() if k != "mode"}}
-
-_SIMPLE_KEYS = {
-    "mode": "mode",
-    "target.stiffness": "target_stiffness",
-    "target.damping": "target_damping",
-    "hold.stiffness": "hold_stiffness",
-    "hold.damping": "hold_damping",
-    "force_feedback.gain": "force_feedback_gain",
-    "chirp.amplitude": "chirp_amplitude",
-    "chirp.start_frequency": "chirp_start_frequency",
-    "chirp.end_frequency": "chirp_end_frequency",
-    "chirp.duration": "chirp_duration",
-    "feedforward.rest_position": "rest_position",
-    "feedforward.dahl_deadband": "dahl_deadband",
-    "max_torque": "max_torque",
-    "allow_non_passive": "allow_non_passive",
-}
+#: The parameter groups of :class:`ControllerConfig` (``<group>.<attribute>`` fields).
+_GROUPS = ("plant", "dahl", "dob")
 
 
 @dataclass(frozen=True)
@@ -401,21 +450,14 @@ class ControllerConfig:
         return dataclasses.replace(self, **changes)
 
     # -- flat ROS-style dictionaries -------------------------------------
-    @staticmethod
-    def keys():
-        """All flat parameter keys, in a stable order."""
-        return tuple(PARAMETER_DESCRIPTIONS)
-
     def to_dict(self):
-        """Flat ``{key: value}`` dict (keys relative to ``<channel>.``)."""
+        """Flat ``{key: value}`` dict (keys of :data:`PARAMETERS`, relative to
+        ``<channel>.``)."""
         out = {}
-        for key in PARAMETER_DESCRIPTIONS:
-            group, _, name = key.partition(".")
-            if group in ("plant", "dahl", "dob"):
-                out[key] = float(getattr(getattr(self, group), name))
-            else:
-                value = getattr(self, _SIMPLE_KEYS[key])
-                out[key] = value if isinstance(value, (str, bool)) else float(value)
+        for key, info in PARAMETERS.items():
+            group, _, name = info.field.rpartition(".")
+            value = getattr(getattr(self, group), name) if group else getattr(self, name)
+            out[key] = value if isinstance(value, (str, bool)) else float(value)
         return out
 
     @classmethod
@@ -425,7 +467,7 @@ class ControllerConfig:
         Parameters
         ----------
         values : mapping
-            ``{key: value}``; keys as in :data:`PARAMETER_DESCRIPTIONS`,
+            ``{key: value}``; keys as in :data:`PARAMETERS`,
             optionally prefixed by ``<channel>.`` (the prefix is stripped when
             the remainder is a known key).
         base : ControllerConfig, optional
@@ -437,24 +479,24 @@ class ControllerConfig:
             Unknown key or bad value (the error names the key and bound).
         """
         base = cls() if base is None else base
-        groups = {"plant": {}, "dahl": {}, "dob": {}}
+        groups = {group: {} for group in _GROUPS}
         simple = {}
         for raw_key, value in values.items():
             key = raw_key
-            if key not in PARAMETER_DESCRIPTIONS and "." in key:
+            if key not in PARAMETERS and "." in key:
                 tail = key.split(".", 1)[1]
-                if tail in PARAMETER_DESCRIPTIONS:
+                if tail in PARAMETERS:
                     key = tail
-            if key not in PARAMETER_DESCRIPTIONS:
+            if key not in PARAMETERS:
                 raise InvalidParameterError(raw_key, value, "a known key: " +
-                                            ", ".join(PARAMETER_DESCRIPTIONS))
-            group, _, name = key.partition(".")
+                                            ", ".join(PARAMETERS))
+            group, _, name = PARAMETERS[key].field.rpartition(".")
             if isinstance(value, int) and not isinstance(value, bool):
                 value = float(value)
-            if group in groups:
+            if group:
                 groups[group][name] = value
             else:
-                simple[_SIMPLE_KEYS[key]] = value
+                simple[name] = value
         plant = dataclasses.replace(base.plant, **groups["plant"])
         dahl = dataclasses.replace(base.dahl, **groups["dahl"])
         dob = dataclasses.replace(base.dob, **groups["dob"])

@@ -5,7 +5,7 @@ import math
 import pytest
 
 from seaforce_ros.core import (ControllerConfig, DahlParams, DobParams, InvalidParameterError,
-                               MODES, NonPassiveError, PARAMETER_DESCRIPTIONS, PlantParams,
+                               MODES, NonPassiveError, PARAMETERS, PlantParams,
                                SeaforceError)
 
 TABLE_I = PlantParams.table_i()
@@ -115,7 +115,7 @@ def test_flat_dict_round_trip():
     cfg = ControllerConfig(mode="dob_full_ff", target_stiffness=0.5,
                            dob=DobParams(cutoff=20.0, nominal_inertia=5e-4))
     flat = cfg.to_dict()
-    assert set(flat) == set(PARAMETER_DESCRIPTIONS)
+    assert list(flat) == list(PARAMETERS)
     assert flat["mode"] == "dob_full_ff" and flat["dob.cutoff"] == 20.0
     assert flat["plant.hose_stiffness"] == 13.0782
     assert flat["dahl.coulomb_force"] == 0.032
@@ -139,8 +139,26 @@ def test_from_dict_overrides_base_and_strips_channel_prefix():
 
 
 def test_every_key_has_a_description_with_range_or_units():
-    for key, text in PARAMETER_DESCRIPTIONS.items():
+    for key, info in PARAMETERS.items():
+        text = info.description
         assert text and ("[" in text or "one of" in text or "bool" in text), key
+
+
+def test_the_table_names_real_fields_and_sane_ranges():
+    """Every PARAMETERS entry maps to a ControllerConfig field; the advertised range holds the
+    Table I default; numeric parameters have a range, mode and the bool have none."""
+    config = ControllerConfig(plant=TABLE_I)
+    flat = config.to_dict()
+    for key, info in PARAMETERS.items():
+        group, _, name = info.field.rpartition(".")
+        owner = getattr(config, group) if group else config
+        assert hasattr(owner, name), key
+        value = flat[key]
+        if isinstance(value, (bool, str)):
+            assert info.low is None and info.high is None, key
+        else:
+            assert info.low is not None and info.high is not None and info.low < info.high, key
+            assert info.low <= value <= info.high, (key, value)
 
 
 def test_impedance_target_limits():
