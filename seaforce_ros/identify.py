@@ -49,6 +49,10 @@ def build_parser():
     p.add_argument("--external-force", choices=("held", "instant"), default="held",
                    help="held: F_e was held over the sample interval after its sample (the "
                         "sim's environment); instant: a sampled force sensor")
+    p.add_argument("--dahl-force", choices=("continuous", "held"), default="continuous",
+                   help="continuous: the endpoint's friction follows its position (hardware); "
+                        "held: held over each sample interval (bags from sim_node or the core "
+                        "simulator)")
     p.add_argument("--rate", type=positive_float, help="sample rate [Hz] (default: from the "
                    "stamps)")
     p.add_argument("--no-dahl", action="store_true", help="fit the endpoint as purely "
@@ -61,12 +65,14 @@ def build_parser():
 
 
 def _identify_chirp(args, progress):
-    from .identification.bagio import read_channel
+    from .bags import read_channel
     from .identification.plant_id import identify_plant
     from .identification.timeseries import prepare
 
     progress("reading " + args.bag, 0.0)
     record = read_channel(args.bag, args.channel, args.topic, progress.stage(0.0, 0.25))
+    for note in record.notes:
+        print("note: " + note)
     series = prepare(record, ("x", "f_p", "x_e"),
                      dt=None if args.rate is None else 1.0 / args.rate,
                      optional=("f_e", "f_a"))
@@ -78,7 +84,8 @@ def _identify_chirp(args, progress):
         rational_band=tuple(args.rational_band or args.band),
         excitation=args.excitation,
         external_force_delay=0.5 if args.external_force == "held" else 0.0,
-        dahl=not args.no_dahl, progress=progress.stage(0.25, 0.95))
+        dahl=not args.no_dahl, dahl_delay=0.5 if args.dahl_force == "held" else 0.0,
+        progress=progress.stage(0.25, 0.95))
     return record, series, result
 
 
@@ -98,13 +105,8 @@ def _print_plant_table(result, truth, series, record):
           f"{result.excited_band[1]:.3g} rad/s; fits over {result.band[0]:g}-"
           f"{result.band[1]:g} rad/s")
     print(format_table(headers, rows, formats))
-    d = result.dahl
-    if d.get("sigma", 0) > 0:
-        print(f"endpoint hysteresis seen in the chirp (removed before fitting B): "
-              f"sigma = {d['sigma']:.4g} +- {d['sigma_1s']:.2g} N m/rad, "
-              f"F_c = {d['coulomb_force']:.4g} +- {d['coulomb_force_1s']:.2g} N m "
-              f"(linear-only misfit {result.fits['B'].extra['cost_linear']:.4g} -> "
-              f"{result.fits['B'].extra['cost_dahl']:.4g})")
+    for line in hysteresis_lines(result.hysteresis, result.fits["B"].extra):
+        print(line)
     if "D" in result.fit_error:
         print(f"X_e/F_e from the identified parameters vs the measured response: "
               f"{result.fit_error['D']:.2%} rms")
@@ -118,13 +120,37 @@ def _print_plant_table(result, truth, series, record):
         print("note: " + note)
 
 
+def hysteresis_lines(h, extra):
+    """What the chirp showed of the endpoint hysteresis: values with 1-sigma where identified,
+    ``not identified (reason)`` where not -- never a value with a zero 1-sigma."""
+    if h is None:
+        return []
+    if h.model == "none":
+        return [f"endpoint hysteresis: {h.coulomb_force_reason}; endpoint fitted as linear"]
+    head = {"dahl": "endpoint hysteresis seen in the chirp (Dahl force removed before fitting B)",
+            "coulomb": "endpoint hysteresis seen in the chirp (Coulomb limit of the Dahl model "
+                       "removed before fitting B)",
+            "spring": "endpoint hysteresis: not separable from the endpoint stiffness"}[h.model]
+    lines = [f"{head}: misfit {h.cost_linear:.4g} (linear only) -> {h.cost:.4g}"]
+    for name, unit, value, one, reason in (
+            ("sigma", "N m/rad", h.sigma, h.sigma_1s, h.sigma_reason),
+            ("F_c", "N m", h.coulomb_force, h.coulomb_force_1s, h.coulomb_force_reason)):
+        if reason:
+            lines.append(f"  {name}: not identified ({reason})")
+        else:
+            lines.append(f"  {name} = {value:.4g} +- {one:.2g} {unit}")
+    return lines
+
+
 def _dahl(args, plant, progress):
-    from .identification.bagio import read_channel
+    from .bags import read_channel
     from .identification.dahl_fit import fit_dahl_loop
     from .identification.timeseries import prepare
 
     progress("reading " + args.dahl_bag, None)
     record = read_channel(args.dahl_bag, args.channel, args.topic)
+    for note in record.notes:
+        print("note (Dahl bag): " + note)
     series = prepare(record, ("x_e", "f_e", "f_p"),
                      dt=None if args.rate is None else 1.0 / args.rate)
     for note in series.notes():

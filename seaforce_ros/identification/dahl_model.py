@@ -9,9 +9,11 @@ run the closed form is evaluated with numpy. Used by the fits, which evaluate it
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-__all__ = ["dahl_force"]
+__all__ = ["dahl_force", "DahlPath"]
 
 
 def _relax(u0, c, n):
@@ -47,6 +49,81 @@ def _relax_scalar(n):
     return relax
 
 
+class DahlPath:
+    """A sampled position path prepared for many Dahl evaluations (the fits' inner loop).
+
+    Everything that depends on the path alone (monotone runs, path length inside each run,
+    forward-fill indices) is computed once; :meth:`normalized` then costs a few passes over
+    the samples. For any exponent n the Dahl force is ``F_d = F_c f(x; sigma/F_c, n)``: with
+    ``u = 1 - s F_d/F_c`` eq. 14 reads ``du/dxi = -(sigma/F_c) u^n``, so the normalised force
+    ``f = F_d/F_c`` depends on sigma and F_c only through their ratio ``a = sigma/F_c``
+    [1/rad] (the inverse of the pre-sliding displacement). F_c is therefore a linear
+    parameter of any fit that is linear in the force.
+
+    Parameters
+    ----------
+    x : array
+        Position samples [rad] (motor frame).
+    """
+
+    def __init__(self, x):
+        x = np.asarray(x, float)
+        self.n = x.size
+        dx = np.diff(x) if x.size > 1 else np.zeros(0)
+        moving = np.flatnonzero(dx != 0.0)
+        self.moving = moving.size
+        if moving.size == 0:
+            return
+        sgn = np.sign(dx[moving])
+        starts = np.flatnonzero(np.r_[True, sgn[1:] != sgn[:-1]])
+        ends = np.r_[starts[1:], moving.size]
+        cum = np.cumsum(np.abs(dx[moving]))
+        run_of = np.repeat(np.arange(starts.size), ends - starts)
+        base = np.r_[0.0, cum][starts]
+        #: path [rad] from the start of its run to after each moving increment
+        self._xi = cum - base[run_of]
+        #: path [rad] of each run
+        self._run_length = cum[ends - 1] - base
+        self._run_of = run_of
+        self._s_run = sgn[starts]
+        self._s_inc = sgn
+        idx = np.zeros(x.size, dtype=np.int64)
+        idx[moving + 1] = np.arange(1, moving.size + 1)
+        self._fill = np.maximum.accumulate(idx)
+        #: smallest increment [rad] (an encoder's quantum when quantised)
+        self.resolution = float(np.min(np.abs(dx[moving])))
+        self.span = float(np.ptp(x))
+
+    def normalized(self, ratio, exponent=1.0, initial=0.0):
+        """``f = F_d/F_c`` after each sample for ``ratio = sigma/F_c`` [1/rad] (``inf``: the
+        Coulomb limit, ``f = sgn`` of the last move), starting from ``f = initial``."""
+        out = np.full(self.n, float(initial))
+        if self.moving == 0 or ratio <= 0.0:
+            return out
+        if math.isinf(ratio):
+            values = np.r_[float(initial), self._s_inc]
+            return values[self._fill]
+        s_run = self._s_run
+        totals = (ratio * self._run_length).tolist()
+        u0 = max(0.0, 1.0 - s_run[0] * float(initial))
+        starts_u = [u0]
+        if exponent == 1.0:
+            decay = np.exp(-ratio * self._run_length).tolist()
+            for r in range(1, len(totals)):
+                u0 = 2.0 - u0 * decay[r - 1]
+                starts_u.append(u0)
+        else:
+            relax = _relax_scalar(exponent)
+            for r in range(1, len(totals)):
+                u0 = 2.0 - relax(u0, totals[r - 1])
+                starts_u.append(u0)
+        u = _relax(np.asarray(starts_u)[self._run_of], ratio * self._xi, exponent)
+        values = np.empty(u.size + 1)
+        values[0] = float(initial)
+        np.multiply(s_run[self._run_of], 1.0 - u, out=values[1:])
+        return values[self._fill]
+
+
 def dahl_force(x, sigma, coulomb_force, exponent=1.0, initial_force=0.0):
     """Dahl force F_d [N m] after each sample of the path ``x`` [rad].
 
@@ -65,47 +142,7 @@ def dahl_force(x, sigma, coulomb_force, exponent=1.0, initial_force=0.0):
         n.
     """
     x = np.asarray(x, float)
-    out = np.full(x.shape, float(initial_force))
     if sigma <= 0.0 or x.size < 2:
-        return out
+        return np.full(x.shape, float(initial_force))
     fc = float(coulomb_force)
-    dx = np.diff(x)
-    moving = np.flatnonzero(dx != 0.0)
-    if moving.size == 0:
-        return out
-    sgn = np.sign(dx[moving])
-    # runs of equal direction among the moving increments
-    starts = np.flatnonzero(np.r_[True, sgn[1:] != sgn[:-1]])
-    ends = np.r_[starts[1:], moving.size]
-    # path length inside each run, cumulative per increment
-    step = np.abs(dx[moving]) * (sigma / fc)
-    cum = np.cumsum(step)
-    run_of = np.repeat(np.arange(starts.size), ends - starts)
-    base = np.r_[0.0, cum][starts]                    # cumulative path before each run
-    c_in_run = cum - base[run_of]                     # path from run start to after this step
-    run_total = cum[ends - 1] - base
-    # scalar recursion over runs: u at run start (after the first run every run starts at a
-    # reversal, where u_start = 2 - u_end of the previous run)
-    s_run = sgn[starts]
-    u0 = max(0.0, 1.0 - s_run[0] * float(initial_force) / fc)
-    totals = run_total.tolist()
-    starts_u = [u0]
-    if exponent == 1.0:
-        decay = np.exp(-run_total).tolist()
-        for r in range(1, starts.size):
-            u0 = 2.0 - u0 * decay[r - 1]
-            starts_u.append(u0)
-    else:
-        relax = _relax_scalar(exponent)
-        for r in range(1, starts.size):
-            u0 = 2.0 - relax(u0, totals[r - 1])
-            starts_u.append(u0)
-    u_start = np.asarray(starts_u)
-    u = _relax(u_start[run_of], c_in_run, exponent)
-    f_moving = s_run[run_of] * fc * (1.0 - u)
-    # forward-fill: F_d after sample k+1 for each moving increment k
-    idx = np.zeros(x.size, dtype=np.int64)
-    idx[moving + 1] = np.arange(1, moving.size + 1)
-    idx = np.maximum.accumulate(idx)
-    values = np.r_[float(initial_force), f_moving]
-    return values[idx]
+    return fc * DahlPath(x).normalized(sigma / fc, exponent, float(initial_force) / fc)

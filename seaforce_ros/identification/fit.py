@@ -23,16 +23,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Dict, List
+from typing import Dict, List, Optional
 
 import numpy as np
 import scipy.optimize
 
-from .dahl_model import dahl_force
+from .dahl_model import DahlPath
 from .spectral import FrequencyResponse
 
 __all__ = ["SIGMA_FLOOR", "ParameterFit", "fit_mass_spring_damper", "fit_hose",
-           "fit_endpoint_with_dahl", "RationalFit", "fit_rational", "fit_error"]
+           "fit_endpoint_with_dahl", "HysteresisEstimate", "RationalFit", "fit_rational", "fit_error"]
 
 #: floor of the relative 1-sigma used as a weight
 SIGMA_FLOOR = 2e-3
@@ -54,6 +54,7 @@ class ParameterFit:
     chi2_dof: float
     band: tuple
     extra: Dict[str, float] = field(default_factory=dict)
+    hysteresis: Optional["HysteresisEstimate"] = None
 
     def as_dict(self):
         return dict(zip(self.names, self.values))
@@ -123,9 +124,98 @@ def fit_hose(resp, lo, hi, names=("hose_damping", "hose_stiffness")):
                         chi2, (lo, hi))
 
 
-def fit_endpoint_with_dahl(bt, s_xe, s_input, x_e, lo, hi, rel_sigma, dahl_delay=0.5,
+@dataclass
+class HysteresisEstimate:
+    """The endpoint hysteresis seen in a chirp (:func:`fit_endpoint_with_dahl`).
+
+    model : 'dahl' (sigma and F_c), 'coulomb' (the Dahl model's sigma -> inf limit: only F_c),
+        'spring' (the hysteresis acts as a linear spring: neither is separable from k_e) or
+        'none' (no hysteresis detected).
+    sigma, coulomb_force : float
+        sigma [N m/rad], F_c [N m] the fit used (NaN: not in the model); a value is only an
+        identified value when its ``*_reason`` is empty.
+    sigma_1s, coulomb_force_1s : float
+        1-sigma (meaningful only when identified).
+    ratio : float
+        sigma/F_c [1/rad] of the model used (inf for 'coulomb').
+    sigma_reason, coulomb_force_reason : str
+        Why the value is not identified ('' when it is).
+    cost_linear, cost : float
+        Weighted misfit of the purely linear fit and of the fit with this model.
+    search : (lo, hi)
+        Bounds of the sigma/F_c search [1/rad].
+    """
+
+    model: str
+    sigma: float = math.nan
+    coulomb_force: float = math.nan
+    sigma_1s: float = math.nan
+    coulomb_force_1s: float = math.nan
+    ratio: float = math.nan
+    sigma_reason: str = ""
+    coulomb_force_reason: str = ""
+    cost_linear: float = math.nan
+    cost: float = math.nan
+    search: tuple = (math.nan, math.nan)
+
+    @property
+    def sigma_identified(self):
+        return not self.sigma_reason
+
+    @property
+    def coulomb_force_identified(self):
+        return not self.coulomb_force_reason
+
+
+#: grid points per decade of the sigma/F_c search
+RATIO_GRID_PER_DECADE = 4
+#: the misfit reduction (fraction of the linear-only misfit) below which no hysteresis is seen
+MIN_COST_REDUCTION = 0.05
+#: F_c must exceed this many of its 1-sigma to count as seen
+MIN_COULOMB_SNR = 3.0
+#: condition number of the scaled normal matrix above which the covariance is degenerate
+MAX_CONDITION = 1e10
+
+
+def _ratio_bounds(path):
+    """Search bounds of ``a = sigma/F_c`` [1/rad] a record can tell apart.
+
+    Lower: the pre-sliding displacement 1/a equals half the motion's span (below it the Dahl
+    force is a linear spring sigma x over the whole record). Upper: 1/a is a third of the
+    smallest position step (an encoder quantum): each step then relaxes the force by a factor
+    e^-3, and the model on the measured path is the Coulomb relay.
+    """
+    lo = 2.0 / max(path.span, 1e-12)
+    hi = 3.0 / max(path.resolution, 1e-12)
+    return lo, max(hi, 10.0 * lo)
+
+
+def fit_endpoint_with_dahl(bt, s_xe, s_input, x_e, lo, hi, rel_sigma, dahl_delay=0.0,
                            exponent=1.0, progress=None):
-    """Endpoint plant ``X_e/(F_e - F_p - F_d) = 1/(m_e s^2 + b_e s + k_e)`` with Dahl.
+    """Endpoint plant ``X_e/(F_e - F_p - F_d) = 1/(m_e s^2 + b_e s + k_e)`` with Dahl (eq. 14).
+
+    Method (variable projection with one nonlinear parameter). The Dahl force is
+    ``F_d = F_c f(X_e; a)`` with ``a = sigma/F_c`` (:class:`~.dahl_model.DahlPath`), so the
+    endpoint's balance in cross-spectra with the excitation r::
+
+        S_r(F_e - F_p) = (m_e s^2 + b_e s + k_e) S_rXe + F_c S_rf(a)
+
+    is linear in (m_e, b_e, k_e, F_c) for a given a. The weighted misfit of that linear fit
+    is profiled over log a on a grid between the bounds a record can tell apart
+    (:func:`_ratio_bounds`), plus the Coulomb limit a = inf, then refined (bounded Brent).
+    The 1-sigma of all five come from the Jacobian of the weighted residual.
+
+    Outcomes (:class:`HysteresisEstimate`):
+
+    * minimum inside the bounds, covariance regular: sigma and F_c identified;
+    * minimum on the upper bound or at the Coulomb limit: the pre-sliding displacement
+      F_c/sigma is below what the endpoint encoder resolves; sigma is not identified, the fit
+      uses the Coulomb limit, which is the same force on the measured path, so the linear
+      parameters stay unbiased, and F_c is identified;
+    * minimum on the lower bound: the hysteresis acts as a linear spring over the whole
+      record, so sigma and F_c cannot be told from k_e (reported, linear fit);
+    * a degenerate covariance (flat profile) marks the parameter as not identified;
+    * no misfit reduction or an F_c within 3 sigma of 0: no hysteresis (linear fit).
 
     Parameters
     ----------
@@ -135,115 +225,194 @@ def fit_endpoint_with_dahl(bt, s_xe, s_input, x_e, lo, hi, rel_sigma, dahl_delay
         S_r,Xe on the grid.
     s_input : complex array
         S_r,(F_e - F_p) on the grid (the endpoint's input without hysteresis).
-    x_e : array
-        Endpoint position samples [rad] (drives F_d).
+    x_e : array or DahlPath
+        Endpoint position samples [rad] (drive F_d).
     lo, hi : float
         Band [rad/s].
     rel_sigma : array
         Relative 1-sigma of the raw endpoint response (weights, fixed during the search).
     dahl_delay : float
-        Delay of the held F_d in samples (the simulator holds it over the next step: 0.5).
+        Delay of F_d relative to the samples of X_e, in samples (0: a continuous friction
+        force; 0.5: a force held over the step, as the core simulator does).
+    exponent : float
+        Dahl exponent n (fixed).
 
     Returns
     -------
-    ParameterFit with names endpoint_inertia, endpoint_damping, endpoint_stiffness, and
-    ``extra`` = {sigma, coulomb_force, sigma_1s, coulomb_force_1s, cost_linear, cost_dahl}
-    (sigma = 0 when the hysteresis does not reduce the misfit).
+    ParameterFit with names endpoint_inertia, endpoint_damping, endpoint_stiffness and
+    ``hysteresis`` (a :class:`HysteresisEstimate`); ``extra`` repeats its numbers
+    (sigma, coulomb_force, sigma_1s, coulomb_force_1s, cost_linear, cost_dahl; NaN where not
+    identified).
     """
     sel = (bt.omega >= lo) & (bt.omega <= hi)
     if sel.sum() < 6:
         raise ValueError(f"endpoint fit: fewer than 6 frequencies in {lo:g}-{hi:g} rad/s")
+    path = x_e if isinstance(x_e, DahlPath) else DahlPath(x_e)
     w = bt.omega[sel]
     sx = s_xe[sel]
     su = s_input[sel]
     weight = 1.0 / (np.abs(su) * np.maximum(rel_sigma[sel], SIGMA_FLOOR))
     design = np.stack([-(w ** 2) * sx, 1j * w * sx, sx], axis=1)
-    a = np.vstack([design.real * weight[:, None], design.imag * weight[:, None]])
-    scale = np.sqrt(np.sum(a ** 2, axis=0))
-    a_s = a / scale
-    q, _ = np.linalg.qr(a_s)
 
-    def resid_for(target):
-        y = np.concatenate([target.real * weight, target.imag * weight])
-        return y - q @ (q.T @ y)
+    def stack(z):
+        return np.concatenate([z.real * weight, z.imag * weight])
 
+    a_lin = np.vstack([design.real * weight[:, None], design.imag * weight[:, None]])
+    y = stack(su)
+    scale3 = np.sqrt(np.sum(a_lin ** 2, axis=0))
     cache = {}
-
-    def s_dahl(log_sigma, log_fc):
-        key = (round(log_sigma, 12), round(log_fc, 12))
-        if key not in cache:
-            fd = dahl_force(x_e, math.exp(log_sigma), math.exp(log_fc), exponent)
-            cache[key] = bt.cross(fd, delay=dahl_delay)[sel]
-        return cache[key]
-
-    def cost(p):
-        r = resid_for(su - s_dahl(*p))
-        return float(r @ r)
-
-    cost_linear = float(resid_for(su) @ resid_for(su))
-    # coarse grid, then a trust-region least-squares refinement in log space
-    grid = [(ls, lf) for ls in np.log([3.0, 20.0, 120.0]) for lf in np.log([0.004, 0.02, 0.1])]
-    costs = []
-    for i, p in enumerate(grid):
-        costs.append(cost(p))
-        if progress is not None:
-            progress(f"Dahl search: grid {i + 1}/{len(grid)}", (i + 1) / (len(grid) + 25))
-    best = np.array(grid[int(np.argmin(costs))])
     calls = [0]
 
-    def resid_p(p):
-        calls[0] += 1
-        if progress is not None:
-            progress(f"Dahl search: refinement step {calls[0]}",
-                     min(0.99, (len(grid) + calls[0]) / (len(grid) + 25)))
-        return resid_for(su - s_dahl(*p))
+    def s_dahl(ratio):
+        key = float(ratio)
+        if key not in cache:
+            calls[0] += 1
+            if progress is not None:
+                progress(f"Dahl search: evaluation {calls[0]}", min(0.95, calls[0] / 32.0))
+            f = path.normalized(ratio, exponent)
+            cache[key] = bt.cross(f, delay=dahl_delay)[sel]
+        return cache[key]
 
-    res = scipy.optimize.least_squares(resid_p, best, method="trf", diff_step=1e-3,
-                                       xtol=1e-4, ftol=1e-6, max_nfev=40)
-    res.fun = float(res.fun @ res.fun)
-    p_opt = res.x
-    cost_dahl = float(res.fun)
-    use_dahl = cost_dahl < 0.9 * cost_linear
-    target = su - s_dahl(*p_opt) if use_dahl else su
-    y = np.concatenate([target.real * weight, target.imag * weight])
-    theta_s, *_ = np.linalg.lstsq(a_s, y, rcond=None)
-    theta = theta_s / scale
-    resid = y - a @ theta
-    n_par = 5 if use_dahl else 3
-    dof = max(1, y.size - n_par)
-    chi2 = float(resid @ resid) / dof
-    # covariance of all parameters from a finite-difference Jacobian of the full residual
-    extra = {"cost_linear": cost_linear, "cost_dahl": cost_dahl}
-    if use_dahl:
-        def full_resid(params):
-            th = params[:3]
-            tgt = su - s_dahl(params[3], params[4])
-            yy = np.concatenate([tgt.real * weight, tgt.imag * weight])
-            return yy - a @ th
-        p_all = np.r_[theta, p_opt]
-        jac = np.empty((y.size, 5))
-        jac[:, :3] = -a                       # the residual is linear in (m_e, b_e, k_e)
-        for k in (3, 4):
-            h = 1e-3
-            dp = np.zeros(5)
-            dp[k] = h
-            jac[:, k] = (full_resid(p_all + dp) - full_resid(p_all - dp)) / (2 * h)
-        cs = np.sqrt(np.sum(jac ** 2, axis=0))
-        cs[cs == 0] = 1.0
-        cov = np.linalg.pinv((jac / cs).T @ (jac / cs)) / np.outer(cs, cs) * max(1.0, chi2)
-        sig = np.sqrt(np.abs(np.diag(cov)))
-        s_val, f_val = math.exp(p_opt[0]), math.exp(p_opt[1])
-        extra.update(sigma=s_val, coulomb_force=f_val, sigma_1s=s_val * sig[3],
-                     coulomb_force_1s=f_val * sig[4])
-        sig = sig[:3]
+    def solve(ratio):
+        """(theta, residual, A) of the 4-parameter linear fit for this ratio."""
+        a = np.hstack([a_lin, stack(s_dahl(ratio))[:, None]])      # y = A theta + F_c S_rf
+        sc = np.sqrt(np.sum(a ** 2, axis=0))
+        sc[sc == 0] = 1.0
+        th, *_ = np.linalg.lstsq(a / sc, y, rcond=None)
+        th = th / sc
+        return th, y - a @ th, a
+
+    def cost_of(log_ratio):
+        r = solve(math.exp(log_ratio))[1]
+        return float(r @ r)
+
+    th_lin, *_ = np.linalg.lstsq(a_lin / scale3, y, rcond=None)
+    th_lin = th_lin / scale3
+    r_lin = y - a_lin @ th_lin
+    cost_linear = float(r_lin @ r_lin)
+
+    r_lo, r_hi = _ratio_bounds(path)
+    n_grid = max(6, int(math.ceil(RATIO_GRID_PER_DECADE * math.log10(r_hi / r_lo))) + 1)
+    grid = np.linspace(math.log(r_lo), math.log(r_hi), n_grid)
+    costs = np.array([cost_of(g) for g in grid])
+    th_inf, res_inf, _ = solve(math.inf)
+    cost_inf = float(res_inf @ res_inf)
+    i_best = int(np.argmin(costs))
+    est = HysteresisEstimate("none", cost_linear=cost_linear, search=(r_lo, r_hi))
+
+    def finish(theta3, cost, hyst):
+        dof = max(1, y.size - (3 if hyst.model in ("none", "spring") else
+                               (4 if hyst.model == "coulomb" else 5)))
+        chi2 = cost / dof
+        hyst.cost = cost
+        return theta3, chi2, hyst
+
+    if min(costs.min(), cost_inf) > (1.0 - MIN_COST_REDUCTION) * cost_linear:
+        est.sigma_reason = est.coulomb_force_reason = (
+            "no hysteresis seen: a Dahl force does not reduce the endpoint misfit by "
+            f"{100 * MIN_COST_REDUCTION:.0f} %")
+        theta, chi2, est = finish(th_lin, cost_linear, est)
+        sig = _linear_sigma(a_lin, chi2)
+        return _endpoint_result(theta, sig, chi2, w, sx, su, None, lo, hi, est)
+
+    if cost_inf <= costs.min() or i_best == n_grid - 1:
+        # the search ran to its upper bound: Coulomb limit (sigma not identified)
+        use_inf = cost_inf <= costs[-1]
+        ratio = math.inf if use_inf else math.exp(grid[-1])
+        th, res, a = solve(ratio)
+        est.model = "coulomb"
+        est.ratio = ratio
+        est.sigma_reason = (
+            f"the search for sigma/F_c ran to its upper bound ({r_hi:.3g} /rad: a pre-sliding "
+            f"displacement F_c/sigma below {1e3 / r_hi:.2g} mrad, a third of the endpoint "
+            "encoder's step); the hysteresis acts as Coulomb friction in this record, fitted "
+            "as such (F_c only)")
+        cols = slice(0, 4)
+        jac = -a[:, cols]
+    elif i_best == 0:
+        est.model = "spring"
+        est.sigma_reason = est.coulomb_force_reason = (
+            f"the search for sigma/F_c ran to its lower bound ({r_lo:.3g} /rad: a pre-sliding "
+            "displacement F_c/sigma as large as half the motion); the hysteresis acts as a "
+            "linear spring in this record and cannot be told from k_e, which includes it")
+        theta, chi2, est = finish(th_lin, cost_linear, est)
+        sig = _linear_sigma(a_lin, chi2)
+        return _endpoint_result(theta, sig, chi2, w, sx, su, None, lo, hi, est)
     else:
-        cov = np.linalg.pinv(a_s.T @ a_s) / np.outer(scale, scale) * max(1.0, chi2)
-        sig = np.sqrt(np.diag(cov))
-        extra.update(sigma=0.0, coulomb_force=0.0, sigma_1s=0.0, coulomb_force_1s=0.0)
+        opt = scipy.optimize.minimize_scalar(
+            cost_of, bounds=(grid[i_best - 1], grid[i_best + 1]), method="bounded",
+            options={"xatol": 2e-3})
+        log_ratio = float(opt.x) if opt.fun <= costs[i_best] else float(grid[i_best])
+        ratio = math.exp(log_ratio)
+        th, res, a = solve(ratio)
+        est.model = "dahl"
+        est.ratio = ratio
+        # Jacobian of the weighted residual in (m_e, b_e, k_e, F_c, log a)
+        h = 0.01
+        d_col = (stack(s_dahl(math.exp(log_ratio + h)))
+                 - stack(s_dahl(math.exp(log_ratio - h)))) / (2 * h)
+        jac = np.hstack([-a, (-th[3] * d_col)[:, None]])
+    cost = float(res @ res)
+    theta3, chi2, est = finish(th[:3], cost, est)
+    cs = np.sqrt(np.sum(jac ** 2, axis=0))
+    cs[cs == 0] = 1.0
+    jn = jac / cs
+    normal = jn.T @ jn
+    cond = np.linalg.cond(normal)
+    cov = np.linalg.pinv(normal) / np.outer(cs, cs) * max(1.0, chi2)
+    sd = np.sqrt(np.abs(np.diag(cov)))
+    fc, fc_sd = float(th[3]), float(sd[3])
+    degenerate = not (np.isfinite(cond) and cond < MAX_CONDITION) or not np.all(
+        np.isfinite(sd)) or np.any(sd == 0)
+    if not (fc > 0 and fc > MIN_COULOMB_SNR * fc_sd):
+        # a "hysteresis" force of the wrong sign or lost in its own uncertainty
+        est = HysteresisEstimate("none", cost_linear=cost_linear, search=(r_lo, r_hi))
+        est.sigma_reason = est.coulomb_force_reason = (
+            f"no hysteresis seen: the fitted F_c = {fc:.3g} +- {fc_sd:.2g} N m is not "
+            f"positive by {MIN_COULOMB_SNR:g} sigma")
+        theta, chi2, est = finish(th_lin, cost_linear, est)
+        sig = _linear_sigma(a_lin, chi2)
+        return _endpoint_result(theta, sig, chi2, w, sx, su, None, lo, hi, est)
+    est.coulomb_force, est.coulomb_force_1s = fc, fc_sd
+    if degenerate:
+        reason = (f"degenerate covariance (condition number {cond:.3g} of the normal "
+                  "matrix): the record does not tell these parameters apart")
+        est.sigma_reason = est.sigma_reason or reason
+        est.coulomb_force_reason = reason
+    if est.model == "dahl":
+        est.sigma = est.ratio * fc
+        if not est.sigma_reason:
+            # sigma = a F_c: var(log sigma) = var(log a) + var(log F_c) + 2 cov(log a, log F_c)
+            var_log_s = sd[4] ** 2 + (fc_sd / fc) ** 2 + 2.0 * cov[3, 4] / fc
+            est.sigma_1s = est.sigma * math.sqrt(max(float(var_log_s), 0.0))
+            if not est.sigma_1s < est.sigma:
+                est.sigma_reason = (f"its 1-sigma ({est.sigma_1s:.3g} N m/rad) exceeds its "
+                                    "value: the misfit is flat along sigma/F_c")
+    return _endpoint_result(theta3, sd[:3], chi2, w, sx, su, fc * s_dahl(est.ratio), lo, hi,
+                            est)
+
+
+def _linear_sigma(a_lin, chi2):
+    cs = np.sqrt(np.sum(a_lin ** 2, axis=0))
+    cs[cs == 0] = 1.0
+    cov = np.linalg.pinv((a_lin / cs).T @ (a_lin / cs)) / np.outer(cs, cs) * max(1.0, chi2)
+    return np.sqrt(np.abs(np.diag(cov)))
+
+
+def _endpoint_result(theta, sig, chi2, w, sx, su, s_fd, lo, hi, est):
+    target = su if s_fd is None else su - s_fd
     h_meas = sx / target
     h_model = 1.0 / (-(w ** 2) * theta[0] + 1j * w * theta[1] + theta[2])
-    return ParameterFit(["endpoint_inertia", "endpoint_damping", "endpoint_stiffness"], theta,
-                        sig, fit_error(h_model, h_meas), chi2, (lo, hi), extra)
+    nan = math.nan
+    extra = {"cost_linear": est.cost_linear, "cost_dahl": est.cost,
+             "sigma": est.sigma if est.sigma_identified else nan,
+             "coulomb_force": est.coulomb_force if est.coulomb_force_identified else nan,
+             "sigma_1s": est.sigma_1s if est.sigma_identified else nan,
+             "coulomb_force_1s": (est.coulomb_force_1s if est.coulomb_force_identified
+                                  else nan)}
+    return ParameterFit(["endpoint_inertia", "endpoint_damping", "endpoint_stiffness"],
+                        np.asarray(theta, float), np.asarray(sig, float),
+                        fit_error(h_model, h_meas), chi2, (lo, hi), extra, est)
 
 
 @dataclass

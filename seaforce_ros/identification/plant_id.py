@@ -28,9 +28,9 @@ from ..core.params import PlantParams
 from ..core.plant import PlantModel
 from ..core.analysis import frequency_response
 from .errors import IdentificationError
-from .fit import (ParameterFit, RationalFit, fit_endpoint_with_dahl, fit_hose,
-                  fit_mass_spring_damper, fit_rational)
-from .dahl_model import dahl_force
+from .fit import (HysteresisEstimate, ParameterFit, RationalFit, fit_endpoint_with_dahl,
+                  fit_hose, fit_mass_spring_damper, fit_rational)
+from .dahl_model import DahlPath
 from .spectral import BlackmanTukey, FrequencyResponse
 
 __all__ = ["PlantIdentification", "identify_plant", "PARAMETERS", "required_fields"]
@@ -69,7 +69,7 @@ class PlantIdentification:
     rational: Optional[RationalFit]
     excitation: str
     band: tuple
-    dahl: Dict[str, float]
+    hysteresis: Optional[HysteresisEstimate]
     omega: np.ndarray
     excited_band: tuple
     notes: List[str] = field(default_factory=list)
@@ -130,7 +130,7 @@ def _excitation(series, excitation):
 
 def identify_plant(series, band=(0.5, 400.0), rational_band=(0.5, 400.0), excitation="auto",
                    external_force_delay=0.5, motor_effort_delay=-0.5, periods=20.0,
-                   n_freq=80, dahl=True, progress=None):
+                   n_freq=80, dahl=True, dahl_delay=0.0, progress=None):
     """Identify the eight linear parameters from a chirp :class:`~.timeseries.Series`.
 
     Parameters
@@ -150,6 +150,10 @@ def identify_plant(series, band=(0.5, 400.0), rational_band=(0.5, 400.0), excita
         Blackman-Tukey resolution (periods per lag window).
     dahl : bool
         Fit the endpoint with Dahl hysteresis (else purely linear, like the paper).
+    dahl_delay : float
+        Delay [samples] of the Dahl force relative to the X_e samples: 0 for a friction force
+        that follows the position continuously (hardware; the default); the core simulator
+        holds it over each step (0.5), see :func:`.fit.fit_endpoint_with_dahl`.
     progress : callable(str, float), optional
     """
     def report(msg, frac):
@@ -230,25 +234,23 @@ def identify_plant(series, band=(0.5, 400.0), rational_band=(0.5, 400.0), excita
                                        ("motor_inertia", "motor_damping", "motor_stiffness"))
     fits["C"] = fit_hose(responses["C"], lo, hi)
     report("fitting the endpoint plant (B) with Dahl hysteresis", 0.35)
+    hysteresis = None
     if dahl:
         def sub(msg, frac):
             report(msg, 0.35 + 0.5 * frac)
-        # F_d is evaluated at the samples of X_e; it acts like the external force (held
-        # over the interval in the simulator, continuous on hardware)
-        fb = fit_endpoint_with_dahl(bt, sxe[0], end_in[0], s["x_e"], lo, hi,
+        path = DahlPath(s["x_e"])
+        fb = fit_endpoint_with_dahl(bt, sxe[0], end_in[0], path, lo, hi,
                                     responses["B"].rel_sigma, progress=sub,
-                                    dahl_delay=external_force_delay)
+                                    dahl_delay=dahl_delay)
+        hysteresis = fb.hysteresis
     else:
         fb = fit_mass_spring_damper(responses["B"], lo, hi,
                                     ("endpoint_inertia", "endpoint_damping",
                                      "endpoint_stiffness"))
-        fb.extra.update(sigma=0.0, coulomb_force=0.0)
     fits["B"] = fb
-    dahl_info = {k: fb.extra.get(k, 0.0) for k in ("sigma", "coulomb_force", "sigma_1s",
-                                                    "coulomb_force_1s")}
-    if dahl_info["sigma"] > 0:
-        fd = dahl_force(s["x_e"], dahl_info["sigma"], dahl_info["coulomb_force"])
-        sfd = bt.cross(fd, delay=external_force_delay)
+    if hysteresis is not None and hysteresis.model in ("dahl", "coulomb"):
+        fd = hysteresis.coulomb_force * path.normalized(hysteresis.ratio)
+        sfd = bt.cross(fd, delay=dahl_delay)
         responses["B_corrected"] = FrequencyResponse(
             omega, sxe[0] / (end_in[0] - sfd), responses["B"].rel_sigma,
             "X_e/(F_e-F_p-F_d)")
@@ -285,4 +287,4 @@ def identify_plant(series, band=(0.5, 400.0), rational_band=(0.5, 400.0), excita
         fit_err["D"] = float(np.sqrt(np.mean(np.abs(model_d[sel] - h) ** 2 / np.abs(h) ** 2)))
     report("done", 1.0)
     return PlantIdentification(params, sigma, fit_err, fits, responses, rational, excitation,
-                               (lo, hi), dahl_info, omega, (ex_lo, ex_hi), notes)
+                               (lo, hi), hysteresis, omega, (ex_lo, ex_hi), notes)

@@ -1,0 +1,225 @@
+"""A second, independent simulator of the identification experiment, and analytic oracles.
+
+It shares no code with ``seaforce_ros`` (neither its simulator, nor its Dahl model, nor its
+sensors): it is the oracle the identification is measured against, so that an error the
+project's own simulator and ``identify`` share (an alignment convention, a discretisation, a
+Dahl timing) shows up.
+
+The continuous-time model (paper Section II-C, DESIGN.md; motor passive, F_a = 0)::
+
+    m X'' + b X' + k X          = F_p
+    m_e X_e'' + b_e X_e' + k_e X_e = F_e - F_p - F_d
+    F_p = b_s (X_e' - X') + k_s (X_e - X)
+    dF_d/dt = sigma X_e' (1 - (F_d/F_c) sgn X_e')           (Dahl, eq. 14-15, n = 1)
+
+Discretisation (deliberately not the project's exact zero-order-hold one): ``substeps`` steps
+of the trapezoidal rule (bilinear transform) per sample on the four linear states, with the
+Dahl force as a continuous input -- predicted, then corrected once from the endpoint's path
+over the substep (Heun). The external chirp torque is either held over each sample (``hold``:
+a drive's command, the sim node's ``torque_chirp``) or continuous (a sampled force sensor).
+
+Sensors as the rig's (quantised, noisy; the values of ``core/sensors.py`` by default, restated
+here): pressure force through a 16-bit ADC over +-10 N m with 5e-4 N m Gaussian noise, motor
+encoder 2^20 counts/rev, endpoint encoder 40,000 counts/rev, motor velocity the backward
+difference of the quantised position.
+
+:func:`draw_family` draws the issue's randomised family; :func:`transfer_functions` gives the
+paper's four plants (Fig. 4 A-D) analytically from the eight parameters.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: Table I (paper), the centre of the family
+TABLE_I = {"motor_inertia": 1.1116e-3, "motor_damping": 2.9814e-2, "motor_stiffness": 0.1642,
+           "endpoint_inertia": 0.7089e-3, "endpoint_damping": 3.3879e-2,
+           "endpoint_stiffness": 0.0637, "hose_damping": 9.2453e-3, "hose_stiffness": 13.0782}
+#: the paper's Dahl parameters (Section IV)
+DAHL = {"sigma": 12.8, "coulomb_force": 0.032}
+KEYS = tuple(TABLE_I)
+
+
+def draw_family(rng):
+    """One draw of the family: each plant parameter log-uniform in [0.33x, 3x] of Table I,
+    sigma and F_c log-uniform in [0.5x, 2x] of the paper's (n = 1).
+
+    Returns ``(plant dict, dahl dict)``."""
+    plant = {k: v * math.exp(rng.uniform(math.log(0.33), math.log(3.0)))
+             for k, v in TABLE_I.items()}
+    dahl = {k: v * math.exp(rng.uniform(math.log(0.5), math.log(2.0))) for k, v in DAHL.items()}
+    return plant, dahl
+
+
+def _matrices(p):
+    m, b, k = p["motor_inertia"], p["motor_damping"], p["motor_stiffness"]
+    me, be, ke = p["endpoint_inertia"], p["endpoint_damping"], p["endpoint_stiffness"]
+    bs, ks = p["hose_damping"], p["hose_stiffness"]
+    a = np.array([[0.0, 1.0, 0.0, 0.0],
+                  [-(k + ks) / m, -(b + bs) / m, ks / m, bs / m],
+                  [0.0, 0.0, 0.0, 1.0],
+                  [ks / me, bs / me, -(ke + ks) / me, -(be + bs) / me]])
+    bvec = np.array([0.0, 0.0, 0.0, 1.0 / me])       # endpoint force input
+    return a, bvec
+
+
+def simulate_chirp(plant, dahl=None, duration=120.0, amplitude=0.3, start_hz=0.01,
+                   end_hz=1000.0, dt=5e-4, tail=1.0, substeps=2, hold=True, seed=0,
+                   pressure_noise=5e-4, pressure_range=10.0, pressure_bits=16,
+                   motor_counts=2 ** 20, endpoint_counts=40000):
+    """The external-torque log chirp on the endpoint, motor passive.
+
+    Parameters
+    ----------
+    plant : dict of the eight parameters (:data:`KEYS`)
+    dahl : dict ``{sigma, coulomb_force}`` or None
+    duration : float, s (chirp; ``tail`` s of rest follow)
+    amplitude : float, N m
+    start_hz, end_hz : float, Hz (instantaneous frequency ``f0 (f1/f0)^(t/T)``)
+    substeps : int >= 1 (trapezoidal steps per sample)
+    hold : bool (F_e held over each sample, else continuous)
+
+    Returns
+    -------
+    dict of arrays ``x v f_p f_a x_e f_e`` (measured, one per sample) and ``x_e_true``,
+    ``f_d_true``.
+    """
+    n = int(round((duration + tail) / dt))
+    h = dt / substeps
+    a, bvec = _matrices(plant)
+    eye = np.eye(4)
+    lhs = np.linalg.inv(eye - 0.5 * h * a)
+    ad = lhs @ (eye + 0.5 * h * a)
+    bd = lhs @ (h * bvec)
+    (a00, a01, a02, a03), (a10, a11, a12, a13), (a20, a21, a22, a23), (a30, a31, a32, a33) = \
+        ad.tolist()
+    g0, g1, g2, g3 = (0.5 * bd).tolist()          # trapezoid: B (u0 + u1)/2
+    ks, bs = plant["hose_stiffness"], plant["hose_damping"]
+    sigma = dahl["sigma"] if dahl else 0.0
+    fc = dahl["coulomb_force"] if dahl else 1.0
+    rate = math.log(end_hz / start_hz) / duration
+
+    def force(t):
+        if t >= duration:
+            return 0.0
+        return amplitude * math.sin(2.0 * math.pi * start_hz * math.expm1(rate * t) / rate)
+
+    def dahl_after(fd, dx):
+        # exact solution of eq. 15 along a monotone path increment dx
+        if dx == 0.0 or sigma == 0.0:
+            return fd
+        if dx > 0.0:
+            return fc - (fc - fd) * math.exp(-sigma * dx / fc)
+        return -fc + (fc + fd) * math.exp(sigma * dx / fc)
+
+    rng = np.random.default_rng(seed)
+    noise = (rng.standard_normal(n) * pressure_noise).tolist()
+    x0 = x1 = x2 = x3 = 0.0
+    fd = 0.0
+    out_x = np.empty(n)
+    out_fp = np.empty(n)
+    out_xe = np.empty(n)
+    out_fe = np.empty(n)
+    out_fd = np.empty(n)
+    fe_now = force(0.0)
+    for i in range(n):
+        t = i * dt
+        fe_sample = force(t)
+        out_x[i] = x0
+        out_xe[i] = x2
+        out_fp[i] = ks * (x2 - x0) + bs * (x3 - x1) + noise[i]
+        out_fe[i] = fe_sample
+        out_fd[i] = fd
+        for j in range(substeps):
+            if hold:
+                fe0 = fe1 = fe_sample
+            else:
+                fe0 = fe_now
+                fe1 = force(t + (j + 1) * h)
+                fe_now = fe1
+            u0 = fe0 - fd
+            # predictor: F_d constant over the substep
+            s = u0 + fe1 - fd
+            y2 = a20 * x0 + a21 * x1 + a22 * x2 + a23 * x3 + g2 * s
+            fd1 = dahl_after(fd, y2 - x2)
+            # corrector: the Dahl force at the end of the substep from the predicted path
+            s = u0 + fe1 - fd1
+            y0 = a00 * x0 + a01 * x1 + a02 * x2 + a03 * x3 + g0 * s
+            y1 = a10 * x0 + a11 * x1 + a12 * x2 + a13 * x3 + g1 * s
+            y2 = a20 * x0 + a21 * x1 + a22 * x2 + a23 * x3 + g2 * s
+            y3 = a30 * x0 + a31 * x1 + a32 * x2 + a33 * x3 + g3 * s
+            fd = dahl_after(fd, y2 - x2)
+            x0, x1, x2, x3 = y0, y1, y2, y3
+    qx = 2.0 * math.pi / motor_counts if motor_counts else 0.0
+    qe = 2.0 * math.pi / endpoint_counts if endpoint_counts else 0.0
+    xq = np.round(out_x / qx) * qx if qx else out_x
+    xeq = np.round(out_xe / qe) * qe if qe else out_xe
+    fp = np.clip(out_fp, -pressure_range, pressure_range)
+    if pressure_bits:
+        qp = 2.0 * pressure_range / 2 ** pressure_bits
+        fp = np.minimum(np.round(fp / qp) * qp, pressure_range - qp)
+    v = np.diff(xq, prepend=xq[0]) / dt
+    return {"x": xq, "v": v, "f_p": fp, "f_a": np.zeros(n), "x_e": xeq, "f_e": out_fe,
+            "x_e_true": out_xe, "f_d_true": out_fd}
+
+
+def transfer_functions(plant, omega):
+    """The four plants of the paper's Fig. 4 at ``omega`` [rad/s], from the model equations
+    (motor passive): A = X/F_p, B = X_e/(F_e - F_p), C = F_p/(X_e - X), D = X_e/F_e."""
+    s = 1j * np.asarray(omega, float)
+    p = plant
+    zm = p["motor_inertia"] * s ** 2 + p["motor_damping"] * s + p["motor_stiffness"]
+    ze = p["endpoint_inertia"] * s ** 2 + p["endpoint_damping"] * s + p["endpoint_stiffness"]
+    zs = p["hose_damping"] * s + p["hose_stiffness"]
+    # F_p = zs (X_e - X), X = F_p/zm  ->  F_p = zs zm/(zm + zs) X_e
+    hose_series = zs * zm / (zm + zs)
+    return {"A": 1.0 / zm, "B": 1.0 / ze, "C": zs, "D": 1.0 / (ze + hose_series)}
+
+
+def _bag_functions():
+    """``(serialize_states, typestore)`` of the package (moving from ``identification.bagio``
+    to the ``bags`` subpackage)."""
+    try:
+        from seaforce_ros.bags.typestore import typestore
+        from seaforce_ros.bags.writer import serialize_states
+        return serialize_states, typestore
+    except ImportError:
+        from seaforce_ros.identification import bagio
+        return bagio.serialize_states, bagio.typestore
+
+
+def write_bag(path, channels, data, keep=None, dt=5e-4, storage="mcap",
+              topic="/actuator_state"):
+    """Write ``data`` (channel -> dict of ``x v f_p f_a x_e f_e`` arrays) as ``actuator_state``
+    messages into the rosbag2 directory ``path`` with the ``rosbags`` writer; ``keep`` (a
+    boolean mask over the samples) leaves the other cycles out of the bag (lost messages:
+    gaps in ``cycle``)."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.rosbag2.enums import StoragePlugin
+
+    serialize_states, typestore = _bag_functions()
+    rows, stamps = serialize_states(channels, data, dt=dt)
+    index = np.arange(rows.shape[0]) if keep is None else np.flatnonzero(keep)
+    plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
+    writer = Writer(path, version=8, storage_plugin=plugin)
+    writer.open()
+    conn = writer.add_connection(topic, "seaforce_msgs/msg/ActuatorState",
+                                 typestore=typestore())
+    for i in index.tolist():
+        writer.write(conn, int(stamps[i]), rows[i].tobytes())
+    writer.close()
+    return path
+
+
+def drop_mask(n, fraction, rng, longest=40):
+    """A mask over ``n`` samples that loses about ``fraction`` of them, in bursts of 1 to
+    ``longest`` samples at random places (never the first or last sample)."""
+    keep = np.ones(n, bool)
+    lost = 0
+    while lost < fraction * n:
+        length = int(rng.integers(1, longest + 1))
+        start = int(rng.integers(1, n - length - 1))
+        lost += int(keep[start:start + length].sum())
+        keep[start:start + length] = False
+    return keep
