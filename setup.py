@@ -15,6 +15,7 @@ CONSOLE_SCRIPTS = [
     'bag_recorder = seaforce_ros.bag_recorder:main',
     'identify = seaforce_ros.identify:main',
     'zwidth = seaforce_ros.zwidth:main',
+    'bag_reindex = seaforce_ros.bags.repair:main',
 ]
 
 setup(

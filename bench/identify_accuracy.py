@@ -24,7 +24,7 @@ sys.path.insert(0, str(ROOT))
 
 from seaforce_ros.core.params import ControllerConfig, DahlParams, PlantParams  # noqa: E402
 from seaforce_ros.core.sensors import SensorParams  # noqa: E402
-from seaforce_ros.identification import bagio  # noqa: E402
+from seaforce_ros import bags as bagio  # noqa: E402
 from seaforce_ros.identification.dahl_fit import fit_dahl_loop  # noqa: E402
 from seaforce_ros.identification.experiments import (chirp_experiment,  # noqa: E402
                                                      work_loop_experiment)

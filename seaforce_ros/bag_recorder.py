@@ -1,27 +1,40 @@
-"""bag_recorder (node ``bag_recorder``): record topics into rosbag2 bags with ``rosbags``.
+"""bag_recorder (node ``bag_recorder``): record topics into one rosbag2 bag, as ``ros2 bag
+record`` does, with :mod:`seaforce_ros.bags`.
 
 What it does
     Subscribes to ``topics`` (default ``actuator_state``, ``actuator_command``,
     ``controller_status``) with raw (still serialised) messages, so the subscription callback
     only stamps the receive time and appends ``(topic, time, bytes)`` to a queue. A writer
-    thread drains the queue into :class:`~seaforce_ros.identification.bagio.SplitBagWriter`:
-    ``<output>/split_0000/``, ``split_0001/``, ... each a complete rosbag2 bag (``storage`` mcap
-    or sqlite3, ``metadata.yaml``, the message definitions of ``seaforce_msgs`` and of the
-    standard types in the bag, so ``ros2 bag info`` / ``ros2 bag play`` read it), a new one every
-    ``split_duration`` seconds of receive time. The bag timestamp of a message is its receive
-    time (as ``ros2 bag record`` does).
+    thread drains the queue into :class:`~seaforce_ros.bags.writer.BagWriter`: one bag
+    directory ``<output>/`` with ``metadata.yaml`` (rosbag2 Jazzy, version 9) and the files
+    ``<name>_0.mcap``, ``<name>_1.mcap``, ... (``.db3`` for ``storage: sqlite3``), a new file
+    every ``split_duration`` seconds of receive time; ``ros2 bag info`` / ``ros2 bag play`` /
+    rosbags / the mcap tools read the directory as one bag. Per topic the bag stores the
+    message definition, the RIHS01 type hash the publishers announce in the graph and their
+    offered QoS (``get_publishers_info_by_topic`` when the first message arrives). A message's
+    ``log_time`` is its receive time, its ``publish_time`` the sender's time: the header stamp
+    for types that start with a Header (all of this package's), else the receive time.
 
 What survives a crash
-    SIGINT/SIGTERM: everything received is written and the open split is closed. SIGKILL (or
-    power loss): every split closed before the kill is complete and readable; the split being
-    written is lost (its mcap file lacks the summary, a sqlite3 split its commit; an mcap
-    split may still be partly readable from its storage file). So at most ``split_duration``
-    seconds (plus the queue) are lost.
+    SIGINT/SIGTERM: everything received is written, the open file closed, ``metadata.yaml``
+    rewritten. SIGKILL (or power loss): ``metadata.yaml`` is rewritten atomically each time a
+    file closes, so the directory stays one valid bag of every closed file; the open mcap
+    file keeps its complete chunks (one is written at least every ``chunk_period`` s), an
+    open sqlite3 file every committed batch (one per writer wake-up, ~10 ms). The package's
+    reader recovers them and says so; ``bag_reindex <output>`` makes the bag whole for every
+    other tool.
+
+Write failures (disk full)
+    The writer cuts the open file back to what is complete (:class:`~seaforce_ros.bags.errors
+    .BagWriteError`), the node logs an ERROR and publishes a ``/diagnostics`` ERROR, drops
+    (and counts) what is still queued or arrives, and ends with exit code 1. The queue between
+    the subscriptions and the writer is bounded (``queue_limit`` MB): beyond it messages are
+    dropped and counted, never buffered without limit.
 
 Counts
-    Per topic ``received`` (callbacks) and ``written`` (in closed or open splits) are logged
-    every ``report_period`` and at shutdown (``received == written`` after a clean stop), and
-    published on ``/diagnostics``.
+    Per topic ``received`` (callbacks), ``written`` (on disk) and ``dropped`` are logged every
+    ``report_period`` and at shutdown (``received == written`` after a clean stop), and
+    published on ``/diagnostics``. The exit code is 1 when anything received was not written.
 
 Topics whose type is not known up front (anything but the three seaforce_msgs topics) are
 subscribed as soon as a publisher appears in the graph.
@@ -38,10 +51,11 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProfile,
+                       ReliabilityPolicy)
 
-from .identification.bagio import SplitBagWriter
-from .identification.errors import IdentificationError
+from .bags import BagError, BagWriter, BagWriteError, QosProfile, check_output_directory
+from .bags.typestore import has_header, header_stamp_ns, knows, type_hash
 from .ros_common import (RECORD_QOS, ParamSpec, StartupError, declare, diagnostic_status,
                          diagnostics_publisher, publish_diagnostics, run)
 from . import param_specs as ps
@@ -61,12 +75,18 @@ def node_specs():
     return [
         ParamSpec('topics', list(DEFAULT_TOPICS), 'topics to record (relative names resolve in '
                   'the node namespace)', read_only=True),
-        ParamSpec('output', '', 'output directory (created; must be new or empty); default '
+        ParamSpec('output', '', 'bag directory (created; must be new or empty); default '
                   'bag_recorder_<date>_<time> in the working directory', read_only=True),
         ParamSpec('storage', 'mcap', 'rosbag2 storage plugin', choices=('mcap', 'sqlite3'),
                   read_only=True),
-        ParamSpec('split_duration', 10.0, 'seconds of receive time per split bag; a SIGKILL '
-                  'loses at most the open split', low=0.1, high=86400.0, read_only=True),
+        ParamSpec('split_duration', 10.0, 'seconds of receive time per storage file; '
+                  'metadata.yaml is rewritten as each one closes', low=0.1, high=86400.0,
+                  read_only=True),
+        ParamSpec('chunk_period', 0.5, 'mcap: a chunk is written at least this often [s] '
+                  '(a SIGKILL loses about this much of the open file)', low=0.01, high=60.0,
+                  read_only=True),
+        ParamSpec('queue_limit', 64.0, 'messages waiting for the writer beyond this many MB '
+                  'are dropped and counted', low=1.0, high=65536.0, read_only=True),
         ParamSpec('reliability', 'reliable', 'QoS reliability of the subscriptions (must be '
                   'compatible with the publishers: best_effort also matches reliable ones)',
                   choices=('reliable', 'best_effort'), read_only=True),
@@ -79,17 +99,10 @@ def node_specs():
 def check_output(path: pathlib.Path) -> None:
     """The ``output`` directory must be new or empty and creatable: StartupError naming the
     parameter otherwise (before anything is created or subscribed)."""
-    if path.exists() and not path.is_dir():
-        raise StartupError(f'output: {path} exists and is not a directory; give a new '
-                           'directory for the bag splits')
-    if path.is_dir() and any(path.iterdir()):
-        raise StartupError(f'output: {path} exists and is not empty; give a new or empty '
-                           'directory')
-    parent = path.parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise StartupError(f'output: cannot create {path}: {parent} is not a directory')
+    try:
+        check_output_directory(path)
+    except BagError as exc:
+        raise StartupError(f'output: {exc}') from None
 
 
 def message_class(msgtype: str):
@@ -98,8 +111,31 @@ def message_class(msgtype: str):
     return getattr(importlib.import_module(f'{pkg}.{kind}'), name)
 
 
+def _duration(d):
+    ns = int(d.nanoseconds)
+    return ns // 1_000_000_000, ns % 1_000_000_000
+
+
+def offered_qos(profile) -> QosProfile:
+    """A publisher's QoS (``TopicEndpointInfo.qos_profile``) as the bag stores it."""
+    def name(enum, value):
+        try:
+            return enum(int(value)).name.lower()
+        except ValueError:
+            return 'unknown'
+
+    return QosProfile(
+        history=name(HistoryPolicy, profile.history), depth=int(profile.depth),
+        reliability=name(ReliabilityPolicy, profile.reliability),
+        durability=name(DurabilityPolicy, profile.durability),
+        deadline=_duration(profile.deadline), lifespan=_duration(profile.lifespan),
+        liveliness=name(LivelinessPolicy, profile.liveliness),
+        liveliness_lease_duration=_duration(profile.liveliness_lease_duration),
+        avoid_ros_namespace_conventions=bool(profile.avoid_ros_namespace_conventions))
+
+
 class BagRecorderNode(Node):
-    """Records topics into split rosbag2 bags off the subscription callbacks."""
+    """Records topics into one rosbag2 bag directory off the subscription callbacks."""
 
     def __init__(self, **kwargs):
         super().__init__('bag_recorder', **kwargs)
@@ -117,17 +153,25 @@ class BagRecorderNode(Node):
                                       else ReliabilityPolicy.BEST_EFFORT))
         self._qos = qos
         try:
-            self.writer = SplitBagWriter(self.output, {}, storage=values['storage'],
-                                         split_duration=values['split_duration'])
-        except IdentificationError as exc:
+            self.writer = BagWriter(self.output, storage=values['storage'],
+                                    split_duration=values['split_duration'],
+                                    chunk_period=values['chunk_period'])
+        except BagError as exc:
             raise StartupError(f'output: {exc}') from None
+        self.exit_code = 0
         self.received = {}
+        self.dropped = {}
         self._queue = queue.SimpleQueue()
-        self._pending = []            # (resolved topic, requested name) awaiting a publisher
+        self._limit = int(values['queue_limit'] * 1e6)
+        self._in_bytes = 0            # written by the executor thread only
+        self._out_bytes = 0           # written by the writer thread only
+        self._failed = False
+        self._pending = []            # resolved topics awaiting a publisher
         self._subs = []
         for topic in topics:
             resolved = self.resolve_topic_name(topic)
             self.received[resolved] = 0
+            self.dropped[resolved] = 0
             msgtype = KNOWN_TYPES.get(resolved.rsplit('/', 1)[-1])
             if msgtype is None:
                 self._pending.append(resolved)
@@ -137,13 +181,13 @@ class BagRecorderNode(Node):
             self.create_timer(0.5, self._discover)
         self._write_error = None
         self._stop = threading.Event()
+        self.diag_pub = diagnostics_publisher(self)
         self._thread = threading.Thread(target=self._write_loop, name='bag_writer', daemon=True)
         self._thread.start()
-        self.diag_pub = diagnostics_publisher(self)
         self.create_timer(values['report_period'], self._report)
         self.get_logger().info(
             f'recording {", ".join(self.received)} into {self.output} '
-            f'({values["storage"]}, split every {values["split_duration"]:g} s)')
+            f'({values["storage"]}, a new file every {values["split_duration"]:g} s)')
 
     # --- subscriptions ---------------------------------------------------------------------
     def _subscribe(self, topic, msgtype):
@@ -152,17 +196,49 @@ class BagRecorderNode(Node):
         except (ImportError, AttributeError, ValueError) as exc:
             self.get_logger().error(f'cannot record {topic}: no Python type {msgtype} ({exc})')
             return
-        # the bag connection is created in the writer thread, in queue order
-        self._queue.put(('__topic__', msgtype, topic))
-        counter = self.received
+        if not knows(msgtype):
+            self.get_logger().error(f'cannot record {topic}: no message definition of '
+                                    f'{msgtype} for the bag')
+            return
+        received, dropped = self.received, self.dropped
         put = self._queue.put
         now = time.time_ns
+        limit = self._limit
+        first = [True]
 
         def callback(data, topic=topic):
-            counter[topic] += 1
+            received[topic] += 1
+            if first[0]:
+                first[0] = False
+                put(('__topic__', topic, self._topic_info(topic, msgtype)))
+            if self._failed or self._in_bytes - self._out_bytes > limit:
+                dropped[topic] += 1
+                if self._failed:
+                    self._end_after_failure()
+                return
+            self._in_bytes += len(data)
             put((topic, now(), data))
 
         self._subs.append(self.create_subscription(cls, topic, callback, self._qos, raw=True))
+
+    def _topic_info(self, topic, msgtype):
+        """``(msgtype, offered QoS list, type hash)`` from the graph (the publishers now)."""
+        expected = type_hash(msgtype)
+        profiles, digest = [], expected
+        try:
+            infos = self.get_publishers_info_by_topic(topic)
+        except Exception:     # graph query failed: the bag still gets the computed hash
+            infos = []
+        for info in infos:
+            profiles.append(offered_qos(info.qos_profile))
+            announced = str(info.topic_type_hash)
+            if announced.startswith('RIHS') and announced != expected:
+                self.get_logger().warning(
+                    f'{topic}: a publisher announces type hash {announced}, the {msgtype} '
+                    f'definition this recorder stores has {expected}; the bag keeps the '
+                    'announced one')
+                digest = announced
+        return msgtype, profiles, digest
 
     def _discover(self):
         if not self._pending:
@@ -177,10 +253,12 @@ class BagRecorderNode(Node):
     # --- writer thread -----------------------------------------------------------------------
     def _write_loop(self):
         """Drain the queue in batches every few milliseconds (few wake-ups and GIL hand-overs
-        per message: the executor thread that takes messages from DDS stays responsive)."""
+        per message: the executor thread that takes messages from DDS stays responsive); each
+        batch ends with :meth:`BagWriter.flush` (sqlite3 commit, mcap chunk when due)."""
         q = self._queue
         writer = self.writer
         get = q.get_nowait
+        headers = {}
         try:
             while True:
                 batch = []
@@ -189,58 +267,104 @@ class BagRecorderNode(Node):
                         batch.append(get())
                 except queue.Empty:
                     pass
+                size = 0
                 for topic, stamp, data in batch:
                     if topic == '__topic__':
-                        writer.add_topic(data, stamp)
-                    else:
-                        writer.write(topic, stamp, data)
+                        msgtype, profiles, digest = data
+                        writer.add_topic(stamp, msgtype, profiles, digest)
+                        headers[stamp] = has_header(msgtype)
+                        continue
+                    size += len(data)
+                    sent = header_stamp_ns(data) if headers[topic] else None
+                    writer.write(topic, stamp, data, stamp if sent is None else sent)
+                self._out_bytes += size
+                writer.flush(time.time_ns())
                 if not batch:
                     if self._stop.is_set():
                         break
                     time.sleep(WRITE_PERIOD)
-        except Exception as exc:  # disk full, permissions: report, keep counting
-            self._write_error = repr(exc)
-            self.get_logger().error(f'writing the bag failed: {exc!r}; recording stopped')
-        finally:
+            writer.close()
+        except BagWriteError as exc:
+            self._on_write_error(exc)
+        except Exception as exc:  # a bug must not pass for a complete recording
+            self._on_write_error(BagWriteError(f'writing the bag failed: {exc!r}'))
+
+    def _on_write_error(self, exc):
+        self._failed = True
+        self._write_error = str(exc)
+        for topic, n in exc.lost.items():
+            self.dropped[topic] = self.dropped.get(topic, 0) + n
+        self.get_logger().error(f'{exc}; recording stopped, the recorder ends')
+        self._drain_dropped()
+        self._report()
+
+    def _drain_dropped(self):
+        while True:
             try:
-                writer.close()
-            except Exception as exc:
-                self._write_error = self._write_error or repr(exc)
+                topic, _stamp, _data = self._queue.get_nowait()
+            except queue.Empty:
+                return
+            if topic != '__topic__':
+                self.dropped[topic] = self.dropped.get(topic, 0) + 1
+
+    def _end_after_failure(self):
+        """After a write failure (seen by the next callback or report): end the node, exit
+        code 1. (No timer or guard condition for this: the EventsExecutor of the PyPI build
+        supports no guard conditions, and a second fast timer stalled it here.)"""
+        if self._failed and self.exit_code == 0:
+            self.exit_code = 1
+            self.context.try_shutdown()
 
     def counts(self):
-        """``{topic: (received, written)}``."""
+        """``{topic: (received, written, dropped)}``."""
         written = self.writer.written
-        return {t: (n, written.get(t, 0)) for t, n in self.received.items()}
+        return {t: (n, written.get(t, 0), self.dropped.get(t, 0))
+                for t, n in self.received.items()}
 
     def _summary(self):
-        return '; '.join(f'{t}: received {r}, written {w}' for t, (r, w) in
-                         self.counts().items())
+        return '; '.join(f'{t}: received {r}, written {w}, dropped {d}'
+                         for t, (r, w, d) in self.counts().items())
 
     def _report(self):
+        self._end_after_failure()
         counts = self.counts()
-        backlog = sum(r - w for r, w in counts.values())
-        self.get_logger().info(f'{self._summary()}; queued {backlog}; '
-                               f'{len(self.writer.splits)} splits closed')
-        values = {f'{t} received': r for t, (r, _w) in counts.items()}
-        values.update({f'{t} written': w for t, (_r, w) in counts.items()})
-        values.update({'queued': backlog, 'splits_closed': len(self.writer.splits),
+        queued = max(0, self._in_bytes - self._out_bytes)
+        files = len(self.writer.files)
+        self.get_logger().info(f'{self._summary()}; queued {queued / 1e6:.1f} MB; '
+                               f'{files} files closed')
+        values = {f'{t} received': r for t, (r, _w, _d) in counts.items()}
+        values.update({f'{t} written': w for t, (_r, w, _d) in counts.items()})
+        values.update({f'{t} dropped': d for t, (_r, _w, d) in counts.items()})
+        values.update({'queued_bytes': queued, 'files_closed': files,
                        'output': str(self.output)})
-        level = DiagnosticStatus.ERROR if self._write_error else DiagnosticStatus.OK
-        publish_diagnostics(self, self.diag_pub, [diagnostic_status(
-            'bag_recorder', 'seaforce_bag_recorder', level,
-            self._write_error or 'recording', values)])
+        dropped = sum(d for _r, _w, d in counts.values())
+        if self._write_error:
+            level, message = DiagnosticStatus.ERROR, self._write_error
+        elif dropped:
+            level, message = DiagnosticStatus.WARN, (f'{dropped} messages dropped (the writer '
+                                                     'fell behind by more than queue_limit)')
+        else:
+            level, message = DiagnosticStatus.OK, 'recording'
+        try:
+            publish_diagnostics(self, self.diag_pub, [diagnostic_status(
+                'bag_recorder', 'seaforce_bag_recorder', level, message, values)])
+        except Exception:   # the context is shutting down
+            pass
 
     def shutdown(self):
-        """Stop receiving, write everything queued, close the open split, print the counts."""
+        """Stop receiving, write everything queued, close the open file, print the counts."""
         for sub in self._subs:
             self.destroy_subscription(sub)
         self._subs = []
         self._stop.set()
         self._thread.join(timeout=60.0)
-        line = f'[bag_recorder] final counts: {self._summary()}; splits {len(self.writer.splits)}'
+        line = (f'[bag_recorder] final counts: {self._summary()}; '
+                f'splits {len(self.writer.files)}')
         if self._write_error:
             line += f'; WRITE ERROR {self._write_error}'
         print(line, flush=True)
+        if self._write_error or any(d for _r, _w, d in self.counts().values()):
+            self.exit_code = 1
 
 
 def main(args=None):

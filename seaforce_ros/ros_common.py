@@ -315,7 +315,9 @@ def run(node_factory: Callable[[], Any], args=None, executor_param: str = 'execu
     until SIGINT/SIGTERM; then, in this order: the executor is shut down (it must release the
     nodes' callbacks first: an EventsExecutor destroyed while it still holds them aborts the
     process), each node's ``shutdown()`` runs (safe state), the nodes are destroyed. A
-    :class:`StartupError` prints its message (no traceback) and exits 2.
+    :class:`StartupError` prints its message (no traceback) and exits 2. A node may end the
+    process itself by shutting its context down; its ``exit_code`` attribute (read after its
+    ``shutdown()``) is then the exit code.
     """
     # SIGINT/SIGTERM: rclpy's own handler (installed by init, chaining to this one) shuts the
     # context down, which ends spin_forever. The Python-level handler must then do nothing:
@@ -363,6 +365,7 @@ def run(node_factory: Callable[[], Any], args=None, executor_param: str = 'execu
                     shutdown()
             finally:
                 node.destroy_node()
+            code = code or int(getattr(node, 'exit_code', 0) or 0)
         rclpy.try_shutdown()
     if executor is not None and kind == 'events':
         # The EventsExecutor of the PyPI wheel aborts the process in its destructor ("Destroying

@@ -124,31 +124,23 @@ def _bag_item(item):
 
 def _mode_in_bag(path, channel):
     """Most common ``mode`` of ``channel`` in the bag's controller_status (None if absent)."""
-    from rosbags.rosbag2 import Reader
-    from .identification.bagio import bag_sources, typestore
+    from .bags import Bag, typestore
+    status = "seaforce_msgs/msg/ControllerStatus"
     store = typestore()
     counts = collections.Counter()
-    for src in bag_sources(path):
-        try:
-            with Reader(src) as reader:
-                conns = [c for c in reader.connections
-                         if c.msgtype == "seaforce_msgs/msg/ControllerStatus"]
-                for i, (_c, _t, data) in enumerate(reader.messages(connections=conns)):
-                    msg = store.deserialize_cdr(data, "seaforce_msgs/msg/ControllerStatus")
-                    names = list(msg.name)
-                    if channel in names:
-                        counts[msg.mode[names.index(channel)]] += 1
-                    if i > 200:
-                        break
-        except Exception:  # an unreadable split: the mode may still be in another
-            continue
-        if counts:
+    for i, (_t, _m, _ts, data) in enumerate(Bag(path).messages(
+            lambda _topic, msgtype: msgtype == status)):
+        msg = store.deserialize_cdr(data, status)
+        names = list(msg.name)
+        if channel in names:
+            counts[msg.mode[names.index(channel)]] += 1
+        if i > 200:
             break
     return counts.most_common(1)[0][0] if counts else None
 
 
 def _from_bags(args, progress):
-    from .identification.bagio import read_channel
+    from .bags import read_channel
     from .identification.errors import IdentificationError
     from .identification.timeseries import prepare
     from .identification.zwidth_lib import impedance_from_record
@@ -157,6 +149,8 @@ def _from_bags(args, progress):
     for mode, path in [_bag_item(item) for item in args.bags]:
         progress(f"reading {path}", None)
         record = read_channel(path, args.channel, args.topic)
+        for note in record.notes:
+            print(f"note ({path}): {note}")
         series = prepare(record, ("x_e", "f_e"))
         if not mode:
             mode = _mode_in_bag(path, args.channel)

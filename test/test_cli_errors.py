@@ -15,7 +15,7 @@ from helpers.nodes import CONFIG
 from helpers.processes import executable
 
 from seaforce_ros.core.params import MODES, DahlParams, PlantParams
-from seaforce_ros.identification import bagio
+from seaforce_ros.bags import write_state_bag
 from seaforce_ros.identification.experiments import chirp_experiment, work_loop_experiment
 from seaforce_ros.identification.output import read_params_file
 from seaforce_ros.identification.params_file import flatten
@@ -221,9 +221,9 @@ def bags(tmp_path_factory):
     root = tmp_path_factory.mktemp("cli_bags")
     chirp = chirp_experiment(plant=PlantParams.table_i().scaled(endpoint_inertia=1.5),
                              dahl=DahlParams(), duration=20.0, start_frequency=0.2, seed=4)
-    bagio.write_state_bag(root / "chirp", ["pinch"], {"pinch": chirp})
+    write_state_bag(root / "chirp", ["pinch"], {"pinch": chirp})
     loop = work_loop_experiment(dahl=DahlParams(), cycles=1.0, seed=5)
-    bagio.write_state_bag(root / "loop", ["pinch"], {"pinch": loop})
+    write_state_bag(root / "loop", ["pinch"], {"pinch": loop})
     return root
 
 

@@ -1,22 +1,26 @@
-"""The control core must import without ROS (rclpy, message packages) or pysoem."""
+"""The control core, the identification and the bag packages must import without ROS (rclpy,
+message packages) or pysoem."""
 import os
 import pathlib
 import subprocess
 import sys
 
+import pytest
+
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 
 
-def test_core_imports_without_ros():
+@pytest.mark.parametrize('package', ['core', 'identification', 'bags'])
+def test_package_imports_without_ros(package):
     code = ('import sys\n'
-            'import seaforce_ros.core\n'
+            f'import seaforce_ros.{package} as pkg\n'
             'import pkgutil, importlib\n'
-            'for m in pkgutil.walk_packages(seaforce_ros.core.__path__, "seaforce_ros.core."):\n'
+            f'for m in pkgutil.walk_packages(pkg.__path__, "seaforce_ros.{package}."):\n'
             '    importlib.import_module(m.name)\n'
             'bad = sorted(n for n in sys.modules if n.split(".")[0] in '
             '("rclpy", "pysoem", "seaforce_msgs", "std_msgs", "sensor_msgs", "diagnostic_msgs"))\n'
             'assert not bad, bad\n'
-            'print("ok", len([m for m in sys.modules if m.startswith("seaforce_ros.core")]))\n')
+            f'print("ok", len([m for m in sys.modules if m.startswith("seaforce_ros.{package}")]))\n')
     # A clean interpreter where rclpy is not even importable: no ROS paths at all.
     env = {k: v for k, v in os.environ.items()
            if k not in ('PYTHONPATH', 'AMENT_PREFIX_PATH', 'LD_LIBRARY_PATH')}

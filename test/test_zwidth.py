@@ -9,7 +9,7 @@ import yaml
 from seaforce_ros import zwidth
 from seaforce_ros.core.analysis import impedance_from_position
 from seaforce_ros.core.params import ControllerConfig, DahlParams, PlantParams
-from seaforce_ros.identification import bagio
+from seaforce_ros import bags
 from seaforce_ros.identification.dahl_fit import fit_dahl_loop
 from seaforce_ros.identification.experiments import chirp_experiment, work_loop_experiment
 from seaforce_ros.identification.output import write_params_file
@@ -73,14 +73,14 @@ def test_identified_parameters_give_the_true_zwidth(identified, capsys):
 def test_zwidth_from_backdrive_bags_matches_direct_computation(tmp_path, capsys):
     """Two bags (hold, dob_full_ff) at 1 rad/s; one names its mode by controller_status, the
     other by MODE=BAG. The table equals the Fourier ratio computed here."""
-    store = bagio.typestore()
+    store = bags.typestore()
     expected = {}
     paths = []
     for mode in ("hold", "dob_full_ff"):
         rec = work_loop_experiment(dahl=DahlParams(), amplitude=0.2, frequency=1.0,
                                    cycles=2.0, mode=mode, settle_cycles=1.0)
         path = tmp_path / mode
-        bagio.write_state_bag(path, ["pinch"], {"pinch": rec})
+        bags.write_state_bag(path, ["pinch"], {"pinch": rec})
         n = rec["x"].size
         period = 2 * math.pi
         expected[mode] = 20 * math.log10(abs(impedance_from_position(
@@ -90,11 +90,11 @@ def test_zwidth_from_backdrive_bags_matches_direct_computation(tmp_path, capsys)
             path = tmp_path / "hold_with_status"
             w = Writer(path, version=8)
             w.open()
-            c_state = w.add_connection("/actuator_state", bagio.ACTUATOR_STATE,
+            c_state = w.add_connection("/actuator_state", bags.ACTUATOR_STATE,
                                        typestore=store)
             c_status = w.add_connection("/controller_status",
                                         "seaforce_msgs/msg/ControllerStatus", typestore=store)
-            rows, stamps = bagio.serialize_states(["pinch"], {"pinch": rec})
+            rows, stamps = bags.serialize_states(["pinch"], {"pinch": rec})
             S = store.types["seaforce_msgs/msg/ControllerStatus"]
             H = store.types["std_msgs/msg/Header"]
             T = store.types["builtin_interfaces/msg/Time"]
@@ -144,7 +144,7 @@ def test_zwidth_rows_pick_the_lowest_mode():
 
 def test_zwidth_errors(tmp_path, capsys):
     rec = work_loop_experiment(amplitude=0.2, frequency=3.0, cycles=1.0, settle_cycles=0.5)
-    bagio.write_state_bag(tmp_path / "bag", ["pinch"], {"pinch": rec})
+    bags.write_state_bag(tmp_path / "bag", ["pinch"], {"pinch": rec})
     code, _, err = _run(capsys, tmp_path / "bag", "--channel", "pinch")
     assert code == 2 and "MODE=BAG" in err
     code, _, err = _run(capsys, "--channel", "pinch")

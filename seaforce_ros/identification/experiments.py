@@ -10,7 +10,7 @@
 
 The result is a dict of arrays with the ``ActuatorState`` field names of one channel
 (``x v f_p f_a x_e f_e``) plus the simulator's true states, ready for
-:func:`~seaforce_ros.identification.bagio.write_state_bag`.
+:func:`~seaforce_ros.bags.writer.write_state_bag`.
 """
 
 from __future__ import annotations

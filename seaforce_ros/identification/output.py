@@ -191,11 +191,12 @@ def positive_float(text):
 def run_cli(prog, run, args):
     """Run an offline tool's ``run(args)``: a bad input is one ``prog: error: ...`` line and exit
     code 2 (never a stack trace), Ctrl-C exit code 130."""
+    from ..bags.errors import BagError
     from ..core.errors import SeaforceError
 
     try:
         return run(args)
-    except (IdentificationError, SeaforceError, ValueError, OSError) as exc:
+    except (IdentificationError, BagError, SeaforceError, ValueError, OSError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

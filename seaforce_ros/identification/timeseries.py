@@ -1,4 +1,4 @@
-"""From a :class:`~.bagio.ChannelRecord` to uniformly sampled, finite arrays.
+"""From a :class:`~seaforce_ros.bags.reader.ChannelRecord` to uniformly sampled, finite arrays.
 
 * Sample period: from the header stamps per cycle (median), snapped to a whole rate in Hz
   when within 1 % of one (a realtime node's stamps jitter; its cycle does not), or given.
