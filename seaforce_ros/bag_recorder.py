@@ -69,6 +69,8 @@ KNOWN_TYPES = {
 DEFAULT_TOPICS = ('actuator_state', 'actuator_command', 'controller_status')
 #: the writer thread wakes up this often [s] when the queue is empty
 WRITE_PERIOD = 0.01
+#: after a write failure the node lives this long [s] before it ends (diagnostics delivered)
+FAILURE_GRACE = 1.0
 
 
 def node_specs():
@@ -160,7 +162,8 @@ class BagRecorderNode(Node):
             raise StartupError(f'output: {exc}') from None
         self.exit_code = 0
         self.received = {}
-        self.dropped = {}
+        self.dropped = {}             # by the callbacks (executor thread)
+        self._lost = {}               # by the writer thread (failed writes, queue drained)
         self._queue = queue.SimpleQueue()
         self._limit = int(values['queue_limit'] * 1e6)
         self._in_bytes = 0            # written by the executor thread only
@@ -290,10 +293,11 @@ class BagRecorderNode(Node):
             self._on_write_error(BagWriteError(f'writing the bag failed: {exc!r}'))
 
     def _on_write_error(self, exc):
+        self._failed_at = time.monotonic()
         self._failed = True
         self._write_error = str(exc)
         for topic, n in exc.lost.items():
-            self.dropped[topic] = self.dropped.get(topic, 0) + n
+            self._lost[topic] = self._lost.get(topic, 0) + n
         self.get_logger().error(f'{exc}; recording stopped, the recorder ends')
         self._drain_dropped()
         self._report()
@@ -305,20 +309,22 @@ class BagRecorderNode(Node):
             except queue.Empty:
                 return
             if topic != '__topic__':
-                self.dropped[topic] = self.dropped.get(topic, 0) + 1
+                self._lost[topic] = self._lost.get(topic, 0) + 1
 
     def _end_after_failure(self):
         """After a write failure (seen by the next callback or report): end the node, exit
-        code 1. (No timer or guard condition for this: the EventsExecutor of the PyPI build
-        supports no guard conditions, and a second fast timer stalled it here.)"""
-        if self._failed and self.exit_code == 0:
+        code 1, one second after the failure (the /diagnostics ERROR gets to its
+        subscribers first). (No timer or guard condition for this: the EventsExecutor of the
+        PyPI build supports no guard conditions, and a second fast timer stalled it here.)"""
+        if self._failed and self.exit_code == 0 and \
+                time.monotonic() - self._failed_at >= FAILURE_GRACE:
             self.exit_code = 1
             self.context.try_shutdown()
 
     def counts(self):
         """``{topic: (received, written, dropped)}``."""
         written = self.writer.written
-        return {t: (n, written.get(t, 0), self.dropped.get(t, 0))
+        return {t: (n, written.get(t, 0), self.dropped.get(t, 0) + self._lost.get(t, 0))
                 for t, n in self.received.items()}
 
     def _summary(self):
@@ -358,6 +364,8 @@ class BagRecorderNode(Node):
         self._subs = []
         self._stop.set()
         self._thread.join(timeout=60.0)
+        if self._failed:
+            self._drain_dropped()     # what callbacks queued while the writer failed
         line = (f'[bag_recorder] final counts: {self._summary()}; '
                 f'splits {len(self.writer.files)}')
         if self._write_error:

@@ -102,7 +102,8 @@ class _Cursor:
         end = self.pos + self.u32()
         out = {}
         while self.pos < end:
-            out[self.string()] = self.string()
+            key = self.string()
+            out[key] = self.string()
         return out
 
 

@@ -80,7 +80,8 @@ class FileReport:
             return f"{where}: {self.problem}; skipped (the other files were read)"
         if self.state == "complete" and not self.listed and self.path.parent.joinpath(
                 METADATA_FILE).exists():
-            return f"{where}: complete but not listed in metadata.yaml; read it too"
+            return (f"{where}: not listed in metadata.yaml (the file that was open when its "
+                    f"writer stopped?): read it too; add it to the bag with: bag_reindex {bag}")
         return None
 
 

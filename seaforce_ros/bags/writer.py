@@ -325,6 +325,8 @@ class BagWriter:
         except OSError:
             kept += "; metadata.yaml could not be rewritten (it lists the files closed before)"
         reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        if getattr(exc, "sqlite_errorname", None):
+            reason += f" ({exc.sqlite_errorname})"
         code = errno.errorcode.get(getattr(exc, "errno", None) or -1, "")
         n_closed = len(self.files)
         msg = (f"writing the bag {self.directory} failed: {reason}"

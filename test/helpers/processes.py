@@ -33,12 +33,13 @@ def executable(name: str) -> pathlib.Path:
 class ManagedProcess:
     """A child in its own session, with stdout+stderr captured to a log file."""
 
-    def __init__(self, argv: Sequence[str], log_path: pathlib.Path, env=None):
+    def __init__(self, argv: Sequence[str], log_path: pathlib.Path, env=None, preexec_fn=None):
         self.argv = list(argv)
         self.log_path = log_path
         self._log = open(log_path, 'wb')
         self.popen = subprocess.Popen(self.argv, stdout=self._log, stderr=subprocess.STDOUT,
-                                      stdin=subprocess.DEVNULL, env=env, start_new_session=True)
+                                      stdin=subprocess.DEVNULL, env=env, start_new_session=True,
+                                      preexec_fn=preexec_fn)
         _live.add(self)
 
     @property
@@ -89,10 +90,12 @@ class ProcessGroup:
         self._logdir = ROOT / 'log' / 'test-processes'
         self._logdir.mkdir(parents=True, exist_ok=True)
 
-    def start(self, argv: Sequence[str], name: Optional[str] = None, env=None) -> ManagedProcess:
+    def start(self, argv: Sequence[str], name: Optional[str] = None, env=None,
+              preexec_fn=None) -> ManagedProcess:
+        """``preexec_fn`` runs in the child before exec (e.g. resource limits)."""
         name = name or pathlib.Path(argv[0]).name
         log_path = self._logdir / f'{name}-{os.getpid()}-{next(_log_counter)}.log'
-        proc = ManagedProcess(argv, log_path, env=env)
+        proc = ManagedProcess(argv, log_path, env=env, preexec_fn=preexec_fn)
         self._procs.append(proc)
         return proc
 
