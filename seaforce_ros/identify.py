@@ -17,6 +17,7 @@ Exit status: 0 ok, 2 bad input (a one-line reason on stderr, no stack trace).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 __all__ = ["main", "build_parser"]
@@ -92,9 +93,11 @@ def _identify_chirp(args, progress):
 def _print_plant_table(result, truth, series, record):
     from .identification.output import format_table
 
-    rows = result.rows(truth)
+    # a 1-sigma that is zero or undefined is a degenerate covariance: not identified
+    rows = [r[:4] + ((format(r[4], ".2g") if math.isfinite(r[4]) and r[4] > 0
+                      else "not identified"),) + r[5:] for r in result.rows(truth)]
     headers = ["parameter", "symbol", "unit", "value", "1-sigma", "fit error", "plant"]
-    formats = [None, None, None, ".5g", ".2g", ".2%", None]
+    formats = [None, None, None, ".5g", None, ".2%", None]
     if truth is not None:
         headers += ["true", "error"]
         formats += [".5g", "+.2f"]
@@ -142,6 +145,24 @@ def hysteresis_lines(h, extra):
     return lines
 
 
+def loop_lines(fit, bag, fit_exponent):
+    """The work-loop Dahl fit: values with 1-sigma, or ``not identified (reason)``."""
+    def value(name, v, one, unit, reason, fmt=".4g"):
+        if reason:
+            return f"{name} not identified ({reason})"
+        return f"{name} = {v:{fmt}} +- {one:.2g}{unit}"
+    parts = [value("sigma", fit.sigma, fit.sigma_1s, " N m/rad", fit.sigma_reason),
+             value("F_c", fit.coulomb_force, fit.coulomb_force_1s, " N m",
+                   fit.coulomb_force_reason)]
+    if fit_exponent:
+        parts.append(value("n", fit.exponent, fit.exponent_1s, "", fit.exponent_reason, ".3g"))
+    else:
+        parts.append(f"n = {fit.exponent:.3g} (fixed)")
+    return [f"Dahl fit (work loop {bag}): " + ", ".join(parts)
+            + f"; loop residual rms {fit.rms:.3g} N m (linear terms only: "
+              f"{fit.rms_linear_only:.3g} N m)"]
+
+
 def _dahl(args, plant, progress):
     from .bags import read_channel
     from .identification.dahl_fit import fit_dahl_loop
@@ -174,6 +195,7 @@ def check_arguments(args):
 
 
 def run(args):
+    from .identification.errors import IdentificationError
     from .identification.output import (Progress, check_output_dir, check_params_update,
                                         read_plant, write_params_file)
 
@@ -202,15 +224,18 @@ def run(args):
     dahl = None
     if args.dahl_bag:
         fit = _dahl(args, plant, progress)
-        dahl = {"sigma": fit.sigma, "coulomb_force": fit.coulomb_force,
-                "exponent": fit.exponent}
-        print(f"Dahl fit (work loop {args.dahl_bag}): sigma = {fit.sigma:.4g} +- "
-              f"{fit.sigma_1s:.2g} N m/rad, F_c = {fit.coulomb_force:.4g} +- "
-              f"{fit.coulomb_force_1s:.2g} N m, n = {fit.exponent:.3g}"
-              + (f" +- {fit.exponent_1s:.2g}" if args.fit_exponent else " (fixed)")
-              + f"; loop residual rms {fit.rms:.3g} N m (linear terms only: "
-                f"{fit.rms_linear_only:.3g} N m)")
-        comments.append(f"{args.channel}.dahl: work-loop bag {args.dahl_bag}")
+        for line in loop_lines(fit, args.dahl_bag, args.fit_exponent):
+            print(line)
+        if not fit.identified:
+            if args.bag is None:
+                raise IdentificationError(
+                    f"the work loop {args.dahl_bag} does not identify the Dahl model (see "
+                    "above); record a larger or slower loop (e.g. 0.5 rad at 1 rad/s)")
+            print(f"note: {args.channel}.dahl not written: the work loop does not identify it")
+        else:
+            dahl = {"sigma": fit.sigma, "coulomb_force": fit.coulomb_force,
+                    "exponent": fit.exponent}
+            comments.append(f"{args.channel}.dahl: work-loop bag {args.dahl_bag}")
         if plots is not None:
             from .identification.plots import dahl_fig6
             path = dahl_fig6(fit, plots / f"{args.channel}_fig6_dahl.png",

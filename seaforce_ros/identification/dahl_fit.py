@@ -28,7 +28,9 @@ __all__ = ["DahlFit", "fit_dahl_loop", "linear_endpoint_force"]
 @dataclass
 class DahlFit:
     """sigma [N m/rad], coulomb_force F_c [N m], exponent n and their 1-sigma; rms of the
-    loop residual after the fit [N m]; the loop arrays (for the plot)."""
+    loop residual after the fit [N m]; the loop arrays (for the plot). ``*_reason`` says why a
+    value is not identified (the search ended on its bound, or the covariance is degenerate);
+    empty when it is."""
 
     sigma: float
     coulomb_force: float
@@ -42,6 +44,14 @@ class DahlFit:
     residual_force: np.ndarray
     model_force: np.ndarray
     offset: float
+    sigma_reason: str = ""
+    coulomb_force_reason: str = ""
+    exponent_reason: str = ""
+
+    @property
+    def identified(self):
+        """Every fitted value is identified (no ``*_reason``)."""
+        return not (self.sigma_reason or self.coulomb_force_reason or self.exponent_reason)
 
 
 def linear_endpoint_force(x_e, dt, plant, cutoff=30.0):
@@ -132,11 +142,26 @@ def fit_dahl_loop(series, plant, settle=None, fit_exponent=False, exponent=1.0,
     r = res.fun
     dof = max(1, r.size - len(p) - 1)
     s2 = float(r @ r) / dof
-    try:
-        cov = np.linalg.pinv(res.jac.T @ res.jac) * s2
-        sd = np.sqrt(np.abs(np.diag(cov)))
-    except np.linalg.LinAlgError:
+    names = ["sigma", "coulomb_force"] + (["exponent"] if fit_exponent else [])
+    reasons = {}
+    for i, name in enumerate(names):
+        if res.active_mask[i] != 0 or min(p[i] - lower[i], upper[i] - p[i]) < 1e-6:
+            side = "lower" if p[i] - lower[i] < upper[i] - p[i] else "upper"
+            reasons[name] = (f"the search ended on its {side} bound: the loop does not "
+                             "constrain it")
+    jtj = res.jac.T @ res.jac
+    cs = np.sqrt(np.diag(jtj))
+    cond = np.linalg.cond(jtj / np.outer(cs, cs)) if np.all(cs > 0) else math.inf
+    if not (np.isfinite(cond) and cond < 1e10):
+        for name in names:
+            reasons.setdefault(name, f"degenerate covariance (condition number {cond:.3g}): "
+                                     "the loop does not tell the parameters apart")
         sd = np.full(len(p), np.nan)
+    else:
+        sd = np.sqrt(np.abs(np.diag(np.linalg.pinv(jtj) * s2)))
+    for i, name in enumerate(names):
+        if name not in reasons and not (np.isfinite(sd[i]) and sd[i] > 0):
+            reasons[name] = "its 1-sigma is zero or undefined: degenerate covariance"
     sig, fc = math.exp(p[0]), math.exp(p[1])
     n = float(p[2]) if fit_exponent else float(exponent)
     fd_full = dahl_force(x_e, sig, fc, n)
@@ -144,4 +169,6 @@ def fit_dahl_loop(series, plant, settle=None, fit_exponent=False, exponent=1.0,
     return DahlFit(sig, fc, n, sig * sd[0], fc * sd[1], float(sd[2]) if fit_exponent else 0.0,
                    float(np.sqrt(np.mean(r ** 2))),
                    float(np.std(target - np.mean(target))),
-                   x_e[k0:], target - offset, fd_full[k0:], offset)
+                   x_e[k0:], target - offset, fd_full[k0:], offset,
+                   reasons.get("sigma", ""), reasons.get("coulomb_force", ""),
+                   reasons.get("exponent", ""))

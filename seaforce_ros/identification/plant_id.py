@@ -264,6 +264,10 @@ def identify_plant(series, band=(0.5, 400.0), rational_band=(0.5, 400.0), excita
         for name, v, sg in zip(f.names, f.values, f.sigma):
             values[name] = float(v)
             sigma[name] = float(sg)
+    for k, sg in sigma.items():
+        if not (math.isfinite(sg) and sg > 0):
+            notes.append(f"{k}: not identified (degenerate covariance: its 1-sigma is "
+                         f"{sg:.3g}); the value written is the least-squares solution")
     bad = [k for k, v in values.items() if not (math.isfinite(v) and v > 0)]
     for k in bad:
         notes.append(f"{k} fitted as {values[k]:.4g} (not positive; clipped to 0): not "

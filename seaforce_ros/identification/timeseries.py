@@ -37,6 +37,8 @@ class Series:
     missing: int = 0
     filled: int = 0
     absent: Sequence[str] = ()
+    gaps: int = 0
+    longest_gap: int = 0
 
     @property
     def n(self):
@@ -54,8 +56,10 @@ class Series:
             out.append("non-finite samples dropped: " + ", ".join(
                 f"{k} {v}" for k, v in dropped.items()) + " (filled by interpolation)")
         if self.missing:
-            out.append(f"{self.missing} cycles missing from the record (filled by "
-                       "interpolation)")
+            out.append(f"{self.missing} cycles missing from the record "
+                       f"({100 * self.missing / max(self.n, 1):.2f} %, in {self.gaps} gaps, "
+                       f"the longest {self.longest_gap} cycles = "
+                       f"{1e3 * self.longest_gap * self.dt:.3g} ms; filled by interpolation)")
         if self.absent:
             out.append("not measured (NaN in every sample): " + ", ".join(self.absent))
         return out
@@ -116,13 +120,15 @@ def prepare(record, fields, dt=None, max_gap_fraction=0.2, optional=()):
         lost[(cycle - cycle[0])[finite]] = False
         filled_mask |= lost
     missing = int(n_total - cycle.size)
+    steps = np.diff(cycle)
+    holes = steps[steps > 1] - 1
     filled = int(filled_mask.sum())
     if filled > max_gap_fraction * n_total:
         raise IdentificationError(
             f"too much data missing: {filled} of {n_total} samples are NaN or lost "
             f"(more than {100 * max_gap_fraction:.0f} %)")
     return Series(record.channel, period, signals, int(cycle[0]), dropped, missing, filled,
-                  tuple(absent))
+                  tuple(absent), int(holes.size), int(holes.max()) if holes.size else 0)
 
 
 _WHY = {

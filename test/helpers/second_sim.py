@@ -177,18 +177,6 @@ def transfer_functions(plant, omega):
     return {"A": 1.0 / zm, "B": 1.0 / ze, "C": zs, "D": 1.0 / (ze + hose_series)}
 
 
-def _bag_functions():
-    """``(serialize_states, typestore)`` of the package (moving from ``identification.bagio``
-    to the ``bags`` subpackage)."""
-    try:
-        from seaforce_ros.bags.typestore import typestore
-        from seaforce_ros.bags.writer import serialize_states
-        return serialize_states, typestore
-    except ImportError:
-        from seaforce_ros.identification import bagio
-        return bagio.serialize_states, bagio.typestore
-
-
 def write_bag(path, channels, data, keep=None, dt=5e-4, storage="mcap",
               topic="/actuator_state"):
     """Write ``data`` (channel -> dict of ``x v f_p f_a x_e f_e`` arrays) as ``actuator_state``
@@ -198,7 +186,7 @@ def write_bag(path, channels, data, keep=None, dt=5e-4, storage="mcap",
     from rosbags.rosbag2 import Writer
     from rosbags.rosbag2.enums import StoragePlugin
 
-    serialize_states, typestore = _bag_functions()
+    from seaforce_ros.bags import serialize_states, typestore
     rows, stamps = serialize_states(channels, data, dt=dt)
     index = np.arange(rows.shape[0]) if keep is None else np.flatnonzero(keep)
     plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
