@@ -138,20 +138,19 @@ def main():
         print(f'\nrecorder exit code {code}; {m.group(0) if m else "no final counts!"}')
         # what is in the bag
         from rosbags.rosbag2 import Reader
-        from seaforce_ros.identification import bagio
+        from seaforce_ros import bags
         counts = {}
-        splits = sorted(d for d in bag.iterdir() if (d / 'metadata.yaml').is_file())
-        for split in splits:
-            with Reader(split) as reader:
-                for c in reader.connections:
-                    counts[c.topic] = counts.get(c.topic, 0) + c.msgcount
+        with Reader(bag) as reader:               # the bag directory as one bag
+            for c in reader.connections:
+                counts[c.topic] = counts.get(c.topic, 0) + c.msgcount
+        splits = sorted(p for p in bag.iterdir() if p.suffix in ('.mcap', '.db3'))
         size = sum(f.stat().st_size for f in bag.rglob('*') if f.is_file()) / 1e6
-        rec_data = bagio.read_channel(bag, 'pinch')
+        rec_data = bags.read_channel(bag, 'pinch')
         cyc = rec_data.cycle
         span = int(cyc[-1] - cyc[0] + 1)
         settled = cyc[cyc >= cyc[0] + 2000]
         missing_settled = int(settled[-1] - settled[0] + 1 - settled.size)
-        print(f'recorded for {elapsed:.1f} s wall time; bag: {len(splits)} splits, '
+        print(f'recorded for {elapsed:.1f} s wall time; bag: {len(splits)} files, '
               f'{size:.1f} MB ({args.storage})')
         for topic, n in sorted(counts.items()):
             print(f'  {topic}: {n} messages in the bag ({n / elapsed:.0f}/s)')
