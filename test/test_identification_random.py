@@ -28,7 +28,6 @@ import os
 import subprocess
 
 import numpy as np
-import pytest
 import yaml
 
 from helpers.processes import executable

@@ -32,7 +32,6 @@ def _relax(u0, c, n):
 
 def _relax_scalar(n):
     """Scalar form of :func:`_relax` for the run recursion."""
-    import math
     if n < 1.0:
         p = 1.0 - n
 

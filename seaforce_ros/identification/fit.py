@@ -32,7 +32,8 @@ from .dahl_model import DahlPath
 from .spectral import FrequencyResponse
 
 __all__ = ["SIGMA_FLOOR", "ParameterFit", "fit_mass_spring_damper", "fit_hose",
-           "fit_endpoint_with_dahl", "HysteresisEstimate", "RationalFit", "fit_rational", "fit_error"]
+           "fit_endpoint_with_dahl", "HysteresisEstimate", "RationalFit", "fit_rational",
+           "fit_error"]
 
 #: floor of the relative 1-sigma used as a weight
 SIGMA_FLOOR = 2e-3
@@ -295,7 +296,7 @@ def fit_endpoint_with_dahl(bt, s_xe, s_input, x_e, lo, hi, rel_sigma, dahl_delay
     n_grid = max(6, int(math.ceil(RATIO_GRID_PER_DECADE * math.log10(r_hi / r_lo))) + 1)
     grid = np.linspace(math.log(r_lo), math.log(r_hi), n_grid)
     costs = np.array([cost_of(g) for g in grid])
-    th_inf, res_inf, _ = solve(math.inf)
+    _, res_inf, _ = solve(math.inf)
     cost_inf = float(res_inf @ res_inf)
     i_best = int(np.argmin(costs))
     est = HysteresisEstimate("none", cost_linear=cost_linear, search=(r_lo, r_hi))
@@ -327,8 +328,7 @@ def fit_endpoint_with_dahl(bt, s_xe, s_input, x_e, lo, hi, rel_sigma, dahl_delay
             f"displacement F_c/sigma below {1e3 / r_hi:.2g} mrad, a third of the endpoint "
             "encoder's step); the hysteresis acts as Coulomb friction in this record, fitted "
             "as such (F_c only)")
-        cols = slice(0, 4)
-        jac = -a[:, cols]
+        jac = -a
     elif i_best == 0:
         est.model = "spring"
         est.sigma_reason = est.coulomb_force_reason = (
