@@ -67,7 +67,7 @@ def _identify_all(bags, outs, tmp_path, parallel=2):
                     stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
                 running.append((i, proc, log))
             i, proc, log = running.pop(0)
-            code = proc.wait(timeout=300)
+            code = proc.wait(timeout=1200)        # generous: a loaded CI host starves it
             log.seek(0)
             results[i] = (code, log.read())
             log.close()
