@@ -11,7 +11,7 @@ from seaforce_msgs.msg import ActuatorState, ControllerStatus, ActuatorCommand
 from std_srvs.srv import Trigger
 
 from helpers.nodes import start_node
-from helpers.states import by_cycle, torque_off_after_commands_stop, value
+from helpers.states import by_cycle, stamp_ns, torque_off_after_commands_stop, value
 
 DRIVE = {'pinch.environment.mode': 'position_sine', 'pinch.environment.amplitude': 0.2,
          'pinch.environment.frequency': 1.0}
@@ -129,15 +129,18 @@ def test_sim_zeroes_torque_when_controller_is_killed(processes, tmp_path, probe)
     # torque flows: hold pushes back against the position drive
     probe.wait_messages('actuator_state', 1, timeout=30,
                         where=lambda m: abs(pinch(m, 'motor_effort')) > 0.05)
+    killed_ns = time.time_ns()
     ctrl.send_signal(signal.SIGKILL)
     assert ctrl.wait(timeout=5) is not None
     t_kill = time.monotonic()
-    cycle_at_kill = probe.messages('actuator_state')[-1].cycle
-    probe.wait_messages('actuator_state', 1, where=lambda m: m.cycle > cycle_at_kill and (
+    # by the plant's stamps, not by the last state the probe has seen: a starved probe lags
+    # the plant by up to seconds
+    after = killed_ns + 50_000_000              # 5x command_timeout past the kill
+    probe.wait_messages('actuator_state', 1, where=lambda m: stamp_ns(m) > after and (
         pinch(m, 'status') & ActuatorState.STATUS_COMMAND_TIMEOUT))
     # then enough later states to see it stay so (counted, not slept for: a loaded host
     # delivers them late)
-    probe.wait_messages('actuator_state', 200, where=lambda m: m.cycle > cycle_at_kill + 50)
+    probe.wait_messages('actuator_state', 200, where=lambda m: stamp_ns(m) > after)
     states = by_cycle(probe.messages('actuator_state'))
     # the last cycle whose torque came from a command, and the first flagged cycle after it
     cycles, flags, efforts, last_driven, first_to = torque_off_after_commands_stop(states,

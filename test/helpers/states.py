@@ -10,6 +10,11 @@ def value(msg, channel: str, field: str):
     return getattr(msg, field)[list(msg.name).index(channel)]
 
 
+def stamp_ns(msg) -> int:
+    """The header stamp in ns (system time: the plants stamp with time.time_ns())."""
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
 def by_cycle(msgs: Iterable) -> List:
     """One message per cycle (the last one received), in cycle order."""
     return sorted({m.cycle: m for m in msgs}.values(), key=lambda m: m.cycle)
