@@ -32,6 +32,17 @@ Discretisation (sample period T = ``dt``):
 * impedance: the DOB with ``F_ref = F_cmp + F_d - K_t (X_e_hat - X_e0) -
   B_t V_e_hat``, X_e0 captured at mode entry: the endpoint renders the target
   stiffness/damping (plus the endpoint inertia).
+* force: the DOB with ``F_ref = target.force`` (eq. 19 with a reference): at rest
+  the hose pushes the motor with ``F_p = -F_ref``.
+* a grasp (:mod:`.grasp`, requested with :meth:`ChannelController.request_grasp`)
+  overrides the mode while it runs: the DOB with ``F_ref = F_cmp + F_d + F_g``
+  (minimum impedance plus the grasp's endpoint force). When it is done the
+  channel enters its mode again, bumplessly from the torque then (the release
+  has ramped F_g to zero: the grip is not carried over into ``hold``).
+  Selecting ``passive`` ends a grasp at once; selecting another mode releases
+  it first.
+* the contact estimator (:mod:`.estimator`) runs in every mode on X_e_hat, F_p
+  and F_d.
 * chirp: ``F_a = u_0 + A w(t) sin(phi(t))``, log chirp, u_0 the torque at
   entry, w a 50 ms raised-cosine fade-in/out. It plays once per selection of
   the mode (``configure``): a chirp that finished, or that the plant
@@ -57,9 +68,12 @@ float boxing, no logging).
 import math
 
 from .dahl import DahlState
+from .estimator import ContactEstimator
+from .grasp import Grasp
 from .handover import Mailbox
 from .errors import NonFiniteInputError
 from .params import ControllerConfig, DOB_MODES
+from .signals import faded_log_chirp
 
 __all__ = ["ChannelController"]
 
@@ -94,6 +108,10 @@ class ChannelController:
         X_e_hat [rad].
     dahl_force : float
         F_d [N m].
+    estimator : ContactEstimator
+        Contact and object estimates (updated in every mode).
+    grasp : Grasp or None
+        The grasp that overrides the mode, while it runs.
     """
 
     def __init__(self, config=None, dt=5e-4):
@@ -105,6 +123,10 @@ class ChannelController:
             raise ValueError(f"dt = {dt!r} must be > 0 and finite")
         self.dt = float(dt)
         self._pending = Mailbox()
+        self._grasp_box = Mailbox()
+        self.grasp = None
+        self.estimator = ContactEstimator(config.estimator, config.plant, self.dt,
+                                          config.rest_position)
         self._chirp_played = False
         self._t_mode = 0.0
         self.mode = config.mode
@@ -127,6 +149,12 @@ class ChannelController:
         return self._config
 
     def _apply_config(self, c):
+        grasp = getattr(self, "grasp", None)
+        if grasp is not None and c.mode != self.mode:
+            if c.mode == "passive":
+                self._end_grasp(f"mode set to {c.mode}")
+            else:
+                grasp.release(f"mode set to {c.mode}", "aborted")
         self._config = c
         dt = self.dt
         p = c.plant
@@ -148,6 +176,8 @@ class ChannelController:
         self._kf = c.force_feedback_gain
         self._bump_decay = math.exp(-dt / _BUMP_TAU)
         self._kt, self._bt = c.target_stiffness, c.target_damping
+        self._f_target = c.target_force
+        self.estimator.configure(c.estimator, p, c.rest_position)
         self._use_ff = c.mode in ("dob_linear_ff", "dob_full_ff", "impedance")
         self._use_dahl = c.mode in ("dob_full_ff", "impedance")
 
@@ -163,12 +193,15 @@ class ChannelController:
     def reset(self, applied_torque=0.0):
         """Clear all state (filters, integrator, estimates); the next :meth:`update` starts
         afresh from that sample and enters the mode bumplessly from ``applied_torque``
-        [N m], the torque the plant reports it applies (its first output equals it)."""
+        [N m], the torque the plant reports it applies (its first output equals it). A
+        grasp ends (aborted)."""
+        self._end_grasp("the controller was re-initialised")
         pending = self._pending.take()
         if pending is not None:
             self._apply_config(pending)
             self._chirp_played = False
         self._interrupt_chirp()
+        self.estimator.reset()
         self.torque = float(applied_torque)
         self.disturbance = math.nan
         self.feedforward = 0.0
@@ -202,6 +235,33 @@ class ChannelController:
         if self._enter != _ENTER:
             self._enter = _REENTER
 
+    # --- grasps ----------------------------------------------------------------------------
+    def request_grasp(self, grasp):
+        """Start ``grasp`` (:class:`~.grasp.Grasp`, goal already checked) at the start of the
+        next :meth:`update` (any thread) unless it has been withdrawn by then; it enters
+        bumplessly from the torque then. Release it with ``grasp.request_release``."""
+        if not isinstance(grasp, Grasp):
+            raise TypeError("grasp must be a Grasp")
+        self._grasp_box.put(grasp)
+
+    def abort_grasp(self, reason):
+        """End the running grasp now, commanding nothing more (the caller zeroes the torque:
+        a fault, a stall). Same thread as :meth:`update`."""
+        self._end_grasp(reason)
+
+    def _end_grasp(self, reason):
+        grasp = self.grasp
+        if grasp is not None:
+            grasp.abort_now(reason)
+            self.grasp = None
+            self._enter = _ENTER
+
+    @property
+    def grasp_phase(self):
+        """The running grasp's phase, or ''."""
+        grasp = self.grasp
+        return grasp.phase if grasp is not None else ""
+
     def _interrupt_chirp(self):
         """A chirp under way when the plant interrupts it is over: it never replays by itself
         (a new ``configure`` into ``chirp`` plays it again)."""
@@ -233,6 +293,8 @@ class ChannelController:
             self._apply_config(pending)
             self._chirp_played = False
             self._enter = _ENTER
+        if self._grasp_box:
+            self._start_grasp(self._grasp_box.take())
 
         # hose inversion: delta = F_p/(b_s s + k_s), exact FOH
         if self._first:
@@ -263,19 +325,28 @@ class ChannelController:
         self.endpoint_velocity_estimate = ve_hat
         self.dahl_force = fd
         self.feedforward = fcmp + fd
+        self.estimator.update(xe_hat, f_p, fd, steps)
 
         mode = self.mode
         enter = self._enter == _ENTER
         reenter = self._enter == _REENTER
         self._enter = 0
         u_prev = self.torque
-        if self._dob_mode:
-            if mode == "dob":
+        grasp = self.grasp
+        if grasp is not None or self._dob_mode:
+            if grasp is not None:
+                f_ref = fcmp + fd + grasp.update(self.estimator, ve_hat, steps)
+                if not grasp.active:
+                    self.grasp = None
+                    self._enter = _ENTER     # back to the mode, from this torque
+            elif mode == "dob":
                 f_ref = 0.0
             elif mode == "dob_linear_ff":
                 f_ref = fcmp
             elif mode == "dob_full_ff":
                 f_ref = fcmp + fd
+            elif mode == "force":
+                f_ref = self._f_target
             else:   # impedance
                 if enter:
                     self._x0 = xe_hat
@@ -327,18 +398,19 @@ class ChannelController:
         self.torque = u
         return u
 
+    def _start_grasp(self, grasp):
+        if not grasp.claim():
+            return                          # withdrawn before it started
+        if self.grasp is not None:
+            grasp.abort_now("another grasp holds the channel")
+            return
+        self._interrupt_chirp()
+        self.grasp = grasp
+        self._enter = _ENTER
+
     def _chirp(self, t):
         c = self._config
         T = c.chirp_duration
-        if t >= T:
-            return 0.0
-        f0, f1 = c.chirp_start_frequency, c.chirp_end_frequency
-        if f1 == f0:
-            phase = 2.0 * math.pi * f0 * t
-        else:
-            rate = math.log(f1 / f0) / T
-            phase = 2.0 * math.pi * f0 * math.expm1(rate * t) / rate
-        fade = min(_CHIRP_FADE, 0.1 * T)
-        edge = min(t, T - t)
-        w = 1.0 if edge >= fade else 0.5 - 0.5 * math.cos(math.pi * edge / fade)
-        return c.chirp_amplitude * w * math.sin(phase)
+        return c.chirp_amplitude * faded_log_chirp(t, c.chirp_start_frequency,
+                                                   c.chirp_end_frequency, T,
+                                                   min(_CHIRP_FADE, 0.1 * T))

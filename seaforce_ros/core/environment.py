@@ -15,6 +15,11 @@ finger did in the paper's experiments).
   k_env). The drive (a harmonic oscillator) and the spring-damper are part of
   the simulator's exact (matrix-exponential) discretisation, so this stiff
   coupling is integrated exactly at any step.
+* :func:`contact_object` -- an object at the endpoint position ``position``
+  [rad] (Kelvin-Voigt): while the endpoint is beyond it and pushes into it,
+  ``F_e = -(k_o (X_e - position) + b_o V_e)``, zero otherwise (it never pulls).
+  In contact it is the position drive's spring-damper to a fixed set point
+  (same exact discretisation); contact starts and ends at the start of a step.
 
 Times are measured from when the environment is installed in the simulator.
 Sine frequencies are in rad/s, chirp frequencies in Hz (DESIGN.md).
@@ -24,11 +29,12 @@ import math
 from dataclasses import dataclass
 
 from .errors import InvalidParameterError
+from .signals import log_chirp_phase
 
 __all__ = ["Environment", "free", "torque_sine", "torque_chirp", "position_sine",
-           "ENVIRONMENT_MODES", "environment_from_dict"]
+           "contact_object", "ENVIRONMENT_MODES", "environment_from_dict"]
 
-ENVIRONMENT_MODES = ("free", "torque_sine", "torque_chirp", "position_sine")
+ENVIRONMENT_MODES = ("free", "torque_sine", "torque_chirp", "position_sine", "object")
 
 #: Default stiffness [N m/rad] / damping [N m s/rad] of the position drive.
 DRIVE_STIFFNESS = 1000.0
@@ -60,9 +66,11 @@ class Environment:
     duration : float
         s (chirp).
     stiffness, damping : float
-        Position drive spring-damper [N m/rad], [N m s/rad].
+        Position drive spring-damper, or the object's k_o and b_o [N m/rad], [N m s/rad].
     offset : float
         Centre of the position drive [rad].
+    position : float
+        Where the object's surface is (contact at X_e > position) [rad].
     """
 
     mode: str = "free"
@@ -74,6 +82,7 @@ class Environment:
     stiffness: float = DRIVE_STIFFNESS
     damping: float = DRIVE_DAMPING
     offset: float = 0.0
+    position: float = 0.0
 
     def __post_init__(self):
         if self.mode not in ENVIRONMENT_MODES:
@@ -87,10 +96,15 @@ class Environment:
         _finite("environment.stiffness", self.stiffness, 0.0)
         _finite("environment.damping", self.damping, 0.0)
         _finite("environment.offset", self.offset)
+        _finite("environment.position", self.position)
 
     @property
     def is_position_drive(self):
         return self.mode == "position_sine"
+
+    @property
+    def is_object(self):
+        return self.mode == "object"
 
     def torque(self, t):
         """External torque F_e [N m] at time ``t`` [s] (torque modes; else 0)."""
@@ -104,11 +118,7 @@ class Environment:
 
     def chirp_phase(self, t):
         """Log-chirp phase [rad] at ``t`` [s]."""
-        f0, f1, T = self.start_frequency, self.end_frequency, self.duration
-        if f1 == f0:
-            return 2.0 * math.pi * f0 * t
-        rate = math.log(f1 / f0) / T
-        return 2.0 * math.pi * f0 * math.expm1(rate * t) / rate
+        return log_chirp_phase(t, self.start_frequency, self.end_frequency, self.duration)
 
 
 def free():
@@ -138,9 +148,16 @@ def position_sine(amplitude=0.5, frequency=1.0, stiffness=DRIVE_STIFFNESS,
                        stiffness=stiffness, damping=damping, offset=offset)
 
 
+def contact_object(position, stiffness, damping):
+    """An object whose surface is at ``position`` [rad] (contact at X_e > position), with
+    stiffness k_o = ``stiffness`` [N m/rad] and damping b_o = ``damping`` [N m s/rad]."""
+    return Environment("object", stiffness=stiffness, damping=damping, position=position)
+
+
 def environment_from_dict(values):
     """Build an environment from flat keys ``mode, amplitude, frequency,
-    start_frequency, end_frequency, duration`` (optionally prefixed by
+    start_frequency, end_frequency, duration, stiffness, damping, offset, position``
+    (optionally prefixed by
     ``environment.`` or ``<channel>.environment.``)."""
     kwargs = {}
     for key, value in values.items():

@@ -15,11 +15,16 @@ keys below are relative to ``<channel>.``)::
            endpoint_damping, endpoint_stiffness, hose_damping, hose_stiffness}
     dahl.{sigma, coulomb_force, exponent}
     dob.{cutoff, nominal_inertia, nominal_damping, nominal_stiffness}
-    target.{stiffness, damping}
+    target.{stiffness, damping, force}
     hold.{stiffness, damping}
     force_feedback.gain
     chirp.{amplitude, start_frequency, end_frequency, duration}
     feedforward.{rest_position, dahl_deadband}
+    estimator.{filter_cutoff, contact_threshold, baseline_time, forgetting_time,
+               min_position_excitation, min_velocity_excitation, model_uncertainty}
+    grasp.{approach_damping, approach_force, contact_damping, max_closing_velocity, max_travel,
+           squeeze_time, probe_amplitude, probe_start_frequency, probe_end_frequency,
+           probe_duration, release_time}
     max_torque
     allow_non_passive
 """
@@ -32,17 +37,18 @@ from typing import Optional
 from .errors import InvalidParameterError, NonPassiveError
 
 __all__ = [
-    "MODES", "DOB_MODES", "PlantParams", "DahlParams", "DobParams",
+    "MODES", "DOB_MODES", "PlantParams", "DahlParams", "DobParams", "EstimatorParams",
+    "GraspParams",
     "ControllerConfig", "PARAMETERS", "ParameterInfo", "DEFAULT_CUTOFF",
     "DEFAULT_HOLD_STIFFNESS", "DEFAULT_HOLD_DAMPING",
 ]
 
 #: Controller modes (DESIGN.md "Control").
 MODES = ("passive", "hold", "force_feedback", "dob", "dob_linear_ff", "dob_full_ff",
-         "impedance", "chirp")
+         "impedance", "force", "chirp")
 
 #: Modes that run the disturbance observer (eq. 19).
-DOB_MODES = ("dob", "dob_linear_ff", "dob_full_ff", "impedance")
+DOB_MODES = ("dob", "dob_linear_ff", "dob_full_ff", "impedance", "force")
 
 #: Default DOB cut-off lambda [rad/s]: the 20 Hz of Section III-B.
 DEFAULT_CUTOFF = 2.0 * math.pi * 20.0
@@ -204,6 +210,117 @@ class DobParams:
         _check_nonnegative("dob.nominal_stiffness", self.nominal_stiffness)
 
 
+def _check_range(name, value, low, high, strict_low=False):
+    _check_finite(name, value)
+    if (value <= low if strict_low else value < low) or value > high:
+        raise InvalidParameterError(name, value, f"{'>' if strict_low else '>='} {low:g} "
+                                                 f"and <= {high:g}")
+
+
+@dataclass(frozen=True)
+class EstimatorParams:
+    """Online contact detection and object impedance estimation (:mod:`.estimator`).
+
+    Parameters
+    ----------
+    filter_cutoff : float, 1..400
+        Cut-off of the second-order state-variable filter the estimator sees every signal
+        through [Hz] (noise vs. delay: about ``0.23/filter_cutoff`` s of group delay).
+    contact_threshold : float > 0
+        |force residual| that starts a contact [N m]; it ends below half of it.
+    baseline_time : float > 0
+        Time constant with which the residual's free-motion bias (model error) and its drift
+        are tracked [s]; a contact whose force grows slower than about ``e
+        contact_threshold/baseline_time`` hides in it.
+    forgetting_time : float > 0
+        Memory of the fit while the finger moves [s]; a still finger forgets nothing.
+    min_position_excitation : float > 0
+        Endpoint motion (rms, over ``forgetting_time``) that only the stiffness can explain
+        before a stiffness is reported [rad].
+    min_velocity_excitation : float > 0
+        Likewise for the damping, in endpoint velocity [rad/s].
+    model_uncertainty : float, 0..1
+        Relative 1-sigma error of the plant model (k_e, b_e, k_s, b_s, F_d) folded into the
+        reported 1-sigma of the estimates.
+    """
+
+    filter_cutoff: float = 30.0
+    contact_threshold: float = 0.003
+    baseline_time: float = 1.0
+    forgetting_time: float = 1.0
+    min_position_excitation: float = 2e-3
+    min_velocity_excitation: float = 0.03
+    model_uncertainty: float = 0.15
+
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self):
+        _check_range("estimator.filter_cutoff", self.filter_cutoff, 1.0, 400.0)
+        _check_positive("estimator.contact_threshold", self.contact_threshold)
+        _check_positive("estimator.baseline_time", self.baseline_time)
+        _check_positive("estimator.forgetting_time", self.forgetting_time)
+        _check_positive("estimator.min_position_excitation", self.min_position_excitation)
+        _check_positive("estimator.min_velocity_excitation", self.min_velocity_excitation)
+        _check_range("estimator.model_uncertainty", self.model_uncertainty, 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class GraspParams:
+    """How a grasp approaches, squeezes, probes and releases (:mod:`.grasp`).
+
+    Parameters
+    ----------
+    approach_damping : float > 0
+        Gain B of the approach's PI speed servo, ``F = B (v_cmd - V_e) + I`` [N m s/rad]
+        (cross-over ``B/(m_n + m_e)``).
+    approach_force : float > 0
+        Most force the approach pushes with, and the force held at first contact [N m].
+    contact_damping : float >= 0
+        Damping rendered on the endpoint while in contact [N m s/rad]: without it a force
+        source against a stiff object rings (the friction feed-forward cancels the finger's
+        own damping); at most 10 b_s unless ``allow_non_passive`` (noise, as for
+        ``target.damping``).
+    max_closing_velocity : float > 0
+        Largest |closing_velocity| a goal may ask for [rad/s].
+    max_travel : float > 0
+        Approach distance without contact after which the grasp gives up [rad].
+    squeeze_time : float > 0
+        Duration of the ramp from the touch force to ``grip_force`` [s].
+    probe_amplitude : float, 0..0.9
+        Probe oscillation amplitude as a fraction of ``grip_force`` [dimensionless].
+    probe_start_frequency, probe_end_frequency : float > 0
+        Probe log chirp from/to [Hz].
+    probe_duration : float > 0
+        [s].
+    release_time : float > 0
+        Ramp of the grasp force to zero on a cancel or an abort [s].
+    """
+
+    approach_damping: float = 0.04
+    approach_force: float = 0.02
+    contact_damping: float = 0.08
+    max_closing_velocity: float = 2.0
+    max_travel: float = 1.5
+    squeeze_time: float = 0.1
+    probe_amplitude: float = 0.3
+    probe_start_frequency: float = 2.0
+    probe_end_frequency: float = 6.0
+    probe_duration: float = 0.3
+    release_time: float = 0.05
+
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self):
+        _check_nonnegative("grasp.contact_damping", self.contact_damping)
+        for name in ("approach_damping", "approach_force", "max_closing_velocity",
+                     "max_travel", "squeeze_time", "probe_start_frequency",
+                     "probe_end_frequency", "probe_duration", "release_time"):
+            _check_positive("grasp." + name, getattr(self, name))
+        _check_range("grasp.probe_amplitude", self.probe_amplitude, 0.0, 0.9)
+
+
 def check_dob_passivity(plant, dob):
     """Raise :class:`NonPassiveError` if ``dob`` violates eq. 28 for ``plant``.
 
@@ -298,6 +415,10 @@ PARAMETERS = {
     "target.damping": ParameterInfo(
         "target_damping",
         "rendered endpoint damping in impedance mode [N m s/rad], 0..10 b_s", 0.0, 1e3),
+    "target.force": ParameterInfo(
+        "target_force",
+        "F_ref of force mode (eq. 19 with a reference): at rest the hose pushes the motor "
+        "with F_p = -F_ref, the finger's own friction not compensated [N m]", -100.0, 100.0),
     "hold.stiffness": ParameterInfo(
         "hold_stiffness",
         "hold-mode PD stiffness K_p on the motor position [N m/rad], >= 0", 0.0, 1e5),
@@ -322,6 +443,56 @@ PARAMETERS = {
     "feedforward.dahl_deadband": ParameterInfo(
         "dahl_deadband", "width of the dead zone (play) on the estimated endpoint position "
         "driving the Dahl feed-forward [rad], >= 0", 0.0, 1.0),
+    "estimator.filter_cutoff": ParameterInfo(
+        "estimator.filter_cutoff", "cut-off of the state-variable filter of the contact "
+        "estimator (noise vs. delay) [Hz]", 1.0, 400.0),
+    "estimator.contact_threshold": ParameterInfo(
+        "estimator.contact_threshold", "|F_e_hat - free-motion bias| that starts a contact; "
+        "it ends below half of it [N m]", 1e-6, 100.0),
+    "estimator.baseline_time": ParameterInfo(
+        "estimator.baseline_time", "time constant tracking the force residual's bias in "
+        "free motion (model error) [s]", 1e-3, 100.0),
+    "estimator.forgetting_time": ParameterInfo(
+        "estimator.forgetting_time", "memory of the object fit while the finger moves; a "
+        "still finger forgets nothing [s]", 1e-2, 1e3),
+    "estimator.min_position_excitation": ParameterInfo(
+        "estimator.min_position_excitation", "rms endpoint motion only the stiffness explains "
+        "before a stiffness estimate is reported [rad]", 1e-6, 10.0),
+    "estimator.min_velocity_excitation": ParameterInfo(
+        "estimator.min_velocity_excitation", "rms endpoint velocity only the damping explains "
+        "before a damping estimate is reported [rad/s]", 1e-6, 100.0),
+    "estimator.model_uncertainty": ParameterInfo(
+        "estimator.model_uncertainty", "relative 1-sigma error of the plant model, folded "
+        "into the reported 1-sigma of the object estimates [dimensionless]", 0.0, 1.0),
+    "grasp.approach_damping": ParameterInfo(
+        "grasp.approach_damping", "gain B of the approach's PI speed servo, F = B (v_cmd - "
+        "V_e) + I (cross-over B/(m_n + m_e)) [N m s/rad]", 1e-6, 100.0),
+    "grasp.approach_force": ParameterInfo(
+        "grasp.approach_force", "most force the approach pushes with, and the force held at "
+        "first contact [N m]", 1e-6, 10.0),
+    "grasp.contact_damping": ParameterInfo(
+        "grasp.contact_damping", "damping rendered on the endpoint in contact (a stiff object "
+        "rings against a pure force source), 0..10 b_s [N m s/rad]", 0.0, 1e3),
+    "grasp.max_closing_velocity": ParameterInfo(
+        "grasp.max_closing_velocity", "largest |closing_velocity| a grasp goal may ask for "
+        "[rad/s]", 1e-6, 100.0),
+    "grasp.max_travel": ParameterInfo(
+        "grasp.max_travel", "approach distance without contact after which a grasp gives up "
+        "[rad]", 1e-6, 100.0),
+    "grasp.squeeze_time": ParameterInfo(
+        "grasp.squeeze_time", "ramp from the touch force to grip_force [s]", 1e-3, 100.0),
+    "grasp.probe_amplitude": ParameterInfo(
+        "grasp.probe_amplitude", "probe force oscillation amplitude, fraction of grip_force "
+        "[dimensionless]", 0.0, 0.9),
+    "grasp.probe_start_frequency": ParameterInfo(
+        "grasp.probe_start_frequency", "probe log chirp start frequency [Hz]", 1e-2, 100.0),
+    "grasp.probe_end_frequency": ParameterInfo(
+        "grasp.probe_end_frequency", "probe log chirp end frequency [Hz]", 1e-2, 100.0),
+    "grasp.probe_duration": ParameterInfo(
+        "grasp.probe_duration", "probe duration [s]", 1e-2, 100.0),
+    "grasp.release_time": ParameterInfo(
+        "grasp.release_time", "ramp of the grasp force to zero on a cancel or an abort [s]",
+        1e-3, 10.0),
     "max_torque": ParameterInfo(
         "max_torque", "the controller's fault limit: a computed |F_a| above it latches a "
         "torque_limit fault (zero torque) [N m], > 0", 0.0, 1e3),
@@ -331,7 +502,7 @@ PARAMETERS = {
 }
 
 #: The parameter groups of :class:`ControllerConfig` (``<group>.<attribute>`` fields).
-_GROUPS = ("plant", "dahl", "dob")
+_GROUPS = ("plant", "dahl", "dob", "estimator", "grasp")
 
 
 @dataclass(frozen=True)
@@ -356,6 +527,12 @@ class ControllerConfig:
     target_stiffness, target_damping : float >= 0
         Endpoint stiffness [N m/rad] / damping [N m s/rad] of ``impedance``
         mode; at most k_s and 10 b_s unless ``allow_non_passive``.
+    target_force : float
+        F_ref of ``force`` mode [N m] (eq. 19).
+    estimator : EstimatorParams
+        Contact detection and object impedance estimation.
+    grasp : GraspParams
+        Grasp phases.
     chirp_amplitude : float >= 0
         [N m].
     chirp_start_frequency, chirp_end_frequency : float > 0
@@ -381,6 +558,9 @@ class ControllerConfig:
     force_feedback_gain: float = 1.0
     target_stiffness: float = 0.0
     target_damping: float = 0.0
+    target_force: float = 0.0
+    estimator: EstimatorParams = field(default_factory=EstimatorParams)
+    grasp: GraspParams = field(default_factory=GraspParams)
     chirp_amplitude: float = 0.3
     chirp_start_frequency: float = 0.01
     chirp_end_frequency: float = 1000.0
@@ -401,7 +581,8 @@ class ControllerConfig:
         """Check every value and the cross-parameter (passivity) rules."""
         if self.mode not in MODES:
             raise InvalidParameterError("mode", self.mode, "one of " + ", ".join(MODES))
-        for name, cls in (("plant", PlantParams), ("dahl", DahlParams), ("dob", DobParams)):
+        for name, cls in (("plant", PlantParams), ("dahl", DahlParams), ("dob", DobParams),
+                          ("estimator", EstimatorParams), ("grasp", GraspParams)):
             if not isinstance(getattr(self, name), cls):
                 raise InvalidParameterError(name, getattr(self, name), f"a {cls.__name__}")
         _check_positive("plant.hose_damping", self.plant.hose_damping)
@@ -411,6 +592,7 @@ class ControllerConfig:
         _check_finite("force_feedback.gain", self.force_feedback_gain)
         _check_nonnegative("target.stiffness", self.target_stiffness)
         _check_nonnegative("target.damping", self.target_damping)
+        _check_finite("target.force", self.target_force)
         _check_nonnegative("chirp.amplitude", self.chirp_amplitude)
         _check_positive("chirp.start_frequency", self.chirp_start_frequency)
         _check_positive("chirp.end_frequency", self.chirp_end_frequency)
@@ -434,12 +616,13 @@ class ControllerConfig:
                     "stiffness; stiffer targets destabilise a free endpoint)",
                     override="allow_non_passive")
             b_max = 10.0 * self.plant.hose_damping
-            if self.target_damping > b_max:
-                raise InvalidParameterError(
-                    "target.damping", self.target_damping,
-                    f"<= 10 b_s = {b_max:.6g} N m s/rad (the velocity estimate "
-                    "amplifies pressure noise by 1/b_s)",
-                    override="allow_non_passive")
+            for name, value in (("target.damping", self.target_damping),
+                                ("grasp.contact_damping", self.grasp.contact_damping)):
+                if value > b_max:
+                    raise InvalidParameterError(
+                        name, value, f"<= 10 b_s = {b_max:.6g} N m s/rad (the velocity "
+                        "estimate amplifies pressure noise by 1/b_s)",
+                        override="allow_non_passive")
             if not -1.0 <= self.force_feedback_gain <= 1.0:
                 raise NonPassiveError("force_feedback.gain", self.force_feedback_gain,
                                       "-1 <= K_f <= 1 (Section III-A, internal force "
@@ -497,7 +680,6 @@ class ControllerConfig:
                 groups[group][name] = value
             else:
                 simple[name] = value
-        plant = dataclasses.replace(base.plant, **groups["plant"])
-        dahl = dataclasses.replace(base.dahl, **groups["dahl"])
-        dob = dataclasses.replace(base.dob, **groups["dob"])
-        return dataclasses.replace(base, plant=plant, dahl=dahl, dob=dob, **simple)
+        replaced = {group: dataclasses.replace(getattr(base, group), **groups[group])
+                    for group in _GROUPS}
+        return dataclasses.replace(base, **replaced, **simple)

@@ -200,16 +200,12 @@ class ChannelSimulator:
             raise TypeError("environment must be an Environment")
         self._env = environment
         self._env_t0 = self.t
-        self._drive = environment.is_position_drive
-        w = environment.frequency if self._drive else 0.0
-        ken = environment.stiffness if self._drive else 0.0
-        ben = environment.damping if self._drive else 0.0
-        self._ken, self._ben, self._w = ken, ben, w
-        phi, gam = discretise(self.plant, self.dt, ken, ben, w)
-        self._coef_on = _flatten(phi, gam)
-        phi0, gam0 = discretise(self.plant, self.dt, 0.0, 0.0, w)
-        self._coef_off = _flatten(phi0, gam0)
-        if self._drive:
+        # a spring-damper to a set point: the position drive's moving one, an object's fixed one
+        self._drive = environment.is_position_drive or environment.is_object
+        self._object = environment.is_object
+        self._anchor = environment.position if self._object else environment.offset
+        self._discretise()
+        if environment.is_position_drive:
             # x_d = offset + A sin(w (t - t0)): oscillator at phase 0
             self._z[4] = 0.0
             self._z[5] = environment.amplitude
@@ -218,6 +214,30 @@ class ChannelSimulator:
         if hasattr(self, "_measurement"):
             # the new environment changes only the reported F_e (no noise draw)
             self._measurement = self._measurement._replace(f_e=self.external_force())
+
+    def set_plant(self, plant, dahl=None):
+        """Replace the true plant and Dahl hysteresis now, keeping the state (a drifting
+        plant); ``dahl`` None: no hysteresis."""
+        if not isinstance(plant, PlantParams):
+            raise TypeError("plant must be a PlantParams")
+        if dahl is not None and not isinstance(dahl, DahlParams):
+            raise TypeError("dahl must be a DahlParams or None")
+        self.plant = plant
+        self.dahl_params = dahl
+        self._hose = (plant.hose_stiffness, plant.hose_damping)
+        self._dahl.set_params(dahl if dahl is not None else DahlParams(sigma=0.0))
+        self._discretise()
+
+    def _discretise(self):
+        env = self._env
+        w = env.frequency if env.is_position_drive else 0.0
+        ken = env.stiffness if self._drive else 0.0
+        ben = env.damping if self._drive else 0.0
+        self._ken, self._ben, self._w = ken, ben, w
+        phi, gam = discretise(self.plant, self.dt, ken, ben, w)
+        self._coef_on = _flatten(phi, gam)
+        phi0, gam0 = discretise(self.plant, self.dt, 0.0, 0.0, w)
+        self._coef_off = _flatten(phi0, gam0)
 
     @property
     def environment(self):
@@ -243,17 +263,22 @@ class ChannelSimulator:
 
     @property
     def drive_position(self):
-        """Position drive set-point x_d [rad] (offset when not driving)."""
-        return self._env.offset + self._z[4] if self._drive else 0.0
+        """Position drive set-point x_d [rad] (0 when not driving)."""
+        return self._env.offset + self._z[4] if self._env.is_position_drive else 0.0
 
     def _engagement(self):
-        """(engaged, side offset c) of the drive coupling at the current state."""
+        """(engaged, side offset c) of the drive or object coupling at the current state."""
         if not self._drive:
             return False, 0.0
+        if self._object:
+            # in contact while beyond the surface and pushing into it (an object never pulls)
+            z = self._z
+            depth = z[2] - self._anchor
+            return depth > 0.0 and self._ken * depth + self._ben * z[3] > 0.0, 0.0
         half = 0.5 * self.backlash
         if half == 0.0:
             return True, 0.0
-        r = self._env.offset + self._z[4] - self._z[2]
+        r = self._anchor + self._z[4] - self._z[2]
         if r > half:
             return True, half
         if r < -half:
@@ -267,7 +292,7 @@ class ChannelSimulator:
             if not engaged:
                 return 0.0
             z = self._z
-            return (self._ken * (self._env.offset + z[4] - c - z[2])
+            return (self._ken * (self._anchor + z[4] - c - z[2])
                     + self._ben * (self._w * z[5] - z[3]))
         return self._env.torque(self.t - self._env_t0)
 
@@ -340,7 +365,7 @@ class ChannelSimulator:
             engaged, c = self._engagement()
             coef = self._coef_on if engaged else self._coef_off
             if engaged:
-                ue += self._ken * (self._env.offset - c)
+                ue += self._ken * (self._anchor - c)
         else:
             coef = self._coef_off
             ue += self._env.torque(self.t - self._env_t0)

@@ -208,3 +208,64 @@ def test_simulator_dahl_hysteresis_is_bounded():
         fd.append(sim.dahl_force)
     assert max(np.abs(fd)) <= d.coulomb_force
     assert max(fd) > 0.99 * d.coulomb_force and min(fd) < -0.99 * d.coulomb_force
+
+
+# --- objects ---------------------------------------------------------------------------
+def test_object_contact_is_the_exact_spring_damper_while_pushing():
+    """In contact the object is the position drive's spring-damper to a fixed point: the
+    trajectory equals the matrix-exponential solution (drive at x_c, zero frequency) from the
+    first step in contact on, and F_e = -(k (X_e - x_c) + b V_e)."""
+    from seaforce_ros.core.environment import contact_object
+    k, b, xc = 5.0, 0.05, 0.01
+    z0 = (0.02, 0.0, 0.02, 0.0)                   # already pressed 10 mrad in, at rest
+    sim = ChannelSimulator(TABLE_I, None, sensors=SensorParams(pressure_noise=0.0),
+                           command_delay=0, environment=contact_object(xc, k, b))
+    sim.reset(z0)
+    for _ in range(400):
+        m = sim.step(0.3)
+    t = 400 * DT
+    expected = exact_solution(np.array(z0), 0.3, t, k, b, 0.0, osc=(xc, 0.0))
+    # the drive's offset form: x_d = x_c held in the oscillator state (frequency 0)
+    assert np.allclose(sim.state, expected[:4], atol=1e-9)
+    x_e, v_e = sim.state[2], sim.state[3]
+    assert m.f_e == pytest.approx(-(k * (x_e - xc) + b * v_e), abs=1e-12)
+    # static equilibrium against a constant motor torque: the object takes what k and
+    # the hose pass on
+    for _ in range(40000):
+        m = sim.step(0.3)
+    assert m.f_e == pytest.approx(-k * (sim.state[2] - xc), abs=1e-9)
+    assert sim.state[1] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_object_never_pulls_and_contact_ends_where_the_push_ends():
+    from seaforce_ros.core.environment import contact_object
+    sim = ChannelSimulator(TABLE_I, None, sensors=SensorParams(pressure_noise=0.0),
+                           environment=contact_object(0.05, 20.0, 0.1))
+    forces = []
+    for i in range(6000):
+        m = sim.step(0.5 if i < 2000 else -0.5)    # press, then pull away
+        forces.append(m.f_e)
+        x_e, v_e = sim.state[2], sim.state[3]
+        if x_e <= 0.05:
+            assert m.f_e == 0.0
+    assert min(forces) < -0.3 and max(forces) == 0.0
+    assert sim.state[2] < 0.0                      # it let go
+
+
+def test_object_environment_from_parameters_and_a_drifting_plant():
+    from seaforce_ros.core.environment import environment_from_dict
+    env = environment_from_dict({'pinch.environment.mode': 'object',
+                                 'pinch.environment.position': 0.2,
+                                 'pinch.environment.stiffness': 3.0,
+                                 'pinch.environment.damping': 0.05})
+    assert env.is_object and env.position == 0.2 and not env.is_position_drive
+    sim = ChannelSimulator(TABLE_I, DahlParams(), environment=env)
+    soft_hose = TABLE_I.scaled(hose_stiffness=0.5)
+    sim.set_plant(soft_hose, None)
+    assert sim.plant is soft_hose and sim.dahl_params is None
+    for _ in range(200):
+        sim.step(0.1)
+    assert sim.dahl_force == 0.0
+    z = sim.state
+    assert sim.pressure_force == pytest.approx(
+        soft_hose.hose_stiffness * (z[2] - z[0]) + soft_hose.hose_damping * (z[3] - z[1]))

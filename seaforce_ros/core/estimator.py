@@ -1,0 +1,405 @@
+"""Online contact detection and object impedance estimation, from motor state and pressure only.
+
+The paper's future work (Section VI): estimate the environment impedance continuously, here the
+stiffness and damping of a grasped object, with nothing but the motor position X, the hose
+pressure force F_p and the model.
+
+Signals (motor frame). The controller's hose inversion gives the endpoint position X_e_hat
+(eq. 29, :mod:`.controller`) and the Dahl force F_d. The external force follows from the
+endpoint model::
+
+    F_e_hat = m_e A_e_hat + b_e V_e_hat + k_e (X_e_hat - rest) + F_d + F_p
+
+Every signal is seen through one second-order state-variable filter
+``H(s) = w^2 / (s^2 + 2 zeta w s + w^2)`` (Butterworth, ``w = 2 pi filter_cutoff``, exact
+discretisation for an input held over each sample period): its two states are ``H X_e_hat``
+and ``s H X_e_hat`` (a filtered position and an exact filtered velocity), and ``s^2 H X_e_hat``
+is the mean slope of the second over the last period (half a sample late, which is nothing at
+the frequencies of a grasp), so no noisy signal is differentiated; ``H (F_p + F_d)`` is a
+second filter with the same coefficients. Filtering both
+sides of a linear relation with the same ``H`` keeps the relation, with the pressure noise and
+the hose mode (173 rad/s) removed.
+
+Contact detection: the residual ``r = H F_e_hat - bias`` where ``bias`` tracks ``H F_e_hat``
+while there is no contact (the model's error in free motion: a 15 % wrong model leaves ~0.01
+N m) with a critically damped second-order tracker of time constant ``baseline_time`` (bias and
+drift: the error drifts as k_e's error times the distance travelled, and a steady drift leaves
+no lag); a contact starts when ``|r| > contact_threshold`` and ends when ``r`` (in the
+contact's direction) stays below half of it for :data:`LOSS_TIME` (samples below it are not
+fitted). A contact whose force rises slower than about
+``e contact_threshold / baseline_time`` is absorbed by the tracker instead.
+The contact position is where the filtered endpoint was at the start (the filter delays
+position and force alike), replaced by the fit's ``x_c`` once the stiffness is reported.
+
+Fit: exponentially weighted least squares (recursive least squares with forgetting, kept in
+information form) of the Kelvin-Voigt object ``F_e = -(k_o (X_e - x_c) + b_o V_e)`` plus an
+inertia term that absorbs the error of m_e (at a few Hz m_e w^2 is as large as a soft
+object's stiffness)::
+
+    -H(F_p + F_d) = (k_o + k_e) H X_e + (b_o + b_e) s H X_e + (m_x + m_e) s^2 H X_e + c
+
+Why this and not a Kalman filter: the object does not change during a grasp (there is no
+process model to give a Kalman filter), the dominant error is the plant model's bias, not white
+noise (so a Kalman filter's noise model would be wrong and its covariance no honest 1-sigma),
+and the information form costs one outer product per sample -- the samples are kept and the products
+of :data:`BLOCK` of them formed in one numpy call -- and solves the 4x4 normal equations only when an
+estimate is read. Forgetting (time constant ``forgetting_time``) acts only on blocks in which
+the finger moved: information is never lost while the finger is still, so a held object keeps
+its estimate and the information matrix cannot wind up.
+
+Excitation: the part of the endpoint motion that only the stiffness (the damping) can
+explain, as an rms over the forgetting time: ``sqrt(T / (forgetting_time [G^-1]_kk))``. No
+stiffness (damping) is reported below ``min_position_excitation`` (``min_velocity_excitation``):
+NaN instead, never a guess.
+
+1-sigma: the statistical part (residual variance times ``[G^-1]_ii``, the samples counted per
+correlation time of the filter) plus the model part: first-order sensitivities of the
+estimates to a relative error ``model_uncertainty`` of k_e and b_e (in the regression they
+shift k_o and b_o one to one), of the hose k_s and b_s (the object hides behind the hose: the
+estimator sees ``W_hat = W/(1 - W delta(s))``, ``W = k_o + k_e + s (b_o + b_e)``, ``delta`` the
+error of the modelled hose compliance; the truth is recovered at the corners k_s (1 +- u),
+b_s (1 +- u) and the largest change taken: one-sided and unbounded for an object as stiff as
+the hose, :func:`_hose_sensitivity`) and of the Dahl force (regressed on the fit's regressors).
+"""
+
+import math
+from collections import namedtuple
+
+import numpy as np
+import scipy.linalg
+
+from .params import EstimatorParams, PlantParams
+
+__all__ = ["ContactEstimator", "ObjectEstimate", "NO_ESTIMATE", "BLOCK", "LOSS_TIME"]
+
+#: A contact ends when the residual stays below half the threshold this long [s].
+LOSS_TIME = 0.02
+#: Samples accumulated per block of the fit (one numpy outer product per block).
+BLOCK = 128
+_BLOCK_VALUES = 6 * BLOCK
+_ZETA = math.sqrt(0.5)
+#: A filtered signal needs this many group delays after the start of a contact before it
+#: holds no free-motion samples; the fit starts then.
+_SETTLE_DELAYS = 2.0
+_NAN = math.nan
+
+ObjectEstimate = namedtuple(
+    "ObjectEstimate", "stiffness stiffness_sigma damping damping_sigma contact_position "
+                      "position_excitation velocity_excitation")
+ObjectEstimate.__doc__ = """The fit's object (NaN where not excited enough; see module docstring).
+
+stiffness, stiffness_sigma : k_o and its 1-sigma [N m/rad]
+damping, damping_sigma : b_o and its 1-sigma [N m s/rad]
+contact_position : x_c [rad] (the fit's when the stiffness is reported, else where the
+    contact started; NaN before any contact)
+position_excitation : rms endpoint motion only k_o explains [rad]
+velocity_excitation : rms endpoint velocity only b_o explains [rad/s]
+"""
+
+NO_ESTIMATE = ObjectEstimate(_NAN, _NAN, _NAN, _NAN, _NAN, 0.0, 0.0)
+
+
+class ContactEstimator:
+    """Contact detection and object stiffness/damping of one channel (see module docstring).
+
+    Parameters
+    ----------
+    params : EstimatorParams
+    plant : PlantParams
+        The model: m_e, b_e, k_e of the endpoint, k_s, b_s of the hose.
+    dt : float > 0
+        Sample period [s].
+    rest_position : float
+        Where k_e is relaxed [rad].
+
+    Attributes (updated by every :meth:`update`)
+    ----------------------------------------------
+    contact : bool
+    direction : int
+        +1 while something pushes the endpoint towards -X_e (an object at the closing side of
+        a positive closing velocity), -1 for the other side, 0 without contact.
+    force : float
+        The residual ``r`` [N m]: the external force estimate less the free-motion bias.
+    position, velocity : float
+        Filtered X_e_hat [rad] and V_e_hat [rad/s].
+    bias : float
+        The free-motion bias of the external force estimate [N m] (the model's error while
+        nothing touches; frozen during a contact).
+    onset_position : float
+        Filtered endpoint position where the latest contact started [rad] (NaN before one).
+    contacts : int
+        Number of contacts started since the last reset.
+    """
+
+    def __init__(self, params=None, plant=None, dt=5e-4, rest_position=0.0):
+        self.dt = float(dt)
+        self.configure(EstimatorParams() if params is None else params,
+                       PlantParams.table_i() if plant is None else plant, rest_position)
+        self.reset()
+
+    def configure(self, params, plant, rest_position=0.0):
+        """New parameters (validated), effective now; the state is kept."""
+        if not isinstance(params, EstimatorParams) or not isinstance(plant, PlantParams):
+            raise TypeError("params must be EstimatorParams and plant PlantParams")
+        self.params = params
+        self.plant = plant
+        self._rest = float(rest_position)
+        w = 2.0 * math.pi * params.filter_cutoff
+        dt = self.dt
+        a_c = np.array([[0.0, 1.0, 0.0], [-w * w, -2.0 * _ZETA * w, w * w], [0.0, 0.0, 0.0]])
+        e = scipy.linalg.expm(a_c * dt)
+        self._coef = (float(e[0, 0]), float(e[0, 1]), float(e[0, 2]),
+                      float(e[1, 0]), float(e[1, 1]), float(e[1, 2]))
+        self._me, self._be, self._ke = (plant.endpoint_inertia, plant.endpoint_damping,
+                                        plant.endpoint_stiffness)
+        # y = f1 + k_e (p - rest) + b_e q + m_e (q - q_prev)/T, constants folded
+        self._model = (self._ke, self._be, self._me / dt, self._ke * self._rest)
+        wb = 1.0 / params.baseline_time
+        self._alpha = 2.0 * wb * dt
+        self._beta = (wb * dt) ** 2
+        self._on = params.contact_threshold
+        self._off = 0.5 * params.contact_threshold
+        self._settle = int(math.ceil(_SETTLE_DELAYS * 2.0 * _ZETA / (w * dt)))
+        self._loss_samples = max(1, int(round(LOSS_TIME / dt)))
+        self._block_decay = math.exp(-BLOCK * dt / params.forgetting_time)
+        self._moving = params.min_velocity_excitation ** 2
+        # samples of the filtered residual per independent sample (its correlation time)
+        self._kappa = max(1.0, 1.0 / (2.0 * params.filter_cutoff * dt))
+        self._inv_dt = 1.0 / dt
+
+    def reset(self):
+        """Forget everything: no contact, no fit; the next :meth:`update` starts the filters
+        from its sample."""
+        self._first = True
+        self.contact = False
+        self.direction = 0
+        self.force = 0.0
+        self.position = 0.0
+        self.velocity = 0.0
+        self.onset_position = self._onset_before = _NAN
+        self.contacts = 0
+        self._f1 = self._f2 = 0.0
+        self.bias = 0.0
+        self._drift = 0.0            # the bias's drift per sample [N m]
+        self._clear_fit()
+
+    def _clear_fit(self):
+        self._stats = None           # (S 6x6, p0, bias) published at each fold: read atomically
+        self._cache = None           # (stats, contacts, ObjectEstimate) of the last estimate()
+        self._S = np.zeros((6, 6))
+        self._block = []             # x - p0, q, a, 1, z, F_d of each sample since the last fold
+        self._skip = 0
+        self._below = 0              # samples in a row below the release level
+        self._p0 = 0.0
+
+    def rearm(self):
+        """Declare the present motion free: the present residual becomes the free-motion bias
+        and a contact the residual may have started is dropped with its fit (a finger that has
+        just started moving: its model error changes faster than the baseline tracks)."""
+        if self.contact:
+            self.contact = False
+            self.direction = 0
+            self.contacts -= 1
+            self.onset_position = self._onset_before
+            self._clear_fit()
+        self.bias += self.force
+        self._drift = 0.0
+        self.force = 0.0
+
+    # --- per sample -----------------------------------------------------------------------
+    def update(self, xe, fp, fd, steps=1):
+        """One sample: estimated endpoint position X_e_hat [rad], pressure force F_p [N m],
+        Dahl force F_d [N m]; ``steps`` sample periods since the previous one (the inputs
+        are held over them)."""
+        g = fp + fd
+        if self._first:
+            self._first = False
+            self.position, self.velocity, self._f1, self._f2 = xe, 0.0, g, 0.0
+            self.bias = g + self._ke * (xe - self._rest)
+        a11, a12, b1, a21, a22, b2 = self._coef
+        p, q0, f1, f2 = self.position, self.velocity, self._f1, self._f2
+        if steps == 1:
+            p, q = a11 * p + a12 * q0 + b1 * xe, a21 * p + a22 * q0 + b2 * xe
+            f1, f2 = a11 * f1 + a12 * f2 + b1 * g, a21 * f1 + a22 * f2 + b2 * g
+        else:
+            q = q0
+            for _ in range(steps):
+                p, q = a11 * p + a12 * q + b1 * xe, a21 * p + a22 * q + b2 * xe
+                f1, f2 = a11 * f1 + a12 * f2 + b1 * g, a21 * f1 + a22 * f2 + b2 * g
+        self.position, self.velocity, self._f1, self._f2 = p, q, f1, f2
+        ke, be, me_dt, ke_rest = self._model
+        acc = (q - q0) / steps
+        y = f1 + ke * p - ke_rest + be * q + me_dt * acc
+        r = y - self.bias
+        self.force = r
+        if self.contact:
+            if r * self.direction > -self._off:
+                # below the release level: not a sample of the object; the contact ends when
+                # that lasts (noise on a light touch must not end it)
+                self._below += steps
+                if self._below >= self._loss_samples:
+                    self._end_contact()
+                return
+            self._below = 0
+            if self._skip:
+                self._skip -= 1
+            else:
+                block = self._block
+                block.extend((p - self._p0, q, acc * self._inv_dt, 1.0, -f1, fd))
+                if len(block) == _BLOCK_VALUES:
+                    self._fold()
+        elif r > self._on or r < -self._on:
+            self.contact = True
+            self.direction = 1 if r < 0.0 else -1
+            self._onset_before = self.onset_position
+            self.onset_position = p
+            self.contacts += 1
+            self._clear_fit()
+            self._p0 = p
+            self._skip = self._settle
+            self._below = 0
+        else:
+            # critically damped tracker of the bias and its drift (a slowly changing model
+            # error, k_e's for one, drifts with the position): no lag on a steady drift
+            error = y - self.bias
+            self.bias += self._drift * steps + self._alpha * error
+            self._drift += self._beta * error
+
+    def _end_contact(self):
+        if self._block:
+            self._fold()
+        self.contact = False
+        self.direction = 0
+
+    def _fold(self):
+        """Add the block's cross products to the information matrix (forgetting the old ones
+        if the finger moved in the block) and publish a consistent snapshot."""
+        block = self._block
+        n = len(block) // 6
+        x = np.fromiter(block, float, len(block)).reshape(n, 6)
+        self._block = []
+        block = x.T @ x
+        if block[1, 1] > self._moving * n:
+            self._S = self._S * self._block_decay ** (n / BLOCK) + block
+        else:
+            self._S = self._S + block
+        self._stats = (self._S, self._p0, self.bias)
+
+    # --- reading ----------------------------------------------------------------------------
+    def estimate(self):
+        """The object's :class:`ObjectEstimate` from the fit so far (the latest contact's, also
+        after it ended); NaN where the excitation is too small. Safe to call from another
+        thread than :meth:`update`'s (it reads one snapshot); recomputed only when a block has
+        been added since the last call."""
+        stats, contacts, onset = self._stats, self.contacts, self.onset_position
+        cached = self._cache
+        if cached is not None and cached[0] is stats and cached[1] == contacts:
+            return cached[2]
+        result = self._solve(stats, onset)
+        self._cache = (stats, contacts, result)
+        return result
+
+    def _solve(self, stats, onset):
+        unknown = NO_ESTIMATE._replace(contact_position=onset)
+        if stats is None:
+            return unknown
+        S, p0, bias = stats
+        S = S.tolist()
+        if S[3][3] <= 8.0:
+            return unknown
+        # all four regressors; without the acceleration (a press at a constant speed); without
+        # the velocity too: a regressor that never varied leaves its term out, not everything
+        for used in ((0, 1, 2, 3), (0, 1, 3), (0, 3)):
+            small = _spd_inverse([[S[i][j] for j in used] for i in used])
+            if small is not None:
+                break
+        else:
+            return unknown
+        inverse = [[0.0] * 4 for _ in range(4)]
+        for a, i in enumerate(used):
+            for c, j in enumerate(used):
+                inverse[i][j] = small[a][c]
+        weight = S[3][3]
+        h = [S[i][4] for i in range(4)]
+        hd = [S[i][5] for i in range(4)]
+        theta = [sum(inverse[i][j] * h[j] for j in range(4)) for i in range(4)]
+        dahl = [sum(inverse[i][j] * hd[j] for j in range(4)) for i in range(2)]
+        rss = max(S[4][4] - sum(theta[i] * h[i] for i in range(4)), 0.0)
+        variance = self._kappa * rss / max(weight - len(used), 1.0)
+        p = self.params
+        u = p.model_uncertainty
+        ke, be = self._ke, self._be
+        ks, bs = self.plant.hose_stiffness, self.plant.hose_damping
+        k = theta[0] - ke
+        b = theta[1] - be
+        samples = p.forgetting_time / self.dt
+        exc_k = math.sqrt(1.0 / (samples * inverse[0][0]))
+        exc_b = math.sqrt(1.0 / (samples * inverse[1][1])) if inverse[1][1] > 0.0 else 0.0
+        hose_k, hose_b = _hose_sensitivity(k + ke, b + be, ks, bs, u)
+        stiffness = sigma_k = damping = sigma_b = _NAN
+        position = onset
+        if exc_k >= p.min_position_excitation:
+            stiffness = k
+            sigma_k = math.sqrt(variance * inverse[0][0] + (u * ke) ** 2 + hose_k ** 2
+                                + (u * dahl[0]) ** 2)
+            if k != 0.0:
+                position = ((k + ke) * p0 - bias - ke * self._rest - theta[3]) / k
+        if exc_b >= p.min_velocity_excitation:
+            damping = b
+            sigma_b = math.sqrt(variance * inverse[1][1] + (u * be) ** 2 + hose_b ** 2
+                                + (u * dahl[1]) ** 2)
+        return ObjectEstimate(stiffness, sigma_k, damping, sigma_b, position, exc_k, exc_b)
+
+
+def _hose_sensitivity(stiffness, damping, ks, bs, u):
+    """Largest change of the estimated k_o + k_e and b_o + b_e (``stiffness``, ``damping``)
+    when the true hose is k_s (1 +- u), b_s (1 +- u) instead of the model's ``ks``, ``bs``.
+
+    The estimator sees the endpoint through the modelled hose: with the compliance error
+    ``delta = 1/ks - 1/k_s`` and ``dtau = bs/ks^2 - b_s/k_s^2`` it reports
+    ``K_hat = K/(1 - K delta)`` and ``B_hat = B/(1 - K delta)^2 + K^2 dtau`` for the true
+    ``K = k_o + k_e``, ``B = b_o + b_e``; inverted at the four corners. A stiff object whose
+    corner has ``1 + K_hat delta <= 0`` cannot be told from a rigid one: inf."""
+    worst_k = worst_b = 0.0
+    for ks_true in (ks * (1.0 - u), ks * (1.0 + u)):
+        delta = 1.0 / ks - 1.0 / ks_true
+        denominator = 1.0 + stiffness * delta
+        if denominator <= 0.0:
+            return math.inf, math.inf
+        true_k = stiffness / denominator
+        for bs_true in (bs * (1.0 - u), bs * (1.0 + u)):
+            dtau = bs / ks ** 2 - bs_true / ks_true ** 2
+            true_b = (damping - true_k ** 2 * dtau) * (1.0 - true_k * delta) ** 2
+            worst_b = max(worst_b, abs(true_b - damping))
+        worst_k = max(worst_k, abs(true_k - stiffness))
+    return worst_k, worst_b
+
+
+def _spd_inverse(a, rcond=1e-12):
+    """Inverse of the symmetric positive definite matrix ``a`` (list of lists), or None when it
+    is (numerically) singular: a regressor that never varied independently of the others.
+    Scaled to unit diagonal, Cholesky-factored (a pivot below ``rcond`` means singular),
+    inverted from the factor."""
+    n = len(a)
+    scale = []
+    for i in range(n):
+        if not a[i][i] > 0.0:
+            return None
+        scale.append(1.0 / math.sqrt(a[i][i]))
+    low = [[0.0] * n for _ in range(n)]
+    for i in range(n):
+        for j in range(i + 1):
+            value = a[i][j] * scale[i] * scale[j] - sum(low[i][m] * low[j][m] for m in range(j))
+            if i == j:
+                if not value > rcond:
+                    return None
+                low[i][i] = math.sqrt(value)
+            else:
+                low[i][j] = value / low[j][j]
+    inv_low = [[0.0] * n for _ in range(n)]             # L^-1, lower triangular
+    for i in range(n):
+        inv_low[i][i] = 1.0 / low[i][i]
+        for j in range(i):
+            inv_low[i][j] = -sum(low[i][m] * inv_low[m][j] for m in range(j, i)) / low[i][i]
+    return [[scale[i] * scale[j] * sum(inv_low[m][i] * inv_low[m][j] for m in range(max(i, j), n))
+             for j in range(n)] for i in range(n)]

@@ -1,0 +1,391 @@
+"""A grasp: close until contact, squeeze to a grip force, probe, hold; release on request.
+
+:class:`Grasp` decides, per sample, the endpoint force ``F_g`` [N m] the channel's controller
+renders through the DOB on top of the endpoint friction feed-forward (``F_ref = F_cmp + F_d
++ F_g``, the minimum-impedance mode ``dob_full_ff`` plus a force): ``F_g`` is what the finger
+pushes the object with. Plain Python with explicit state, no ROS; the contact and the object
+come from :class:`~.estimator.ContactEstimator`. Signs: ``s = sign(closing_velocity)``; the
+finger closes towards ``s X_e`` and pushes with ``F_g = s f``, the object pushes back with
+``F_e = -s c`` (``c`` the contact force, > 0).
+
+Phases:
+
+* ``approach`` -- a PI speed servo ``F_g = clamp(B (v_cmd - V_e) + I, +-approach_force)``,
+  ``I' = B w_i (v_cmd - V_e)`` (``w_i`` = :data:`APPROACH_INTEGRAL`, ``I`` clamped to the same
+  bounds): the finger moves at the commanded speed in its minimum-impedance mode, the integral
+  takes up what the friction model misses, and it never pushes harder than
+  ``approach_force`` (it feels the object instead of hitting it). ``B`` sets the loop's
+  cross-over ``B/(m_n + m_e)``, well below the DOB's lambda and the estimator's filter. The
+  contact detection is armed once the finger moves steadily: beyond the Dahl transition
+  (:data:`ARM_DAHL` F_c/sigma of travel: the hysteresis model's error changes until then) and
+  after :data:`ARM_TIME` within 15 % of the commanded speed (the model's error changes with the
+  speed) -- or after :data:`ARM_TIME_MAX` -- when the estimator's bias is re-captured; a contact on the closing
+  side then ends the approach (an object closer than that to the start is not detected). No contact within ``max_travel`` (or
+  ``2 max_travel/|v_cmd| + 1 s``): aborted.
+* ``contact`` -- ``f = approach_force`` for :data:`CONTACT_TIME` (the touch settles).
+* ``squeeze`` -- ``f`` ramps (raised cosine) to ``grip_force`` in ``squeeze_time``.
+* ``probe`` (if the goal asks for it) -- ``f = grip_force + A w(t) sin(phi(t))``, a log chirp
+  from ``probe_start_frequency`` to ``probe_end_frequency`` in ``probe_duration`` with a
+  raised-cosine envelope w; ``A = min(probe_amplitude grip_force, (max_force - grip_force)/2)``
+  (the probe uses at most half of the head-room to ``max_force``).
+* ``hold`` -- ``f = grip_force`` until the goal is released.
+* ``release`` -- ``F_g`` ramps to zero in ``release_time`` (cancel, or an abort: the
+  estimated contact force beyond ``max_force``, the contact lost, no contact found), then
+  stays zero, the contact damper still on, until the finger is still (the object relaxed it:
+  the filtered V_e below :data:`STILL_SPEED` for :data:`STILL_TIME`, at most
+  :data:`RELAX_TIME_MAX`); then the grasp is ``done`` and the controller returns to the mode
+  the channel had before, bumplessly from a torque that holds no grip and no push-back (a
+  ``hold`` entered straight from the ramp would capture the object's push-back as its bias).
+
+The commanded ``f`` never exceeds ``max_force`` and never leaves ``[0, max_force]`` in any
+phase. :meth:`abort_now` ends a grasp at once (the cycle has already zeroed the torque: a fault
+or a re-initialisation); nothing is commanded after it.
+
+Threads: the cycle thread runs :meth:`Grasp.update`, :meth:`Grasp.claim` (when it takes the
+grasp over) and :meth:`Grasp.abort_now`; another thread (the action server) may call
+:meth:`Grasp.request_release` (taken at the next sample) and :meth:`Grasp.withdraw` (effective
+only if the cycle has not claimed it yet: a grasp whose goal gave up waiting never starts
+later) and reads the attributes.
+"""
+
+import math
+import threading
+
+from .errors import SeaforceError
+from .params import EstimatorParams, GraspParams
+from .signals import faded_log_chirp
+
+__all__ = ["GraspGoal", "Grasp", "InvalidGoalError", "check_goal", "PHASES", "ARM_TIME",
+           "ARM_DAHL", "ARM_TIME_MAX", "CONTACT_TIME", "APPROACH_INTEGRAL", "STILL_SPEED",
+           "STILL_TIME", "RELAX_TIME_MAX"]
+
+#: Phases in order; ``done`` after the release.
+PHASES = ("approach", "contact", "squeeze", "probe", "hold", "release", "done")
+
+ARM_TIME = 0.05        # s within 15 % of the commanded speed before the detection is armed
+ARM_DAHL = 4.0         # F_c/sigma of travel before it is armed (the Dahl transition)
+ARM_TIME_MAX = 0.5     # s after which it is armed regardless
+CONTACT_TIME = 0.03    # s the touch force is held before the squeeze
+APPROACH_INTEGRAL = 10.0   # rad/s, corner of the approach servo's integral action
+STILL_SPEED = 0.02     # rad/s: after the release ramp the finger is still below this ...
+STILL_TIME = 0.02      # s ... for this long
+RELAX_TIME_MAX = 0.5   # s, or after this, and the grasp is done
+_HOLD_AVERAGE = 0.1    # s, time constant of the grip force average in hold
+
+
+class InvalidGoalError(SeaforceError, ValueError):
+    """A grasp goal that cannot be executed; the message says why."""
+
+
+class GraspGoal:
+    """The fields of a ``seaforce_msgs/action/Grasp`` goal.
+
+    Parameters
+    ----------
+    channel : str
+    closing_velocity : float
+        [rad/s]; the finger closes towards +X_e when positive.
+    grip_force : float
+        Contact force to hold [N m].
+    max_force : float
+        Abort limit of the contact force [N m].
+    probe : bool
+        Probe the object (force oscillation) after the squeeze.
+    """
+
+    __slots__ = ("channel", "closing_velocity", "grip_force", "max_force", "probe")
+
+    def __init__(self, channel, closing_velocity, grip_force, max_force, probe=True):
+        self.channel = channel
+        self.closing_velocity = closing_velocity
+        self.grip_force = grip_force
+        self.max_force = max_force
+        self.probe = probe
+
+    def __repr__(self):
+        return (f"GraspGoal(channel={self.channel!r}, closing_velocity="
+                f"{self.closing_velocity!r}, grip_force={self.grip_force!r}, "
+                f"max_force={self.max_force!r}, probe={self.probe!r})")
+
+
+def check_goal(goal, params, estimator, max_torque):
+    """Raise :class:`InvalidGoalError` naming the field and the bound if ``goal`` cannot be
+    executed on a channel with these :class:`GraspParams`, :class:`EstimatorParams` and
+    ``max_torque`` [N m]."""
+    if not isinstance(params, GraspParams) or not isinstance(estimator, EstimatorParams):
+        raise TypeError("params must be GraspParams and estimator EstimatorParams")
+    for name in ("closing_velocity", "grip_force", "max_force"):
+        value = getattr(goal, name)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                or not math.isfinite(value):
+            raise InvalidGoalError(f"{name} = {value!r}: must be a finite number")
+    if not isinstance(goal.probe, bool):
+        raise InvalidGoalError(f"probe = {goal.probe!r}: must be a bool")
+    v = goal.closing_velocity
+    if v == 0.0 or abs(v) > params.max_closing_velocity:
+        raise InvalidGoalError(
+            f"closing_velocity = {v!r} rad/s: must be non-zero with |closing_velocity| <= "
+            f"grasp.max_closing_velocity = {params.max_closing_velocity:g} rad/s")
+    if not goal.grip_force > estimator.contact_threshold:
+        raise InvalidGoalError(
+            f"grip_force = {goal.grip_force!r} N m: must be > estimator.contact_threshold = "
+            f"{estimator.contact_threshold:g} N m (a lighter grip is no contact)")
+    if not goal.max_force >= goal.grip_force:
+        raise InvalidGoalError(f"max_force = {goal.max_force!r} N m: must be >= grip_force = "
+                               f"{goal.grip_force!r} N m")
+    if not goal.max_force > params.approach_force:
+        raise InvalidGoalError(f"max_force = {goal.max_force!r} N m: must be > "
+                               f"grasp.approach_force = {params.approach_force:g} N m (the "
+                               "force of the first touch)")
+    if goal.max_force > max_torque:
+        raise InvalidGoalError(f"max_force = {goal.max_force!r} N m: must be <= the channel's "
+                               f"max_torque = {max_torque:g} N m")
+
+
+class Grasp:
+    """One grasp goal on one channel (see module docstring).
+
+    Parameters
+    ----------
+    goal : GraspGoal
+        Already checked (:func:`check_goal`).
+    config : ControllerConfig
+        The channel's: its ``grasp`` parameters and its Dahl model (``dahl``).
+    dt : float > 0
+        Sample period [s].
+
+    Attributes
+    ----------
+    phase : str
+        One of :data:`PHASES`.
+    outcome : str or None
+        None until the grasp is ``done``, then ``'canceled'`` (released on request) or
+        ``'aborted'`` (with the reason in ``message``).
+    message : str
+        Why it ended (or what it is doing).
+    force_command : float
+        The contact force commanded, signed: ``s f`` [N m] (the approach servo's force in
+        ``approach``); never beyond ``max_force``.
+    contact : bool
+        A contact was found (stays True after it).
+    contact_time : float
+        Time of the contact's detection since the grasp started [s] (NaN before).
+    grip_force : float
+        Contact force estimate averaged in ``hold`` [N m] (NaN before hold).
+    """
+
+    def __init__(self, goal, config, dt=5e-4):
+        self.goal = goal
+        self.params = params = config.grasp
+        dahl = config.dahl
+        self._arm_travel = (ARM_DAHL * dahl.coulomb_force / dahl.sigma
+                            if dahl.sigma > 0.0 else 0.0)
+        self.dt = float(dt)
+        v = float(goal.closing_velocity)
+        self._sign = 1.0 if v > 0.0 else -1.0
+        self._v = v
+        self._grip = float(goal.grip_force)
+        self._max = float(goal.max_force)
+        self._touch = min(params.approach_force, self._grip)
+        self._amp = (min(params.probe_amplitude * self._grip, 0.5 * (self._max - self._grip))
+                     if goal.probe else 0.0)
+        self._timeout = 2.0 * params.max_travel / abs(v) + 1.0
+        self.phase = "approach"
+        self.outcome = None
+        self.message = "approaching"
+        self.force_command = 0.0
+        self._output = 0.0         # the last F_g [N m]
+        self._pushed = 0.0         # ... without the contact damper
+        self.contact = False
+        self.contact_time = math.nan
+        self.grip_force = math.nan
+        self._t = 0.0              # time in the phase [s]
+        self._time = 0.0           # time since the start [s]
+        self._armed = False
+        self._steady = 0.0         # time within 15 % of the approach speed, or still [s]
+        self._integral = 0.0       # the approach servo's integral action [N m]
+        self._start = None         # filtered endpoint position at the start
+        self._release_from = 0.0     # F_g and the commanded contact force when the release began
+        self._release_contact = 0.0
+        self._pending_outcome = None
+        self._release_request = None
+        self._claim_lock = threading.Lock()
+        self._claimed = False
+        self._withdrawn = False
+        self._hold_alpha = -math.expm1(-self.dt / _HOLD_AVERAGE)
+
+    # --- requests ---------------------------------------------------------------------
+    def claim(self):
+        """(cycle thread) Take the grasp over: False if it was withdrawn first."""
+        with self._claim_lock:
+            if self._withdrawn:
+                return False
+            self._claimed = True
+            return True
+
+    def withdraw(self, reason, outcome="aborted"):
+        """(any thread) End a grasp the cycle has not claimed yet: True if it is ended (it
+        will never start), False if it runs (then :meth:`request_release` it)."""
+        with self._claim_lock:
+            if self._claimed:
+                return False
+            self._withdrawn = True
+        self.outcome = outcome
+        self.message = reason
+        self._enter("done")
+        return True
+
+    def request_release(self, reason="released"):
+        """(any thread) Release at the next sample: ramp down, then ``canceled``."""
+        self._release_request = reason
+
+    def release(self, reason="released", outcome="canceled"):
+        """Ramp the force to zero, then end with ``outcome`` and ``reason`` (no effect once
+        releasing or done)."""
+        if self.phase in ("release", "done"):
+            return
+        self._pending_outcome = outcome
+        self.message = reason
+        self._release_from = self._pushed
+        self._release_contact = self.force_command
+        self._steady = 0.0
+        self._enter("release")
+
+    def abort_now(self, reason):
+        """End at once, commanding nothing more (the torque has been zeroed by the cycle)."""
+        if self.phase == "done":
+            return
+        self.outcome = "aborted"
+        self.message = reason
+        self.force_command = self._output = self._pushed = 0.0
+        self._enter("done")
+
+    @property
+    def active(self):
+        """True until ``done``."""
+        return self.phase != "done"
+
+    def _enter(self, phase):
+        self.phase = phase
+        self._t = 0.0
+
+    # --- per sample -------------------------------------------------------------------
+    def update(self, est, ve, steps=1):
+        """Advance ``steps`` samples; returns ``F_g`` [N m]. ``est`` is the channel's
+        :class:`~.estimator.ContactEstimator`, already updated with this sample, ``ve`` the
+        controller's endpoint velocity estimate V_e_hat [rad/s] (undelayed)."""
+        if self._release_request is not None:
+            self.release(self._release_request)
+            self._release_request = None
+        elapsed = self.dt * steps
+        self._t += elapsed
+        self._time += elapsed
+        phase = self.phase
+        if phase == "release":
+            ramp = self.params.release_time
+            scale = 1.0 - self._t / ramp
+            if scale <= 0.0:
+                scale = 0.0
+                if abs(est.velocity) < STILL_SPEED:
+                    self._steady += elapsed
+                else:
+                    self._steady = 0.0
+                if self._steady >= STILL_TIME or self._t >= ramp + RELAX_TIME_MAX:
+                    self.outcome = self._pending_outcome
+                    self._enter("done")
+            self.force_command = self._release_contact * scale
+            # the damper stays: the object unloads the finger gently (a finger at minimum
+            # impedance let go of a squeezed object would fly open)
+            self._output = self._release_from * scale - self.params.contact_damping * ve
+            return self._output
+        if phase == "done":
+            self.force_command = self._output = self._pushed = 0.0
+            return 0.0
+        s = self._sign
+        if phase == "approach":
+            f = self._approach(est, s, steps)
+            if self.phase != "contact":
+                if self.phase == "release":
+                    return self.update(est, ve, 0)
+                self.force_command = self._output = self._pushed = f
+                return f
+            phase = "contact"
+        if not est.contact:
+            self.release(f"contact lost at {est.position:.4g} rad in {phase}", "aborted")
+            return self.update(est, ve, 0)
+        c = -s * est.force                 # contact force estimate, > 0 pushing back
+        if c > self._max:
+            self.release(f"contact force estimate {c:.4g} N m beyond max_force "
+                         f"{self._max:g} N m in {phase}", "aborted")
+            return self.update(est, ve, 0)
+        p = self.params
+        t = self._t
+        if phase == "contact":
+            f = self._touch
+            if t >= CONTACT_TIME:
+                self._enter("squeeze")
+        elif phase == "squeeze":
+            x = min(1.0, t / p.squeeze_time)
+            f = self._touch + (self._grip - self._touch) * (0.5 - 0.5 * math.cos(math.pi * x))
+            if x >= 1.0:
+                self._enter("probe" if self._amp > 0.0 else "hold")
+                self.message = "probing" if self._amp > 0.0 else "holding"
+        elif phase == "probe":
+            f = self._grip + self._amp * self._probe(t)
+            if t >= p.probe_duration:
+                self._enter("hold")
+                self.message = "holding"
+        else:   # hold
+            f = self._grip
+            if self.grip_force != self.grip_force:       # NaN: first hold sample
+                self.grip_force = c
+            else:
+                self.grip_force += self._hold_alpha * steps * (c - self.grip_force)
+        f = min(max(f, 0.0), self._max)
+        self.force_command = s * f
+        # the model's free-motion error (the estimator's bias) shifts the real contact force:
+        # command it away; the damper keeps a stiff contact from ringing
+        self._pushed = s * f - est.bias
+        self._output = self._pushed - p.contact_damping * ve
+        return self._output
+
+    def _approach(self, est, s, steps):
+        """The approach servo's force, or the phase changes (contact, release)."""
+        p = self.params
+        if self._start is None:
+            self._start = est.position
+        travel = s * (est.position - self._start)
+        if not self._armed:
+            if abs(est.velocity - self._v) <= 0.15 * abs(self._v):
+                self._steady += self.dt * steps
+            else:
+                self._steady = 0.0
+            if (self._steady >= ARM_TIME and travel >= self._arm_travel) \
+                    or self._t >= ARM_TIME_MAX:
+                est.rearm()
+                self._armed = True
+        elif est.contact:
+            if est.direction * s < 0:
+                self.release("pushed from the side away from the object: no grasp", "aborted")
+                return 0.0
+            self.contact = True
+            self.contact_time = self._time
+            self.message = "contact"
+            self._enter("contact")
+            return 0.0
+        if travel > p.max_travel or self._t > self._timeout:
+            self.release(f"no contact within {travel:.3g} rad of travel in {self._t:.2f} s "
+                         f"(grasp.max_travel {p.max_travel:g} rad)", "aborted")
+            return 0.0
+        cap = p.approach_force
+        error = p.approach_damping * (self._v - est.velocity)
+        i = self._integral + error * APPROACH_INTEGRAL * self.dt * steps
+        i = cap if i > cap else (-cap if i < -cap else i)
+        self._integral = i
+        f = error + i
+        return cap if f > cap else (-cap if f < -cap else f)
+
+    def _probe(self, t):
+        p = self.params
+        return faded_log_chirp(t, p.probe_start_frequency, p.probe_end_frequency,
+                               p.probe_duration, 0.5 * p.probe_duration)

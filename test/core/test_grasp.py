@@ -1,0 +1,352 @@
+"""Grasp: goal checks, each phase and transition branch by branch against a scripted estimator,
+then properties over arbitrary estimator sequences and requests. No simulator, no ROS."""
+import math
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from seaforce_ros.core.grasp import (ARM_TIME, ARM_TIME_MAX, CONTACT_TIME, RELAX_TIME_MAX,
+                                     STILL_SPEED, STILL_TIME, Grasp, GraspGoal,
+                                     InvalidGoalError, check_goal)
+from seaforce_ros.core.params import ControllerConfig, EstimatorParams, GraspParams
+
+DT = 5e-4
+CONFIG = ControllerConfig()
+GP = CONFIG.grasp
+
+
+class Est:
+    """What a grasp reads from the estimator, set by the test."""
+
+    def __init__(self):
+        self.contact = False
+        self.direction = 0
+        self.force = 0.0
+        self.position = 0.0
+        self.velocity = 0.0
+        self.bias = 0.0
+        self.rearms = 0
+
+    def rearm(self):
+        self.rearms += 1
+
+    def touch(self, force, direction=1):
+        """A contact pushing back with ``force`` [N m] on the closing side of +X_e."""
+        self.contact, self.direction, self.force = True, direction, -direction * force
+
+
+def make(v=0.3, grip=0.5, max_force=1.0, probe=True, config=CONFIG):
+    goal = GraspGoal('pinch', v, grip, max_force, probe)
+    check_goal(goal, config.grasp, config.estimator, config.max_torque)
+    g = Grasp(goal, config, DT)
+    assert g.claim()
+    return g
+
+
+def steps(g, est, seconds, ve=0.0, move=True):
+    """Run ``seconds``; the fake endpoint moves at the estimator's velocity if ``move``."""
+    out = []
+    for _ in range(int(round(seconds / DT))):
+        if move:
+            est.position += est.velocity * DT
+        out.append(g.update(est, ve))
+    return out
+
+
+def finish_release(g, est):
+    """The finger comes to rest after the release ramp: the grasp ends STILL_TIME later."""
+    est.velocity = 0.0
+    return steps(g, est, GP.release_time + STILL_TIME + 2 * DT, move=False)
+
+
+def armed(v=0.3, **kwargs):
+    """A grasp whose approach runs steadily at ``v`` and is armed."""
+    g = make(v=v, **kwargs)
+    est = Est()
+    est.velocity = v
+    steps(g, est, ARM_TIME + 0.05)
+    assert g._armed and est.rearms == 1 and g.phase == 'approach'
+    return g, est
+
+
+# --- goals ---------------------------------------------------------------------------
+@pytest.mark.parametrize('field, value, words', [
+    ('closing_velocity', math.nan, 'closing_velocity = nan: must be a finite number'),
+    ('grip_force', math.inf, 'grip_force = inf: must be a finite number'),
+    ('max_force', -math.inf, 'max_force = -inf'),
+    ('closing_velocity', 0.0, 'must be non-zero'),
+    ('closing_velocity', 1e9, 'grasp.max_closing_velocity = 2 rad/s'),
+    ('grip_force', 0.001, 'a lighter grip is no contact'),
+    ('grip_force', -1.0, 'must be > estimator.contact_threshold'),
+    ('max_force', 0.4, 'must be >= grip_force = 0.5'),
+    ('max_force', 1e9, "must be <= the channel's max_torque = 5 N m"),
+    ('probe', 1, 'probe = 1: must be a bool'),
+    ('grip_force', True, 'must be a finite number'),
+])
+def test_bad_goals_are_refused_with_the_reason(field, value, words):
+    goal = GraspGoal('pinch', 0.3, 0.5, 1.0, True)
+    setattr(goal, field, value)
+    with pytest.raises(InvalidGoalError, match=words.replace('(', r'\(')):
+        check_goal(goal, GP, EstimatorParams(), CONFIG.max_torque)
+
+
+def test_max_force_must_exceed_the_touch():
+    goal = GraspGoal('pinch', 0.3, 0.01, 0.015, False)
+    with pytest.raises(InvalidGoalError, match='grasp.approach_force'):
+        check_goal(goal, GP, EstimatorParams(), 5.0)
+
+
+# --- approach ------------------------------------------------------------------------
+def test_approach_servo_is_bounded_by_the_approach_force():
+    g = make()
+    est = Est()
+    out = steps(g, est, 0.1, move=False)              # stalled: the integral winds up
+    assert all(0.0 < f <= GP.approach_force + 1e-12 for f in out)
+    assert out[-1] == pytest.approx(GP.approach_force)
+    est.velocity = 5.0                                 # far too fast: brakes, bounded
+    out = steps(g, est, 0.05, move=False)
+    assert out[-1] == pytest.approx(-GP.approach_force)
+    assert g.phase == 'approach' and not g._armed
+
+
+def test_no_contact_is_armed_before_the_finger_moves_steadily():
+    g = make()
+    est = Est()
+    est.touch(0.5)                                     # a "contact" while starting
+    steps(g, est, 0.1, move=False)                     # not moving: never steady
+    assert g.phase == 'approach' and not g._armed
+    est.contact = False
+    est.velocity = 0.3
+    steps(g, est, ARM_TIME + 0.03)
+    assert g._armed and g.phase == 'approach'
+
+
+def test_armed_at_the_latest_after_arm_time_max():
+    g = make()
+    est = Est()
+    est.velocity = 0.01                                # crawling (blocked by something)
+    steps(g, est, ARM_TIME_MAX + 0.01)
+    assert g._armed and est.rearms == 1
+
+
+def test_contact_on_the_closing_side_starts_the_contact_phase():
+    g, est = armed()
+    est.touch(0.005)
+    f = g.update(est, 0.3)
+    assert g.phase == 'contact' and g.contact and g.message == 'contact'
+    assert g.force_command == pytest.approx(GP.approach_force)
+    assert f == pytest.approx(GP.approach_force - GP.contact_damping * 0.3)
+    assert g.contact_time == pytest.approx(g._time)
+
+
+def test_negative_closing_velocity_mirrors_everything():
+    g, est = armed(v=-0.3)
+    est.touch(0.005, direction=-1)
+    g.update(est, 0.0)
+    assert g.phase == 'contact' and g.force_command == pytest.approx(-GP.approach_force)
+
+
+def test_a_push_from_the_other_side_aborts():
+    g, est = armed()
+    est.touch(0.01, direction=-1)
+    g.update(est, 0.0)
+    assert g.phase == 'release' and 'other side' not in g.message
+    assert 'away from the object' in g.message
+    finish_release(g, est)
+    assert g.phase == 'done' and g.outcome == 'aborted'
+
+
+def test_no_contact_within_max_travel_aborts():
+    g, est = armed(config=ControllerConfig(grasp=GraspParams(max_travel=0.05)))
+    steps(g, est, 0.2)
+    assert g.phase == 'release'
+    finish_release(g, est)
+    assert g.outcome == 'aborted' and 'no contact within' in g.message
+    assert 'grasp.max_travel 0.05 rad' in g.message
+
+
+def test_no_contact_within_the_time_limit_aborts():
+    """A finger that cannot move (something blocks it before the detection is armed) gives
+    up after 2 max_travel/|v| + 1 s."""
+    g = make(v=2.0)
+    est = Est()
+    steps(g, est, 2.0 * GP.max_travel / 2.0 + 1.0 + DT, move=False)
+    assert g.phase == 'release'
+    finish_release(g, est)
+    assert g.outcome == 'aborted' and 'no contact within' in g.message
+
+
+# --- contact, squeeze, probe, hold ---------------------------------------------------
+def run_to_hold(grip=0.5, max_force=1.0, probe=True):
+    g, est = armed(grip=grip, max_force=max_force, probe=probe)
+    est.velocity = 0.0
+    est.touch(0.01)
+    seen = {}
+    t = 0.0
+    while g.phase != 'hold' and t < 5.0:
+        f = g.update(est, 0.0)
+        seen.setdefault(g.phase, []).append((t, f, g.force_command))
+        est.touch(max(g.force_command, 0.005))            # the object pushes back as hard
+        t += DT
+    return g, est, seen
+
+
+def test_phases_in_order_with_their_forces():
+    g, est, seen = run_to_hold()
+    assert list(seen) == ['contact', 'squeeze', 'probe', 'hold']
+    contact = [c for _, _, c in seen['contact']]
+    assert all(c == pytest.approx(GP.approach_force) for c in contact)
+    assert len(contact) == pytest.approx(CONTACT_TIME / DT, abs=2)
+    squeeze = [c for _, _, c in seen['squeeze']]
+    assert all(b >= a - 1e-12 for a, b in zip(squeeze, squeeze[1:]))      # monotone
+    assert squeeze[-1] == pytest.approx(0.5, rel=1e-3)
+    probe = [c for _, _, c in seen['probe']]
+    amplitude = min(GP.probe_amplitude * 0.5, 0.5 * (1.0 - 0.5))
+    assert 0.5 + 0.8 * amplitude < max(probe) <= 0.5 + amplitude
+    assert 0.5 - amplitude <= min(probe) < 0.5 - 0.4 * amplitude
+    assert len(probe) == pytest.approx(GP.probe_duration / DT, abs=2)
+    steps(g, est, 0.5, move=False)
+    assert g.phase == 'hold' and g.force_command == 0.5 and g.message == 'holding'
+    assert g.grip_force == pytest.approx(0.5, rel=1e-3)
+
+
+def test_without_probe_the_squeeze_goes_to_hold():
+    _, _, seen = run_to_hold(probe=False)
+    assert list(seen) == ['contact', 'squeeze', 'hold']
+
+
+def test_the_probe_uses_half_the_headroom_to_max_force():
+    _, _, seen = run_to_hold(grip=0.5, max_force=0.6)
+    assert max(c for _, _, c in seen['probe']) <= 0.55 + 1e-9
+
+
+def test_bias_and_damping_are_commanded_away_in_contact():
+    g, est, _ = run_to_hold()
+    est.bias = 0.01
+    f = g.update(est, 0.2)
+    assert f == pytest.approx(0.5 - 0.01 - GP.contact_damping * 0.2)
+    assert g.force_command == 0.5
+
+
+def test_contact_lost_aborts_with_a_release():
+    g, est, _ = run_to_hold()
+    est.contact = False
+    est.position = 0.3
+    g.update(est, 0.0)
+    assert g.phase == 'release' and 'contact lost at 0.3 rad in hold' in g.message
+    out = finish_release(g, est)
+    assert all(abs(b) <= abs(a) + 1e-12 for a, b in zip(out, out[1:]))   # ramps down
+    assert g.phase == 'done' and g.outcome == 'aborted' and out[-1] == 0.0
+    assert g.update(est, 1.0) == 0.0 and g.force_command == 0.0
+
+
+def test_force_beyond_max_force_aborts():
+    g, est, _ = run_to_hold()
+    est.touch(1.2)
+    g.update(est, 0.0)
+    assert g.phase == 'release' and 'beyond max_force 1 N m in hold' in g.message
+
+
+def test_release_request_ramps_down_then_canceled():
+    g, est, _ = run_to_hold()
+    g.request_release('released by the client')
+    out = finish_release(g, est)
+    assert out[0] < 0.5 and out[-1] == 0.0
+    assert g.outcome == 'canceled' and g.message == 'released by the client'
+    g.request_release('again')                      # no effect once done
+    g.update(est, 0.0)
+    assert g.outcome == 'canceled' and g.message == 'released by the client'
+
+
+def test_the_release_waits_for_the_finger_to_come_to_rest_with_the_damper_on():
+    g, est, _ = run_to_hold()
+    g.request_release('released')
+    est.velocity = -1.0                             # the object pushes the finger open
+    out = steps(g, est, GP.release_time + 0.1, ve=-1.0, move=False)
+    assert g.phase == 'release' and out[-1] == pytest.approx(GP.contact_damping)
+    est.velocity = 0.5 * STILL_SPEED
+    steps(g, est, STILL_TIME + DT, move=False)
+    assert g.phase == 'done'
+    g2, est2, _ = run_to_hold()
+    g2.request_release('released')
+    est2.velocity = 1.0                             # never still: done after RELAX_TIME_MAX
+    steps(g2, est2, GP.release_time + RELAX_TIME_MAX + DT, move=False)
+    assert g2.phase == 'done' and g2.outcome == 'canceled'
+
+
+def test_abort_now_commands_nothing_more():
+    g, est, _ = run_to_hold()
+    g.abort_now('fault latched: x')
+    assert g.phase == 'done' and g.outcome == 'aborted' and g.force_command == 0.0
+    assert g.update(est, 0.3) == 0.0
+    g.abort_now('again')
+    assert g.message == 'fault latched: x'
+
+
+def test_withdraw_only_before_the_cycle_claims_it():
+    goal = GraspGoal('pinch', 0.3, 0.5, 1.0, True)
+    g = Grasp(goal, CONFIG, DT)
+    assert g.withdraw('the cycle did not run') and g.phase == 'done'
+    assert not g.claim() and g.outcome == 'aborted'
+    g2 = Grasp(goal, CONFIG, DT)
+    assert g2.claim() and not g2.withdraw('too late') and g2.phase == 'approach'
+
+
+# --- properties ----------------------------------------------------------------------
+EVENTS = st.one_of(
+    st.tuples(st.just('state'), st.booleans(), st.sampled_from([-1, 1]),
+              st.floats(-3.0, 3.0), st.floats(-1.0, 1.0), st.floats(-0.05, 0.05),
+              st.integers(1, 40), st.floats(-2.0, 2.0)),
+    st.tuples(st.just('release')), st.tuples(st.just('abort')))
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(events=st.lists(EVENTS, min_size=1, max_size=60),
+       v=st.sampled_from([-0.3, -0.05, 0.1, 0.3, 1.5]), grip=st.floats(0.01, 2.0),
+       headroom=st.floats(1.0, 3.0), probe=st.booleans())
+def test_properties_over_arbitrary_estimates(events, v, grip, headroom, probe):
+    """Invariants, whatever the estimator says and whenever releases and aborts come:
+
+    1. the commanded contact force never exceeds max_force (nor approach_force in approach);
+    2. F_g stays within max_force + |bias| + contact_damping |V_e| (what a contact adds);
+    3. phases only move forward; once done, F_g is zero for ever and the outcome is set;
+    4. a release ends in 'canceled' unless an abort came first; an abort_now ends at once;
+    5. an abort never leaves a non-zero force: done means F_g == 0.
+    """
+    max_force = min(grip * headroom, CONFIG.max_torque)
+    if max_force <= GP.approach_force:
+        max_force = GP.approach_force * 1.5
+        grip = min(grip, max_force)
+    g = make(v=v, grip=grip, max_force=max_force, probe=probe)
+    est = Est()
+    order = ['approach', 'contact', 'squeeze', 'probe', 'hold', 'release', 'done']
+    last = 0
+    released = aborted = False
+    for ev in events:
+        if ev[0] == 'release':
+            g.request_release('client')
+            released = released or g.phase not in ('release', 'done')
+            continue
+        if ev[0] == 'abort':
+            was_done = g.phase == 'done'
+            g.abort_now('fault')
+            aborted = aborted or not was_done
+            assert g.phase == 'done'
+            continue
+        _, contact, direction, force, velocity, bias, n, ve = ev
+        est.contact, est.direction, est.force = contact, direction, force
+        est.velocity, est.bias = velocity, bias
+        for _ in range(n):
+            est.position += velocity * DT
+            f = g.update(est, ve)
+            limit = GP.approach_force if g.phase == 'approach' else max_force
+            assert abs(g.force_command) <= limit + 1e-12                           # 1
+            assert abs(f) <= max_force + abs(bias) + GP.contact_damping * abs(ve) + 1e-12   # 2
+            now = order.index(g.phase)
+            assert now >= last                                                       # 3
+            last = now
+            if g.phase == 'done':
+                assert f == 0.0 and g.outcome in ('canceled', 'aborted')          # 3, 5
+    if g.phase == 'done' and released and not aborted and g.outcome == 'canceled':
+        assert g.message == 'client'                                               # 4

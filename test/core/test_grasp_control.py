@@ -1,0 +1,334 @@
+"""Grasps in the control core: the ``force`` mode, a grasp run by ChannelController on the
+simulated gripper (objects drawn at random, the controller's model 15 % off the plant), what a
+cancel, a mode change, a fault or a reset leaves behind, and properties over arbitrary
+sequences through ControlCycle. No ROS."""
+import math
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from seaforce_ros.core import (ChannelController, ChannelSimulator, ControllerConfig,
+                               DahlParams, PlantParams, position_sine, run_closed_loop)
+from seaforce_ros.core.control_cycle import ControlCycle
+from seaforce_ros.core.environment import contact_object
+from seaforce_ros.core.grasp import Grasp, GraspGoal, check_goal
+
+DT = 5e-4
+TABLE_I = PlantParams.table_i()
+PLANT_FIELDS = ('motor_inertia', 'motor_damping', 'motor_stiffness', 'endpoint_inertia',
+                'endpoint_damping', 'endpoint_stiffness', 'hose_damping', 'hose_stiffness')
+
+
+def model_error(rng, magnitude=0.15):
+    """The sim's true plant and Dahl: every parameter of the controller's model (Table I and
+    the paper's Dahl fit) off by +-magnitude, signs at random."""
+    sign = lambda: 1.0 + magnitude * rng.choice((-1.0, 1.0))    # noqa: E731
+    plant = TABLE_I.scaled(**{name: sign() for name in PLANT_FIELDS})
+    d = DahlParams()
+    return plant, DahlParams(sigma=d.sigma * sign(), coulomb_force=d.coulomb_force * sign())
+
+
+class Grasping:
+    """A channel's controller running a grasp on the simulator, recording what matters."""
+
+    def __init__(self, env, mode='passive', plant=TABLE_I, dahl=DahlParams(), seed=0,
+                 **config):
+        self.sim = ChannelSimulator(plant, dahl, seed=seed, environment=env)
+        self.config = ControllerConfig(mode=mode, **config)
+        self.ctl = ChannelController(self.config, dt=DT)
+        self.m = self.sim.measurement()
+        self.t = 0.0
+        self.log = []                      # (t, true contact force, phase, u)
+
+    def start(self, v, grip, max_force, probe=True):
+        goal = GraspGoal('pinch', v, grip, max_force, probe)
+        check_goal(goal, self.config.grasp, self.config.estimator, self.config.max_torque)
+        self.grasp = Grasp(goal, self.config, DT)
+        self.ctl.request_grasp(self.grasp)
+        return self.grasp
+
+    def step(self, n=1):
+        for _ in range(n):
+            u = self.ctl.update(self.m.x, self.m.v, self.m.f_p)
+            self.m = self.sim.step(u)
+            self.t += DT
+            self.log.append((self.t, -self.m.f_e, self.ctl.grasp_phase, u))
+        return self
+
+    def until(self, predicate, limit=20.0):
+        while not predicate() and self.t < limit:
+            self.step()
+        assert predicate(), f'timed out at {self.t:.2f} s in {self.ctl.grasp_phase}'
+        return self
+
+
+def test_force_mode_presses_with_the_reference():
+    """force: the DOB with F_ref = target.force: at rest the hose pushes the motor with
+    F_p = -F_ref (eq. 19), entered bumplessly."""
+    sim = ChannelSimulator(TABLE_I, DahlParams(), environment=position_sine(0.0, 0.0, 0.5))
+    ctl = ChannelController(ControllerConfig(mode='dob'))
+    rec = run_closed_loop(sim, ctl, 8000, on_switch={
+        2000: lambda s, c: c.configure(c.config.replace(mode='force', target_force=0.4))})
+    assert abs(rec['u'][2000] - rec['u'][1999]) < 1e-3
+    assert np.mean(rec['f_p'][-500:]) == pytest.approx(-0.4, abs=2e-3)
+
+
+def test_a_grasp_with_the_exact_model():
+    g = Grasping(contact_object(0.2, 2.0, 0.05))
+    grasp = g.start(0.3, 0.4, 0.8)
+    g.until(lambda: grasp.phase == 'hold').step(2000)
+    true_contact = next(t for t, f, _, _ in g.log if f > 0.0)
+    assert grasp.contact and grasp.contact_time - true_contact < 0.01
+    e = g.ctl.estimator.estimate()
+    assert e.stiffness == pytest.approx(2.0, rel=0.02) and e.damping == pytest.approx(0.05,
+                                                                                       rel=0.1)
+    assert e.contact_position == pytest.approx(0.2, abs=2e-3)
+    hold = [f for _, f, p, _ in g.log[-400:]]
+    assert np.mean(hold) == pytest.approx(0.4, rel=0.01)
+    assert grasp.grip_force == pytest.approx(0.4, rel=0.01)
+
+
+@pytest.mark.parametrize('before', ['passive', 'hold', 'dob_full_ff'])
+def test_cancel_releases_to_the_mode_before_without_the_grip(before):
+    """The grip is never carried over: after a cancel the channel is back in its mode and the
+    torque is what that mode commands with no object force -- not the squeeze (hold would
+    otherwise capture the grip torque as its bumpless bias and keep crushing)."""
+    g = Grasping(contact_object(0.2, 5.0, 0.05), mode=before)
+    g.step(200)
+    grasp = g.start(0.3, 0.6, 1.2, probe=False)
+    g.until(lambda: grasp.phase == 'hold').step(600)
+    grip_torque = g.log[-1][3]
+    grasp.request_release('released')
+    g.until(lambda: not grasp.active).step(1)
+    assert grasp.outcome == 'canceled' and g.ctl.grasp is None and g.ctl.mode == before
+    after = g.log[-1][3]
+    if before == 'passive':
+        assert after == 0.0
+    assert abs(after) < 0.1 * abs(grip_torque)
+    g.step(4000)
+    assert g.log[-1][1] < 0.05 * 0.6          # the object is no longer squeezed
+    assert abs(g.log[-1][3]) < 0.1 * abs(grip_torque)
+
+
+def test_passive_ends_a_grasp_at_once_another_mode_releases_it_first():
+    g = Grasping(contact_object(0.2, 5.0, 0.05), mode='dob')
+    grasp = g.start(0.3, 0.5, 1.0)
+    g.until(lambda: grasp.phase == 'hold')
+    g.ctl.configure(g.config.replace(mode='impedance'))
+    g.step()
+    assert grasp.phase == 'release' and grasp.message == 'mode set to impedance'
+    g.until(lambda: not grasp.active).step(1)
+    assert grasp.outcome == 'aborted' and g.ctl.mode == 'impedance'
+    grasp = g.start(0.3, 0.5, 1.0)
+    g.step(200)
+    g.ctl.configure(g.config.replace(mode='passive'))
+    g.step()
+    assert grasp.phase == 'done' and grasp.message == 'mode set to passive'
+    assert g.log[-1][3] == 0.0
+
+
+def test_reset_ends_a_grasp():
+    g = Grasping(contact_object(0.2, 5.0, 0.05))
+    grasp = g.start(0.3, 0.5, 1.0)
+    g.step(100)
+    g.ctl.reset(0.0)
+    g.step()
+    assert grasp.outcome == 'aborted' and 're-initialised' in grasp.message
+    assert g.log[-1][3] == 0.0 and g.ctl.grasp is None
+
+
+def test_a_second_grasp_on_a_held_channel_never_runs():
+    g = Grasping(contact_object(0.2, 5.0, 0.05))
+    first = g.start(0.3, 0.5, 1.0)
+    g.step(10)
+    second = g.start(0.3, 0.5, 1.0)
+    g.step(1)
+    assert second.outcome == 'aborted' and 'another grasp' in second.message
+    assert g.ctl.grasp is first
+
+
+# --- through ControlCycle ---------------------------------------------------------------
+CH = ('wrist', 'pinch')
+
+
+class Cycle:
+    def __init__(self, modes=('passive', 'passive'), **config):
+        self.configs = [ControllerConfig(mode=m, **config) for m in modes]
+        self.ctrls = [ChannelController(c, dt=DT) for c in self.configs]
+        self.cc = ControlCycle(CH, self.ctrls)
+        self.cycle = 0
+        self.now = 10.0
+        self.wall = 1_800_000_000_000_000_000
+
+    def state(self, x=0.0, fp=0.0, fa=0.0, age=0.0, advance=DT):
+        self.cycle += 1
+        self.now += advance
+        self.wall += int(advance * 1e9)
+        out = self.cc.step(list(CH), self.cycle, self.wall - int(age * 1e9), [0.0, x],
+                           [0.0, 0.0], [0.0, fp], [0.0, fa], [0, 0], self.wall, self.now)
+        return list(out.effort)
+
+    def grasp(self):
+        goal = GraspGoal('pinch', 0.3, 0.5, 1.0, True)
+        g = Grasp(goal, self.configs[1], DT)
+        self.ctrls[1].request_grasp(g)
+        return g
+
+
+def test_a_latched_fault_aborts_the_grasp_and_zeroes_the_torque():
+    c = Cycle()
+    c.state()
+    g = c.grasp()
+    for _ in range(50):
+        effort = c.state()
+    assert g.phase == 'approach' and effort[1] != 0.0
+    effort = c.state(x=math.nan)
+    assert effort[1] == 0.0 and g.outcome == 'aborted'
+    assert g.message.startswith('fault latched: non-finite state')
+    c.cc.request_reset()
+    c.state()
+    effort = c.state()
+    assert effort[1] == 0.0 and c.ctrls[1].grasp is None    # back in passive
+
+
+def test_a_grasp_requested_on_a_latched_channel_is_aborted():
+    c = Cycle(max_torque=5.0)
+    c.state()
+    c.state(fp=math.inf)
+    g = c.grasp()
+    for _ in range(3):
+        assert c.state()[1] == 0.0
+    assert g.outcome == 'aborted' and 'fault latched' in g.message
+
+
+def test_a_stalled_state_stream_aborts_the_grasp():
+    c = Cycle()
+    c.state()
+    g = c.grasp()
+    c.state()
+    c.state(advance=0.3)
+    assert g.outcome == 'aborted' and 'no state for' in g.message
+
+
+OPS = st.one_of(
+    st.tuples(st.just('state'), st.floats(-0.5, 0.5), st.floats(-1.0, 1.0),
+              st.sampled_from([0.0, 0.0, 0.0, 0.3, -0.05, math.nan]), st.integers(1, 40)),
+    st.tuples(st.just('grasp')), st.tuples(st.just('release')),
+    st.tuples(st.just('reset')), st.tuples(st.just('mode'), st.sampled_from(
+        ['passive', 'hold', 'dob_full_ff', 'force'])))
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(ops=st.lists(OPS, min_size=3, max_size=30))
+def test_no_torque_nobody_commanded(ops):
+    """Whatever the states, requests, faults and resets:
+
+    1. a grasp never commands a contact force beyond its max_force;
+    2. from the sample after a grasp is done (canceled, aborted, reset, fault), a channel
+       whose mode is passive gets zero torque -- nothing of the grasp remains;
+    3. a latched channel gets zero torque;
+    4. every effort is finite and within max_torque.
+    """
+    c = Cycle(max_torque=5.0)
+    grasps = []
+    for op in ops:
+        if op[0] == 'grasp':
+            grasps.append(c.grasp())
+            continue
+        if op[0] == 'release':
+            for g in grasps:
+                g.request_release('client')
+            continue
+        if op[0] == 'reset':
+            c.cc.request_reset()
+            continue
+        if op[0] == 'mode':
+            c.configs[1] = c.configs[1].replace(mode=op[1])
+            c.ctrls[1].configure(c.configs[1])
+            continue
+        _, x, fp, age, n = op
+        for _ in range(n):
+            idle = c.ctrls[1].grasp is None and c.ctrls[1].mode == 'passive'
+            effort = c.state(x=x, fp=fp, fa=0.0, age=0.0 if math.isnan(age) else age,
+                             advance=DT if math.isnan(age) or age < 0.2 else 0.3)
+            if math.isnan(age):
+                effort = c.state(x=math.nan)
+            e = effort[1]
+            assert math.isfinite(e) and abs(e) <= 5.0                                 # 4
+            for g in grasps:
+                assert abs(g.force_command) <= g.goal.max_force + 1e-12               # 1
+            if c.cc.latched(1):
+                assert e == 0.0                                                      # 3
+            if idle and c.ctrls[1].grasp is None and c.ctrls[1].mode == 'passive':
+                assert e == 0.0                                                      # 2
+
+
+# --- random objects, the model 15 % off ----------------------------------------------------
+OBJECTS = [   # (k [N m/rad], b [N m s/rad], position [rad], closing speed [rad/s], grip [N m])
+    (0.3, 0.06, 0.2, 0.25, 0.25), (1.5, 0.08, 0.15, 0.2, 0.4), (4.5, 0.05, 0.25, 0.3, 0.3),
+    (12.0, 0.07, 0.2, 0.2, 0.5)]
+
+
+def draw_objects(seed, n):
+    """``n`` objects from the goal ranges, drawn by the test: k log-uniform 0.2..20 N m/rad,
+    b 0.04..0.1 N m s/rad, at 0.15..0.3 rad, closed at 0.05..0.3 rad/s, gripped with
+    0.2..0.5 N m (max_force 1.5..2.5 x grip)."""
+    rng = np.random.default_rng(seed)
+    return [(float(np.exp(rng.uniform(np.log(0.2), np.log(20.0)))), float(rng.uniform(0.04, 0.1)),
+             float(rng.uniform(0.15, 0.3)), float(rng.uniform(0.05, 0.3)),
+             float(rng.uniform(0.2, 0.5))) for _ in range(n)]
+
+
+@pytest.mark.parametrize('k, b, position, v, grip', OBJECTS + draw_objects(12, 4))
+def test_grasp_goals_with_the_model_15_percent_off(k, b, position, v, grip):
+    """The issue's goals, on the simulated gripper whose plant is 15 % off the controller's
+    model (every parameter, random signs):
+
+    * stiffness within 10 % up to 5 N m/rad, 25 % up to 20, settled 0.5 s after the contact;
+      the 1-sigma it reports covers the error within 2.5 sigma (six error sources at 1 sigma
+      each add up to at most sqrt(6) sigma);
+    * damping within 30 % up to 3 N m/rad (beyond, the hose's k_s error dominates and the
+      sigma says so);
+    * contact detected within 10 ms at 0.2-0.3 rad/s (slower: the force rises slower; within
+      30 ms down to 0.05 rad/s), peak contact force before the squeeze below 0.05 N m
+      (objects up to 5 N m/rad);
+    * grip within 5 % in a settled hold (softer than 0.3 N m/rad: the finger's own k_e, 15 %
+      off, is a fifth of the object's stiffness: within 8 %); max_force never exceeded.
+    """
+    rng = np.random.default_rng(int(k * 1000) + int(b * 1e4))
+    plant, dahl = model_error(rng)
+    max_force = grip * 2.0
+    g = Grasping(contact_object(position, k, b), plant=plant, dahl=dahl,
+                 seed=int(rng.integers(1000)))
+    grasp = g.start(v, grip, max_force)
+    t_true = None
+    estimate = None
+    while g.t < 20.0 and grasp.phase != 'hold':
+        g.step()
+        if t_true is None and g.log[-1][1] > 0.0:
+            t_true = g.t
+        if t_true is not None and estimate is None and g.t >= t_true + 0.5:
+            estimate = g.ctl.estimator.estimate()
+    assert grasp.phase == 'hold', grasp.message
+    settle = 6.0 * (b + g.config.grasp.contact_damping) / k     # the soft object's creep
+    g.step(int(max(0.3, settle) / DT))
+    if estimate is None:
+        estimate = g.ctl.estimator.estimate()
+    delay = grasp.contact_time - t_true
+    forces = np.array([f for _, f, _, _ in g.log])
+    phases = [p for _, _, p, _ in g.log]
+    before_squeeze = forces[:phases.index('squeeze')]
+    assert forces.max() <= max_force
+    if k <= 5.0:
+        assert before_squeeze.max() < 0.05
+        assert delay <= (0.010 if v >= 0.2 else 0.030), delay
+    k_tol = 0.10 if k <= 5.0 else 0.25
+    assert abs(estimate.stiffness - k) <= k_tol * k, estimate
+    assert abs(estimate.stiffness - k) <= 2.5 * estimate.stiffness_sigma, estimate
+    if k <= 3.0:
+        assert abs(estimate.damping - b) <= 0.30 * b, estimate
+    assert abs(estimate.damping - b) <= 2.5 * estimate.damping_sigma, estimate
+    grip_error = abs(np.mean(forces[-int(0.1 / DT):]) - grip) / grip
+    assert grip_error <= (0.05 if k >= 0.3 else 0.08), grip_error
