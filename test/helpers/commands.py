@@ -21,13 +21,18 @@ def command_only(probe, efforts, after_ns=0, want=20, timeout=60.0):
 
     ``actuator_state`` is recorded afresh with a queue of one: a deep queue makes a starved
     probe see states as late as its depth (a second at 2 kHz), and every answer stale."""
+    start_ns = time.time_ns()
     probe.stop_recording('actuator_state')
     probe.record(ActuatorState, 'actuator_state', LATEST_QOS)
-    probe.wait_messages('actuator_state', 1, timeout=timeout)
+    # the first answer must be newer than any the previous controller gave (an older one is
+    # out of order: the plant takes it for a second source): a state stamped after this call
+    first = probe.wait_messages('actuator_state', 1, timeout=timeout,
+                                where=lambda m: stamp_ns(m) > start_ns)[0]
     pub = probe.publisher(ActuatorCommand, 'actuator_command')
     cmd = ActuatorCommand()
     cmd.name = list(efforts)
     cmd.effort = list(efforts.values())
+    cmd.cycle = first.cycle
     deadline = time.monotonic() + timeout
     seen = []
     while time.monotonic() < deadline and len(seen) < want:
