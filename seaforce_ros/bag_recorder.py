@@ -69,8 +69,10 @@ KNOWN_TYPES = {
 DEFAULT_TOPICS = ('actuator_state', 'actuator_command', 'controller_status')
 #: the writer thread wakes up this often [s] when the queue is empty
 WRITE_PERIOD = 0.01
-#: after a write failure the node lives this long [s] before it ends (diagnostics delivered)
-FAILURE_GRACE = 1.0
+#: after a write failure the node lives this long [s] before it ends, publishing its
+#: /diagnostics ERROR every report_period (a subscriber still discovering it on a loaded
+#: host gets one)
+FAILURE_GRACE = 3.0
 
 
 def node_specs():
@@ -313,7 +315,7 @@ class BagRecorderNode(Node):
 
     def _end_after_failure(self):
         """After a write failure (seen by the next callback or report): end the node, exit
-        code 1, one second after the failure (the /diagnostics ERROR gets to its
+        code 1, FAILURE_GRACE after the failure (the /diagnostics ERROR gets to its
         subscribers first). (No timer or guard condition for this: the EventsExecutor of the
         PyPI build supports no guard conditions, and a second fast timer stalled it here.)"""
         if self._failed and self.exit_code == 0 and \

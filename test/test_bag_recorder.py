@@ -391,10 +391,13 @@ def test_write_failure_keeps_what_was_written_and_exits_non_zero(processes, tmp_
     counts, _files = _final_counts(output)
     received, written, dropped = counts['/actuator_state']
     assert received == written + dropped and dropped > 0 and written > 1000, counts
-    errors = [s for d in probe.messages('/diagnostics') for s in d.status
-              if s.name == 'bag_recorder' and s.level == DiagnosticStatus.ERROR]
-    assert errors and reason in errors[0].message
-    values = {kv.key: kv.value for kv in errors[-1].values}
+    def recorder_errors(array):
+        return [s for s in array.status
+                if s.name == 'bag_recorder' and s.level == DiagnosticStatus.ERROR]
+    # (a sample the recorder published before it ended may still be on its way to the probe)
+    first = probe.wait_messages('/diagnostics', 1, timeout=10, where=recorder_errors)[0]
+    assert reason in recorder_errors(first)[0].message
+    values = {kv.key: kv.value for kv in recorder_errors(first)[0].values}
     assert int(values['/actuator_state dropped']) > 0
     # everything counted as written is in the bag: the package's reader (and, for mcap,
     # every reader: the file was cut back to its last complete chunk and got its summary)
