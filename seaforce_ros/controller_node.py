@@ -20,6 +20,15 @@ Faults: faults of the data (``latched_faults``) give the channel zero torque unt
 zeroes it until states flow again, then the channel re-arms from the plant's present state
 (its first torque is the torque the plant applies: no step).
 
+Grasping: the action ``~/grasp`` (``seaforce_msgs/action/Grasp``) hands a
+:class:`~seaforce_ros.core.grasp.Grasp` to the channel's controller (taken at the start of a
+cycle); feedback at ``GRASP_FEEDBACK_RATE``; the goal holds the object until it is canceled,
+which releases it (the channel returns to its mode). A goal that cannot be executed -- unknown
+channel, NaN or out-of-range fields, a faulted channel, a channel another goal holds, no states
+arriving -- ends at once ABORTED with ``rejected: <reason>`` in ``result.message`` (ROS 2's goal
+rejection carries no reason). Each channel's contact and object estimates are in
+``controller_status`` whatever the mode.
+
 Layouts: separate processes (this executable) or composed with the plant in ``bringup`` /
 ``hardware_bringup``; with ``loop:=direct`` there the plant's cycle thread calls
 :meth:`DirectPort.step` instead of going through DDS, and parameters and ``~/reset`` still
@@ -27,19 +36,26 @@ work from this node's executor (they hand over to the cycle at its next start).
 """
 from __future__ import annotations
 
+import math
 import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
+from rclpy.task import Future
+from seaforce_msgs.action import Grasp as GraspAction
 from seaforce_msgs.msg import ActuatorCommand, ActuatorState, ControllerStatus
 from std_srvs.srv import Trigger
 
 from . import param_specs as ps
 from .core.control_cycle import DEFAULT_LATCHED, FAULT_KINDS, ControlCycle, StateChecks
 from .core.controller import ChannelController
+from .core.episodes import Episode, EventLog
 from .core.errors import SeaforceError
+from .core.grasp import Grasp, GraspGoal, InvalidGoalError, check_goal
 from .core.params import ControllerConfig
 from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
                          GRAPH_PERIOD, declare, diagnostic_status, diagnostics_publisher,
@@ -47,6 +63,8 @@ from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, contr
 from .timing import LoopStats
 
 LOOPS = ('topics', 'direct')
+GRASP_FEEDBACK_RATE = 50.0     # Hz
+GRASP_START_TIMEOUT = 1.0      # s a goal waits for the cycle to take its grasp over
 
 _CHECK_PARAMS = {'state_timeout': 'state_timeout', 'state_limits.position': 'position_limit',
                  'state_limits.velocity': 'velocity_limit', 'state_limits.force': 'force_limit',
@@ -151,6 +169,15 @@ class ControllerNode(Node):
             self.create_subscription(ActuatorState, 'actuator_state', self._on_state,
                                      control_qos(qos, subscriber=True))
         self.create_service(Trigger, '~/reset', self._on_reset)
+        self._grasps = {}                # channel index -> (Grasp, handle, Future, start time)
+        self._grasp_log = EventLog()
+        self._rejections = Episode(self._grasp_log)   # logged once per 10 s, with a count
+        self._last_state = None          # monotonic time of the latest state [s]
+        ActionServer(self, GraspAction, '~/grasp', execute_callback=self._execute_grasp,
+                     goal_callback=lambda goal: GoalResponse.ACCEPT,
+                     cancel_callback=lambda handle: CancelResponse.ACCEPT,
+                     callback_group=ReentrantCallbackGroup())
+        self.create_timer(1.0 / GRASP_FEEDBACK_RATE, self._grasp_tick)
         self._state_topic = self.resolve_topic_name('actuator_state')
         self.create_timer(GRAPH_PERIOD, self._watch_graph)
         self.add_on_set_parameters_callback(self._validate_parameters)
@@ -236,16 +263,23 @@ class ControllerNode(Node):
     def _status_values(self):
         """Per-channel status fields now (lists: safe to publish later from another thread)."""
         ctrls, cycle = self.controllers, self.cycle
+        estimates = [c.estimator.estimate() for c in ctrls]
         return ([c.mode for c in ctrls], [c.disturbance for c in ctrls],
                 [c.feedforward for c in ctrls], [c.endpoint_velocity_estimate for c in ctrls],
-                [c.dahl_force for c in ctrls], [cycle.fault(i) for i in range(len(ctrls))])
+                [c.dahl_force for c in ctrls], [cycle.fault(i) for i in range(len(ctrls))],
+                [c.estimator.contact for c in ctrls], [e.contact_position for e in estimates],
+                [c.estimator.force for c in ctrls], [e.stiffness for e in estimates],
+                [e.stiffness_sigma for e in estimates], [e.damping for e in estimates],
+                [e.damping_sigma for e in estimates], [c.grasp_phase for c in ctrls])
 
     def _publish_status(self, values, cycle, stamp):
         s = self._status
         s.header.stamp = stamp
         s.cycle = cycle
         (s.mode, s.disturbance, s.feedforward, s.endpoint_velocity_estimate, s.dahl_force,
-         s.fault) = values
+         s.fault, s.contact, s.contact_position, s.contact_force, s.object_stiffness,
+         s.object_stiffness_sigma, s.object_damping, s.object_damping_sigma,
+         s.grasp_phase) = values
         self.status_pub.publish(s)
 
     def _run_cycle(self, names, cycle, stamp_ns, x, v, f_p, f_a, status, now_ns, now):
@@ -253,6 +287,7 @@ class ControllerNode(Node):
         t0 = time.perf_counter()
         self.stats.tick(now)
         self._states += 1
+        self._last_state = now
         out = self.cycle.step(names, cycle, stamp_ns, x, v, f_p, f_a, status, now_ns, now)
         if self.cycle.events:
             log_events(self.get_logger(), self.cycle.events.drain())
@@ -266,6 +301,106 @@ class ControllerNode(Node):
     def _watch_graph(self):
         self.cycle.set_state_publishers(sorted(
             node_label(i) for i in self.get_publishers_info_by_topic(self._state_topic)))
+
+    # --- grasps --------------------------------------------------------------------------
+    def _grasp_for(self, goal):
+        """(channel index, Grasp) for an action goal, or InvalidGoalError with the reason."""
+        if goal.channel not in self.channels:
+            raise InvalidGoalError(f'unknown channel {goal.channel!r}; the channels are '
+                                   + ', '.join(self.channels))
+        index = self.channels.index(goal.channel)
+        held = self._grasps.get(index)
+        if held is not None:
+            raise InvalidGoalError(f'channel {goal.channel} is held by another grasp goal '
+                                   f'({held[0].phase}); cancel it first')
+        fault = self.cycle.fault(index)
+        if fault:
+            raise InvalidGoalError(f'channel {goal.channel} is faulted: {fault}'
+                                   + ('; call ~/reset' if self.cycle.latched(index) else ''))
+        now = time.monotonic()
+        if self._last_state is None or now - self._last_state > self.cycle.checks.state_timeout:
+            raise InvalidGoalError('no actuator_state is arriving: the control cycle is not '
+                                   'running')
+        config = self.configs[index]
+        request = GraspGoal(goal.channel, goal.closing_velocity, goal.grip_force,
+                            goal.max_force, goal.probe)
+        try:
+            check_goal(request, config.grasp, config.estimator, config.max_torque)
+        except InvalidGoalError as exc:
+            raise InvalidGoalError(f'{goal.channel}: {exc}') from None
+        return index, Grasp(request, config, self.dt)
+
+    async def _execute_grasp(self, handle):
+        """One goal: checked, handed to the cycle, followed by :meth:`_grasp_tick` until done."""
+        try:
+            index, grasp = self._grasp_for(handle.request)
+        except InvalidGoalError as exc:
+            self._rejections.begin(time.monotonic(), f'grasp goal rejected: {exc}')
+            self._rejections.end(time.monotonic())
+            log_events(self.get_logger(), self._grasp_log.drain())
+            handle.abort()
+            return self._grasp_result(None, None, f'rejected: {exc}')
+        done = Future()
+        self._grasps[index] = (grasp, handle, done, time.monotonic())
+        self.controllers[index].request_grasp(grasp)
+        goal = handle.request
+        self.get_logger().info(f'{goal.channel}: grasp at {goal.closing_velocity:g} rad/s, '
+                               f'grip {goal.grip_force:g} N m, max {goal.max_force:g} N m'
+                               + (', probing' if goal.probe else ''))
+        return await done
+
+    @shutdown_safe
+    def _grasp_tick(self):
+        """Feedback, cancel requests, start time-outs and ends of the running grasps."""
+        for index, (grasp, handle, done, started) in list(self._grasps.items()):
+            channel = self.channels[index]
+            if handle.is_cancel_requested and grasp.active:
+                if not grasp.withdraw('canceled before it started', 'canceled'):
+                    grasp.request_release('released (goal canceled)')
+            if grasp.active and not grasp.started and \
+                    time.monotonic() - started > GRASP_START_TIMEOUT:
+                grasp.withdraw(f'the control cycle did not take the grasp within '
+                               f'{GRASP_START_TIMEOUT:g} s (are states arriving?)')
+            if grasp.active:
+                handle.publish_feedback(self._grasp_feedback(index, grasp))
+                continue
+            del self._grasps[index]
+            result = self._grasp_result(grasp, self.controllers[index].estimator, grasp.message)
+            if grasp.outcome == 'canceled':
+                handle.canceled()
+            else:
+                handle.abort()
+            self.get_logger().info(f'{channel}: grasp {grasp.outcome}: {grasp.message}')
+            done.set_result(result)
+
+    def _grasp_feedback(self, index, grasp):
+        est = self.controllers[index].estimator
+        estimate = est.estimate()
+        sign = 1.0 if grasp.goal.closing_velocity > 0 else -1.0
+        feedback = GraspAction.Feedback()
+        feedback.phase = grasp.phase
+        feedback.endpoint_position = est.position
+        feedback.force = -sign * est.force
+        feedback.object_stiffness = estimate.stiffness
+        feedback.object_damping = estimate.damping
+        return feedback
+
+    @staticmethod
+    def _grasp_result(grasp, estimator, message):
+        result = GraspAction.Result()
+        result.message = message
+        result.contact = bool(grasp is not None and grasp.contact)
+        nan = math.nan
+        estimate = None
+        if result.contact:          # the object as the grasp let go of it (or as it is now)
+            estimate = grasp.estimate if grasp.estimate is not None else estimator.estimate()
+        result.contact_position = estimate.contact_position if estimate else nan
+        result.object_stiffness = estimate.stiffness if estimate else nan
+        result.object_stiffness_sigma = estimate.stiffness_sigma if estimate else nan
+        result.object_damping = estimate.damping if estimate else nan
+        result.object_damping_sigma = estimate.damping_sigma if estimate else nan
+        result.grip_force = grasp.grip_force if grasp is not None else nan
+        return result
 
     # --- faults --------------------------------------------------------------------------
     def _on_reset(self, request, response):
@@ -302,7 +437,8 @@ class ControllerNode(Node):
                     DiagnosticStatus.WARN if fault else DiagnosticStatus.OK),
                 f'FAULT: {fault}' if cycle.latched(i) else (fault or ctrl.mode),
                 {'mode': ctrl.mode, 'fault': fault or 'none', 'torque': ctrl.torque,
-                 'disturbance': ctrl.disturbance, 'feedforward': ctrl.feedforward}))
+                 'disturbance': ctrl.disturbance, 'feedforward': ctrl.feedforward,
+                 'grasp': ctrl.grasp_phase or 'none', 'contact': ctrl.estimator.contact}))
         publish_diagnostics(self, self.diag_pub, statuses)
 
 

@@ -4,7 +4,9 @@ Bags are written and read with ``rosbags`` (no rosbag2 on PyPI). For a bag writt
 interchangeable with one from ``ros2 bag record``, rosbags must know the exact ``.msg``
 definitions of ``seaforce_msgs``: this module finds them (installed share directory through the
 ament index, else ``msg_defs/msg`` of a source checkout) and registers them, on top of the
-standard ROS 2 Jazzy types, in a typestore.
+standard ROS 2 Jazzy types, in a typestore. The Grasp action's goal, result and feedback, and
+the feedback topic's message (``Grasp_FeedbackMessage``, what ``ros2 bag record`` of the
+action's hidden topics stores), are registered too, from ``action/Grasp.action``.
 
 No rclpy import here: offline tools (identification, Z-width) use it without ROS running.
 """
@@ -15,6 +17,7 @@ from typing import Dict, Optional
 
 MSG_PACKAGE = 'seaforce_msgs'
 MESSAGE_NAMES = ('ActuatorState', 'ActuatorCommand', 'ControllerStatus')
+ACTION_NAMES = ('Grasp',)
 
 
 class InterfaceDefinitionError(RuntimeError):
@@ -22,7 +25,8 @@ class InterfaceDefinitionError(RuntimeError):
 
 
 def msg_directory() -> pathlib.Path:
-    """Directory holding ``ActuatorState.msg`` and the other ``seaforce_msgs`` definitions.
+    """Directory holding ``ActuatorState.msg`` and the other ``seaforce_msgs`` definitions
+    (``action/`` is beside it).
 
     Looks in the installed package share (``share/seaforce_msgs/msg`` via ament_index) first,
     then in ``msg_defs/msg`` beside this package in a source checkout.
@@ -38,7 +42,9 @@ def msg_directory() -> pathlib.Path:
         pass
     candidates.append(pathlib.Path(__file__).resolve().parent.parent / 'msg_defs' / 'msg')
     for directory in candidates:
-        if all((directory / f'{name}.msg').is_file() for name in MESSAGE_NAMES):
+        if all((directory / f'{name}.msg').is_file() for name in MESSAGE_NAMES) and all(
+                (directory.parent / 'action' / f'{name}.action').is_file()
+                for name in ACTION_NAMES):
             return directory
     raise InterfaceDefinitionError(
         f'cannot find the {MSG_PACKAGE} .msg files (looked in: '
@@ -53,13 +59,34 @@ def message_definitions(directory: Optional[pathlib.Path] = None) -> Dict[str, s
             for name in MESSAGE_NAMES}
 
 
+def action_definitions(directory: Optional[pathlib.Path] = None) -> Dict[str, str]:
+    """Map ``seaforce_msgs/action/<Name>_{Goal,Result,Feedback,FeedbackMessage}`` to its
+    message text: the three sections of ``<Name>.action`` (split at ``---``, as rosidl does)
+    and the feedback topic's message, ``goal_id`` + ``feedback``."""
+    directory = (directory or msg_directory()).parent / 'action'
+    out = {}
+    for name in ACTION_NAMES:
+        text = (directory / f'{name}.action').read_text()
+        sections = text.split('\n---\n')
+        if len(sections) != 3:
+            raise InterfaceDefinitionError(f'{name}.action: expected goal, result and feedback '
+                                           f'separated by ---, found {len(sections)} sections')
+        prefix = f'{MSG_PACKAGE}/action/{name}'
+        for part, section in zip(('Goal', 'Result', 'Feedback'), sections):
+            out[f'{prefix}_{part}'] = section
+        out[f'{prefix}_FeedbackMessage'] = (f'unique_identifier_msgs/UUID goal_id\n'
+                                            f'{prefix}_Feedback feedback\n')
+    return out
+
+
 def make_typestore(directory: Optional[pathlib.Path] = None):
     """A rosbags typestore with the ROS 2 Jazzy standard types plus ``seaforce_msgs``."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
     types = {}
-    for name, text in message_definitions(directory).items():
+    definitions = {**message_definitions(directory), **action_definitions(directory)}
+    for name, text in definitions.items():
         try:
             types.update(get_types_from_msg(text, name))
         except Exception as exc:  # rosbags raises its own parser errors

@@ -32,10 +32,15 @@ ENVIRONMENT_SPECS = (
     ('environment.end_frequency', 1000.0, 'torque chirp end frequency [Hz]', (1e-6, 1e4)),
     ('environment.duration', 60.0, 'torque chirp duration [s]', (1e-3, 1e6)),
     ('environment.stiffness', DRIVE_STIFFNESS,
-     'position drive spring to the endpoint [N m/rad]', (0.0, 1e6)),
+     'position drive spring to the endpoint, or the object\'s stiffness k_o [N m/rad]',
+     (0.0, 1e6)),
     ('environment.damping', DRIVE_DAMPING,
-     'position drive damper to the endpoint [N m s/rad]', (0.0, 1e4)),
+     'position drive damper to the endpoint, or the object\'s damping b_o [N m s/rad]',
+     (0.0, 1e4)),
     ('environment.offset', 0.0, 'centre of the position drive [rad]', (-100.0, 100.0)),
+    ('environment.position', 0.0, 'object surface: mode object touches the endpoint at '
+     'X_e > position, F_e = -(k_o (X_e - position) + b_o V_e) while it pushes [rad]',
+     (-100.0, 100.0)),
 )
 
 _SENSORS = SensorParams()
@@ -85,14 +90,17 @@ def controller_channel_specs(channel: str) -> List[ParamSpec]:
 
 
 def sim_channel_specs(channel: str) -> List[ParamSpec]:
-    """Simulated-plant parameters of one channel (plant and Dahl read-only: structural)."""
+    """Simulated-plant parameters of one channel: the model (``plant.*``, ``dahl.*``, read-only,
+    as the controller has it), the sim's own settings and the environment. The true plant
+    ``sim.plant.*`` / ``sim.dahl.*`` follows from the model: :func:`sim_plant_specs`."""
     defaults = ControllerConfig(plant=PlantParams.table_i()).to_dict()
     specs = []
     for key in PLANT_KEYS + DAHL_KEYS:
         info = PARAMETERS[key]
         specs.append(ParamSpec(f'{channel}.{key}', float(defaults[key]),
-                               info.description + ' (simulated plant)',
-                               low=info.low, high=info.high, read_only=True))
+                               info.description + ' (the model; the simulated plant is '
+                               f'{channel}.sim.{key})', low=info.low, high=info.high,
+                               read_only=True))
     for key, default, description, rng in SIM_CHANNEL_SPECS:
         low, high = rng
         specs.append(ParamSpec(f'{channel}.{key}', default, description, low=low, high=high,
@@ -102,6 +110,17 @@ def sim_channel_specs(channel: str) -> List[ParamSpec]:
         specs.append(ParamSpec(f'{channel}.{key}', default, description, low=low, high=high,
                                choices=ENVIRONMENT_MODES if key == 'environment.mode' else ()))
     return specs
+
+
+def sim_plant_specs(channel: str, model: Dict[str, object]) -> List[ParamSpec]:
+    """The simulated gripper's true plant and Dahl hysteresis, ``<channel>.sim.plant.*`` /
+    ``<channel>.sim.dahl.*``, each defaulting to the model's value in ``model``
+    (``{'<channel>.plant.<x>': value}``): set them to run the controller on a wrong model;
+    they change at run time (a drifting plant)."""
+    return [ParamSpec(f'{channel}.sim.{key}', float(model[f'{channel}.{key}']),
+                      PARAMETERS[key].description + ' (the simulated plant, default the model)',
+                      low=PARAMETERS[key].low, high=PARAMETERS[key].high)
+            for key in PLANT_KEYS + DAHL_KEYS]
 
 
 def channel_values(values: Dict[str, object], channel: str, prefix: str = '') -> Dict[str, object]:

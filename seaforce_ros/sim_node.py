@@ -16,8 +16,10 @@ Dahl hysteresis, friction, sensors, endpoint environment).
     sample for sample (no command watchdog: the sim waits). Until the first command arrives
     the current state is re-published every 100 ms.
 
-The environment of each channel (``<channel>.environment.*``) can change at run time; it
-takes effect at the start of the next cycle.
+The environment of each channel (``<channel>.environment.*``: free, torque sine or chirp,
+position drive, or an ``object`` to grasp) and the simulated plant (``<channel>.sim.plant.*``,
+``<channel>.sim.dahl.*``; by default the model ``<channel>.plant.*`` / ``dahl.*`` the
+controller uses) can change at run time; a change takes effect at the start of the next cycle.
 """
 from __future__ import annotations
 
@@ -64,8 +66,10 @@ class SimNode(PlantNode):
         self._specs = {}
         for channel in self.channels:
             specs = ps.sim_channel_specs(channel)
-            self._specs.update({s.name: s for s in specs})
             values.update(declare(self, specs))
+            true_plant = ps.sim_plant_specs(channel, values)     # defaults: the model
+            values.update(declare(self, true_plant))
+            self._specs.update({s.name: s for s in specs + true_plant})
         self.lockstep = values['clock_mode'] == 'lockstep'
         if self.lockstep and values['control_qos'] != 'reliable':
             raise StartupError('clock_mode lockstep needs control_qos reliable: a lost command '
@@ -81,6 +85,7 @@ class SimNode(PlantNode):
                 raise StartupError(ps.channel_error(exc, channel)) from None
         self._make_plant_cycle()
         self._pending_env = {}           # channel index -> Environment, applied next cycle
+        self._pending_plant = {}         # channel index -> (PlantParams, DahlParams or None)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self._start_plant()
         self._last_progress = time.monotonic()
@@ -93,10 +98,17 @@ class SimNode(PlantNode):
             f'simulating channels {self.channels} at {values["rate"]:.0f} Hz, '
             f'clock_mode={values["clock_mode"]}, loop={"direct" if direct else "topics"}')
 
-    def _make_sim(self, values, channel, seed):
-        plant = PlantParams(**{k.split('.', 1)[1]: values[f'{channel}.{k}']
+    @staticmethod
+    def _true_plant(values, channel):
+        """(PlantParams, DahlParams or None) of ``<channel>.sim.plant.*`` / ``sim.dahl.*``."""
+        plant = PlantParams(**{k.split('.', 1)[1]: values[f'{channel}.sim.{k}']
                                for k in ps.PLANT_KEYS})
-        dahl = DahlParams(**{k.split('.', 1)[1]: values[f'{channel}.{k}'] for k in ps.DAHL_KEYS})
+        dahl = DahlParams(**{k.split('.', 1)[1]: values[f'{channel}.sim.{k}']
+                             for k in ps.DAHL_KEYS})
+        return plant, (dahl if dahl.sigma > 0 else None)
+
+    def _make_sim(self, values, channel, seed):
+        plant, dahl = self._true_plant(values, channel)
         sensors = SensorParams(
             pressure_range=values[f'{channel}.sensors.pressure_range'],
             pressure_noise=values[f'{channel}.sensors.pressure_noise'],
@@ -104,7 +116,7 @@ class SimNode(PlantNode):
             endpoint_counts_per_rev=values[f'{channel}.sensors.endpoint_counts_per_rev'])
         env = environment_from_dict(ps.channel_values(values, channel, 'environment.'))
         return ChannelSimulator(
-            plant, dahl=dahl if dahl.sigma > 0 else None, dt=self.dt, seed=seed,
+            plant, dahl=dahl, dt=self.dt, seed=seed,
             environment=env, sensors=sensors,
             motor_coulomb=values[f'{channel}.sim.motor_coulomb'],
             endpoint_coulomb=values[f'{channel}.sim.endpoint_coulomb'],
@@ -121,13 +133,22 @@ class SimNode(PlantNode):
                 if reason:
                     return SetParametersResult(successful=False, reason=reason)
         for channel in self.channels:
-            if any(k.startswith(f'{channel}.environment.') for k in changed):
-                try:
+            try:
+                if any(k.startswith(f'{channel}.environment.') for k in changed):
                     self._environment_with(channel, changed)
-                except (SeaforceError, ValueError) as exc:
-                    return SetParametersResult(successful=False,
-                                               reason=ps.channel_error(exc, channel))
+                if any(k.startswith(f'{channel}.sim.') for k in changed):
+                    self._plant_with(channel, changed)
+            except (SeaforceError, ValueError) as exc:
+                return SetParametersResult(successful=False,
+                                           reason=ps.channel_error(exc, channel))
         return SetParametersResult(successful=True)
+
+    def _plant_with(self, channel, changed):
+        current = {}
+        for key in ps.PLANT_KEYS + ps.DAHL_KEYS:
+            name = f'{channel}.sim.{key}'
+            current[name] = changed.get(name, self.get_parameter(name).value)
+        return self._true_plant(current, channel)
 
     def _environment_with(self, channel, changed):
         current = {}
@@ -144,6 +165,10 @@ class SimNode(PlantNode):
                 env = self._environment_with(channel, changed)
                 self._pending_env[index] = env
                 self.get_logger().info(f'{channel}: environment -> {env.mode}')
+            if any(k.startswith(f'{channel}.sim.plant.') or k.startswith(f'{channel}.sim.dahl.')
+                   for k in changed):
+                self._pending_plant[index] = self._plant_with(channel, changed)
+                self.get_logger().info(f'{channel}: simulated plant changed')
 
     # --- the cycle (PlantNode hooks) -----------------------------------------------------
     @shutdown_safe
@@ -163,6 +188,10 @@ class SimNode(PlantNode):
         if pending:
             for index in list(pending):
                 self.sims[index].set_environment(pending.pop(index))
+        plants = self._pending_plant
+        if plants:
+            for index in list(plants):
+                self.sims[index].set_plant(*plants.pop(index))
         for sim, torque in zip(self.sims, out.torque):
             sim.step(torque)
 

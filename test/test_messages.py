@@ -35,7 +35,36 @@ def test_message_fields_match_design():
         ('header', 'std_msgs/Header'), ('cycle', 'uint64'), ('name', 'sequence<string>'),
         ('mode', 'sequence<string>'), ('disturbance', 'sequence<double>'),
         ('feedforward', 'sequence<double>'), ('endpoint_velocity_estimate', 'sequence<double>'),
-        ('dahl_force', 'sequence<double>'), ('fault', 'sequence<string>')]
+        ('dahl_force', 'sequence<double>'), ('fault', 'sequence<string>'),
+        ('contact', 'sequence<boolean>'), ('contact_position', 'sequence<double>'),
+        ('contact_force', 'sequence<double>'), ('object_stiffness', 'sequence<double>'),
+        ('object_stiffness_sigma', 'sequence<double>'), ('object_damping', 'sequence<double>'),
+        ('object_damping_sigma', 'sequence<double>'), ('grasp_phase', 'sequence<string>')]
+
+
+def test_grasp_action_interface():
+    """The action's goal and result are the fixed interface (DESIGN.md), the feedback the
+    issue's; rosbags knows the feedback topic's message with rosidl's own type hash."""
+    from ament_index_python.packages import get_package_share_directory
+    from seaforce_msgs.action import Grasp
+
+    from seaforce_ros.interfaces import make_typestore
+    assert list(Grasp.Goal.get_fields_and_field_types().items()) == [
+        ('channel', 'string'), ('closing_velocity', 'double'), ('grip_force', 'double'),
+        ('max_force', 'double'), ('probe', 'boolean')]
+    assert list(Grasp.Result.get_fields_and_field_types().items()) == [
+        ('contact', 'boolean'), ('contact_position', 'double'), ('object_stiffness', 'double'),
+        ('object_stiffness_sigma', 'double'), ('object_damping', 'double'),
+        ('object_damping_sigma', 'double'), ('grip_force', 'double'), ('message', 'string')]
+    assert list(Grasp.Feedback.get_fields_and_field_types()) == [
+        'phase', 'endpoint_position', 'force', 'object_stiffness', 'object_damping']
+    share = pathlib.Path(get_package_share_directory('seaforce_msgs'))
+    hashes = {h['type_name']: h['hash_string'] for h in
+              json.loads((share / 'action' / 'Grasp.json').read_text())['type_hashes']}
+    store = make_typestore()
+    for part in ('Goal', 'Result', 'Feedback', 'FeedbackMessage'):
+        name = f'seaforce_msgs/action/Grasp_{part}'
+        assert store.hash_rihs01(name) == hashes[name], part
 
 
 def test_messages_cross_process_field_for_field(processes, ros_context):

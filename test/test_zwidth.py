@@ -103,7 +103,11 @@ def test_zwidth_from_backdrive_bags_matches_direct_computation(tmp_path, capsys)
                                            cycle=0, name=["pinch"], mode=["hold"],
                                            disturbance=one, feedforward=one,
                                            endpoint_velocity_estimate=one, dahl_force=one,
-                                           fault=[""]),
+                                           fault=[""], contact=np.zeros(1, dtype=bool),
+                                           contact_position=one, contact_force=one,
+                                           object_stiffness=one, object_stiffness_sigma=one,
+                                           object_damping=one, object_damping_sigma=one,
+                                           grasp_phase=[""]),
                                          "seaforce_msgs/msg/ControllerStatus")
             w.write(c_status, 0, status)
             for i in range(n):

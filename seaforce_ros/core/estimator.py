@@ -80,7 +80,7 @@ _BLOCK_VALUES = 6 * BLOCK
 _ZETA = math.sqrt(0.5)
 #: A filtered signal needs this many group delays after the start of a contact before it
 #: holds no free-motion samples; the fit starts then.
-_SETTLE_DELAYS = 2.0
+_SETTLE_DELAYS = 4.0
 _NAN = math.nan
 
 ObjectEstimate = namedtuple(
@@ -181,6 +181,7 @@ class ContactEstimator:
         self._f1 = self._f2 = 0.0
         self.bias = 0.0
         self._drift = 0.0            # the bias's drift per sample [N m]
+        self._frozen = False         # between freeze() and let_go()
         self._clear_fit()
 
     def _clear_fit(self):
@@ -202,6 +203,26 @@ class ContactEstimator:
             self.contacts -= 1
             self.onset_position = self._onset_before
             self._clear_fit()
+        self.bias += self.force
+        self._drift = 0.0
+        self.force = 0.0
+
+    def freeze(self):
+        """Stop fitting and detecting (the fit stays as it is): a grasp letting go of its
+        object. The unloading and the finger's motion after it would be fitted with the bias
+        of the approach, which the motion's direction changes (the Dahl model's error)."""
+        if not self._frozen:
+            self._frozen = True
+            if self._block:
+                self._fold()
+
+    def let_go(self):
+        """End a :meth:`freeze`: the contact, if any, is over (its fit is kept) and the present
+        residual is the free-motion bias."""
+        self._frozen = False
+        if self.contact:
+            self.contact = False
+            self.direction = 0
         self.bias += self.force
         self._drift = 0.0
         self.force = 0.0
@@ -232,6 +253,8 @@ class ContactEstimator:
         y = f1 + ke * p - ke_rest + be * q + me_dt * acc
         r = y - self.bias
         self.force = r
+        if self._frozen:
+            return
         if self.contact:
             if r * self.direction > -self._off:
                 # below the release level: not a sample of the object; the contact ends when

@@ -36,6 +36,8 @@ Phases:
   :data:`RELAX_TIME_MAX`); then the grasp is ``done`` and the controller returns to the mode
   the channel had before, bumplessly from a torque that holds no grip and no push-back (a
   ``hold`` entered straight from the ramp would capture the object's push-back as its bias).
+  The estimator's fit is frozen meanwhile (:meth:`~.estimator.ContactEstimator.freeze`: the
+  release is not a sample of the object) and the contact declared over at the end.
 
 The commanded ``f`` never exceeds ``max_force`` and never leaves ``[0, max_force]`` in any
 phase. :meth:`abort_now` ends a grasp at once (the cycle has already zeroed the torque: a fault
@@ -69,7 +71,7 @@ CONTACT_TIME = 0.03    # s the touch force is held before the squeeze
 APPROACH_INTEGRAL = 10.0   # rad/s, corner of the approach servo's integral action
 STILL_SPEED = 0.02     # rad/s: after the release ramp the finger is still below this ...
 STILL_TIME = 0.02      # s ... for this long
-RELAX_TIME_MAX = 0.5   # s, or after this, and the grasp is done
+RELAX_TIME_MAX = 10.0  # s, or after this (a soft object relaxes slowly), and the grasp is done
 _HOLD_AVERAGE = 0.1    # s, time constant of the grip force average in hold
 
 
@@ -172,6 +174,9 @@ class Grasp:
         Time of the contact's detection since the grasp started [s] (NaN before).
     grip_force : float
         Contact force estimate averaged in ``hold`` [N m] (NaN before hold).
+    estimate : ObjectEstimate or None
+        The object, as the estimator had it when the grasp let go (set when a grasp that
+        found a contact ends by its release; None otherwise).
     """
 
     def __init__(self, goal, config, dt=5e-4):
@@ -199,6 +204,7 @@ class Grasp:
         self.contact = False
         self.contact_time = math.nan
         self.grip_force = math.nan
+        self.estimate = None
         self._t = 0.0              # time in the phase [s]
         self._time = 0.0           # time since the start [s]
         self._armed = False
@@ -265,6 +271,11 @@ class Grasp:
         """True until ``done``."""
         return self.phase != "done"
 
+    @property
+    def started(self):
+        """The cycle has claimed it (it runs, or ran)."""
+        return self._claimed
+
     def _enter(self, phase):
         self.phase = phase
         self._t = 0.0
@@ -282,6 +293,7 @@ class Grasp:
         self._time += elapsed
         phase = self.phase
         if phase == "release":
+            est.freeze()
             ramp = self.params.release_time
             scale = 1.0 - self._t / ramp
             if scale <= 0.0:
@@ -291,6 +303,9 @@ class Grasp:
                 else:
                     self._steady = 0.0
                 if self._steady >= STILL_TIME or self._t >= ramp + RELAX_TIME_MAX:
+                    if self.contact:
+                        self.estimate = est.estimate()    # the fit, frozen since the release
+                    est.let_go()
                     self.outcome = self._pending_outcome
                     self._enter("done")
             self.force_command = self._release_contact * scale
@@ -360,11 +375,16 @@ class Grasp:
                 self._steady += self.dt * steps
             else:
                 self._steady = 0.0
-            if (self._steady >= ARM_TIME and travel >= self._arm_travel) \
-                    or self._t >= ARM_TIME_MAX:
+            if self._steady >= ARM_TIME and travel >= self._arm_travel:
                 est.rearm()
                 self._armed = True
-        elif est.contact:
+            elif self._t >= ARM_TIME_MAX:
+                self._armed = True
+                if not (est.contact and est.direction * s > 0):
+                    est.rearm()
+                # else: it never got going against a contact on the closing side: it started
+                # touching the object (taken as the contact below)
+        if self._armed and est.contact:
             if est.direction * s < 0:
                 self.release("pushed from the side away from the object: no grasp", "aborted")
                 return 0.0

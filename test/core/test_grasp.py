@@ -27,9 +27,19 @@ class Est:
         self.velocity = 0.0
         self.bias = 0.0
         self.rearms = 0
+        self.frozen = False
 
     def rearm(self):
         self.rearms += 1
+
+    def freeze(self):
+        self.frozen = True
+
+    def let_go(self):
+        self.frozen = self.contact = False
+
+    def estimate(self):
+        return 'the object'
 
     def touch(self, force, direction=1):
         """A contact pushing back with ``force`` [N m] on the closing side of +X_e."""
@@ -128,6 +138,16 @@ def test_armed_at_the_latest_after_arm_time_max():
     est.velocity = 0.01                                # crawling (blocked by something)
     steps(g, est, ARM_TIME_MAX + 0.01)
     assert g._armed and est.rearms == 1
+
+
+def test_a_finger_that_starts_touching_the_object_takes_that_as_the_contact():
+    """Held up from the start by a push on the closing side (it never got going): at
+    ARM_TIME_MAX the contact is the object's, not the model starting to move."""
+    g = make()
+    est = Est()
+    est.touch(0.02)
+    steps(g, est, ARM_TIME_MAX + DT, move=False)
+    assert g.phase == 'contact' and g.contact and est.rearms == 0
 
 
 def test_contact_on_the_closing_side_starts_the_contact_phase():
@@ -251,8 +271,11 @@ def test_force_beyond_max_force_aborts():
 def test_release_request_ramps_down_then_canceled():
     g, est, _ = run_to_hold()
     g.request_release('released by the client')
+    g.update(est, 0.0)
+    assert est.frozen and est.contact                # the estimator's fit stops meanwhile
     out = finish_release(g, est)
-    assert out[0] < 0.5 and out[-1] == 0.0
+    assert out[0] < 0.5 and out[-1] == 0.0 and not est.frozen and not est.contact
+    assert g.estimate == 'the object'                # taken before the estimator lets go
     assert g.outcome == 'canceled' and g.message == 'released by the client'
     g.request_release('again')                      # no effect once done
     g.update(est, 0.0)

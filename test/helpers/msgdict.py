@@ -76,4 +76,12 @@ def sample_messages():
     status.endpoint_velocity_estimate = [-1.0, float('nan')]
     status.dahl_force = [0.032, -0.031999]
     status.fault = ['', 'torque 7.5 N m beyond max_torque 5 N m']
+    status.contact = [False, True]
+    status.contact_position = [float('nan'), 0.2125]
+    status.contact_force = [1e-5, 0.5]
+    status.object_stiffness = [float('nan'), 4.75]
+    status.object_stiffness_sigma = [float('nan'), float('inf')]
+    status.object_damping = [float('nan'), -0.0021]
+    status.object_damping_sigma = [float('nan'), 0.012]
+    status.grasp_phase = ['', 'hold']
     return {'actuator_state': state, 'actuator_command': command, 'controller_status': status}
