@@ -7,7 +7,10 @@ Prints, in one run:
   implementation of the same computation (per-sample array construction and
   matrix products) measured in the same run;
 * wall time of a 60 s closed-loop simulation at 2 kHz with ``run_closed_loop``
-  (goal <= 3 s) next to the same loop built from the naive pieces.
+  (goal <= 3 s) next to the same loop built from the naive pieces;
+* the contact estimator and the grasp logic per cycle (goal <= 5 us mean), over a recorded
+  grasp (approach, contact, squeeze, probe, hold), next to the controller update without the
+  estimator measured in the same run, and their ratio.
 
 Timing figures are printed, never asserted.
 
@@ -23,6 +26,9 @@ import numpy as np
 
 from seaforce_ros.core import (MODES, ChannelController, ChannelSimulator, ControllerConfig,
                                DahlParams, PlantParams, position_sine, run_closed_loop)
+from seaforce_ros.core.environment import contact_object
+from seaforce_ros.core.estimator import ContactEstimator
+from seaforce_ros.core.grasp import Grasp, GraspGoal
 from seaforce_ros.core.simulator import discretise
 
 DT = 5e-4
@@ -177,7 +183,63 @@ def main():
     print("\n60 s closed-loop simulation at 2 kHz, dob_full_ff, recording (goal <= 3 s):")
     print(f"  run_closed_loop               {wall:6.2f} s  ({60.0 / wall:5.1f}x real time)")
     print(f"  naive numpy baseline          {wall_naive:6.2f} s  ({60.0 / wall_naive:5.1f}x real time)")
+    grasp_rows()
     return 0
+
+
+def record_grasp():
+    """A grasp on the simulator (object k = 2 N m/rad at 0.1 rad): per sample the controller's
+    inputs (x, v, f_p), its X_e_hat, V_e_hat and F_d, and the grasp's phase."""
+    sim = ChannelSimulator(PLANT, DAHL, environment=contact_object(0.1, 2.0, 0.06))
+    cfg = ControllerConfig(mode="passive")
+    ctl = ChannelController(cfg)
+    grasp = Grasp(GraspGoal("pinch", 0.3, 0.4, 0.8, True), cfg)
+    ctl.request_grasp(grasp)
+    rows = []
+    m = sim.measurement()
+    while len(rows) < int(2.5 / DT):
+        u = ctl.update(m.x, m.v, m.f_p)
+        rows.append((m.x, m.v, m.f_p, ctl.endpoint_position_estimate,
+                     ctl.endpoint_velocity_estimate, ctl.dahl_force, grasp.phase))
+        m = sim.step(u)
+    assert grasp.phase == "hold", grasp.message
+    return cfg, rows
+
+
+def grasp_rows():
+    cfg, rows = record_grasp()
+    n = len(rows)
+    x, v, fp, xe, ve, fd, phase = (list(c) for c in zip(*rows))
+    # the controller update as it was before the estimator (stubbed out), dob_full_ff
+    plain = ChannelController(ControllerConfig(mode="dob_full_ff"))
+    plain.estimator.update = lambda *args: None
+    t_plain = timed_calls(plain.update, lambda i: (x[i], v[i], fp[i]), n)
+    # the estimator alone, and the estimator + the grasp logic, on the recorded sequence
+    est = ContactEstimator(cfg.estimator, cfg.plant)
+    t_est = timed_calls(est.update, lambda i: (xe[i], fp[i], fd[i]), n)
+    est = ContactEstimator(cfg.estimator, cfg.plant)
+    grasp = Grasp(GraspGoal("pinch", 0.3, 0.4, 0.8, True), cfg)
+    assert grasp.claim()
+    update, g_update = est.update, grasp.update
+
+    def both(i):
+        update(xe[i], fp[i], fd[i])
+        g_update(est, ve[i])
+    t_both = timed_calls(both, lambda i: (i,), n)
+    full = ChannelController(ControllerConfig(mode="passive"))
+    full.request_grasp(Grasp(GraspGoal("pinch", 0.3, 0.4, 0.8, True), cfg))
+    t_full = timed_calls(full.update, lambda i: (x[i], v[i], fp[i]), n)
+    contact = np.array([p != "approach" for p in phase])
+    print(f"\ncontact estimator + grasp logic per cycle, over a recorded {n * DT:.1f} s grasp "
+          f"({np.mean(contact) * 100:.0f} % of it in contact) (goal <= 5 us mean):")
+    print(f"  controller update, dob_full_ff, without estimator  {fmt(t_plain)}")
+    print(f"  ContactEstimator.update                           {fmt(t_est)}")
+    print(f"    free motion / in contact (mean)                 {np.mean(t_est[~contact]):6.2f} us"
+          f" / {np.mean(t_est[contact]):6.2f} us")
+    print(f"  estimator + Grasp.update                          {fmt(t_both)}")
+    print(f"  controller update with a grasp (everything)       {fmt(t_full)}")
+    print(f"  (estimator + grasp) / controller update without estimator: "
+          f"{np.mean(t_both) / np.mean(t_plain):.2f}")
 
 
 if __name__ == "__main__":

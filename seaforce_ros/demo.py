@@ -15,6 +15,7 @@ started, also on Ctrl-C or an error.
 
 Usage: python -m seaforce_ros.demo [--out DIR] [--periods N] [--amplitude RAD]
        [--frequency RAD_S] [--lockstep]
+       python -m seaforce_ros.demo grasp [...]   (the grasping demo: seaforce_ros.grasp_demo)
 """
 from __future__ import annotations
 
@@ -66,6 +67,12 @@ class Children:
         proc.log_path = self.log_dir / f'{name}.log'
         self.procs.append(proc)
         return proc
+
+    def check(self):
+        """RuntimeError if a node has exited."""
+        for proc in self.procs:
+            if proc.poll() is not None:
+                raise RuntimeError(f'{proc.args[0]} exited; see {proc.log_path}')
 
     def stop_all(self):
         for proc in self.procs:
@@ -198,6 +205,10 @@ def plot(results, path, amplitude):
 
 
 def main(argv=None):
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ['grasp']:
+        from .grasp_demo import main as grasp_main
+        return grasp_main(argv[1:])
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--out', default='out/demo', help='output directory (PNG, logs)')
     parser.add_argument('--periods', type=int, default=1,
@@ -239,9 +250,7 @@ def main(argv=None):
         print('[demo] waiting for the closed loop to come up ...', flush=True)
         deadline = time.monotonic() + 60
         while observer.latest_cycle() is None or not observer.modes:
-            for proc in children.procs:
-                if proc.poll() is not None:
-                    raise RuntimeError(f'{proc.args[0]} exited; see {proc.log_path}')
+            children.check()
             if time.monotonic() > deadline:
                 raise RuntimeError('no actuator_state/controller_status within 60 s')
             time.sleep(0.1)
@@ -262,9 +271,7 @@ def main(argv=None):
             print(f'[demo] {mode:14s} measuring cycles {first}..{last} '
                   f'({(last - first + 1) * DT:.1f} s of drive)', flush=True)
             while (observer.latest_cycle() or 0) < last:
-                for proc in children.procs:
-                    if proc.poll() is not None:
-                        raise RuntimeError(f'{proc.args[0]} exited; see {proc.log_path}')
+                children.check()
                 time.sleep(0.1)
             window = observer.window(first, last)
             results[mode] = (window, measure(window, args.frequency, args.amplitude))

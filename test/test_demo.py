@@ -46,3 +46,28 @@ def test_demo_prints_the_table_writes_the_png_and_stops_its_nodes(processes, tmp
     assert png.stat().st_size > 20_000
     # every process the demo started has ended (they carry the marker in their environment)
     assert _processes_with_marker(marker) == []
+
+
+def test_grasp_demo_measures_three_objects_and_stops_its_nodes(processes, tmp_path):
+    """`scripts/demo grasp`: three simulated objects (soft, medium, stiff; the plant 10-20 %
+    off the model) grasped over ROS; a table row each, a plot each, every process ended."""
+    out = tmp_path / 'grasp'
+    marker = f'SEAFORCE_DEMO_TEST={uuid.uuid4().hex}'
+    env = dict(os.environ)
+    env[marker.split('=')[0]] = marker.split('=')[1]
+    demo = processes.start([str(ROOT / 'scripts' / 'demo'), 'grasp', '--out', str(out)],
+                           name='demo_grasp', env=env)
+    code = demo.wait(timeout=300)
+    text = demo.output()
+    assert code == 0, text
+    for name in ('soft', 'medium', 'stiff'):
+        row = re.search(rf'^{name}\s+(\d+\.\d+)\s+(\d+\.\d+)\s+(\d+\.\d+)\s+(\d+\.\d+)'
+                        rf'\s+(-?\d+\.\d+)\s+(\d+\.\d+)\s+(\d+\.\d)\s+(\d+\.\d+)\s+(\d+\.\d+)$',
+                        text, re.M)
+        assert row, f'no table row for {name}:\n{text}'
+        k, k_hat, k_sigma = (float(row.group(i)) for i in (1, 2, 3))
+        assert abs(k_hat - k) <= 2.5 * k_sigma, row.group(0)
+        png = out / f'grasp_{name}.png'
+        assert png.is_file() and png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    assert re.search(r'grip held within \d+\.\d %', text), text
+    assert _processes_with_marker(marker) == []

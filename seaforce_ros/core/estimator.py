@@ -150,10 +150,10 @@ class ContactEstimator:
         e = scipy.linalg.expm(a_c * dt)
         self._coef = (float(e[0, 0]), float(e[0, 1]), float(e[0, 2]),
                       float(e[1, 0]), float(e[1, 1]), float(e[1, 2]))
-        self._me, self._be, self._ke = (plant.endpoint_inertia, plant.endpoint_damping,
-                                        plant.endpoint_stiffness)
+        self._be, self._ke = plant.endpoint_damping, plant.endpoint_stiffness
         # y = f1 + k_e (p - rest) + b_e q + m_e (q - q_prev)/T, constants folded
-        self._model = (self._ke, self._be, self._me / dt, self._ke * self._rest)
+        self._model = (self._ke, self._be, plant.endpoint_inertia, self._ke * self._rest,
+                       1.0 / dt)
         wb = 1.0 / params.baseline_time
         self._alpha = 2.0 * wb * dt
         self._beta = (wb * dt) ** 2
@@ -165,7 +165,6 @@ class ContactEstimator:
         self._moving = params.min_velocity_excitation ** 2
         # samples of the filtered residual per independent sample (its correlation time)
         self._kappa = max(1.0, 1.0 / (2.0 * params.filter_cutoff * dt))
-        self._inv_dt = 1.0 / dt
 
     def reset(self):
         """Forget everything: no contact, no fit; the next :meth:`update` starts the filters
@@ -248,10 +247,9 @@ class ContactEstimator:
                 p, q = a11 * p + a12 * q + b1 * xe, a21 * p + a22 * q + b2 * xe
                 f1, f2 = a11 * f1 + a12 * f2 + b1 * g, a21 * f1 + a22 * f2 + b2 * g
         self.position, self.velocity, self._f1, self._f2 = p, q, f1, f2
-        ke, be, me_dt, ke_rest = self._model
-        acc = (q - q0) / steps
-        y = f1 + ke * p - ke_rest + be * q + me_dt * acc
-        r = y - self.bias
+        ke, be, me, ke_rest, inv_dt = self._model
+        acc = (q - q0) * inv_dt / steps
+        r = f1 + ke * p - ke_rest + be * q + me * acc - self.bias
         self.force = r
         if self._frozen:
             return
@@ -262,13 +260,14 @@ class ContactEstimator:
                 self._below += steps
                 if self._below >= self._loss_samples:
                     self._end_contact()
-                return
-            self._below = 0
-            if self._skip:
+            elif self._skip:
                 self._skip -= 1
+                self._below = 0
             else:
+                if self._below:
+                    self._below = 0
                 block = self._block
-                block.extend((p - self._p0, q, acc * self._inv_dt, 1.0, -f1, fd))
+                block.extend((p - self._p0, q, acc, 1.0, -f1, fd))
                 if len(block) == _BLOCK_VALUES:
                     self._fold()
         elif r > self._on or r < -self._on:
@@ -284,9 +283,8 @@ class ContactEstimator:
         else:
             # critically damped tracker of the bias and its drift (a slowly changing model
             # error, k_e's for one, drifts with the position): no lag on a steady drift
-            error = y - self.bias
-            self.bias += self._drift * steps + self._alpha * error
-            self._drift += self._beta * error
+            self.bias += self._drift * steps + self._alpha * r
+            self._drift += self._beta * r
 
     def _end_contact(self):
         if self._block:

@@ -195,6 +195,8 @@ class Grasp:
         self._amp = (min(params.probe_amplitude * self._grip, 0.5 * (self._max - self._grip))
                      if goal.probe else 0.0)
         self._timeout = 2.0 * params.max_travel / abs(v) + 1.0
+        self._damping = params.contact_damping
+        self._hold_command = self._sign * self._grip
         self.phase = "approach"
         self.outcome = None
         self.message = "approaching"
@@ -205,8 +207,7 @@ class Grasp:
         self.contact_time = math.nan
         self.grip_force = math.nan
         self.estimate = None
-        self._t = 0.0              # time in the phase [s]
-        self._time = 0.0           # time since the start [s]
+        self._t = 0.0              # time in the phase [s] (approach: since the start)
         self._armed = False
         self._steady = 0.0         # time within 15 % of the approach speed, or still [s]
         self._integral = 0.0       # the approach servo's integral action [N m]
@@ -290,8 +291,18 @@ class Grasp:
             self._release_request = None
         elapsed = self.dt * steps
         self._t += elapsed
-        self._time += elapsed
         phase = self.phase
+        if phase == "hold" and est.contact:
+            # the common case, kept short: the grip, averaged; checks as below
+            c = -self._sign * est.force
+            if c <= self._max:
+                grip = self.grip_force
+                self.grip_force = c if grip != grip else \
+                    grip + self._hold_alpha * steps * (c - grip)
+                pushed = self._hold_command - est.bias
+                self._pushed = pushed
+                self._output = output = pushed - self._damping * ve
+                return output
         if phase == "release":
             est.freeze()
             ramp = self.params.release_time
@@ -311,7 +322,7 @@ class Grasp:
             self.force_command = self._release_contact * scale
             # the damper stays: the object unloads the finger gently (a finger at minimum
             # impedance let go of a squeezed object would fly open)
-            self._output = self._release_from * scale - self.params.contact_damping * ve
+            self._output = self._release_from * scale - self._damping * ve
             return self._output
         if phase == "done":
             self.force_command = self._output = self._pushed = 0.0
@@ -350,18 +361,15 @@ class Grasp:
             if t >= p.probe_duration:
                 self._enter("hold")
                 self.message = "holding"
-        else:   # hold
+        else:   # hold (its first sample; then the short path above)
             f = self._grip
-            if self.grip_force != self.grip_force:       # NaN: first hold sample
-                self.grip_force = c
-            else:
-                self.grip_force += self._hold_alpha * steps * (c - self.grip_force)
+            self.grip_force = c
         f = min(max(f, 0.0), self._max)
         self.force_command = s * f
         # the model's free-motion error (the estimator's bias) shifts the real contact force:
         # command it away; the damper keeps a stiff contact from ringing
         self._pushed = s * f - est.bias
-        self._output = self._pushed - p.contact_damping * ve
+        self._output = self._pushed - self._damping * ve
         return self._output
 
     def _approach(self, est, s, steps):
@@ -389,7 +397,7 @@ class Grasp:
                 self.release("pushed from the side away from the object: no grasp", "aborted")
                 return 0.0
             self.contact = True
-            self.contact_time = self._time
+            self.contact_time = self._t
             self.message = "contact"
             self._enter("contact")
             return 0.0
