@@ -59,6 +59,7 @@ class Children:
     def __init__(self, log_dir: pathlib.Path):
         self.log_dir = log_dir
         self.procs: List[subprocess.Popen] = []
+        self.observers = []              # closed (before the processes stop) by stop_all
 
     def start(self, argv, name):
         log = open(self.log_dir / f'{name}.log', 'wb')
@@ -75,6 +76,8 @@ class Children:
                 raise RuntimeError(f'{proc.args[0]} exited; see {proc.log_path}')
 
     def stop_all(self):
+        for observer in self.observers:
+            observer.close()
         for proc in self.procs:
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
@@ -204,6 +207,29 @@ def plot(results, path, amplitude):
     plt.close(fig)
 
 
+def run_guarded(label, out, work):
+    """``work(children)`` -> exit code, with the demos' hygiene: SIGTERM is an interrupt, every
+    node started through ``children`` is ended by its PID (observers it lists closed first),
+    an error is one line and exit code 1, Ctrl-C 130."""
+    children = Children(out)
+
+    def on_signal(signum, frame):
+        raise KeyboardInterrupt
+    signal.signal(signal.SIGTERM, on_signal)
+    print(f'[{label}] ROS_DOMAIN_ID={os.environ.get("ROS_DOMAIN_ID", "0")}; logs in {out}/',
+          flush=True)
+    try:
+        return work(children)
+    except KeyboardInterrupt:
+        print(f'[{label}] interrupted; stopping the nodes', file=sys.stderr)
+        return 130
+    except (RuntimeError, ValueError) as exc:
+        print(f'[{label}] failed: {exc}', file=sys.stderr)
+        return 1
+    finally:
+        children.stop_all()
+
+
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv[:1] == ['grasp']:
@@ -232,21 +258,16 @@ def main(argv=None):
         f'    {CHANNEL}.environment.mode: position_sine\n'
         f'    {CHANNEL}.environment.amplitude: {args.amplitude}\n'
         f'    {CHANNEL}.environment.frequency: {args.frequency}\n')
-    children = Children(out)
-    observer = None
     period_cycles = int(math.ceil(2 * math.pi / args.frequency / DT)) + 1
 
-    def on_signal(signum, frame):
-        raise KeyboardInterrupt
-    signal.signal(signal.SIGTERM, on_signal)
-    print(f'[demo] ROS_DOMAIN_ID={os.environ.get("ROS_DOMAIN_ID", "0")}; logs in {out}/', flush=True)
-    try:
+    def work(children):
         for name in ('sim_node', 'controller_node'):
             argv_node = [str(lib / name), '--ros-args', '--params-file', str(config)]
             if name == 'sim_node':
                 argv_node += ['--params-file', str(overrides)]
             children.start(argv_node, name)
         observer = Observer()
+        children.observers.append(observer)
         print('[demo] waiting for the closed loop to come up ...', flush=True)
         deadline = time.monotonic() + 60
         while observer.latest_cycle() is None or not observer.modes:
@@ -283,16 +304,8 @@ def main(argv=None):
         plot(results, png, args.amplitude)
         print(f'\nwork loops: {png}')
         return 0
-    except KeyboardInterrupt:
-        print('[demo] interrupted; stopping the nodes', file=sys.stderr)
-        return 130
-    except (RuntimeError, ValueError) as exc:
-        print(f'[demo] failed: {exc}', file=sys.stderr)
-        return 1
-    finally:
-        if observer is not None:
-            observer.close()
-        children.stop_all()
+
+    return run_guarded('demo', out, work)
 
 
 def report(results, args):

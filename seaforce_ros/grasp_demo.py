@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import os
 import pathlib
-import signal
 import sys
 import threading
 import time
@@ -27,7 +26,7 @@ import time
 import numpy as np
 import yaml
 
-from .demo import Children, _package_paths
+from .demo import _package_paths, run_guarded
 
 CHANNEL = 'pinch'
 DT = 5e-4
@@ -253,20 +252,14 @@ def main(argv=None):
     overrides = out / 'grasp-overrides.yaml'
     overrides.write_text(yaml.safe_dump({'/**/sim': {'ros__parameters': sim},
                                          '/**/controller': {'ros__parameters': controller}}))
-    children = Children(out)
-    observer = None
 
-    def on_signal(signum, frame):
-        raise KeyboardInterrupt
-    signal.signal(signal.SIGTERM, on_signal)
-    print(f'[demo grasp] ROS_DOMAIN_ID={os.environ.get("ROS_DOMAIN_ID", "0")}; logs in {out}/',
-          flush=True)
-    try:
+    def work(children):
         names = ('sim_node', 'controller_node') if args.lockstep else ('bringup',)
         for name in names:
             children.start([str(lib / name), '--ros-args', '--params-file', str(config),
                             '--params-file', str(overrides)], name)
         observer = Observer()
+        children.observers.append(observer)
         print('[demo grasp] waiting for the closed loop and the grasp action ...', flush=True)
         deadline = time.monotonic() + 60.0
         while not observer.status or not observer.action.server_is_ready():
@@ -285,16 +278,8 @@ def main(argv=None):
         print('\nforce-position plots: ' + ', '.join(str(out / f'grasp_{n}.png')
                                                    for n, _, _ in OBJECTS))
         return 0
-    except KeyboardInterrupt:
-        print('[demo grasp] interrupted; stopping the nodes', file=sys.stderr)
-        return 130
-    except (RuntimeError, ValueError) as exc:
-        print(f'[demo grasp] failed: {exc}', file=sys.stderr)
-        return 1
-    finally:
-        if observer is not None:
-            observer.close()
-        children.stop_all()
+
+    return run_guarded('demo grasp', out, work)
 
 
 if __name__ == '__main__':

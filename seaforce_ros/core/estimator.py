@@ -1,8 +1,8 @@
 """Online contact detection and object impedance estimation, from motor state and pressure only.
 
-The paper's future work (Section VI): estimate the environment impedance continuously, here the
-stiffness and damping of a grasped object, with nothing but the motor position X, the hose
-pressure force F_p and the model.
+The paper's future work (Section VI): estimate the environment impedance continuously -- here
+the stiffness and damping of a grasped object -- with nothing but the motor position X, the
+hose pressure force F_p and the model.
 
 Signals (motor frame). The controller's hose inversion gives the endpoint position X_e_hat
 (eq. 29, :mod:`.controller`) and the Dahl force F_d. The external force follows from the
@@ -13,39 +13,46 @@ endpoint model::
 Every signal is seen through one second-order state-variable filter
 ``H(s) = w^2 / (s^2 + 2 zeta w s + w^2)`` (Butterworth, ``w = 2 pi filter_cutoff``, exact
 discretisation for an input held over each sample period): its two states are ``H X_e_hat``
-and ``s H X_e_hat`` (a filtered position and an exact filtered velocity), and ``s^2 H X_e_hat``
-is the mean slope of the second over the last period (half a sample late, which is nothing at
-the frequencies of a grasp), so no noisy signal is differentiated; ``H (F_p + F_d)`` is a
-second filter with the same coefficients. Filtering both
-sides of a linear relation with the same ``H`` keeps the relation, with the pressure noise and
-the hose mode (173 rad/s) removed.
+and ``s H X_e_hat`` (a filtered position and an exact filtered velocity), ``s^2 H X_e_hat`` is
+the mean slope of the second over the last period (half a sample late: nothing at a grasp's
+frequencies), so no noisy signal is differentiated; ``H (F_p + F_d)`` is a second filter with
+the same coefficients. Filtering both sides of a linear relation with the same ``H`` keeps the
+relation and removes the pressure noise and the hose mode (173 rad/s).
 
-Contact detection: the residual ``r = H F_e_hat - bias`` where ``bias`` tracks ``H F_e_hat``
+Contact detection: the residual ``r = H F_e_hat - bias``, where ``bias`` tracks ``H F_e_hat``
 while there is no contact (the model's error in free motion: a 15 % wrong model leaves ~0.01
-N m) with a critically damped second-order tracker of time constant ``baseline_time`` (bias and
-drift: the error drifts as k_e's error times the distance travelled, and a steady drift leaves
-no lag); a contact starts when ``|r| > contact_threshold`` and ends when ``r`` (in the
-contact's direction) stays below half of it for :data:`LOSS_TIME` (samples below it are not
-fitted). A contact whose force rises slower than about
-``e contact_threshold / baseline_time`` is absorbed by the tracker instead.
-The contact position is where the filtered endpoint was at the start (the filter delays
-position and force alike), replaced by the fit's ``x_c`` once the stiffness is reported.
+N m) with a critically damped second-order tracker of time constant ``baseline_time`` (bias
+and drift: the error drifts with the distance travelled, k_e's error times it, and a steady
+drift leaves no lag). A contact starts when ``|r| > contact_threshold`` and ends when ``r``
+(in the contact's direction) stays below half of it for :data:`LOSS_TIME` (samples below it
+are not fitted). A contact whose force rises slower than about ``e contact_threshold /
+baseline_time`` is absorbed by the tracker instead. The contact position is where the
+filtered endpoint was at the start (the filter delays position and force alike), replaced by
+the fit's ``x_c`` once the stiffness is reported. The model's error depends on the direction of
+motion (the Dahl force's error flips): a contact is only ended reliably by a residual that
+falls below half the threshold, so a grasp :meth:`ContactEstimator.freeze` s the estimator
+while it lets go and declares the contact over with :meth:`ContactEstimator.let_go`.
 
 Fit: exponentially weighted least squares (recursive least squares with forgetting, kept in
-information form) of the Kelvin-Voigt object ``F_e = -(k_o (X_e - x_c) + b_o V_e)`` plus an
+information form) of the Kelvin-Voigt object ``F_e = -(k_o (X_e - x_c) + b_o V_e)``, plus an
 inertia term that absorbs the error of m_e (at a few Hz m_e w^2 is as large as a soft
 object's stiffness)::
 
     -H(F_p + F_d) = (k_o + k_e) H X_e + (b_o + b_e) s H X_e + (m_x + m_e) s^2 H X_e + c
 
-Why this and not a Kalman filter: the object does not change during a grasp (there is no
-process model to give a Kalman filter), the dominant error is the plant model's bias, not white
-noise (so a Kalman filter's noise model would be wrong and its covariance no honest 1-sigma),
-and the information form costs one outer product per sample -- the samples are kept and the products
-of :data:`BLOCK` of them formed in one numpy call -- and solves the 4x4 normal equations only when an
-estimate is read. Forgetting (time constant ``forgetting_time``) acts only on blocks in which
-the finger moved: information is never lost while the finger is still, so a held object keeps
-its estimate and the information matrix cannot wind up.
+It starts :data:`_SETTLE_DELAYS` filter group delays after the contact starts (the filters
+then hold no free-motion samples). A regressor that never varied (a press at constant speed:
+no acceleration, no velocity change) leaves its term out rather than the whole fit.
+
+Why least squares with forgetting and not a Kalman filter: the object does not change during a
+grasp (there is no process model to give a Kalman filter), the dominant error is the plant
+model's bias, not white noise (so a Kalman filter's noise model would be wrong and its
+covariance no honest 1-sigma), and the information form costs little per sample -- the samples
+are kept and the products of :data:`BLOCK` of them formed in one numpy call -- and solves the
+4x4 normal equations only when an estimate is read. Forgetting (time constant
+``forgetting_time``) acts only on blocks in which the finger moved: information is never lost
+while the finger is still, so a held object keeps its estimate and the information matrix
+cannot wind up.
 
 Excitation: the part of the endpoint motion that only the stiffness (the damping) can
 explain, as an rms over the forgetting time: ``sqrt(T / (forgetting_time [G^-1]_kk))``. No
@@ -53,13 +60,13 @@ stiffness (damping) is reported below ``min_position_excitation`` (``min_velocit
 NaN instead, never a guess.
 
 1-sigma: the statistical part (residual variance times ``[G^-1]_ii``, the samples counted per
-correlation time of the filter) plus the model part: first-order sensitivities of the
-estimates to a relative error ``model_uncertainty`` of k_e and b_e (in the regression they
-shift k_o and b_o one to one), of the hose k_s and b_s (the object hides behind the hose: the
-estimator sees ``W_hat = W/(1 - W delta(s))``, ``W = k_o + k_e + s (b_o + b_e)``, ``delta`` the
-error of the modelled hose compliance; the truth is recovered at the corners k_s (1 +- u),
-b_s (1 +- u) and the largest change taken: one-sided and unbounded for an object as stiff as
-the hose, :func:`_hose_sensitivity`) and of the Dahl force (regressed on the fit's regressors).
+correlation time of the filter) plus the model part, the sensitivities of the estimates to a
+relative error ``model_uncertainty`` (u) of: k_e and b_e (in the regression they shift k_o and
+b_o one to one); the hose k_s and b_s (the object hides behind the hose: the estimator sees
+``W_hat = W/(1 - W delta(s))``, ``W = k_o + k_e + s (b_o + b_e)``, ``delta`` the error of the
+modelled hose compliance; the truth is recovered at the corners k_s (1 +- u), b_s (1 +- u)
+and the largest change taken -- one-sided, and unbounded for an object as stiff as the hose:
+:func:`_hose_sensitivity`); and the Dahl force (regressed on the fit's regressors).
 """
 
 import math

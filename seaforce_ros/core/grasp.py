@@ -2,11 +2,11 @@
 
 :class:`Grasp` decides, per sample, the endpoint force ``F_g`` [N m] the channel's controller
 renders through the DOB on top of the endpoint friction feed-forward (``F_ref = F_cmp + F_d
-+ F_g``, the minimum-impedance mode ``dob_full_ff`` plus a force): ``F_g`` is what the finger
++ F_g``: the minimum-impedance mode ``dob_full_ff`` plus a force): ``F_g`` is what the finger
 pushes the object with. Plain Python with explicit state, no ROS; the contact and the object
 come from :class:`~.estimator.ContactEstimator`. Signs: ``s = sign(closing_velocity)``; the
-finger closes towards ``s X_e`` and pushes with ``F_g = s f``, the object pushes back with
-``F_e = -s c`` (``c`` the contact force, > 0).
+finger closes towards ``s X_e`` and pushes with the contact force ``f`` (``F_g = s f``), the
+object pushes back with ``F_e = -s c`` (``c`` the contact force estimate, > 0).
 
 Phases:
 
@@ -16,32 +16,42 @@ Phases:
   takes up what the friction model misses, and it never pushes harder than
   ``approach_force`` (it feels the object instead of hitting it). ``B`` sets the loop's
   cross-over ``B/(m_n + m_e)``, well below the DOB's lambda and the estimator's filter. The
-  contact detection is armed once the finger moves steadily: beyond the Dahl transition
+  contact detection is armed once the finger moves steadily -- beyond the Dahl transition
   (:data:`ARM_DAHL` F_c/sigma of travel: the hysteresis model's error changes until then) and
-  after :data:`ARM_TIME` within 15 % of the commanded speed (the model's error changes with the
-  speed) -- or after :data:`ARM_TIME_MAX` -- when the estimator's bias is re-captured; a contact on the closing
-  side then ends the approach (an object closer than that to the start is not detected). No contact within ``max_travel`` (or
+  for :data:`ARM_TIME` within 15 % of the commanded speed (the model's error changes with the
+  speed) -- or after :data:`ARM_TIME_MAX`; then the estimator's bias is re-captured, unless the
+  finger is held up by a contact on the closing side (it started touching the object: that is
+  the contact). A contact on the closing side ends the approach; an object closer to the start
+  than the arming distance is not detected. No contact within ``max_travel`` (or
   ``2 max_travel/|v_cmd| + 1 s``): aborted.
 * ``contact`` -- ``f = approach_force`` for :data:`CONTACT_TIME` (the touch settles).
 * ``squeeze`` -- ``f`` ramps (raised cosine) to ``grip_force`` in ``squeeze_time``.
 * ``probe`` (if the goal asks for it) -- ``f = grip_force + A w(t) sin(phi(t))``, a log chirp
-  from ``probe_start_frequency`` to ``probe_end_frequency`` in ``probe_duration`` with a
-  raised-cosine envelope w; ``A = min(probe_amplitude grip_force, (max_force - grip_force)/2)``
+  from ``probe_start_frequency`` to ``probe_end_frequency`` in ``probe_duration`` under a
+  raised-cosine window w; ``A = min(probe_amplitude grip_force, (max_force - grip_force)/2)``
   (the probe uses at most half of the head-room to ``max_force``).
 * ``hold`` -- ``f = grip_force`` until the goal is released.
+
+From ``contact`` on, ``F_g = s f - bias - B_c V_e_hat``: the estimator's free-motion bias (the
+friction model's error, measured while approaching) is commanded away, so the real contact
+force is ``f`` despite the model's error, and ``B_c = contact_damping`` damps the contact (a
+pure force source against a stiff object rings, the more so with a wrong model; a soft object
+settles with ``(b_o + B_c)/k_o``).
+
 * ``release`` -- ``F_g`` ramps to zero in ``release_time`` (cancel, or an abort: the
   estimated contact force beyond ``max_force``, the contact lost, no contact found), then
-  stays zero, the contact damper still on, until the finger is still (the object relaxed it:
-  the filtered V_e below :data:`STILL_SPEED` for :data:`STILL_TIME`, at most
+  stays zero, the contact damper still on, until the finger is still (the object has relaxed
+  it: the filtered V_e below :data:`STILL_SPEED` for :data:`STILL_TIME`, at most
   :data:`RELAX_TIME_MAX`); then the grasp is ``done`` and the controller returns to the mode
   the channel had before, bumplessly from a torque that holds no grip and no push-back (a
   ``hold`` entered straight from the ramp would capture the object's push-back as its bias).
-  The estimator's fit is frozen meanwhile (:meth:`~.estimator.ContactEstimator.freeze`: the
-  release is not a sample of the object) and the contact declared over at the end.
+  The estimator's fit is frozen meanwhile (the release is not a sample of the object) and the
+  contact declared over at the end.
 
-The commanded ``f`` never exceeds ``max_force`` and never leaves ``[0, max_force]`` in any
-phase. :meth:`abort_now` ends a grasp at once (the cycle has already zeroed the torque: a fault
-or a re-initialisation); nothing is commanded after it.
+The commanded contact force ``f`` never leaves ``[0, max_force]`` in any phase (the approach's
+push never exceeds ``approach_force``). :meth:`Grasp.abort_now` ends a grasp at once (the
+cycle has already zeroed the torque: a fault or a re-initialisation); nothing is commanded
+after it.
 
 Threads: the cycle thread runs :meth:`Grasp.update`, :meth:`Grasp.claim` (when it takes the
 grasp over) and :meth:`Grasp.abort_now`; another thread (the action server) may call
