@@ -21,12 +21,14 @@ relation and removes the pressure noise and the hose mode (173 rad/s).
 
 Contact detection: the residual ``r = H F_e_hat - bias``, where ``bias`` tracks ``H F_e_hat``
 while there is no contact (the model's error in free motion: a 15 % wrong model leaves ~0.01
-N m) with a critically damped second-order tracker of time constant ``baseline_time`` (bias
-and drift: the error drifts with the distance travelled, k_e's error times it, and a steady
-drift leaves no lag). A contact starts when ``|r| > contact_threshold`` and ends when ``r``
-(in the contact's direction) stays below half of it for :data:`LOSS_TIME` (samples below it
-are not fitted). A contact whose force rises slower than about ``e contact_threshold /
-baseline_time`` is absorbed by the tracker instead. The contact position is where the
+N m) with a critically damped second-order tracker (bias and drift: the error drifts with the
+distance travelled, k_e's error times it, and a steady drift leaves no lag) whose time
+constant is ``baseline_time`` or the time to travel ``baseline_distance``, whichever is
+shorter (a fast finger's error drifts fast; a contact's force rises with the distance too, so
+the distance decides what is absorbed: an object softer than about ``e contact_threshold /
+baseline_distance``, ~0.04 N m/rad). A contact starts when ``|r| > contact_threshold`` and
+ends when ``r`` (in the contact's direction) stays below half of it for :data:`LOSS_TIME`
+(samples below it are not fitted). The contact position is where the
 filtered endpoint was at the start (the filter delays position and force alike), replaced by
 the fit's ``x_c`` once the stiffness is reported. The model's error depends on the direction of
 motion (the Dahl force's error flips): a contact is only ended reliably by a residual that
@@ -81,6 +83,8 @@ __all__ = ["ContactEstimator", "ObjectEstimate", "NO_ESTIMATE", "BLOCK", "LOSS_T
 
 #: A contact ends when the residual stays below half the threshold this long [s].
 LOSS_TIME = 0.02
+#: Averaging time of the residual a re-captured bias takes [s].
+RECENT = 0.02
 #: Samples accumulated per block of the fit (one numpy outer product per block).
 BLOCK = 128
 _BLOCK_VALUES = 6 * BLOCK
@@ -161,13 +165,13 @@ class ContactEstimator:
         # y = f1 + k_e (p - rest) + b_e q + m_e (q - q_prev)/T, constants folded
         self._model = (self._ke, self._be, plant.endpoint_inertia, self._ke * self._rest,
                        1.0 / dt)
-        wb = 1.0 / params.baseline_time
-        self._alpha = 2.0 * wb * dt
-        self._beta = (wb * dt) ** 2
+        self._rate_time = dt / params.baseline_time             # per sample
+        self._rate_distance = dt / params.baseline_distance     # per rad/s, per sample
         self._on = params.contact_threshold
         self._off = 0.5 * params.contact_threshold
         self._settle = int(math.ceil(_SETTLE_DELAYS * 2.0 * _ZETA / (w * dt)))
         self._loss_samples = max(1, int(round(LOSS_TIME / dt)))
+        self._recent_alpha = -math.expm1(-dt / RECENT)
         self._block_decay = math.exp(-BLOCK * dt / params.forgetting_time)
         self._moving = params.min_velocity_excitation ** 2
         # samples of the filtered residual per independent sample (its correlation time)
@@ -187,6 +191,7 @@ class ContactEstimator:
         self._f1 = self._f2 = 0.0
         self.bias = 0.0
         self._drift = 0.0            # the bias's drift per sample [N m]
+        self._recent = 0.0           # the residual averaged over RECENT s
         self._frozen = False         # between freeze() and let_go()
         self._clear_fit()
 
@@ -200,18 +205,25 @@ class ContactEstimator:
         self._p0 = 0.0
 
     def rearm(self):
-        """Declare the present motion free: the present residual becomes the free-motion bias
-        and a contact the residual may have started is dropped with its fit (a finger that has
-        just started moving: its model error changes faster than the baseline tracks)."""
+        """Declare the present motion free: the residual of the last :data:`RECENT` s becomes
+        the free-motion bias and a contact the residual may have started is dropped with its
+        fit (a finger that has just started moving: its model error changes faster than the
+        baseline tracks)."""
         if self.contact:
             self.contact = False
             self.direction = 0
             self.contacts -= 1
             self.onset_position = self._onset_before
             self._clear_fit()
-        self.bias += self.force
+        self._take_bias()
+
+    def _take_bias(self):
+        """The residual's recent mean (not one noisy sample) becomes part of the bias."""
+        recent = self._recent
+        self.bias += recent
+        self.force -= recent
+        self._recent = 0.0
         self._drift = 0.0
-        self.force = 0.0
 
     def freeze(self):
         """Stop fitting and detecting (the fit stays as it is): a grasp letting go of its
@@ -223,15 +235,13 @@ class ContactEstimator:
                 self._fold()
 
     def let_go(self):
-        """End a :meth:`freeze`: the contact, if any, is over (its fit is kept) and the present
+        """End a :meth:`freeze`: the contact, if any, is over (its fit is kept) and the recent
         residual is the free-motion bias."""
         self._frozen = False
         if self.contact:
             self.contact = False
             self.direction = 0
-        self.bias += self.force
-        self._drift = 0.0
-        self.force = 0.0
+        self._take_bias()
 
     # --- per sample -----------------------------------------------------------------------
     def update(self, xe, fp, fd, steps=1):
@@ -258,6 +268,7 @@ class ContactEstimator:
         acc = (q - q0) * inv_dt / steps
         r = f1 + ke * p - ke_rest + be * q + me * acc - self.bias
         self.force = r
+        self._recent += self._recent_alpha * (r - self._recent)
         if self._frozen:
             return
         if self.contact:
@@ -289,9 +300,14 @@ class ContactEstimator:
             self._below = 0
         else:
             # critically damped tracker of the bias and its drift (a slowly changing model
-            # error, k_e's for one, drifts with the position): no lag on a steady drift
-            self.bias += self._drift * steps + self._alpha * r
-            self._drift += self._beta * r
+            # error, k_e's for one, drifts with the position: no lag on a steady drift), at the
+            # rate of baseline_time or of baseline_distance travelled, whichever is faster
+            w = self._rate_distance * (q if q > 0.0 else -q)
+            if w < self._rate_time:
+                w = self._rate_time
+            w *= steps
+            self.bias += self._drift * steps + 2.0 * w * r
+            self._drift += w * w * r
 
     def _end_contact(self):
         if self._block:

@@ -11,8 +11,8 @@ object pushes back with ``F_e = -s c`` (``c`` the contact force estimate, > 0).
 Phases:
 
 * ``approach`` -- a PI speed servo ``F_g = clamp(B (v_cmd - V_e) + I, +-approach_force)``,
-  ``I' = B w_i (v_cmd - V_e)`` (``w_i`` = :data:`APPROACH_INTEGRAL`, ``I`` clamped to the same
-  bounds): the finger moves at the commanded speed in its minimum-impedance mode, the integral
+  ``I' = B w_i (v_cmd - V_e)`` (``w_i`` = :data:`APPROACH_INTEGRAL`; ``I`` clamped to the same
+  bounds and held while the output is at a bound, so the acceleration does not wind it up): the finger moves at the commanded speed in its minimum-impedance mode, the integral
   takes up what the friction model misses, and it never pushes harder than
   ``approach_force`` (it feels the object instead of hitting it). ``B`` sets the loop's
   cross-over ``B/(m_n + m_e)``, well below the DOB's lambda and the estimator's filter. The
@@ -20,8 +20,9 @@ Phases:
   (:data:`ARM_DAHL` F_c/sigma of travel: the hysteresis model's error changes until then) and
   for :data:`ARM_TIME` within 15 % of the commanded speed (the model's error changes with the
   speed) -- or after :data:`ARM_TIME_MAX`; then the estimator's bias is re-captured, unless the
-  finger is held up by a contact on the closing side (it started touching the object: that is
-  the contact). A contact on the closing side ends the approach; an object closer to the start
+  finger is held up by a contact on the closing side (it has not moved beyond the arming
+  distance, is slower than a quarter of the commanded speed and pushes against something: it
+  started touching the object, and that is the contact). A contact on the closing side ends the approach; an object closer to the start
   than the arming distance is not detected. No contact within ``max_travel`` (or
   ``2 max_travel/|v_cmd| + 1 s``): aborted.
 * ``contact`` -- ``f = approach_force`` for :data:`CONTACT_TIME` (the touch settles).
@@ -398,7 +399,9 @@ class Grasp:
                 self._armed = True
             elif self._t >= ARM_TIME_MAX:
                 self._armed = True
-                if not (est.contact and est.direction * s > 0):
+                blocked = (travel < self._arm_travel
+                           and abs(est.velocity) < 0.25 * abs(self._v))
+                if not (blocked and est.contact and est.direction * s > 0):
                     est.rearm()
                 # else: it never got going against a contact on the closing side: it started
                 # touching the object (taken as the contact below)
@@ -417,10 +420,12 @@ class Grasp:
             return 0.0
         cap = p.approach_force
         error = p.approach_damping * (self._v - est.velocity)
-        i = self._integral + error * APPROACH_INTEGRAL * self.dt * steps
-        i = cap if i > cap else (-cap if i < -cap else i)
-        self._integral = i
+        i = self._integral
         f = error + i
+        if -cap < f < cap:          # integrate only while not saturated (no wind-up)
+            i += error * APPROACH_INTEGRAL * self.dt * steps
+            self._integral = cap if i > cap else (-cap if i < -cap else i)
+            f = error + self._integral
         return cap if f > cap else (-cap if f < -cap else f)
 
     def _probe(self, t):

@@ -20,7 +20,7 @@ keys below are relative to ``<channel>.``)::
     force_feedback.gain
     chirp.{amplitude, start_frequency, end_frequency, duration}
     feedforward.{rest_position, dahl_deadband}
-    estimator.{filter_cutoff, contact_threshold, baseline_time, forgetting_time,
+    estimator.{filter_cutoff, contact_threshold, baseline_time, baseline_distance, forgetting_time,
                min_position_excitation, min_velocity_excitation, model_uncertainty}
     grasp.{approach_damping, approach_force, contact_damping, max_closing_velocity, max_travel,
            squeeze_time, probe_amplitude, probe_start_frequency, probe_end_frequency,
@@ -230,8 +230,11 @@ class EstimatorParams:
         |force residual| that starts a contact [N m]; it ends below half of it.
     baseline_time : float > 0
         Time constant with which the residual's free-motion bias (model error) and its drift
-        are tracked [s]; a contact whose force grows slower than about ``e
-        contact_threshold/baseline_time`` hides in it.
+        are tracked while the finger is slow [s].
+    baseline_distance : float > 0
+        ... and the distance over which they are tracked while it moves [rad] (the faster
+        applies); an object softer than about ``e contact_threshold/baseline_distance`` hides
+        in the tracked bias.
     forgetting_time : float > 0
         Memory of the fit while the finger moves [s]; a still finger forgets nothing.
     min_position_excitation : float > 0
@@ -247,6 +250,7 @@ class EstimatorParams:
     filter_cutoff: float = 30.0
     contact_threshold: float = 0.003
     baseline_time: float = 1.0
+    baseline_distance: float = 0.2
     forgetting_time: float = 1.0
     min_position_excitation: float = 2e-3
     min_velocity_excitation: float = 0.03
@@ -259,6 +263,7 @@ class EstimatorParams:
         _check_range("estimator.filter_cutoff", self.filter_cutoff, 1.0, 400.0)
         _check_positive("estimator.contact_threshold", self.contact_threshold)
         _check_positive("estimator.baseline_time", self.baseline_time)
+        _check_positive("estimator.baseline_distance", self.baseline_distance)
         _check_positive("estimator.forgetting_time", self.forgetting_time)
         _check_positive("estimator.min_position_excitation", self.min_position_excitation)
         _check_positive("estimator.min_velocity_excitation", self.min_velocity_excitation)
@@ -451,7 +456,10 @@ PARAMETERS = {
         "it ends below half of it [N m]", 1e-6, 100.0),
     "estimator.baseline_time": ParameterInfo(
         "estimator.baseline_time", "time constant tracking the force residual's bias in "
-        "free motion (model error) [s]", 1e-3, 100.0),
+        "free motion (model error) while the finger is slow [s]", 1e-3, 100.0),
+    "estimator.baseline_distance": ParameterInfo(
+        "estimator.baseline_distance", "travel over which the force residual's bias is "
+        "tracked while the finger moves (the faster of the two applies) [rad]", 1e-4, 100.0),
     "estimator.forgetting_time": ParameterInfo(
         "estimator.forgetting_time", "memory of the object fit while the finger moves; a "
         "still finger forgets nothing [s]", 1e-2, 1e3),

@@ -1,0 +1,150 @@
+"""Grasping figures: object estimates, contact detection, forces -- with a wrong model.
+
+The control core on the simulated gripper (no ROS: the ROS tests show the nodes give the same),
+the sim's plant off the controller's model by ``--error`` (every Table I and Dahl parameter,
+signs at random), objects drawn at random. Prints:
+
+* object stiffness and damping errors 0.5 s after the contact, by stiffness range, with the
+  ratio of the error to the 1-sigma the estimator reports (rms: ~1 means honest);
+* contact detection delay and peak contact force before the squeeze, by closing speed and
+  object stiffness (goal: 10 ms and 0.05 N m up to 0.3 rad/s and 5 N m/rad);
+* grip force error in a settled hold and the largest contact force relative to max_force.
+
+Run:  PYTHONPATH=. python bench/grasp_accuracy.py [--draws N] [--error 0.15] [--seed S]
+"""
+import argparse
+import math
+import sys
+
+import numpy as np
+
+from seaforce_ros.core import ChannelController, ChannelSimulator, ControllerConfig, DahlParams
+from seaforce_ros.core import PlantParams
+from seaforce_ros.core.environment import contact_object
+from seaforce_ros.core.grasp import Grasp, GraspGoal
+
+DT = 5e-4
+PLANT_KEYS = ('motor_inertia', 'motor_damping', 'motor_stiffness', 'endpoint_inertia',
+              'endpoint_damping', 'endpoint_stiffness', 'hose_damping', 'hose_stiffness')
+
+
+def wrong_plant(rng, error):
+    sign = lambda: 1.0 + error * rng.choice((-1.0, 1.0))    # noqa: E731
+    d = DahlParams()
+    return (PlantParams.table_i().scaled(**{k: sign() for k in PLANT_KEYS}),
+            DahlParams(sigma=d.sigma * sign(), coulomb_force=d.coulomb_force * sign()))
+
+
+def grasp(k, b, position, v, grip, rng, error, hold=True):
+    """One grasp; returns the measured figures (None where it did not get there)."""
+    plant, dahl = wrong_plant(rng, error)
+    sim = ChannelSimulator(plant, dahl, seed=int(rng.integers(1 << 30)),
+                           environment=contact_object(position, k, b))
+    config = ControllerConfig()
+    ctl = ChannelController(config, dt=DT)
+    max_force = 2.0 * grip
+    g = Grasp(GraspGoal('pinch', v, grip, max_force, True), config, DT)
+    ctl.request_grasp(g)
+    m = sim.measurement()
+    t = 0.0
+    touched = estimate = None
+    forces, phases = [], []
+    settle = max(0.3, 6.0 * (b + config.grasp.contact_damping) / k) if hold else 0.0
+    t_hold = None
+    while t < 30.0:
+        m = sim.step(ctl.update(m.x, m.v, m.f_p))
+        t += DT
+        forces.append(-m.f_e)
+        phases.append(g.phase)
+        if touched is None and m.f_e < 0.0:
+            touched = t
+        if touched is not None and estimate is None and t >= touched + 0.5:
+            estimate = ctl.estimator.estimate()
+        if g.phase == 'hold' and t_hold is None:
+            t_hold = t
+        if not g.active or (t_hold is not None and estimate is not None
+                            and t >= t_hold + settle):
+            break
+    forces = np.array(forces)
+    squeeze = phases.index('squeeze') if 'squeeze' in phases else len(phases)
+    first = int(round(touched / DT)) if touched else len(forces)
+    early = g.contact and (touched is None or g.contact_time < touched)
+    return {'k': k, 'b': b, 'v': v, 'estimate': estimate, 'early': early,
+            'delay': (g.contact_time - touched) if touched and g.contact else math.nan,
+            'peak_approach': float(forces[first - 1:squeeze].max())
+            if touched and not early else math.nan,
+            'grip_error': (float(np.mean(forces[-int(0.1 / DT):])) - grip) / grip
+            if g.phase == 'hold' else math.nan,
+            'peak_ratio': float(forces.max()) / max_force, 'ended': g.message}
+
+
+def table_estimates(rows):
+    print('\nobject estimates 0.5 s after the contact (errors in % of the truth; err/sigma: '
+          'rms of error over reported 1-sigma)')
+    print(f'{"k range [N m/rad]":>20s} {"n":>3s} {"k err max":>10s} {"k err rms":>10s} '
+          f'{"k err/sig":>10s} {"b err max":>10s} {"b err rms":>10s} {"b err/sig":>10s}')
+    for low, high in ((0.2, 1.0), (1.0, 3.0), (3.0, 5.0), (5.0, 10.0), (10.0, 20.0)):
+        sel = [r for r in rows if low <= r['k'] < high and r['estimate'] is not None]
+        if not sel:
+            continue
+        ek = np.array([(r['estimate'].stiffness - r['k']) / r['k'] for r in sel])
+        rk = np.array([(r['estimate'].stiffness - r['k']) / r['estimate'].stiffness_sigma
+                       for r in sel])
+        eb = np.array([(r['estimate'].damping - r['b']) / r['b'] for r in sel])
+        rb = np.array([(r['estimate'].damping - r['b']) / r['estimate'].damping_sigma
+                       for r in sel])
+        print(f'{f"{low:g} - {high:g}":>20s} {len(sel):3d} {100 * np.nanmax(abs(ek)):9.1f}% '
+              f'{100 * math.sqrt(np.nanmean(ek ** 2)):9.1f}% {math.sqrt(np.nanmean(rk ** 2)):10.2f}'
+              f' {100 * np.nanmax(abs(eb)):9.1f}% {100 * math.sqrt(np.nanmean(eb ** 2)):9.1f}% '
+              f'{math.sqrt(np.nanmean(rb ** 2)):10.2f}')
+
+
+def table_contact(rng, error, speeds, stiffnesses, b, n):
+    print(f'\ncontact detection delay [ms] / peak contact force before the squeeze [N m] '
+          f'(object damping {b} N m s/rad; worst of {n})')
+    print(f'{"speed [rad/s]":>14s}' + ''.join(f'{f"k = {k:g}":>18s}' for k in stiffnesses))
+    for v in speeds:
+        cells = []
+        for k in stiffnesses:
+            rows = [grasp(k, b, 0.15 + 0.4 * v, v, 0.3, rng, error, hold=False)
+                    for _ in range(n)]
+            cells.append(f'{1e3 * max(r["delay"] for r in rows):8.1f} / '
+                         f'{max(r["peak_approach"] for r in rows):.3f}'
+                         + ('!' if any(r['early'] for r in rows) else ''))
+        print(f'{v:14.2f}' + ''.join(f'{c:>18s}' for c in cells))
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--draws', type=int, default=40, help='random objects')
+    parser.add_argument('--error', type=float, default=0.15, help='model error (relative)')
+    parser.add_argument('--seed', type=int, default=12)
+    args = parser.parse_args()
+    rng = np.random.default_rng(args.seed)
+    print(f'the sim\'s plant {100 * args.error:.0f} % off the controller\'s model (each '
+          f'parameter, random signs); {args.draws} objects: k log-uniform 0.2..20 N m/rad, '
+          'b 0.04..0.1 N m s/rad, at 0.15..0.3 rad, closed at 0.05..0.3 rad/s, grip '
+          '0.2..0.5 N m, max_force 2 grip')
+    rows = []
+    for _ in range(args.draws):
+        k = float(np.exp(rng.uniform(np.log(0.2), np.log(20.0))))
+        rows.append(grasp(k, float(rng.uniform(0.04, 0.1)), float(rng.uniform(0.15, 0.3)),
+                          float(rng.uniform(0.05, 0.3)), float(rng.uniform(0.2, 0.5)), rng,
+                          args.error))
+    table_estimates(rows)
+    grip = np.array([r['grip_error'] for r in rows])
+    soft = np.array([r['k'] < 0.3 for r in rows])
+    print(f'\ngrip force error in a settled hold: max {100 * np.nanmax(abs(grip[~soft])):.1f} % '
+          f'(k >= 0.3 N m/rad), {100 * np.nanmax(abs(grip[soft])) if soft.any() else math.nan:.1f}'
+          ' % (k < 0.3: the finger\'s own k_e, wrong by the model error, is a fifth of it)')
+    print(f'largest contact force / max_force: {max(r["peak_ratio"] for r in rows):.2f}')
+    ended = [r['ended'] for r in rows if r['ended'] not in ('holding', 'probing')]
+    print(f'grasps that did not reach a settled hold: {len(ended)} {ended if ended else ""}')
+    print(f'contacts detected before the true contact: {sum(r["early"] for r in rows)}')
+    table_contact(rng, args.error, (0.05, 0.1, 0.2, 0.3, 0.6, 1.0), (0.2, 1.0, 5.0, 20.0),
+                  0.05, 2)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
