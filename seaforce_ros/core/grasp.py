@@ -18,11 +18,11 @@ Phases:
   cross-over ``B/(m_n + m_e)``, well below the DOB's lambda and the estimator's filter. The
   contact detection is armed once the finger moves steadily -- beyond the Dahl transition
   (:data:`ARM_DAHL` F_c/sigma of travel: the hysteresis model's error changes until then) and
-  for :data:`ARM_TIME` within 15 % of the commanded speed (the model's error changes with the
-  speed) -- or after :data:`ARM_TIME_MAX`; then the estimator's bias is re-captured, unless the
-  finger is held up by a contact on the closing side (it has not moved beyond the arming
-  distance, is slower than a quarter of the commanded speed and pushes against something: it
-  started touching the object, and that is the contact). A contact on the closing side ends the approach; an object closer to the start
+  for :data:`ARM_TIME` within 15 % (or :data:`STEADY_SPEED`) of the commanded speed (the
+  model's error changes with the speed) -- when the estimator's bias is re-captured. A finger
+  held up by a contact on the closing side (after :data:`ARM_TIME_MAX` not beyond the arming
+  distance, for :data:`ARM_TIME` slower than a quarter of the commanded speed, pushing against
+  something) started touching the object, and that is the contact. A contact on the closing side ends the approach; an object closer to the start
   than the arming distance is not detected. No contact within ``max_travel`` (or
   ``2 max_travel/|v_cmd| + 1 s``): aborted.
 * ``contact`` -- ``f = approach_force`` for :data:`CONTACT_TIME` (the touch settles).
@@ -41,9 +41,11 @@ settles with ``(b_o + B_c)/k_o``).
 
 * ``release`` -- ``F_g`` ramps to zero in ``release_time`` (cancel, or an abort: the
   estimated contact force beyond ``max_force``, the contact lost, no contact found), then
-  stays zero, the contact damper still on, until the finger is still (the object has relaxed
-  it: the filtered V_e below :data:`STILL_SPEED` for :data:`STILL_TIME`, at most
-  :data:`RELAX_TIME_MAX`); then the grasp is ``done`` and the controller returns to the mode
+  stays zero, the contact damper still on, until the object has relaxed: the finger is still
+  (the filtered V_e below :data:`STILL_SPEED` for :data:`STILL_TIME`) or :data:`RELAX_TIMES`
+  time constants ``(b_o + B_c)/k_o`` of the estimated object have passed (a finger at minimum
+  impedance creeps at the friction model's error over ``B_c``; :data:`RELAX_TIME` without an
+  estimate, :data:`RELAX_TIME_MAX` at most); then the grasp is ``done`` and the controller returns to the mode
   the channel had before, bumplessly from a torque that holds no grip and no push-back (a
   ``hold`` entered straight from the ramp would capture the object's push-back as its bias).
   The estimator's fit is frozen meanwhile (the release is not a sample of the object) and the
@@ -69,20 +71,23 @@ from .params import EstimatorParams, GraspParams
 from .signals import faded_log_chirp
 
 __all__ = ["GraspGoal", "Grasp", "InvalidGoalError", "check_goal", "PHASES", "ARM_TIME",
-           "ARM_DAHL", "ARM_TIME_MAX", "CONTACT_TIME", "APPROACH_INTEGRAL", "STILL_SPEED",
-           "STILL_TIME", "RELAX_TIME_MAX"]
+           "STEADY_SPEED", "ARM_DAHL", "ARM_TIME_MAX", "CONTACT_TIME", "APPROACH_INTEGRAL", "STILL_SPEED",
+           "STILL_TIME", "RELAX_TIMES", "RELAX_TIME", "RELAX_TIME_MAX"]
 
 #: Phases in order; ``done`` after the release.
 PHASES = ("approach", "contact", "squeeze", "probe", "hold", "release", "done")
 
 ARM_TIME = 0.05        # s within 15 % of the commanded speed before the detection is armed
+STEADY_SPEED = 0.01    # rad/s: ... or within this much of it (a slow approach)
 ARM_DAHL = 4.0         # F_c/sigma of travel before it is armed (the Dahl transition)
-ARM_TIME_MAX = 0.5     # s after which it is armed regardless
+ARM_TIME_MAX = 0.5     # s after which a finger blocked by a contact started touching it
 CONTACT_TIME = 0.03    # s the touch force is held before the squeeze
 APPROACH_INTEGRAL = 10.0   # rad/s, corner of the approach servo's integral action
 STILL_SPEED = 0.02     # rad/s: after the release ramp the finger is still below this ...
-STILL_TIME = 0.02      # s ... for this long
-RELAX_TIME_MAX = 10.0  # s, or after this (a soft object relaxes slowly), and the grasp is done
+STILL_TIME = 0.02      # s ... for this long, or the object's relaxation is over:
+RELAX_TIMES = 5.0      # its time constants (b_o + B_c)/k_o ...
+RELAX_TIME = 0.5       # s without an estimate of the object,
+RELAX_TIME_MAX = 5.0   # s at most
 _HOLD_AVERAGE = 0.1    # s, time constant of the grip force average in hold
 
 
@@ -221,6 +226,7 @@ class Grasp:
         self._t = 0.0              # time in the phase [s] (approach: since the start)
         self._armed = False
         self._steady = 0.0         # time within 15 % of the approach speed, or still [s]
+        self._slow = 0.0           # time below a quarter of the approach speed [s]
         self._integral = 0.0       # the approach servo's integral action [N m]
         self._start = None         # filtered endpoint position at the start
         self._release_from = 0.0     # F_g and the commanded contact force when the release began
@@ -267,6 +273,7 @@ class Grasp:
         self._release_from = self._pushed
         self._release_contact = self.force_command
         self._steady = 0.0
+        self._relax = None          # how long the object may take (at the ramp's end)
         self._enter("release")
 
     def abort_now(self, reason):
@@ -320,11 +327,13 @@ class Grasp:
             scale = 1.0 - self._t / ramp
             if scale <= 0.0:
                 scale = 0.0
+                if self._relax is None:
+                    self._relax = self._relax_time(est)
                 if abs(est.velocity) < STILL_SPEED:
                     self._steady += elapsed
                 else:
                     self._steady = 0.0
-                if self._steady >= STILL_TIME or self._t >= ramp + RELAX_TIME_MAX:
+                if self._steady >= STILL_TIME or self._t >= ramp + self._relax:
                     if self.contact:
                         self.estimate = est.estimate()    # the fit, frozen since the release
                     est.let_go()
@@ -390,21 +399,23 @@ class Grasp:
             self._start = est.position
         travel = s * (est.position - self._start)
         if not self._armed:
-            if abs(est.velocity - self._v) <= 0.15 * abs(self._v):
-                self._steady += self.dt * steps
+            elapsed = self.dt * steps
+            if abs(est.velocity - self._v) <= max(0.15 * abs(self._v), STEADY_SPEED):
+                self._steady += elapsed
             else:
                 self._steady = 0.0
+            if abs(est.velocity) < 0.25 * abs(self._v):
+                self._slow += elapsed
+            else:
+                self._slow = 0.0
             if self._steady >= ARM_TIME and travel >= self._arm_travel:
                 est.rearm()
                 self._armed = True
-            elif self._t >= ARM_TIME_MAX:
+            elif (self._t >= ARM_TIME_MAX and travel < self._arm_travel
+                  and self._slow >= ARM_TIME and est.contact and est.direction * s > 0):
+                # it never got going against a contact on the closing side: it started
+                # touching the object, and that is the contact (below)
                 self._armed = True
-                blocked = (travel < self._arm_travel
-                           and abs(est.velocity) < 0.25 * abs(self._v))
-                if not (blocked and est.contact and est.direction * s > 0):
-                    est.rearm()
-                # else: it never got going against a contact on the closing side: it started
-                # touching the object (taken as the contact below)
         if self._armed and est.contact:
             if est.direction * s < 0:
                 self.release("pushed from the side away from the object: no grasp", "aborted")
@@ -427,6 +438,20 @@ class Grasp:
             self._integral = cap if i > cap else (-cap if i < -cap else i)
             f = error + self._integral
         return cap if f > cap else (-cap if f < -cap else f)
+
+    def _relax_time(self, est):
+        """How long the object may take to push the finger back after the release ramp:
+        RELAX_TIMES time constants ``(b_o + B_c)/k_o`` of the estimated object (RELAX_TIME
+        without an estimate), at most RELAX_TIME_MAX. Waiting for a finger at minimum
+        impedance to come to rest is not enough: the friction model's error keeps a free one
+        creeping at ``error/B_c``."""
+        if not self.contact:
+            return RELAX_TIME
+        e = est.estimate()
+        k, b = e.stiffness, e.damping if e.damping == e.damping else 0.0
+        if not k > 0.0:
+            return RELAX_TIME
+        return min(RELAX_TIME_MAX, RELAX_TIMES * (b + self._damping) / k)
 
     def _probe(self, t):
         p = self.params

@@ -252,7 +252,7 @@ class EstimatorParams:
     baseline_time: float = 1.0
     baseline_distance: float = 0.2
     forgetting_time: float = 1.0
-    min_position_excitation: float = 2e-3
+    min_position_excitation: float = 1e-3
     min_velocity_excitation: float = 0.03
     model_uncertainty: float = 0.15
 

@@ -6,9 +6,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from seaforce_ros.core.grasp import (ARM_TIME, ARM_TIME_MAX, CONTACT_TIME, RELAX_TIME_MAX,
+from seaforce_ros.core.grasp import (ARM_TIME, ARM_TIME_MAX, CONTACT_TIME, RELAX_TIMES,
                                      STILL_SPEED, STILL_TIME, Grasp, GraspGoal,
                                      InvalidGoalError, check_goal)
+from seaforce_ros.core.estimator import ObjectEstimate
 from seaforce_ros.core.params import ControllerConfig, EstimatorParams, GraspParams
 
 DT = 5e-4
@@ -39,7 +40,7 @@ class Est:
         self.frozen = self.contact = False
 
     def estimate(self):
-        return 'the object'
+        return ObjectEstimate(2.0, 0.1, 0.05, 0.01, 0.2, 0.01, 0.1)
 
     def touch(self, force, direction=1):
         """A contact pushing back with ``force`` [N m] on the closing side of +X_e."""
@@ -132,12 +133,19 @@ def test_no_contact_is_armed_before_the_finger_moves_steadily():
     assert g._armed and g.phase == 'approach'
 
 
-def test_armed_at_the_latest_after_arm_time_max():
+def test_never_armed_while_the_finger_does_not_move_steadily():
+    """A finger that crawls or oscillates (a friction model's error against the speed servo)
+    is never armed: its residual is the model's error changing, not an object."""
     g = make()
     est = Est()
-    est.velocity = 0.01                                # crawling (blocked by something)
-    steps(g, est, ARM_TIME_MAX + 0.01)
-    assert g._armed and est.rearms == 1
+    est.velocity = 0.01                                # crawling, nothing touched
+    steps(g, est, 2 * ARM_TIME_MAX)
+    assert not g._armed and est.rearms == 0 and g.phase == 'approach'
+    est.touch(0.01)
+    for i in range(int(ARM_TIME_MAX / DT)):            # oscillating, "touching" now and then
+        est.velocity = 0.3 * (-1) ** (i // 40)
+        g.update(est, 0.0)
+    assert not g._armed and g.phase == 'approach'
 
 
 def test_a_finger_that_starts_touching_the_object_takes_that_as_the_contact():
@@ -275,7 +283,7 @@ def test_release_request_ramps_down_then_canceled():
     assert est.frozen and est.contact                # the estimator's fit stops meanwhile
     out = finish_release(g, est)
     assert out[0] < 0.5 and out[-1] == 0.0 and not est.frozen and not est.contact
-    assert g.estimate == 'the object'                # taken before the estimator lets go
+    assert g.estimate == est.estimate()              # taken before the estimator lets go
     assert g.outcome == 'canceled' and g.message == 'released by the client'
     g.request_release('again')                      # no effect once done
     g.update(est, 0.0)
@@ -293,8 +301,11 @@ def test_the_release_waits_for_the_finger_to_come_to_rest_with_the_damper_on():
     assert g.phase == 'done'
     g2, est2, _ = run_to_hold()
     g2.request_release('released')
-    est2.velocity = 1.0                             # never still: done after RELAX_TIME_MAX
-    steps(g2, est2, GP.release_time + RELAX_TIME_MAX + DT, move=False)
+    est2.velocity = 1.0                             # never still (the friction model's error
+    relax = RELAX_TIMES * (0.05 + GP.contact_damping) / 2.0      # creeps): the object's time
+    steps(g2, est2, GP.release_time + relax - 2 * DT, move=False)
+    assert g2.phase == 'release'
+    steps(g2, est2, 3 * DT, move=False)
     assert g2.phase == 'done' and g2.outcome == 'canceled'
 
 
