@@ -211,9 +211,12 @@ def plot(m, path):
 
 
 def report(results, factors, args):
-    print(f'\npinch finger, closing at {args.speed} rad/s, grip_force {args.grip} N m, '
-          f'max_force {2 * args.grip} N m; the sim\'s plant off the controller\'s model by '
-          + ', '.join(f'{k} {100 * (f - 1):+.0f}%' for k, f in factors.items()))
+    symbols = dict(zip(PLANT_KEYS + ('sigma', 'coulomb_force'),
+                       ('m', 'b', 'k', 'm_e', 'b_e', 'k_e', 'b_s', 'k_s', 'sigma', 'F_c')))
+    print(f'\npinch finger closing at {args.speed} rad/s, grip_force {args.grip} N m, '
+          f'max_force {2 * args.grip} N m')
+    print('the simulated plant vs the controller\'s model: '
+          + ', '.join(f'{symbols[k]} {100 * (f - 1):+.0f}%' for k, f in factors.items()))
     print('\nobject   k true  k at 0.5 s  +-1 sigma  b true  b at 0.5 s  +-1 sigma  detect  '
           'peak before  grip held')
     print('        [N m/rad]   [N m/rad]             [N m s/rad]               [ms]  '
