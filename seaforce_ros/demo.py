@@ -9,6 +9,10 @@ backdrives the ``pinch`` finger with the paper's quasi-static position drive (0.
 * the peak external torque |F_e| over the work loop and within +-0.2 rad,
 * |Z(j omega)| = |F_e / V_e| at the drive frequency (dB re 1 N m s/rad),
 
+A window in which the plant went without a fresh command (zero torque: a busy host in real
+time) does not measure the mode: it is measured again, up to ``ATTEMPTS`` times, and the table
+notes what remained (``--lockstep`` steps the plant only on the controller's answer: exact on
+any host). It
 prints a table with the impedance range (``hold`` vs the softest mode), writes a PNG of the
 work loops (external F_e and internal F_p vs X_e, as Fig. 5A-B), and stops every process it
 started, also on Ctrl-C or an error.
@@ -32,10 +36,13 @@ from typing import Dict, List
 
 import numpy as np
 
+from .core.plant_cycle import STATUS_COMMAND_TIMEOUT, STATUS_FAULT, STATUS_LIMIT
 from .identification.zwidth_lib import DEFAULT_MODES as MODES  # the paper's Fig. 5 modes
 
 CHANNEL = 'pinch'
 DT = 5e-4
+#: measurements of a mode at most, when the controller's answers came late (real time only)
+ATTEMPTS = 3
 
 
 def _package_paths():
@@ -154,8 +161,10 @@ class Observer:
         rows = sorted({r[0]: r for r in rows}.values())
         data = np.array(rows, dtype=float)
         grid = np.arange(first, last + 1, dtype=float)
+        status = data[:, 6].astype(int)
         out = {'cycle': grid, 'received': len(rows), 'expected': grid.size,
-               'status': int(np.bitwise_or.reduce(data[:, 6].astype(int)))}
+               'status': int(np.bitwise_or.reduce(status)),
+               'timeouts': int(np.count_nonzero(status & STATUS_COMMAND_TIMEOUT))}
         for k, name in enumerate(('x', 'f_p', 'f_a', 'x_e', 'f_e'), start=1):
             out[name] = np.interp(grid, data[:, 0], data[:, k])
         return out
@@ -288,13 +297,20 @@ def main(argv=None):
                     raise RuntimeError(f'controller_status never showed mode {mode}')
                 time.sleep(0.05)
             first = start + settle
-            last = first + args.periods * period_cycles - 1
-            print(f'[demo] {mode:14s} measuring cycles {first}..{last} '
-                  f'({(last - first + 1) * DT:.1f} s of drive)', flush=True)
-            while (observer.latest_cycle() or 0) < last:
-                children.check()
-                time.sleep(0.1)
-            window = observer.window(first, last)
+            for attempt in range(1, ATTEMPTS + 1):
+                last = first + args.periods * period_cycles - 1
+                print(f'[demo] {mode:14s} measuring cycles {first}..{last} '
+                      f'({(last - first + 1) * DT:.1f} s of drive)', flush=True)
+                while (observer.latest_cycle() or 0) < last:
+                    children.check()
+                    time.sleep(0.1)
+                window = observer.window(first, last)
+                if not window['timeouts'] or attempt == ATTEMPTS:
+                    break
+                # zero torque while the controller's answers were late: not the mode's impedance
+                print(f'[demo]   {window["timeouts"]} cycles without a fresh command (the host '
+                      f'was busy); measuring again ({attempt + 1}/{ATTEMPTS})', flush=True)
+                first = last + 1 + settle // 2
             results[mode] = (window, measure(window, args.frequency, args.amplitude))
             if window['received'] < 0.9 * window['expected']:
                 print(f'[demo]   note: recorded {window["received"]} of {window["expected"]} '
@@ -308,6 +324,19 @@ def main(argv=None):
     return run_guarded('demo', out, work)
 
 
+def status_note(window):
+    """What the plant reported during a measurement window, for the table ('' when nothing)."""
+    notes = []
+    if window['timeouts']:
+        notes.append(f'{window["timeouts"]} cycles without a fresh command (zero torque; '
+                     'a busy host: --lockstep measures exactly)')
+    if window['status'] & STATUS_LIMIT:
+        notes.append('torque limit reached')
+    if window['status'] & STATUS_FAULT:
+        notes.append('a channel fault')
+    return f'  ({"; ".join(notes)}: see the sim log)' if notes else ''
+
+
 def report(results, args):
     soft = min((m for m in results if m != 'hold'), key=lambda m: results[m][1]['z_db'])
     print(f'\nPinch finger backdriven {args.amplitude} rad at {args.frequency} rad/s; '
@@ -318,7 +347,7 @@ def report(results, args):
           f'{"[N m rad]":>15s}')
     z_passive = results['passive'][1]['z_db'] if 'passive' in results else float('nan')
     for mode, (window, m) in results.items():
-        flag = '' if not window['status'] else '  (status flags seen: see sim log)'
+        flag = status_note(window)
         print(f'{mode:15s}{m["z_db"]:10.1f}{m["z_db"] - z_passive:11.1f}{m["peak"]:13.3f}'
               f'{m["peak_centre"]:16.4f}{m["fp_area"]:15.4f}{flag}')
     if 'hold' in results:

@@ -20,14 +20,15 @@ def _processes_with_marker(marker: str):
     return found
 
 
-def test_demo_prints_the_table_writes_the_png_and_stops_its_nodes(processes, tmp_path):
+def _run_demo(processes, tmp_path, *extra):
+    """The README's main job, ``scripts/demo`` with one period of a 3 rad/s drive per mode
+    (short); -> (table rows {mode: |Z| dB}, impedance range dB, output text, out dir)."""
     out = tmp_path / 'demo'
     marker = f'SEAFORCE_DEMO_TEST={uuid.uuid4().hex}'
     env = dict(os.environ)
     env[marker.split('=')[0]] = marker.split('=')[1]
-    # the README command itself; one period of a 3 rad/s drive per mode keeps it short
     demo = processes.start([str(ROOT / 'scripts' / 'demo'), '--periods', '1',
-                            '--frequency', '3', '--out', str(out)], name='demo', env=env)
+                            '--frequency', '3', '--out', str(out), *extra], name='demo', env=env)
     code = demo.wait(timeout=240)
     text = demo.output()
     assert code == 0, text
@@ -36,16 +37,37 @@ def test_demo_prints_the_table_writes_the_png_and_stops_its_nodes(processes, tmp
         match = re.search(rf'^{mode}\s+(-?\d+\.\d)\s+(-?\d+\.\d)\s+(\d+\.\d+)', text, re.M)
         assert match, f'no table row for {mode}:\n{text}'
         rows[mode] = float(match.group(1))
-    # the paper's ordering: hold >> passive > dob > dob_linear_ff > dob_full_ff
-    assert rows['hold'] > rows['passive'] + 10, rows
-    assert rows['passive'] > rows['dob'] > rows['dob_linear_ff'] > rows['dob_full_ff'], rows
     width = float(re.search(r'impedance range at 3\.0 rad/s: (\d+\.\d) dB', text).group(1))
-    assert width > 30.0, text
     png = out / 'work_loops.png'
     assert png.is_file() and png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert png.stat().st_size > 20_000
     # every process the demo started has ended (they carry the marker in their environment)
     assert _processes_with_marker(marker) == []
+    return rows, width, text, out
+
+
+def test_demo_prints_the_table_writes_the_png_and_stops_its_nodes(processes, tmp_path):
+    """The README command as typed (real time). A busy host may starve the controller: the
+    demo then measures a mode again and notes what remained, so only the figures no busy
+    host can move much are asserted here (the exact ordering: the lockstep test below)."""
+    rows, width, text, _out = _run_demo(processes, tmp_path)
+    assert rows['hold'] > rows['passive'] + 10, rows
+    assert rows['passive'] > max(rows[m] for m in ('dob', 'dob_linear_ff', 'dob_full_ff')), rows
+    assert width > 30.0, text
+    for note in re.findall(r'^\[demo\]\s+(\d+) cycles without a fresh command.*\((\d)/3\)$',
+                           text, re.M):
+        assert int(note[0]) > 0 and note[1] in '23', note
+
+
+def test_demo_lockstep_orders_the_modes_as_the_paper(processes, tmp_path):
+    """``--lockstep``: the plant steps only on the controller's answer, so the figures are the
+    loop's own on any host: the paper's ordering hold >> passive > dob > dob_linear_ff >
+    dob_full_ff, about 50 dB of range at 3 rad/s, and no cycle without a command."""
+    rows, width, text, _out = _run_demo(processes, tmp_path, '--lockstep')
+    assert rows['hold'] > rows['passive'] + 10, rows
+    assert rows['passive'] > rows['dob'] > rows['dob_linear_ff'] > rows['dob_full_ff'], rows
+    assert width > 40.0, text
+    assert 'without a fresh command' not in text, text
 
 
 def test_grasp_demo_measures_three_objects_and_stops_its_nodes(processes, tmp_path):
