@@ -8,6 +8,7 @@
 * A write failure (a file-size limit stands in for a full disk): ERROR log, /diagnostics
   ERROR, drops counted, exit code 1, and what was written stays readable.
 """
+import contextlib
 import json
 import os
 import pathlib
@@ -15,6 +16,7 @@ import re
 import resource
 import shutil
 import signal
+import sqlite3
 import struct
 import subprocess
 import tempfile
@@ -115,6 +117,39 @@ def _mcap_counts(directory, names):
             reader = make_reader(fh, validate_crcs=True)
             out[name] = sum(1 for _ in reader.iter_messages())
     return out
+
+
+def _file_counts(directory, names, storage):
+    """Messages per file, each file opened on its own (mcap: the library's summary-based
+    reader; sqlite3: its messages table)."""
+    if storage == 'mcap':
+        return _mcap_counts(directory, names)
+    out = {}
+    for name in names:
+        with contextlib.closing(sqlite3.connect(
+                f'file:{pathlib.Path(directory) / name}?mode=ro', uri=True)) as db:
+            out[name] = db.execute('SELECT COUNT(*) FROM messages').fetchone()[0]
+    return out
+
+
+def _assert_split_loses_nothing(states, counts, files):
+    """The cycles of one bag of several files: strictly increasing, and across every split
+    the next file starts with the sample right after the previous file's last one. A sample
+    missing inside a file is one the subscription itself never got (the sim keeps 1000
+    samples for a reliable reader; a host starved for longer loses some, for any subscriber):
+    printed, and bounded, not a split's doing."""
+    assert np.all(np.diff(states) > 0)
+    ends = np.cumsum([counts[name] for name in files])
+    assert ends[-1] == states.size, (ends, states.size)
+    for end, name in zip(ends[:-1], files[1:]):
+        assert states[end] == states[end - 1] + 1, (name, states[end - 1], states[end])
+    settled = states[2000:]
+    missing = int(settled[-1] - settled[0] + 1 - settled.size)
+    if missing:
+        gaps = np.flatnonzero(np.diff(settled) != 1)
+        print(f'\n{missing} samples the subscription never got, in {gaps.size} gap(s) '
+              f'inside files: after cycles {settled[gaps].tolist()}')
+    assert missing <= 0.01 * settled.size, missing
 
 
 def _rosidl_hash(msgtype):
@@ -319,20 +354,20 @@ def test_sigkill_keeps_one_bag_of_the_closed_files_and_the_open_one_is_recovered
     cycles, files = _bag_cycles(out)
     assert len(files) >= 3 and files == [f'bag_{i}{ext}' for i in range(len(files))]
     states = np.array(cycles['/actuator_state'])
-    assert np.all(np.diff(states[2000:]) == 1)        # past discovery: no gap between files
+    _assert_split_loses_nothing(states, _file_counts(out, files, storage), files)
     assert states.size > 0.5 * 2000 * split_s * len(files)
     with Reader(out) as reader:
         span_s = [(reader.end_time - reader.start_time) * 1e-9]
     assert span_s[0] <= 1.1 * split_s * len(files)
-    if storage == 'mcap':
-        assert sum(_mcap_counts(out, files).values()) == states.size
     open_file = out / f'bag_{len(files)}{ext}'
     assert open_file.exists()
     # 2. the package's reader: every closed file plus what the open one kept, with a note
     data = bags.read_channel(out, 'pinch')
     assert len(data) > states.size and data.cycle[0] == states[0]
     np.testing.assert_array_equal(data.cycle[:states.size], states)
-    assert np.all(np.diff(data.cycle[2000:]) == 1)
+    _assert_split_loses_nothing(data.cycle, {**_file_counts(out, files, storage),
+                                             open_file.name: len(data) - states.size},
+                                files + [open_file.name])
     assert any(open_file.name in n and 'recovered' in n and 'bag_reindex' in n
                for n in data.notes), data.notes
     assert max(w_state) >= data.cycle[-1]
