@@ -261,25 +261,28 @@ class ControllerNode(Node):
         return DirectPort(self)
 
     def _status_values(self):
-        """Per-channel status fields now (lists: safe to publish later from another thread)."""
+        """Per-channel status fields now (lists: safe to publish later from another thread);
+        the object estimates are added when the message is published (:meth:`_publish_status`:
+        solving them is no work for the control path)."""
         ctrls, cycle = self.controllers, self.cycle
-        estimates = [c.estimator.estimate() for c in ctrls]
         return ([c.mode for c in ctrls], [c.disturbance for c in ctrls],
                 [c.feedforward for c in ctrls], [c.endpoint_velocity_estimate for c in ctrls],
                 [c.dahl_force for c in ctrls], [cycle.fault(i) for i in range(len(ctrls))],
-                [c.estimator.contact for c in ctrls], [e.contact_position for e in estimates],
-                [c.estimator.force for c in ctrls], [e.stiffness for e in estimates],
-                [e.stiffness_sigma for e in estimates], [e.damping for e in estimates],
-                [e.damping_sigma for e in estimates], [c.grasp_phase for c in ctrls])
+                [c.estimator.contact for c in ctrls], [c.estimator.force for c in ctrls],
+                [c.grasp_phase for c in ctrls])
 
     def _publish_status(self, values, cycle, stamp):
         s = self._status
         s.header.stamp = stamp
         s.cycle = cycle
         (s.mode, s.disturbance, s.feedforward, s.endpoint_velocity_estimate, s.dahl_force,
-         s.fault, s.contact, s.contact_position, s.contact_force, s.object_stiffness,
-         s.object_stiffness_sigma, s.object_damping, s.object_damping_sigma,
-         s.grasp_phase) = values
+         s.fault, s.contact, s.contact_force, s.grasp_phase) = values
+        estimates = [c.estimator.estimate() for c in self.controllers]
+        s.contact_position = [e.contact_position for e in estimates]
+        s.object_stiffness = [e.stiffness for e in estimates]
+        s.object_stiffness_sigma = [e.stiffness_sigma for e in estimates]
+        s.object_damping = [e.damping for e in estimates]
+        s.object_damping_sigma = [e.damping_sigma for e in estimates]
         self.status_pub.publish(s)
 
     def _run_cycle(self, names, cycle, stamp_ns, x, v, f_p, f_a, status, now_ns, now):
