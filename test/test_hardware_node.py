@@ -169,7 +169,12 @@ def test_controller_killed_gives_zero_torque(ecat_emulator, processes, tmp_path,
     # zero torque from the first flagged cycle, within command_timeout (0.01 s) + 1 cycle
     assert cycles[first_to] - cycles[last_driven] <= 0.01 * RATE + 1, (
         cycles[last_driven], cycles[first_to])
-    assert np.all(efforts[first_to:] == 0.0) and np.all(flags[first_to:] > 0)
+    assert np.all(efforts[first_to:] == 0.0)
+    # every state stamped 5x command_timeout past the kill is flagged (between the first
+    # flag and then, an answer the starved controller had sent before it died may still
+    # arrive fresh: it clears the flag, it cannot bring torque back after command_timeout)
+    late = np.array([stamp_ns(m) > after for m in states])
+    assert late.any() and np.all(flags[late] > 0), cycles[late & (flags == 0)]
     assert not harness.client.torque_applied('pinch_drive')
     assert hardware.wait_for_output('pinch: no fresh actuator_command', timeout=5), \
         hardware.output()
