@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 from seaforce_ros.core import (ChannelController, ChannelSimulator, ControllerConfig,
                                DahlParams, PlantParams, position_sine, run_closed_loop)
 from seaforce_ros.core.control_cycle import ControlCycle
-from seaforce_ros.core.environment import contact_object
+from seaforce_ros.core.environment import contact_object, free
+from seaforce_ros.core.estimator import FLOOR_FRACTION, SPREAD_TIME
 from seaforce_ros.core.grasp import Grasp, GraspGoal, check_goal
 
 DT = 5e-4
@@ -334,3 +335,39 @@ def test_grasp_goals_with_the_model_15_percent_off(k, b, position, v, grip):
     assert abs(estimate.damping - b) <= 2.5 * estimate.damping_sigma, estimate
     grip_error = abs(np.mean(forces[-int(0.1 / DT):]) - grip) / grip
     assert grip_error <= (0.05 if k >= 0.3 else 0.08), grip_error
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2 ** 16), speed=st.floats(0.05, 1.0), back=st.floats(0.05, 1.0),
+       sign=st.sampled_from([1.0, -1.0]), travel=st.floats(0.1, 0.6))
+def test_no_contact_in_free_motion_with_a_wrong_model(seed, speed, back, sign, travel):
+    """Free motion, the sim's plant 15 % off the model (every parameter, random signs): a grasp
+    from rest at any speed 0.05-1 rad/s either way, released after ``travel``, then one the
+    other way (the Dahl model's error flips with the direction of motion), released likewise.
+    Invariant: the estimator never reports a contact once the approach is armed, and neither
+    grasp finds one -- the adaptive threshold (a third of contact_threshold at its lowest)
+    stays above the residual of the model's error and the sensors' noise."""
+    rng = np.random.default_rng(seed)
+    plant, dahl = model_error(rng)
+    g = Grasping(free(), mode='dob_full_ff', plant=plant, dahl=dahl, seed=seed)
+    est = g.ctl.estimator
+    ceiling = est.params.contact_threshold
+    lowest, armed = ceiling, 0.0
+    for v in (sign * speed, -sign * back):
+        grasp = g.start(v, 0.3, 0.6)
+        start = None
+        while grasp.phase == 'approach':
+            g.step()
+            if start is None:
+                start = est.position
+            if grasp._armed:
+                assert not est.contact, (v, g.t, est.force, est.threshold)
+                assert FLOOR_FRACTION * ceiling <= est.threshold * (1 + 1e-12) <= ceiling * (1 + 1e-12)
+                lowest = min(lowest, est.threshold)
+                armed += DT
+            if abs(est.position - start) >= travel:
+                grasp.request_release('enough')
+        g.until(lambda: not grasp.active, limit=g.t + 5.0)
+        assert not grasp.contact and grasp.outcome == 'canceled', grasp.message
+    if armed >= 4.0 * SPREAD_TIME:
+        assert lowest < 0.8 * ceiling       # it adapted to the residual's spread
