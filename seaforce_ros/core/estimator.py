@@ -152,6 +152,11 @@ class ContactEstimator:
         The residual ``r`` [N m]: the external force estimate less the free-motion bias.
     position, velocity : float
         Filtered X_e_hat [rad] and V_e_hat [rad/s].
+    detection : float
+        The residual ``d`` the detection sees: ``force`` smoothed over :data:`DETECT_TIME`
+        [N m].
+    detection_mean : float
+        Its mean in free motion [N m] (held during a contact).
     bias : float
         The free-motion bias of the external force estimate [N m] (the model's error while
         nothing touches; frozen during a contact).
@@ -217,7 +222,7 @@ class ContactEstimator:
         self.detection = 0.0
         # the detection residual's mean and mean square deviation in free motion (the first
         # threshold is the largest), the threshold squared, the release level
-        self._mean = 0.0
+        self.detection_mean = 0.0
         self._spread2 = (self._on / SPREAD_FACTOR) ** 2
         self._on2 = self._ceiling2
         self._off = 0.5 * self._on
@@ -252,7 +257,7 @@ class ContactEstimator:
         self.bias += recent
         self.force -= recent
         self.detection -= recent
-        self._mean = 0.0
+        self.detection_mean = 0.0
         self._recent = 0.0
         self._drift = 0.0
 
@@ -329,10 +334,10 @@ class ContactEstimator:
                 block.extend((p - self._p0, q, acc, 1.0, -f1, fd))
                 if len(block) == _BLOCK_VALUES:
                     self._fold()
-        elif (d - self._mean) ** 2 > self._on2 or d * d > self._ceiling2:
+        elif (d - self.detection_mean) ** 2 > self._on2 or d * d > self._ceiling2:
             self.contact = True
             # the side of the excess over the free-motion mean (of d itself beyond the ceiling)
-            excess = d - self._mean if (d - self._mean) ** 2 > self._on2 else d
+            excess = d - self.detection_mean if (d - self.detection_mean) ** 2 > self._on2 else d
             self.direction = 1 if excess < 0.0 else -1
             self._off = 0.5 * math.sqrt(self._on2)
             self._onset_before = self.onset_position
@@ -344,9 +349,9 @@ class ContactEstimator:
             self._below = 0
         else:
             a = self._spread_alpha * steps
-            mean = self._mean
+            mean = self.detection_mean
             mean += a * (d - mean)
-            self._mean = mean
+            self.detection_mean = mean
             spread2 = self._spread2 + a * ((d - mean) ** 2 - self._spread2)
             self._spread2 = spread2
             on2 = SPREAD_FACTOR * SPREAD_FACTOR * spread2

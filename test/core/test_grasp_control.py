@@ -294,8 +294,9 @@ def test_grasp_goals_with_the_model_15_percent_off(k, b, position, v, grip):
       each add up to at most sqrt(6) sigma);
     * damping within 30 % up to 3 N m/rad (beyond, the hose's k_s error dominates and the
       sigma says so);
-    * contact detected within 10 ms at 0.2-0.3 rad/s (slower: the force rises slower; within
-      30 ms down to 0.05 rad/s), peak contact force before the squeeze below 0.05 N m
+    * contact detected within 10 ms at 0.15-0.3 rad/s (slower, the force b_o v that stands out
+      of the noise first is smaller, and the finger slows as it meets the object: within 30 ms
+      down to 0.05 rad/s; README: the bound), peak contact force before the squeeze below 0.05 N m
       (objects up to 5 N m/rad);
     * grip within 5 % in a settled hold (softer than 0.3 N m/rad: the finger's own k_e, 15 %
       off, is a fifth of the object's stiffness: within 8 %); max_force never exceeded.
@@ -326,7 +327,7 @@ def test_grasp_goals_with_the_model_15_percent_off(k, b, position, v, grip):
     assert forces.max() <= max_force
     if k <= 5.0:
         assert before_squeeze.max() < 0.05
-        assert delay <= (0.010 if v >= 0.2 else 0.030), delay
+        assert delay <= (0.010 if v >= 0.15 else 0.030), delay
     k_tol = 0.10 if k <= 5.0 else 0.25 if k <= 15.0 else 0.30
     assert abs(estimate.stiffness - k) <= k_tol * k, estimate
     assert abs(estimate.stiffness - k) <= 2.5 * estimate.stiffness_sigma, estimate
@@ -360,7 +361,7 @@ def test_no_contact_in_free_motion_with_a_wrong_model(seed, speed, back, sign, t
             g.step()
             if start is None:
                 start = est.position
-            if grasp._armed:
+            if grasp.armed:
                 assert not est.contact, (v, g.t, est.force, est.threshold)
                 assert FLOOR_FRACTION * ceiling <= est.threshold * (1 + 1e-12) <= ceiling * (1 + 1e-12)
                 lowest = min(lowest, est.threshold)
