@@ -23,7 +23,8 @@ Phases:
   held up by a contact on the closing side (after :data:`ARM_TIME_MAX` not beyond the arming
   distance, for :data:`ARM_TIME` slower than a quarter of the commanded speed, pushing against
   something with all of ``approach_force``: a finger the friction model's error holds up
-  is freed before the servo's integral gets there) started touching the object, and that is the contact. A contact on the closing side ends the approach; an object closer to the start
+  is freed before the servo's integral gets there) started touching the object, and that is
+  the contact. A contact on the closing side ends the approach; an object closer to the start
   than the arming distance is not detected. No contact within ``max_travel`` (or
   ``2 max_travel/|v_cmd| + 1 s``): aborted.
 * ``contact`` -- ``f = approach_force`` for :data:`CONTACT_TIME` (the touch settles).
