@@ -33,8 +33,9 @@ rms with the simulated sensors; ``d``: 0.15-0.3 mN m). The threshold adapts to t
 free motion the mean ``m`` of ``d`` and its rms deviation ``sigma_d`` are tracked (time
 constant :data:`SPREAD_TIME`) and a contact starts when ``|d - m| > clamp(SPREAD_FACTOR
 sigma_d, FLOOR_FRACTION contact_threshold, contact_threshold)`` or ``|d| > contact_threshold``
-(5 sigma_d, at least 1 mN m, at most 3 mN m by default; the first threshold after a reset is
-the largest). A smaller fixed one would not do: the rms grows with speed and model error. A
+(5 sigma_d, at least 1 mN m, at most 3 mN m by default; the first threshold after a reset, a
+:meth:`ContactEstimator.rearm` or a :meth:`ContactEstimator.let_go` is the largest: a new
+motion's model error is measured anew). A smaller fixed one would not do: the rms grows with speed and model error. A
 contact ends when ``d`` (in the contact's direction) stays below half the threshold it started
 with for :data:`LOSS_TIME` (samples below it are not fitted). The contact position is where the
 filtered endpoint was at the start (the filter delays position and force alike), replaced by
@@ -198,6 +199,7 @@ class ContactEstimator:
         self._detect_alpha = -math.expm1(-dt / DETECT_TIME)
         self._spread_alpha = -math.expm1(-dt / SPREAD_TIME)
         self._ceiling2 = self._on * self._on
+        self._factor2 = SPREAD_FACTOR * SPREAD_FACTOR
         self._floor2 = (FLOOR_FRACTION * self._on) ** 2
         self._block_decay = math.exp(-BLOCK * dt / params.forgetting_time)
         self._moving = params.min_velocity_excitation ** 2
@@ -223,7 +225,7 @@ class ContactEstimator:
         # the detection residual's mean and mean square deviation in free motion (the first
         # threshold is the largest), the threshold squared, the release level
         self.detection_mean = 0.0
-        self._spread2 = (self._on / SPREAD_FACTOR) ** 2
+        self._spread2 = self._ceiling2
         self._on2 = self._ceiling2
         self._off = 0.5 * self._on
         self._frozen = False         # between freeze() and let_go()
@@ -252,12 +254,15 @@ class ContactEstimator:
         self._take_bias()
 
     def _take_bias(self):
-        """The residual's recent mean (not one noisy sample) becomes part of the bias."""
+        """The residual's recent mean (not one noisy sample) becomes part of the bias; the
+        residual's spread is measured anew (the largest threshold first): a new motion's
+        model error is not the last one's."""
         recent = self._recent
         self.bias += recent
         self.force -= recent
         self.detection -= recent
         self.detection_mean = 0.0
+        self._spread2 = self._on2 = self._ceiling2
         self._recent = 0.0
         self._drift = 0.0
 
@@ -334,27 +339,19 @@ class ContactEstimator:
                 block.extend((p - self._p0, q, acc, 1.0, -f1, fd))
                 if len(block) == _BLOCK_VALUES:
                     self._fold()
-        elif (d - self.detection_mean) ** 2 > self._on2 or d * d > self._ceiling2:
-            self.contact = True
-            # the side of the excess over the free-motion mean (of d itself beyond the ceiling)
-            excess = d - self.detection_mean if (d - self.detection_mean) ** 2 > self._on2 else d
-            self.direction = 1 if excess < 0.0 else -1
-            self._off = 0.5 * math.sqrt(self._on2)
-            self._onset_before = self.onset_position
-            self.onset_position = p
-            self.contacts += 1
-            self._clear_fit()
-            self._p0 = p
-            self._skip = self._settle
-            self._below = 0
         else:
-            a = self._spread_alpha * steps
-            mean = self.detection_mean
-            mean += a * (d - mean)
-            self.detection_mean = mean
-            spread2 = self._spread2 + a * ((d - mean) ** 2 - self._spread2)
-            self._spread2 = spread2
-            on2 = SPREAD_FACTOR * SPREAD_FACTOR * spread2
+            excess = d - self.detection_mean
+            excess2 = excess * excess
+            if excess2 > self._on2 or d * d > self._ceiling2:
+                self._start_contact(excess if excess2 > self._on2 else d, p)
+                return
+            # the free-motion mean and spread of d (kept as SPREAD_FACTOR^2 times the mean
+            # square deviation: the threshold squared before its bounds)
+            a = self._spread_alpha if steps == 1 else min(1.0, self._spread_alpha * steps)
+            self.detection_mean += a * excess
+            on2 = self._spread2
+            on2 += a * (self._factor2 * excess2 - on2)
+            self._spread2 = on2
             self._on2 = self._floor2 if on2 < self._floor2 else (
                 self._ceiling2 if on2 > self._ceiling2 else on2)
             # critically damped tracker of the bias and its drift (a slowly changing model
@@ -366,6 +363,20 @@ class ContactEstimator:
             w *= steps
             self.bias += self._drift * steps + 2.0 * w * r
             self._drift += w * w * r
+
+    def _start_contact(self, excess, p):
+        """A contact starts at the filtered endpoint position ``p``; ``excess`` < 0: something
+        pushes towards -X_e."""
+        self.contact = True
+        self.direction = 1 if excess < 0.0 else -1
+        self._off = 0.5 * math.sqrt(self._on2)
+        self._onset_before = self.onset_position
+        self.onset_position = p
+        self.contacts += 1
+        self._clear_fit()
+        self._p0 = p
+        self._skip = self._settle
+        self._below = 0
 
     def _end_contact(self):
         if self._block:

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from seaforce_ros.core import (ChannelController, ChannelSimulator, ControllerConfig,
@@ -338,9 +338,14 @@ def test_grasp_goals_with_the_model_15_percent_off(k, b, position, v, grip):
     assert grip_error <= (0.05 if k >= 0.3 else 0.08), grip_error
 
 
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2 ** 16), speed=st.floats(0.05, 1.0), back=st.floats(0.05, 1.0),
        sign=st.sampled_from([1.0, -1.0]), travel=st.floats(0.1, 0.6))
+# found by this test: a slow finger reversing, held up by the Dahl model's error (the grasp
+# took it for an object touched at the start); a reversal whose residual was still settling
+# when the approach armed, the threshold adapted to the quiet motion before
+@example(seed=66, speed=1.0, back=0.0546875, sign=1.0, travel=0.25)
+@example(seed=0, speed=0.5, back=0.5, sign=1.0, travel=0.5)
 def test_no_contact_in_free_motion_with_a_wrong_model(seed, speed, back, sign, travel):
     """Free motion, the sim's plant 15 % off the model (every parameter, random signs): a grasp
     from rest at any speed 0.05-1 rad/s either way, released after ``travel``, then one the
