@@ -35,9 +35,10 @@ constant :data:`SPREAD_TIME`) and a contact starts when ``|d - m| > clamp(SPREAD
 sigma_d, FLOOR_FRACTION contact_threshold, contact_threshold)`` or ``|d| > contact_threshold``
 (5 sigma_d, at least 1 mN m, at most 3 mN m by default; the first threshold after a reset, a
 :meth:`ContactEstimator.rearm` or a :meth:`ContactEstimator.let_go` is the largest: a new
-motion's model error is measured anew). A smaller fixed one would not do: the rms grows with speed and model error. A
-contact ends when ``d`` (in the contact's direction) stays below half the threshold it started
-with for :data:`LOSS_TIME` (samples below it are not fitted). The contact position is where the
+motion's model error is measured anew). A smaller fixed threshold would not do: the rms
+grows with the speed and the model's error. A contact ends when ``d`` (in the contact's
+direction) stays below half the threshold it started with for :data:`LOSS_TIME` (samples
+below it are not fitted). The contact position is where the
 filtered endpoint was at the start (the filter delays position and force alike), replaced by
 the fit's ``x_c`` once the stiffness is reported. The model's error depends on the direction of
 motion (the Dahl force's error flips): a contact is only ended reliably by a residual that
@@ -222,8 +223,9 @@ class ContactEstimator:
         self._drift = 0.0            # the bias's drift per sample [N m]
         self._recent = 0.0           # the residual averaged over RECENT s
         self.detection = 0.0
-        # the detection residual's mean and mean square deviation in free motion (the first
-        # threshold is the largest), the threshold squared, the release level
+        # the detection residual's mean and SPREAD_FACTOR^2 times its mean square deviation
+        # in free motion (the first threshold is the largest), the threshold squared, the
+        # release level
         self.detection_mean = 0.0
         self._spread2 = self._ceiling2
         self._on2 = self._ceiling2
