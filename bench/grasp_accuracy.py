@@ -8,7 +8,10 @@ signs at random), objects drawn at random. Prints:
   ratio of the error to the 1-sigma the estimator reports (rms: ~1 means honest);
 * contact detection delay and peak contact force before the squeeze, by closing speed and
   object stiffness (goal: 10 ms and 0.05 N m up to 0.3 rad/s and 5 N m/rad);
-* grip force error in a settled hold and the largest contact force relative to max_force.
+* grip force error in a settled hold and the largest contact force relative to max_force;
+* free motion (no object) by closing speed: contacts found (goal: none), the contact threshold
+  the estimator adapted and the largest excess of its detection residual over its mean, as a
+  fraction of the threshold (the margin against a false contact).
 
 Run:  PYTHONPATH=. python bench/grasp_accuracy.py [--draws N] [--error 0.15] [--seed S]
 """
@@ -20,7 +23,7 @@ import numpy as np
 
 from seaforce_ros.core import ChannelController, ChannelSimulator, ControllerConfig, DahlParams
 from seaforce_ros.core import PlantParams
-from seaforce_ros.core.environment import contact_object
+from seaforce_ros.core.environment import contact_object, free
 from seaforce_ros.core.grasp import Grasp, GraspGoal
 
 DT = 5e-4
@@ -114,11 +117,46 @@ def table_contact(rng, error, speeds, stiffnesses, b, n):
         print(f'{v:14.2f}' + ''.join(f'{c:>18s}' for c in cells))
 
 
+def free_motion(v, rng, error, travel=0.5):
+    """A grasp with nothing to find, released after ``travel``: (contact found, lowest and
+    highest threshold [N m], largest |d - m| / threshold) while the approach is armed."""
+    plant, dahl = wrong_plant(rng, error)
+    sim = ChannelSimulator(plant, dahl, seed=int(rng.integers(1 << 30)), environment=free())
+    config = ControllerConfig()
+    ctl = ChannelController(config, dt=DT)
+    g = Grasp(GraspGoal('pinch', v, 0.3, 0.6, True), config, DT)
+    ctl.request_grasp(g)
+    est = ctl.estimator
+    m = sim.measurement()
+    start = None
+    low, high, worst = math.inf, 0.0, 0.0
+    while g.active:
+        m = sim.step(ctl.update(m.x, m.v, m.f_p))
+        start = est.position if start is None else start
+        if g.phase == 'approach' and g.armed:
+            low, high = min(low, est.threshold), max(high, est.threshold)
+            worst = max(worst, abs(est.detection - est.detection_mean) / est.threshold)
+        if abs(est.position - start) >= travel:
+            g.request_release('enough')
+    return g.contact, low, high, worst
+
+
+def table_free(rng, error, speeds, n):
+    print(f'\nfree motion, {n} plants per speed, released after 0.5 rad: contacts found, the '
+          'adapted threshold [mN m], largest |d - m| / threshold')
+    for v in speeds:
+        rows = [free_motion(v, rng, error) for _ in range(n)]
+        print(f'{v:14.2f} {sum(r[0] for r in rows):3d} {1e3 * min(r[1] for r in rows):6.2f} - '
+              f'{1e3 * max(r[2] for r in rows):4.2f} {max(r[3] for r in rows):8.2f}')
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--draws', type=int, default=40, help='random objects')
     parser.add_argument('--error', type=float, default=0.15, help='model error (relative)')
     parser.add_argument('--seed', type=int, default=12)
+    parser.add_argument('--worst-of', type=int, default=3, help='grasps per detection cell')
+    parser.add_argument('--free', type=int, default=10, help='plants per free-motion speed')
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
     print(f'the sim\'s plant {100 * args.error:.0f} % off the controller\'s model (each '
@@ -141,8 +179,10 @@ def main():
     ended = [r['ended'] for r in rows if r['ended'] not in ('holding', 'probing')]
     print(f'grasps that did not reach a settled hold: {len(ended)} {ended if ended else ""}')
     print(f'contacts detected before the true contact: {sum(r["early"] for r in rows)}')
-    table_contact(rng, args.error, (0.05, 0.1, 0.2, 0.3, 0.6, 1.0), (0.2, 1.0, 5.0, 20.0),
-                  0.05, 2)
+    for b in (0.04, 0.1):
+        table_contact(rng, args.error, (0.05, 0.1, 0.2, 0.3, 0.6, 1.0), (0.2, 1.0, 5.0, 20.0),
+                      b, args.worst_of)
+    table_free(rng, args.error, (0.05, 0.1, 0.3, 0.6, 1.0), args.free)
     return 0
 
 

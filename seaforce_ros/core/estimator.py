@@ -26,9 +26,19 @@ distance travelled, k_e's error times it, and a steady drift leaves no lag) whos
 constant is ``baseline_time`` or the time to travel ``baseline_distance``, whichever is
 shorter (a fast finger's error drifts fast; a contact's force rises with the distance too, so
 the distance decides what is absorbed: an object softer than about ``e contact_threshold /
-baseline_distance``, ~0.04 N m/rad). A contact starts when ``|r| > contact_threshold`` and
-ends when ``r`` (in the contact's direction) stays below half of it for :data:`LOSS_TIME`
-(samples below it are not fitted). The contact position is where the
+baseline_distance``, ~0.04 N m/rad). The detection sees ``d``, ``r`` smoothed with the time
+constant :data:`DETECT_TIME` (3 ms): ``r``'s sample-to-sample noise is the m_e acceleration
+term's (``s^2 H`` passes noise up to the Nyquist frequency with the gain ``m_e w^2``, 0.5 mN m
+rms with the simulated sensors; ``d``: 0.15-0.3 mN m). The threshold adapts to the noise: in
+free motion the mean ``m`` of ``d`` and its rms deviation ``sigma_d`` are tracked (time
+constant :data:`SPREAD_TIME`) and a contact starts when ``|d - m| > clamp(SPREAD_FACTOR
+sigma_d, FLOOR_FRACTION contact_threshold, contact_threshold)`` or ``|d| > contact_threshold``
+(5 sigma_d, at least 1 mN m, at most 3 mN m by default; the first threshold after a reset, a
+:meth:`ContactEstimator.rearm` or a :meth:`ContactEstimator.let_go` is the largest: a new
+motion's model error is measured anew). A smaller fixed threshold would not do: the rms
+grows with the speed and the model's error. A contact ends when ``d`` (in the contact's
+direction) stays below half the threshold it started with for :data:`LOSS_TIME` (samples
+below it are not fitted). The contact position is where the
 filtered endpoint was at the start (the filter delays position and force alike), replaced by
 the fit's ``x_c`` once the stiffness is reported. The model's error depends on the direction of
 motion (the Dahl force's error flips): a contact is only ended reliably by a residual that
@@ -79,12 +89,23 @@ import scipy.linalg
 
 from .params import EstimatorParams, PlantParams
 
-__all__ = ["ContactEstimator", "ObjectEstimate", "NO_ESTIMATE", "BLOCK", "LOSS_TIME"]
+__all__ = ["ContactEstimator", "ObjectEstimate", "NO_ESTIMATE", "BLOCK", "LOSS_TIME",
+           "DETECT_TIME", "SPREAD_FACTOR", "SPREAD_TIME", "FLOOR_FRACTION"]
 
 #: A contact ends when the residual stays below half the threshold this long [s].
 LOSS_TIME = 0.02
 #: Averaging time of the residual a re-captured bias takes [s].
 RECENT = 0.02
+#: Time constant of the first-order smoothing of the residual the contact detection sees [s]
+#: (it removes the sample-to-sample noise of the m_e acceleration term).
+DETECT_TIME = 0.003
+#: The contact threshold is this many times the detection residual's rms about its mean in
+#: free motion ...
+SPREAD_FACTOR = 5.0
+#: ... both measured with this time constant [s] ...
+SPREAD_TIME = 0.25
+#: ... and never below this fraction of ``contact_threshold`` (nor above it).
+FLOOR_FRACTION = 1.0 / 3.0
 #: Samples accumulated per block of the fit (one numpy outer product per block).
 BLOCK = 128
 _BLOCK_VALUES = 6 * BLOCK
@@ -133,6 +154,11 @@ class ContactEstimator:
         The residual ``r`` [N m]: the external force estimate less the free-motion bias.
     position, velocity : float
         Filtered X_e_hat [rad] and V_e_hat [rad/s].
+    detection : float
+        The residual ``d`` the detection sees: ``force`` smoothed over :data:`DETECT_TIME`
+        [N m].
+    detection_mean : float
+        Its mean in free motion [N m] (held during a contact).
     bias : float
         The free-motion bias of the external force estimate [N m] (the model's error while
         nothing touches; frozen during a contact).
@@ -168,10 +194,14 @@ class ContactEstimator:
         self._rate_time = dt / params.baseline_time             # per sample
         self._rate_distance = dt / params.baseline_distance     # per rad/s, per sample
         self._on = params.contact_threshold
-        self._off = 0.5 * params.contact_threshold
         self._settle = int(math.ceil(_SETTLE_DELAYS * 2.0 * _ZETA / (w * dt)))
         self._loss_samples = max(1, int(round(LOSS_TIME / dt)))
         self._recent_alpha = -math.expm1(-dt / RECENT)
+        self._detect_alpha = -math.expm1(-dt / DETECT_TIME)
+        self._spread_alpha = -math.expm1(-dt / SPREAD_TIME)
+        self._ceiling2 = self._on * self._on
+        self._factor2 = SPREAD_FACTOR * SPREAD_FACTOR
+        self._floor2 = (FLOOR_FRACTION * self._on) ** 2
         self._block_decay = math.exp(-BLOCK * dt / params.forgetting_time)
         self._moving = params.min_velocity_excitation ** 2
         # samples of the filtered residual per independent sample (its correlation time)
@@ -192,6 +222,14 @@ class ContactEstimator:
         self.bias = 0.0
         self._drift = 0.0            # the bias's drift per sample [N m]
         self._recent = 0.0           # the residual averaged over RECENT s
+        self.detection = 0.0
+        # the detection residual's mean and SPREAD_FACTOR^2 times its mean square deviation
+        # in free motion (the first threshold is the largest), the threshold squared, the
+        # release level
+        self.detection_mean = 0.0
+        self._spread2 = self._ceiling2
+        self._on2 = self._ceiling2
+        self._off = 0.5 * self._on
         self._frozen = False         # between freeze() and let_go()
         self._clear_fit()
 
@@ -218,10 +256,15 @@ class ContactEstimator:
         self._take_bias()
 
     def _take_bias(self):
-        """The residual's recent mean (not one noisy sample) becomes part of the bias."""
+        """The residual's recent mean (not one noisy sample) becomes part of the bias; the
+        residual's spread is measured anew (the largest threshold first): a new motion's
+        model error is not the last one's."""
         recent = self._recent
         self.bias += recent
         self.force -= recent
+        self.detection -= recent
+        self.detection_mean = 0.0
+        self._spread2 = self._on2 = self._ceiling2
         self._recent = 0.0
         self._drift = 0.0
 
@@ -242,6 +285,12 @@ class ContactEstimator:
             self.contact = False
             self.direction = 0
         self._take_bias()
+
+    @property
+    def threshold(self):
+        """The contact threshold in force [N m] (adapted in free motion; see module
+        docstring)."""
+        return math.sqrt(self._on2)
 
     # --- per sample -----------------------------------------------------------------------
     def update(self, xe, fp, fd, steps=1):
@@ -269,10 +318,14 @@ class ContactEstimator:
         r = f1 + ke * p - ke_rest + be * q + me * acc - self.bias
         self.force = r
         self._recent += self._recent_alpha * (r - self._recent)
+        d = self.detection
+        d += (self._detect_alpha if steps == 1 else 1.0 - (1.0 - self._detect_alpha) ** steps) \
+            * (r - d)
+        self.detection = d
         if self._frozen:
             return
         if self.contact:
-            if r * self.direction > -self._off:
+            if d * self.direction > -self._off:
                 # below the release level: not a sample of the object; the contact ends when
                 # that lasts (noise on a light touch must not end it)
                 self._below += steps
@@ -288,17 +341,21 @@ class ContactEstimator:
                 block.extend((p - self._p0, q, acc, 1.0, -f1, fd))
                 if len(block) == _BLOCK_VALUES:
                     self._fold()
-        elif r > self._on or r < -self._on:
-            self.contact = True
-            self.direction = 1 if r < 0.0 else -1
-            self._onset_before = self.onset_position
-            self.onset_position = p
-            self.contacts += 1
-            self._clear_fit()
-            self._p0 = p
-            self._skip = self._settle
-            self._below = 0
         else:
+            excess = d - self.detection_mean
+            excess2 = excess * excess
+            if excess2 > self._on2 or d * d > self._ceiling2:
+                self._start_contact(excess if excess2 > self._on2 else d, p)
+                return
+            # the free-motion mean and spread of d (kept as SPREAD_FACTOR^2 times the mean
+            # square deviation: the threshold squared before its bounds)
+            a = self._spread_alpha if steps == 1 else min(1.0, self._spread_alpha * steps)
+            self.detection_mean += a * excess
+            on2 = self._spread2
+            on2 += a * (self._factor2 * excess2 - on2)
+            self._spread2 = on2
+            self._on2 = self._floor2 if on2 < self._floor2 else (
+                self._ceiling2 if on2 > self._ceiling2 else on2)
             # critically damped tracker of the bias and its drift (a slowly changing model
             # error, k_e's for one, drifts with the position: no lag on a steady drift), at the
             # rate of baseline_time or of baseline_distance travelled, whichever is faster
@@ -308,6 +365,20 @@ class ContactEstimator:
             w *= steps
             self.bias += self._drift * steps + 2.0 * w * r
             self._drift += w * w * r
+
+    def _start_contact(self, excess, p):
+        """A contact starts at the filtered endpoint position ``p``; ``excess`` < 0: something
+        pushes towards -X_e."""
+        self.contact = True
+        self.direction = 1 if excess < 0.0 else -1
+        self._off = 0.5 * math.sqrt(self._on2)
+        self._onset_before = self.onset_position
+        self.onset_position = p
+        self.contacts += 1
+        self._clear_fit()
+        self._p0 = p
+        self._skip = self._settle
+        self._below = 0
 
     def _end_contact(self):
         if self._block:

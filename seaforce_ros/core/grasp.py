@@ -22,7 +22,9 @@ Phases:
   model's error changes with the speed) -- when the estimator's bias is re-captured. A finger
   held up by a contact on the closing side (after :data:`ARM_TIME_MAX` not beyond the arming
   distance, for :data:`ARM_TIME` slower than a quarter of the commanded speed, pushing against
-  something) started touching the object, and that is the contact. A contact on the closing side ends the approach; an object closer to the start
+  something with all of ``approach_force``: a finger the friction model's error holds up
+  is freed before the servo's integral gets there) started touching the object, and that is
+  the contact. A contact on the closing side ends the approach; an object closer to the start
   than the arming distance is not detected. No contact within ``max_travel`` (or
   ``2 max_travel/|v_cmd| + 1 s``): aborted.
 * ``contact`` -- ``f = approach_force`` for :data:`CONTACT_TIME` (the touch settles).
@@ -228,6 +230,7 @@ class Grasp:
         self._steady = 0.0         # time within 15 % of the approach speed, or still [s]
         self._slow = 0.0           # time below a quarter of the approach speed [s]
         self._integral = 0.0       # the approach servo's integral action [N m]
+        self._at_cap = False       # ... and its output at approach_force towards the object
         self._start = None         # filtered endpoint position at the start
         self._release_from = 0.0     # F_g and the commanded contact force when the release began
         self._release_contact = 0.0
@@ -289,6 +292,11 @@ class Grasp:
     def active(self):
         """True until ``done``."""
         return self.phase != "done"
+
+    @property
+    def armed(self):
+        """The approach's contact detection is armed (the finger moves steadily)."""
+        return self._armed
 
     @property
     def started(self):
@@ -411,7 +419,7 @@ class Grasp:
             if self._steady >= ARM_TIME and travel >= self._arm_travel:
                 est.rearm()
                 self._armed = True
-            elif (self._t >= ARM_TIME_MAX and travel < self._arm_travel
+            elif (self._t >= ARM_TIME_MAX and travel < self._arm_travel and self._at_cap
                   and self._slow >= ARM_TIME and est.contact and est.direction * s > 0):
                 # it never got going against a contact on the closing side: it started
                 # touching the object, and that is the contact (below)
@@ -437,7 +445,9 @@ class Grasp:
             i += error * APPROACH_INTEGRAL * self.dt * steps
             self._integral = cap if i > cap else (-cap if i < -cap else i)
             f = error + self._integral
-        return cap if f > cap else (-cap if f < -cap else f)
+        f = cap if f > cap else (-cap if f < -cap else f)
+        self._at_cap = s * f >= cap
+        return f
 
     def _relax_time(self, est):
         """How long the object may take to push the finger back after the release ramp:

@@ -227,7 +227,9 @@ class EstimatorParams:
         Cut-off of the second-order state-variable filter the estimator sees every signal
         through [Hz] (noise vs. delay: about ``0.23/filter_cutoff`` s of group delay).
     contact_threshold : float > 0
-        |force residual| that starts a contact [N m]; it ends below half of it.
+        |force residual| that starts a contact whatever the noise [N m]; in free motion the
+        threshold adapts to 5 rms of the residual, down to a third of this
+        (:mod:`.estimator`); a contact ends below half the threshold it started with.
     baseline_time : float > 0
         Time constant with which the residual's free-motion bias (model error) and its drift
         are tracked while the finger is slow [s].
@@ -452,8 +454,10 @@ PARAMETERS = {
         "estimator.filter_cutoff", "cut-off of the state-variable filter of the contact "
         "estimator (noise vs. delay) [Hz]", 1.0, 400.0),
     "estimator.contact_threshold": ParameterInfo(
-        "estimator.contact_threshold", "|F_e_hat - free-motion bias| that starts a contact; "
-        "it ends below half of it [N m]", 1e-6, 100.0),
+        "estimator.contact_threshold", "|F_e_hat - free-motion bias| that starts a contact "
+        "whatever the noise; in free motion the threshold adapts down to 5 rms of the "
+        "residual, at least a third of this; a contact ends below half of it [N m]", 1e-6,
+        100.0),
     "estimator.baseline_time": ParameterInfo(
         "estimator.baseline_time", "time constant tracking the force residual's bias in "
         "free motion (model error) while the finger is slow [s]", 1e-3, 100.0),

@@ -8,8 +8,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from seaforce_ros.core.estimator import (LOSS_TIME, ContactEstimator, _hose_sensitivity,
-                                         _spd_inverse)
+from seaforce_ros.core.estimator import (FLOOR_FRACTION, LOSS_TIME, ContactEstimator,
+                                         _hose_sensitivity, _spd_inverse)
 from seaforce_ros.core.params import EstimatorParams, PlantParams
 
 DT = 5e-4
@@ -266,3 +266,32 @@ def test_parameters_are_validated(bad):
     from seaforce_ros.core.errors import InvalidParameterError
     with pytest.raises(InvalidParameterError, match=f"estimator.{bad}"):
         EstimatorParams(**{bad: -1.0})
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(history=st.lists(st.tuples(st.floats(-0.02, 0.02), st.integers(1, 400),
+                                  st.integers(1, 3)), max_size=12),
+       step=st.floats(0.05, 0.2), side=st.sampled_from([1.0, -1.0]),
+       position=st.floats(-0.5, 0.5))
+def test_detection_is_never_less_sensitive_than_the_fixed_threshold(history, step, side,
+                                                                    position):
+    """Any history of external forces (at rest, exact model: F_e_hat is the force itself),
+    samples missed at random. Invariants: the adapted threshold stays within
+    [FLOOR_FRACTION contact_threshold, contact_threshold] at every sample; a force beyond
+    contact_threshold plus anything the history left in the bias, held 80 ms, is a contact
+    on its side (an object pushing towards -X_e: direction +1) -- the adaptation only ever
+    lowers the threshold."""
+    est = ContactEstimator(EstimatorParams(), TABLE_I, DT)
+    ceiling = est.params.contact_threshold
+    k_e = TABLE_I.endpoint_stiffness
+
+    def feed(force, n, steps=1):
+        for _ in range(n):
+            est.update(position, force - k_e * position, 0.0, steps)
+            assert FLOOR_FRACTION * ceiling * (1 - 1e-9) <= est.threshold <= ceiling * (1 + 1e-9)
+
+    feed(0.0, 1)
+    for force, n, steps in history:
+        feed(force, n, steps)
+    feed(-side * step, int(0.08 / DT))
+    assert est.contact and est.direction == side, (est.force, est.threshold, est.bias)

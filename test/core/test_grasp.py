@@ -158,6 +158,27 @@ def test_a_finger_that_starts_touching_the_object_takes_that_as_the_contact():
     assert g.phase == 'contact' and g.contact and est.rearms == 0
 
 
+def test_a_held_up_finger_counts_as_touching_only_with_its_servo_at_approach_force():
+    """A slow approach (0.05 rad/s) held up from the start by a push on the closing side: at
+    ARM_TIME_MAX its servo's integral has not reached approach_force -- the friction model's
+    error may be what holds it (with a real finger the integral frees it first) -- so no
+    contact yet; once the servo pushes with all of approach_force and the finger still does not
+    move, the push is the object's."""
+    g = make(v=0.05)
+    est = Est()
+    est.touch(0.005)
+    out = steps(g, est, ARM_TIME_MAX + DT, move=False)
+    assert g.phase == 'approach' and not g.contact and max(out) < GP.approach_force
+    before = g.force_command
+    for _ in range(int(2.0 / DT)):
+        if g.phase != 'approach':
+            break
+        before = g.force_command
+        g.update(est, 0.0)
+    assert g.phase == 'contact' and g.contact and est.rearms == 0
+    assert before == pytest.approx(GP.approach_force)
+
+
 def test_contact_on_the_closing_side_starts_the_contact_phase():
     g, est = armed()
     est.touch(0.005)

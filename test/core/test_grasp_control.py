@@ -6,13 +6,14 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from seaforce_ros.core import (ChannelController, ChannelSimulator, ControllerConfig,
                                DahlParams, PlantParams, position_sine, run_closed_loop)
 from seaforce_ros.core.control_cycle import ControlCycle
-from seaforce_ros.core.environment import contact_object
+from seaforce_ros.core.environment import contact_object, free
+from seaforce_ros.core.estimator import FLOOR_FRACTION, SPREAD_TIME
 from seaforce_ros.core.grasp import Grasp, GraspGoal, check_goal
 
 DT = 5e-4
@@ -293,8 +294,9 @@ def test_grasp_goals_with_the_model_15_percent_off(k, b, position, v, grip):
       each add up to at most sqrt(6) sigma);
     * damping within 30 % up to 3 N m/rad (beyond, the hose's k_s error dominates and the
       sigma says so);
-    * contact detected within 10 ms at 0.2-0.3 rad/s (slower: the force rises slower; within
-      30 ms down to 0.05 rad/s), peak contact force before the squeeze below 0.05 N m
+    * contact detected within 10 ms at 0.15-0.3 rad/s (slower, the force b_o v that stands out
+      of the noise first is smaller, and the finger slows as it meets the object: within 30 ms
+      down to 0.05 rad/s; README: the bound), peak contact force before the squeeze below 0.05 N m
       (objects up to 5 N m/rad);
     * grip within 5 % in a settled hold (softer than 0.3 N m/rad: the finger's own k_e, 15 %
       off, is a fifth of the object's stiffness: within 8 %); max_force never exceeded.
@@ -325,7 +327,7 @@ def test_grasp_goals_with_the_model_15_percent_off(k, b, position, v, grip):
     assert forces.max() <= max_force
     if k <= 5.0:
         assert before_squeeze.max() < 0.05
-        assert delay <= (0.010 if v >= 0.2 else 0.030), delay
+        assert delay <= (0.010 if v >= 0.15 else 0.030), delay
     k_tol = 0.10 if k <= 5.0 else 0.25 if k <= 15.0 else 0.30
     assert abs(estimate.stiffness - k) <= k_tol * k, estimate
     assert abs(estimate.stiffness - k) <= 2.5 * estimate.stiffness_sigma, estimate
@@ -334,3 +336,45 @@ def test_grasp_goals_with_the_model_15_percent_off(k, b, position, v, grip):
     assert abs(estimate.damping - b) <= 2.5 * estimate.damping_sigma, estimate
     grip_error = abs(np.mean(forces[-int(0.1 / DT):]) - grip) / grip
     assert grip_error <= (0.05 if k >= 0.3 else 0.08), grip_error
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2 ** 16), speed=st.floats(0.05, 1.0), back=st.floats(0.05, 1.0),
+       sign=st.sampled_from([1.0, -1.0]), travel=st.floats(0.1, 0.6))
+# found by this test: a slow finger reversing, held up by the Dahl model's error (the grasp
+# took it for an object touched at the start); a reversal whose residual was still settling
+# when the approach armed, the threshold adapted to the quiet motion before
+@example(seed=66, speed=1.0, back=0.0546875, sign=1.0, travel=0.25)
+@example(seed=0, speed=0.5, back=0.5, sign=1.0, travel=0.5)
+def test_no_contact_in_free_motion_with_a_wrong_model(seed, speed, back, sign, travel):
+    """Free motion, the sim's plant 15 % off the model (every parameter, random signs): a grasp
+    from rest at any speed 0.05-1 rad/s either way, released after ``travel``, then one the
+    other way (the Dahl model's error flips with the direction of motion), released likewise.
+    Invariant: the estimator never reports a contact once the approach is armed, and neither
+    grasp finds one -- the adaptive threshold (a third of contact_threshold at its lowest)
+    stays above the residual of the model's error and the sensors' noise."""
+    rng = np.random.default_rng(seed)
+    plant, dahl = model_error(rng)
+    g = Grasping(free(), mode='dob_full_ff', plant=plant, dahl=dahl, seed=seed)
+    est = g.ctl.estimator
+    ceiling = est.params.contact_threshold
+    lowest, armed = ceiling, 0.0
+    for v in (sign * speed, -sign * back):
+        grasp = g.start(v, 0.3, 0.6)
+        start = None
+        while grasp.phase == 'approach':
+            g.step()
+            if start is None:
+                start = est.position
+            if grasp.armed:
+                assert not est.contact, (v, g.t, est.force, est.threshold)
+                bounds = (FLOOR_FRACTION * ceiling * (1 - 1e-9), ceiling * (1 + 1e-9))
+                assert bounds[0] <= est.threshold <= bounds[1]
+                lowest = min(lowest, est.threshold)
+                armed += DT
+            if abs(est.position - start) >= travel:
+                grasp.request_release('enough')
+        g.until(lambda: not grasp.active, limit=g.t + 5.0)
+        assert not grasp.contact and grasp.outcome == 'canceled', grasp.message
+    if armed >= 4.0 * SPREAD_TIME:
+        assert lowest < 0.8 * ceiling       # it adapted to the residual's spread
