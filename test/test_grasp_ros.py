@@ -29,6 +29,8 @@ PLANT_KEYS = ('motor_inertia', 'motor_damping', 'motor_stiffness', 'endpoint_ine
 TABLE_I = {'motor_inertia': 1.1116e-3, 'motor_damping': 2.9814e-2, 'motor_stiffness': 0.1642,
            'endpoint_inertia': 0.7089e-3, 'endpoint_damping': 3.3879e-2,
            'endpoint_stiffness': 0.0637, 'hose_damping': 9.2453e-3, 'hose_stiffness': 13.0782}
+#: grasps of one object at most, when the probe lost samples of the goal's span
+ATTEMPTS = 3
 CONTACT_DAMPING = 0.08          # grasp.contact_damping's default (the soft objects' creep)
 
 
@@ -87,6 +89,63 @@ def wait_cycle(probe, topic, cycle, timeout=120.0):
     return probe.wait_messages(topic, 1, timeout=timeout, where=lambda m: m.cycle >= cycle)
 
 
+def _grasp_once(probe, client, obj, where):
+    """One grasp of ``obj`` over ROS from the finger's present position, canceled in a settled
+    hold, released into passive; -> the figures the test judges, and the cycles of the goal's
+    span the probe never got (a starved test process loses samples like any subscriber: the
+    sim keeps 1000 for a reliable reader)."""
+    now = probe.messages('actuator_state')[-1]
+    position = value(now, 'pinch', 'endpoint_position') + obj['gap']
+    ok, reason = probe.set_parameters('/sim', {
+        'pinch.environment.position': position, 'pinch.environment.stiffness': obj['k'],
+        'pinch.environment.damping': obj['b']})
+    assert ok, reason
+    probe.clear('actuator_state')
+    probe.clear('controller_status')
+    max_force = 2.0 * obj['grip']
+    handle, feedback = client.send(closing_velocity=obj['v'], grip_force=obj['grip'],
+                                   max_force=max_force)
+    probe.wait_for(lambda: feedback and feedback[-1].phase == 'hold', timeout=180,
+                   what=f'hold ({where})')
+    start = probe.messages('controller_status')[0].cycle
+    touched = probe.wait_messages('actuator_state', 1, where=lambda m: m.cycle > start and
+                                  value(m, 'pinch', 'external_force') < 0.0)[0].cycle
+    wait_cycle(probe, 'controller_status', touched + int(0.5 / DT))
+    settle = max(0.3, 6.0 * (obj['b'] + CONTACT_DAMPING) / obj['k'])
+    wait_cycle(probe, 'actuator_state', probe.messages('actuator_state')[-1].cycle
+               + int(settle / DT), timeout=300)
+    canceled = probe.messages('actuator_state')[-1].cycle
+    answer = client.cancel(handle)
+    assert answer.status == GoalStatus.STATUS_CANCELED, where
+    passive = probe.wait_messages('controller_status', 1, where=lambda m: m.cycle > start
+                                  and value(m, 'pinch', 'grasp_phase') == '')[-1].cycle
+    released = wait_cycle(probe, 'actuator_state', passive + 20)
+    assert all(value(m, 'pinch', 'motor_effort') == 0.0
+               for m in released if m.cycle > passive + 2), where
+
+    states = {m.cycle: m for m in probe.messages('actuator_state')}
+    status = {m.cycle: m for m in probe.messages('controller_status')}
+    force = {c: -value(m, 'pinch', 'external_force') for c, m in states.items()}
+    detected = min(c for c, m in status.items() if value(m, 'pinch', 'grasp_phase')
+                   in ('contact', 'squeeze', 'probe', 'hold'))
+    squeeze = min(c for c, m in status.items() if value(m, 'pinch', 'grasp_phase')
+                  in ('squeeze', 'probe', 'hold'))
+    at_half_second = status[min(c for c in status if c >= touched + int(0.5 / DT))]
+    k_hat = value(at_half_second, 'pinch', 'object_stiffness')
+    k_sigma = value(at_half_second, 'pinch', 'object_stiffness_sigma')
+    b_hat = value(at_half_second, 'pinch', 'object_damping')
+    b_sigma = value(at_half_second, 'pinch', 'object_damping_sigma')
+    held = [force[c] for c in sorted(force) if c <= canceled][-int(0.1 / DT):]
+    grip_error = abs(np.mean(held) - obj['grip']) / obj['grip']
+
+    missing = {name: sorted(set(range(start, canceled + 1)) - set(record))
+               for name, record in (('actuator_state', states), ('controller_status', status))}
+    return dict(position=position, max_force=max_force, touched=touched, canceled=canceled,
+                detected=detected, squeeze=squeeze, force=force, k_hat=k_hat, k_sigma=k_sigma,
+                b_hat=b_hat, b_sigma=b_sigma, grip_error=grip_error, answer=answer,
+                feedback=feedback), missing
+
+
 def test_grasp_random_objects_over_ros(processes, tmp_path, probe):
     """Three objects drawn by the test (seed printed on failure; SEAFORCE_GRASP_SEED repeats a
     run), the sim's plant 15 % off the model: stiffness within 10 % (25 % beyond 5 N m/rad,
@@ -115,50 +174,21 @@ def test_grasp_random_objects_over_ros(processes, tmp_path, probe):
     client = Client(probe)
     for n, obj in enumerate(draw_objects(rng, 3)):
         where = f'seed {seed}, object {n}: {obj}'
-        now = probe.messages('actuator_state')[-1]
-        position = value(now, 'pinch', 'endpoint_position') + obj['gap']
-        ok, reason = probe.set_parameters('/sim', {
-            'pinch.environment.position': position, 'pinch.environment.stiffness': obj['k'],
-            'pinch.environment.damping': obj['b']})
-        assert ok, reason
-        probe.clear('actuator_state')
-        probe.clear('controller_status')
-        max_force = 2.0 * obj['grip']
-        handle, feedback = client.send(closing_velocity=obj['v'], grip_force=obj['grip'],
-                                       max_force=max_force)
-        probe.wait_for(lambda: feedback and feedback[-1].phase == 'hold', timeout=180,
-                       what=f'hold ({where})')
-        start = probe.messages('controller_status')[0].cycle
-        touched = probe.wait_messages('actuator_state', 1, where=lambda m: m.cycle > start and
-                                      value(m, 'pinch', 'external_force') < 0.0)[0].cycle
-        wait_cycle(probe, 'controller_status', touched + int(0.5 / DT))
-        settle = max(0.3, 6.0 * (obj['b'] + CONTACT_DAMPING) / obj['k'])
-        wait_cycle(probe, 'actuator_state', probe.messages('actuator_state')[-1].cycle
-                   + int(settle / DT), timeout=300)
-        canceled = probe.messages('actuator_state')[-1].cycle
-        answer = client.cancel(handle)
-        assert answer.status == GoalStatus.STATUS_CANCELED, where
-        passive = probe.wait_messages('controller_status', 1, where=lambda m: m.cycle > start
-                                      and value(m, 'pinch', 'grasp_phase') == '')[-1].cycle
-        released = wait_cycle(probe, 'actuator_state', passive + 20)
-        assert all(value(m, 'pinch', 'motor_effort') == 0.0
-                   for m in released if m.cycle > passive + 2), where
-
-        states = {m.cycle: m for m in probe.messages('actuator_state')}
-        status = {m.cycle: m for m in probe.messages('controller_status')}
-        force = {c: -value(m, 'pinch', 'external_force') for c, m in states.items()}
-        detected = min(c for c, m in status.items() if value(m, 'pinch', 'grasp_phase')
-                       in ('contact', 'squeeze', 'probe', 'hold'))
-        squeeze = min(c for c, m in status.items() if value(m, 'pinch', 'grasp_phase')
-                      in ('squeeze', 'probe', 'hold'))
-        at_half_second = status[min(c for c in status if c >= touched + int(0.5 / DT))]
-        k_hat = value(at_half_second, 'pinch', 'object_stiffness')
-        k_sigma = value(at_half_second, 'pinch', 'object_stiffness_sigma')
-        b_hat = value(at_half_second, 'pinch', 'object_damping')
-        b_sigma = value(at_half_second, 'pinch', 'object_damping_sigma')
+        # judged only on a complete record of the goal's span: again (the same object) when
+        # the probe lost samples, at most three times
+        for attempt in range(1, ATTEMPTS + 1):
+            run, missing = _grasp_once(probe, client, obj, where)
+            if not any(missing.values()):
+                break
+            print(f'{where}: the probe lost ' + ', '.join(
+                f'{len(c)} {name} samples' for name, c in missing.items() if c)
+                + f' (attempt {attempt}/{ATTEMPTS})')
+        assert not any(missing.values()), (where, {k: v[:10] for k, v in missing.items()})
+        (position, max_force, touched, detected, squeeze, force, k_hat, k_sigma, b_hat, b_sigma,
+         grip_error, answer, feedback) = (run[key] for key in (
+            'position', 'max_force', 'touched', 'detected', 'squeeze', 'force', 'k_hat',
+            'k_sigma', 'b_hat', 'b_sigma', 'grip_error', 'answer', 'feedback'))
         k, b = obj['k'], obj['b']
-        held = [force[c] for c in sorted(force) if c <= canceled][-int(0.1 / DT):]
-        grip_error = abs(np.mean(held) - obj['grip']) / obj['grip']
 
         assert max(force.values()) <= max_force, where
         assert abs(k_hat - k) <= (0.10 if k <= 5.0 else 0.25 if k <= 15.0 else 0.30) * k, (where, k_hat)
