@@ -166,9 +166,15 @@ def test_controller_killed_gives_zero_torque(ecat_emulator, processes, tmp_path,
     states = by_cycle(m for m in probe.messages('actuator_state') if stamp_ns(m) > started_ns)
     cycles, flags, efforts, last_driven, first_to = torque_off_after_commands_stop(states,
                                                                                    'pinch')
-    # zero torque from the first flagged cycle, within command_timeout (0.01 s) + 1 cycle
-    assert cycles[first_to] - cycles[last_driven] <= 0.01 * RATE + 1, (
-        cycles[last_driven], cycles[first_to])
+    # zero torque from the first flagged cycle, within command_timeout (0.01 s) + 1 cycle of
+    # the last command that drove the finger -- unless the controller had already zeroed its
+    # own output (a starved controller's stale states, with its reason in its log) well before
+    # it died: then there was no torque left to time out
+    if stamp_ns(states[last_driven]) > killed_ns - 50_000_000:
+        assert cycles[first_to] - cycles[last_driven] <= 0.01 * RATE + 1, (
+            cycles[last_driven], cycles[first_to])
+    else:
+        assert 'zero torque' in ctrl.output(), ctrl.output()[-3000:]
     assert np.all(efforts[first_to:] == 0.0)
     # every state stamped 5x command_timeout past the kill is flagged (between the first
     # flag and then, an answer the starved controller had sent before it died may still
