@@ -48,7 +48,8 @@ Discretisation (sample period T = ``dt``):
   servo moves the free finger and fits b_e, k_e, F_c, sigma; when it ends the mode resumes
   bumplessly from the torque then, with the new values if it applied them. Any mode change
   aborts it. With ``friction.adaptation`` the feed-forward's values follow the same fit slowly
-  while the estimator sees no contact (``dob_linear_ff``, ``dob_full_ff``, ``impedance``).
+  while the estimator sees no contact (``dob_linear_ff``, ``dob_full_ff``, ``impedance``, and
+  a grasp's approach).
 * chirp: ``F_a = u_0 + A w(t) sin(phi(t))``, log chirp, u_0 the torque at
   entry, w a 50 ms raised-cosine fade-in/out. It plays once per selection of
   the mode (``configure``): a chirp that finished, or that the plant
@@ -328,7 +329,9 @@ class ChannelController:
 
     def _adapt(self, xe_hat, xd, f_p, fd, steps):
         adaptation = self.adaptation
-        if adaptation.update(xe_hat, xd, f_p, not self.estimator.contact, fd, steps):
+        grasp = self.grasp
+        free = not self.estimator.contact and (grasp is None or grasp.phase == "approach")
+        if adaptation.update(xe_hat, xd, f_p, free, fd, steps):
             be, ke, fc, sigma = adaptation.values
             self._be, self._ke = be, ke
             self._dahl.set_params(DahlParams(
@@ -396,7 +399,7 @@ class ChannelController:
         self.estimator.update(xe_hat, f_p, fd, steps)
         if self.calibration is not None:
             return self._run_calibration(self.calibration, x, v, xe_hat, xd, f_p, steps)
-        if self._use_ff and self._config.friction.adaptation and self.grasp is None:
+        if self._config.friction.adaptation and (self._use_ff or self.grasp is not None):
             self._adapt(xe_hat, xd, f_p, fd, steps)
 
         mode = self.mode
