@@ -479,6 +479,9 @@ class ChannelController:
         if self.grasp is not None:
             grasp.abort_now("another grasp holds the channel")
             return
+        if self.calibration is not None:
+            grasp.abort_now("a friction calibration holds the channel")
+            return
         self._interrupt_chirp()
         self.grasp = grasp
         self._enter = _ENTER

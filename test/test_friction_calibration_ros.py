@@ -1,0 +1,117 @@
+"""Friction calibration over ROS: controller_node's ``~/calibrate_friction`` action on the
+simulated gripper whose true endpoint friction drifted at random (lockstep, deterministic).
+
+Bad goals end at once with the reason (unknown, faulted, busy channel; NaN, too fast, beyond
+the joint range); a cancel returns to the mode and changes nothing; a calibration recovers the
+drifted b_e, k_e, F_c, sigma within 10 % of the sim's truth, applies them and sets the
+channel's parameters to them. The impedance after recalibration is asserted in
+test/core/test_friction_calibration.py (same core, no ROS in between)."""
+import math
+import os
+import time
+
+import numpy as np
+from action_msgs.msg import GoalStatus
+from rclpy.action import ActionClient
+from seaforce_msgs.action import CalibrateFriction
+from seaforce_msgs.msg import ActuatorState, ControllerStatus
+
+from helpers.nodes import start_node
+from helpers.states import value
+
+KEYS = ('plant.endpoint_damping', 'plant.endpoint_stiffness', 'dahl.coulomb_force',
+        'dahl.sigma')
+MODEL = {'plant.endpoint_damping': 3.3879e-2, 'plant.endpoint_stiffness': 0.0637,
+         'dahl.coulomb_force': 0.032, 'dahl.sigma': 12.8}
+
+
+class Client:
+    def __init__(self, probe):
+        self.client = ActionClient(probe.node, CalibrateFriction, '/controller/calibrate_friction')
+        assert self.client.wait_for_server(timeout_sec=30.0)
+
+    @staticmethod
+    def _wait(future, timeout, what):
+        deadline = time.monotonic() + timeout
+        while not future.done():
+            assert time.monotonic() < deadline, f'no {what} within {timeout} s'
+            time.sleep(0.01)
+        return future.result()
+
+    def send(self, channel='pinch', amplitude=0.4, speed=1.0, apply=True):
+        goal = CalibrateFriction.Goal(channel=channel, amplitude=float(amplitude),
+                                      speed=float(speed), apply=apply)
+        feedback = []
+        handle = self._wait(self.client.send_goal_async(
+            goal, feedback_callback=lambda m: feedback.append(m.feedback)), 30.0, 'goal answer')
+        assert handle.accepted
+        return handle, feedback
+
+    def result(self, handle, timeout=30.0):
+        return self._wait(handle.get_result_async(), timeout, 'result')
+
+    def rejected(self, **fields):
+        handle, _ = self.send(**fields)
+        answer = self.result(handle)
+        assert answer.status == GoalStatus.STATUS_ABORTED
+        assert answer.result.message.startswith('rejected: '), answer.result.message
+        assert not answer.result.applied
+        return answer.result.message
+
+
+def test_calibrate_friction_after_a_random_drift(processes, tmp_path, probe):
+    """The drift drawn by the test (seed printed on failure; SEAFORCE_FRICTION_SEED repeats
+    it): b_e and F_c x0.6..1.6, k_e x0.6..1.4, sigma x0.7..1.4 of the model."""
+    seed = int(os.environ.get('SEAFORCE_FRICTION_SEED', int.from_bytes(os.urandom(4), 'little')))
+    rng = np.random.default_rng(seed)
+    factors = rng.uniform([0.6, 0.6, 0.6, 0.7], [1.6, 1.4, 1.6, 1.4])
+    truth = {key: float(MODEL[key] * f) for key, f in zip(KEYS, factors)}
+    where = f'seed {seed}, truth {truth}'
+    sim = {'clock_mode': 'lockstep', **{f'pinch.sim.{key}': v for key, v in truth.items()}}
+    probe.record(ActuatorState, 'actuator_state')
+    probe.record(ControllerStatus, 'controller_status')
+    start_node(processes, 'sim_node', 'sim', tmp_path, sim)
+    probe.wait_messages('actuator_state', 1, timeout=60, where=lambda m: m.cycle == 0)
+    start_node(processes, 'controller_node', 'controller', tmp_path, {
+        'state_timeout': 5.0, 'pinch.mode': 'dob_full_ff', 'pinch.friction.calibration_duration':
+        10.0, 'wrist.mode': 'force', 'wrist.target.force': 2.0, 'wrist.max_torque': 1.0})
+    probe.wait_messages('controller_status', 5, timeout=60)
+    client = Client(probe)
+    assert 'unknown channel' in client.rejected(channel='thumb')
+    assert 'amplitude = nan' in client.rejected(amplitude=math.nan)
+    assert 'friction.max_speed' in client.rejected(speed=10.0)
+    assert 'joint range' in client.rejected(amplitude=2.0)
+    probe.wait_messages('controller_status', 1, timeout=60,
+                        where=lambda m: 'torque' in value(m, 'wrist', 'fault'))
+    assert 'wrist is faulted' in client.rejected(channel='wrist')
+
+    # a cancel: back to the mode, nothing applied; a second goal meanwhile is rejected (busy)
+    handle, feedback = client.send()
+    probe.wait_for(lambda: feedback and feedback[-1].progress > 0.05, timeout=60,
+                   what='progress')
+    assert 'busy' in client.rejected()
+    client._wait(handle.cancel_goal_async(), 30.0, 'cancel answer')
+    answer = client.result(handle)
+    assert answer.status == GoalStatus.STATUS_CANCELED, answer.result.message
+    assert not answer.result.applied
+    assert probe.get_parameters('/controller', [f'pinch.{k}' for k in KEYS]) == {
+        f'pinch.{k}': v for k, v in MODEL.items()}
+    probe.wait_messages('controller_status', 1, where=lambda m: value(
+        m, 'pinch', 'mode') == 'dob_full_ff')
+
+    # the calibration: within 10 % of the sim's truth, applied, the parameters set
+    handle, feedback = client.send(amplitude=0.4, speed=1.0, apply=True)
+    answer = client.result(handle, timeout=240.0)
+    result = answer.result
+    assert answer.status == GoalStatus.STATUS_SUCCEEDED, f'{result.message} ({where})'
+    assert list(result.names) == list(KEYS) and result.applied
+    for key, old, new, sigma, change in zip(result.names, result.old_values, result.new_values,
+                                            result.new_values_sigma, result.change):
+        assert old == MODEL[key]
+        assert abs(new / truth[key] - 1.0) < 0.10, f'{key}: {new} vs {truth[key]} ({where})'
+        assert 0.0 < sigma < 0.1 * new
+        assert change == new - old
+    params = probe.get_parameters('/controller', [f'pinch.{k}' for k in KEYS])
+    assert [params[f'pinch.{k}'] for k in KEYS] == list(result.new_values)
+    assert feedback and all(0.0 <= f.progress <= 1.0 for f in feedback)
+    assert {f.phase for f in feedback} <= {'move', 'solve'}
