@@ -246,11 +246,14 @@ class ChannelController:
         equilibrium within ~1/lambda; ``hold`` returns to its target through a transfer
         offset that decays in 50 ms: no step, and a finger under load is not pushed away a
         little more at every blip. After a longer interruption use :meth:`reset`, which
-        re-captures the targets where the finger is."""
+        re-captures the targets where the finger is. A friction calibration's reference waits
+        for that sample."""
         self._interrupt_chirp()
         self.torque = float(applied_torque)
         if self._enter != _ENTER:
             self._enter = _REENTER
+        if self.calibration is not None:
+            self.calibration.hold_reference()
 
     # --- grasps ----------------------------------------------------------------------------
     def request_grasp(self, grasp):

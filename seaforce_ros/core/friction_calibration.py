@@ -30,8 +30,9 @@ inverse normal matrix for b_e, k_e, F_c; for log ``a`` the profiled misfit's cur
 while it runs, like a grasp. A position servo on the motor (the ``hold`` gains) tracks
 ``X_ref = x_0 + A e(t) sin(w t)``, ``w = speed/A``, ``e`` a raised-cosine fade over one period
 at both ends, for ``friction.calibration_duration``; its torque never exceeds
-``min(friction.torque_limit, max_torque)``. The fit takes the samples after the fade-in (the
-Dahl states have forgotten their start by then). Then it holds ``x_0`` while it solves one
+``min(friction.torque_limit, max_torque)``; while the plant applies something else (a command
+timeout) the reference waits. The fit takes the samples after the fade-in (the Dahl states
+have forgotten their start by then), and ramps its inputs over samples it never saw. Then it holds ``x_0`` while it solves one
 candidate per sample, reports the new values with their 1-sigma and the change, and the
 controller applies them (bumplessly, at the start of the next sample) if the goal asked for
 it. It aborts with the reason, commanding zero torque from then on, on a non-finite input, a
@@ -152,14 +153,37 @@ class FrictionFit:
     def update(self, xe, xd, fp, record=True, steps=1):
         """One sample: X_e_hat [rad], the Dahl input [rad], F_p [N m]; the filters and Dahl
         states always run, the sample is fitted only if ``record``."""
-        a11, a12, b1, a21, a22, b2 = self._coef
         if self._first:
             self._first = False
             self._p, self._q, self._xd, self._g1, self._g2 = xe, 0.0, xd, fp, 0.0
+            self._xe, self._fp = xe, fp
             self._p0 = xe
             self._h = [[f, 0.0] for f in self._f]
+        q0 = self._q
+        if steps == 1:
+            self._advance(xe, xd, fp)
+        else:
+            # samples the plant produced but this controller never saw: the inputs ramp
+            # linearly over the gap (holding the newest would lead every signal by the gap,
+            # which the filters' derivatives turn into a velocity-proportional error: b_e
+            # +2 % at 10 % lost samples)
+            x0, d0, f0 = self._xe, self._xd, self._fp
+            for j in range(1, steps + 1):
+                c = j / steps
+                self._advance(x0 + c * (xe - x0), d0 + c * (xd - d0), f0 + c * (fp - f0))
+        acc = (self._q - q0) / (self.dt * steps)
+        if record:
+            block = self._block
+            block.extend((self._q, self._p - self._p0, 1.0, -self._g1 - self._me * acc))
+            block.extend([hk[0] for hk in self._h])
+            if len(block) >= self._width * BLOCK:
+                self.fold()
+
+    def _advance(self, xe, xd, fp):
+        """One sample period of the Dahl states and the filters with these inputs."""
+        a11, a12, b1, a21, a22, b2 = self._coef
         dx = xd - self._xd
-        self._xd = xd
+        self._xd, self._xe, self._fp = xd, xe, fp
         f = self._f
         if dx != 0.0:
             n = self.exponent
@@ -169,25 +193,13 @@ class FrictionFit:
                             else -1.0 + (1.0 + f[k]) * math.exp(a * dx))
                 else:
                     f[k] = dahl_step(f[k], dx, a, 1.0, n)
-        p, q0, g1, g2 = self._p, self._q, self._g1, self._g2
-        q = q0
-        for _ in range(steps):
-            p, q = a11 * p + a12 * q + b1 * xe, a21 * p + a22 * q + b2 * xe
-            g1, g2 = a11 * g1 + a12 * g2 + b1 * fp, a21 * g1 + a22 * g2 + b2 * fp
-        self._p, self._q, self._g1, self._g2 = p, q, g1, g2
-        acc = (q - q0) / (self.dt * steps)
-        h = self._h
-        for k, hk in enumerate(h):
+        p, q = self._p, self._q
+        self._p, self._q = a11 * p + a12 * q + b1 * xe, a21 * p + a22 * q + b2 * xe
+        g1, g2 = self._g1, self._g2
+        self._g1, self._g2 = a11 * g1 + a12 * g2 + b1 * fp, a21 * g1 + a22 * g2 + b2 * fp
+        for k, hk in enumerate(self._h):
             u, w = hk
-            for _ in range(steps):
-                u, w = a11 * u + a12 * w + b1 * f[k], a21 * u + a22 * w + b2 * f[k]
-            hk[0], hk[1] = u, w
-        if record:
-            block = self._block
-            block.extend((q, p - self._p0, 1.0, -g1 - self._me * acc))
-            block.extend([hk[0] for hk in h])
-            if len(block) >= self._width * BLOCK:
-                self.fold()
+            hk[0], hk[1] = a11 * u + a12 * w + b1 * f[k], a21 * u + a22 * w + b2 * f[k]
 
     @property
     def started(self):
@@ -426,6 +438,7 @@ class FrictionCalibration:
         self._x0 = None
         self._bias = 0.0
         self._solutions = []
+        self._hold = False
         self._cancel = None
         self._lock = threading.Lock()
         self._claimed = False
@@ -453,6 +466,12 @@ class FrictionCalibration:
         """(any thread) End at the next sample; nothing is applied."""
         self._cancel = reason
 
+    def hold_reference(self):
+        """(cycle thread) The plant applies something else than our torque this sample (a
+        command timeout): the reference does not advance at the next update, so that the
+        finger the plant let coast is not left behind by a moving reference."""
+        self._hold = True
+
     def abort_now(self, reason):
         """End at once, commanding nothing more (the cycle zeroed the torque)."""
         if self.phase != "done":
@@ -461,6 +480,28 @@ class FrictionCalibration:
     @property
     def active(self):
         return self.phase != "done"
+
+    def _advance(self, xe, xd, fp):
+        """One sample period of the Dahl states and the filters with these inputs."""
+        a11, a12, b1, a21, a22, b2 = self._coef
+        dx = xd - self._xd
+        self._xd, self._xe, self._fp = xd, xe, fp
+        f = self._f
+        if dx != 0.0:
+            n = self.exponent
+            for k, a in enumerate(self.ratios):
+                if n == 1.0:
+                    f[k] = (1.0 - (1.0 - f[k]) * math.exp(-a * dx) if dx > 0.0
+                            else -1.0 + (1.0 + f[k]) * math.exp(a * dx))
+                else:
+                    f[k] = dahl_step(f[k], dx, a, 1.0, n)
+        p, q = self._p, self._q
+        self._p, self._q = a11 * p + a12 * q + b1 * xe, a21 * p + a22 * q + b2 * xe
+        g1, g2 = self._g1, self._g2
+        self._g1, self._g2 = a11 * g1 + a12 * g2 + b1 * fp, a21 * g1 + a22 * g2 + b2 * fp
+        for k, hk in enumerate(self._h):
+            u, w = hk
+            hk[0], hk[1] = a11 * u + a12 * w + b1 * f[k], a21 * u + a22 * w + b2 * f[k]
 
     @property
     def started(self):
@@ -530,7 +571,10 @@ class FrictionCalibration:
             return u
         if self.phase == "move":
             self.fit.update(xe, xd, fp, record=t >= self._fade, steps=steps)
-            self._t = t + self.dt * steps
+            if self._hold:
+                self._hold = False
+            else:
+                self._t = t + self.dt * steps
             self.progress = 0.9 * min(1.0, self._t / self._duration)
             if self._t >= self._duration:
                 self.fit.fold()

@@ -363,7 +363,7 @@ class FrictionParams:
     calibration_duration: float = 12.0
     max_speed: float = 3.0
     torque_limit: float = 0.5
-    max_tracking_error: float = 0.1
+    max_tracking_error: float = 0.2
     position_min: float = -1.5
     position_max: float = 1.5
     adaptation: bool = False

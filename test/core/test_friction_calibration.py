@@ -369,3 +369,45 @@ def test_controller_adapts_only_in_feedforward_modes():
         for xi, vi, f in zip(x.tolist(), v.tolist(), fp.tolist()):
             ctl.update(xi, vi, f)
         assert (ctl.adaptation.updates > 0) == expected
+
+
+def test_lost_samples_do_not_bias_the_fit():
+    """A late loop answers only the newest state (30 % of the samples never seen, the
+    controller told how many periods passed): the fit ramps its inputs over the gap and stays
+    as accurate as with every sample (holding the newest biased b_e by +6 %)."""
+    plant = PLANT.scaled(endpoint_damping=1.12, endpoint_stiffness=0.83)
+    dahl = DahlParams(sigma=10.8, coulomb_force=0.0264)
+    truth = (plant.endpoint_damping, plant.endpoint_stiffness, dahl.coulomb_force)
+    rng = np.random.default_rng(5)
+    cfg = CONFIG.replace(mode="hold")
+    sim = ChannelSimulator(plant, dahl, dt=DT, seed=2)
+    ctl = ChannelController(cfg, DT)
+    cal = FrictionCalibration(CalibrationGoal("pinch", 0.4, 1.0, True), cfg, DT)
+    ctl.request_calibration(cal)
+    m, u, steps = sim.measurement(), 0.0, 1
+    while cal.active:
+        if rng.random() < 0.3:
+            m, steps = sim.step(u), steps + 1       # a state this controller never sees
+            continue
+        u = ctl.update(m.x, m.v, m.f_p, steps)
+        steps = 1
+        m = sim.step(u)
+    assert cal.outcome == "succeeded", cal.message
+    for value, t in zip(cal.new[:3], truth):
+        assert value == pytest.approx(t, rel=0.015)
+
+
+def test_reference_waits_while_the_plant_applies_something_else():
+    """A command timeout (the cycle calls reenter): the calibration's reference does not
+    advance on that sample, so a coasting finger is not left behind."""
+    ctl = ChannelController(CONFIG, DT)
+    cal = FrictionCalibration(CalibrationGoal("pinch", 0.3, 1.0, True), CONFIG, DT)
+    ctl.request_calibration(cal)
+    for _ in range(10):
+        ctl.update(0.0, 0.0, 0.0)
+    before = cal.progress
+    ctl.reenter(0.0)
+    ctl.update(0.0, 0.0, 0.0, steps=5)
+    assert cal.progress == before
+    ctl.update(0.0, 0.0, 0.0)
+    assert cal.progress > before
