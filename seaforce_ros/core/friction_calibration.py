@@ -188,11 +188,7 @@ class FrictionFit:
         if dx != 0.0:
             n = self.exponent
             for k, a in enumerate(self.ratios):
-                if n == 1.0:
-                    f[k] = (1.0 - (1.0 - f[k]) * math.exp(-a * dx) if dx > 0.0
-                            else -1.0 + (1.0 + f[k]) * math.exp(a * dx))
-                else:
-                    f[k] = dahl_step(f[k], dx, a, 1.0, n)
+                f[k] = dahl_step(f[k], dx, a, 1.0, n)        # F_d/F_c: F_c = 1
         p, q = self._p, self._q
         self._p, self._q = a11 * p + a12 * q + b1 * xe, a21 * p + a22 * q + b2 * xe
         g1, g2 = self._g1, self._g2
@@ -480,28 +476,6 @@ class FrictionCalibration:
     @property
     def active(self):
         return self.phase != "done"
-
-    def _advance(self, xe, xd, fp):
-        """One sample period of the Dahl states and the filters with these inputs."""
-        a11, a12, b1, a21, a22, b2 = self._coef
-        dx = xd - self._xd
-        self._xd, self._xe, self._fp = xd, xe, fp
-        f = self._f
-        if dx != 0.0:
-            n = self.exponent
-            for k, a in enumerate(self.ratios):
-                if n == 1.0:
-                    f[k] = (1.0 - (1.0 - f[k]) * math.exp(-a * dx) if dx > 0.0
-                            else -1.0 + (1.0 + f[k]) * math.exp(a * dx))
-                else:
-                    f[k] = dahl_step(f[k], dx, a, 1.0, n)
-        p, q = self._p, self._q
-        self._p, self._q = a11 * p + a12 * q + b1 * xe, a21 * p + a22 * q + b2 * xe
-        g1, g2 = self._g1, self._g2
-        self._g1, self._g2 = a11 * g1 + a12 * g2 + b1 * fp, a21 * g1 + a22 * g2 + b2 * fp
-        for k, hk in enumerate(self._h):
-            u, w = hk
-            hk[0], hk[1] = a11 * u + a12 * w + b1 * f[k], a21 * u + a22 * w + b2 * f[k]
 
     @property
     def started(self):
