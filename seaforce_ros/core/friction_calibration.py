@@ -71,7 +71,7 @@ __all__ = ["FrictionFit", "FrictionEstimate", "FrictionCalibration", "Calibratio
            "InvalidCalibrationError", "check_calibration_goal", "FrictionAdaptation",
            "with_friction", "ratio_grid",
            "CALIBRATION_PHASES", "RATIO_SPAN", "RATIOS_PER_DECADE", "ADAPTATION_STEP",
-           "MIN_DAHL_EXCITATION"]
+           "MIN_DAHL_EXCITATION", "FLAT_MISFIT", "SETTLE_SAMPLES"]
 
 #: Phases of a calibration, in order.
 CALIBRATION_PHASES = ("move", "solve", "done")
@@ -84,6 +84,8 @@ ADAPTATION_STEP = 10.0 ** 0.1
 #: The Dahl regressor's part only F_c explains (rms of the normalised force, 0..1) below which
 #: adaptation stops: too few reversals to tell hysteresis from damping.
 MIN_DAHL_EXCITATION = 0.2
+#: ``sigma_reason`` of a misfit without curvature in sigma/F_c.
+FLAT_MISFIT = "the misfit is flat in sigma/F_c: sigma not identified"
 #: Samples after a contact ends before the adaptation fits again (the filter's memory).
 SETTLE_SAMPLES = 64
 
@@ -91,7 +93,7 @@ FrictionEstimate = namedtuple(
     "FrictionEstimate", "endpoint_damping endpoint_stiffness coulomb_force sigma "
                         "endpoint_damping_sigma endpoint_stiffness_sigma coulomb_force_sigma "
                         "sigma_sigma velocity_excitation position_excitation dahl_excitation "
-                        "samples reason")
+                        "samples reason sigma_reason")
 FrictionEstimate.__doc__ = """A fit of the free endpoint's friction.
 
 endpoint_damping, endpoint_stiffness, coulomb_force, sigma : b_e [N m s/rad], k_e [N m/rad],
@@ -100,7 +102,9 @@ endpoint_damping, endpoint_stiffness, coulomb_force, sigma : b_e [N m s/rad], k_
 velocity_excitation, position_excitation, dahl_excitation : rms endpoint velocity [rad/s],
     motion [rad] and normalised Dahl force [-] only b_e, k_e, F_c explain
 samples : samples fitted (after forgetting)
-reason : '' when every value is identified, else why not (the values are then not to be used)
+reason : '' when b_e, k_e, F_c are identified, else why not (no value is then to be used)
+sigma_reason : '' when sigma is identified too, else why not (the best ratio on the edge of the
+    searched range: sigma is then that edge's; or a flat misfit)
 """
 
 
@@ -255,50 +259,47 @@ class FrictionFit:
         nan = math.nan
         if not math.isfinite(costs[best]) or n < 8.0:
             return FrictionEstimate(nan, nan, nan, nan, nan, nan, nan, nan, 0.0, 0.0, 0.0, n,
-                                    "too few samples, or a term that never varied")
+                                    "too few samples, or a term that never varied", "")
         theta, rss, inv = solutions[best]
-        reason = ""
+        reason = sigma_reason = ""
         logs = [math.log(r) for r in self.ratios]
         log_a = logs[best]
         var_log_a = nan
         variance = self._kappa * rss / max(n - 4.0, 1.0)
-        if len(self.ratios) >= 3:
-            if 0 < best < len(self.ratios) - 1 and all(
-                    solutions[i] is not None for i in (best - 1, best + 1)):
-                c0, c1, c2 = costs[best - 1], costs[best], costs[best + 1]
-                step = logs[best + 1] - logs[best]
-                curv = (c0 - 2.0 * c1 + c2) / (2.0 * step * step)
-                if curv > 0.0:
-                    shift = max(-step, min(step, (c0 - c2) / (4.0 * curv * step)))
-                    log_a += shift
-                    var_log_a = variance / curv
-                    # the linear parameters at the interpolated ratio (quadratic in log a)
-                    t0, t2 = solutions[best - 1][0], solutions[best + 1][0]
-                    u = shift / step
-                    theta = theta + 0.5 * u * (t2 - t0) + 0.5 * u * u * (t2 - 2.0 * theta + t0)
-                else:
-                    reason = "the misfit is flat in sigma/F_c: sigma not identified"
+        if 0 < best < len(self.ratios) - 1 and all(
+                solutions[i] is not None for i in (best - 1, best + 1)):
+            c0, c1, c2 = costs[best - 1], costs[best], costs[best + 1]
+            step = logs[best + 1] - logs[best]
+            # rss(l) = c1 + B (l - l_best) + curv (l - l_best)^2 through the three points
+            curv = (c0 - 2.0 * c1 + c2) / (2.0 * step * step)
+            if curv > 0.0:
+                shift = max(-step, min(step, (c0 - c2) / (4.0 * curv * step)))
+                log_a += shift
+                var_log_a = variance / curv
+                # the linear parameters at the interpolated ratio (quadratic in log a)
+                t0, t2 = solutions[best - 1][0], solutions[best + 1][0]
+                u = shift / step
+                theta = theta + 0.5 * u * (t2 - t0) + 0.5 * u * u * (t2 - 2.0 * theta + t0)
             else:
-                reason = (f"the best sigma/F_c is on the edge of the searched range "
-                          f"{self.ratios[0]:.4g}..{self.ratios[-1]:.4g} /rad: sigma not "
-                          "identified")
+                sigma_reason = FLAT_MISFIT
+        else:
+            sigma_reason = (f"the best sigma/F_c is on the edge of the searched range "
+                            f"{self.ratios[0]:.4g}..{self.ratios[-1]:.4g} /rad: sigma not "
+                            "identified")
         sd = np.sqrt(np.abs(np.diag(inv)) * variance)
         be, ke, fc = float(theta[0]), float(theta[1]), float(theta[3])
-        a = math.exp(log_a)
         exc = [math.sqrt(1.0 / (n * inv[i, i])) if inv[i, i] > 0.0 else 0.0 for i in (0, 1, 3)]
-        if not fc > 0.0 or not fc > 3.0 * sd[3]:
-            reason = reason or (f"the fitted F_c = {fc:.3g} +- {sd[3]:.2g} N m is not positive "
-                                "by 3 sigma: no hysteresis seen")
-        if not (be >= 0.0 and ke >= 0.0):
-            reason = reason or (f"the fit gives b_e = {be:.3g}, k_e = {ke:.3g}: negative "
-                                "friction, the motion does not tell the terms apart")
-        sigma = a * fc
-        sigma_sd = sigma * math.sqrt((var_log_a if math.isfinite(var_log_a) else 0.0)
-                                     + (sd[3] / fc) ** 2) if fc > 0.0 else nan
-        if not math.isfinite(var_log_a):
-            sigma_sd = nan
+        if not fc > 3.0 * sd[3]:
+            reason = (f"the fitted F_c = {fc:.3g} +- {sd[3]:.2g} N m is not positive by 3 "
+                      "sigma: no hysteresis seen")
+        elif not (be >= 0.0 and ke >= 0.0):
+            reason = (f"the fit gives b_e = {be:.3g}, k_e = {ke:.3g}: negative friction, the "
+                      "motion does not tell the terms apart")
+        sigma = math.exp(log_a) * fc
+        sigma_sd = (sigma * math.sqrt(var_log_a + (sd[3] / fc) ** 2)
+                    if math.isfinite(var_log_a) and fc > 0.0 else nan)
         return FrictionEstimate(be, ke, fc, sigma, float(sd[0]), float(sd[1]), float(sd[3]),
-                                sigma_sd, exc[0], exc[1], exc[2], n, reason)
+                                sigma_sd, exc[0], exc[1], exc[2], n, reason, sigma_reason)
 
 
 def ratio_grid(center, span=RATIO_SPAN, per_decade=RATIOS_PER_DECADE):
@@ -414,7 +415,7 @@ class FrictionCalibration:
         p, d = config.plant, config.dahl
         nan = math.nan
         self.old = FrictionEstimate(p.endpoint_damping, p.endpoint_stiffness, d.coulomb_force,
-                                    d.sigma, nan, nan, nan, nan, 0.0, 0.0, 0.0, 0.0, "")
+                                    d.sigma, nan, nan, nan, nan, 0.0, 0.0, 0.0, 0.0, "", "")
         center = d.sigma / d.coulomb_force if d.sigma > 0.0 else 400.0
         self.fit = FrictionFit(p, d.exponent, ratio_grid(center), self.dt,
                                config.estimator.filter_cutoff)
@@ -566,8 +567,9 @@ class FrictionCalibration:
         new = self.fit.estimate(self._solutions)
         self.new = new
         self.progress = 1.0
-        if new.reason:
-            self._finish("aborted", f"not identified: {new.reason}; nothing applied")
+        if new.reason or new.sigma_reason:
+            self._finish("aborted", f"not identified: {new.reason or new.sigma_reason}; "
+                                    "nothing applied")
         else:
             self._finish("succeeded", "identified" + ("" if self.goal.apply else
                                                       " (not applied: apply is false)"))
@@ -672,12 +674,14 @@ class FrictionAdaptation:
             self.adapting = False
             self.reason = "excitation too low: " + ", ".join(low)
             return False
-        target = (est.endpoint_damping, est.endpoint_stiffness, est.coulomb_force,
-                  est.sigma if not est.reason and math.isfinite(est.sigma) else self.values[3])
-        if not all(math.isfinite(v) for v in target[:3]) or not est.coulomb_force > 0.0:
+        if est.reason or not all(math.isfinite(v) for v in est[:4]):
             self.adapting = False
             self.reason = est.reason or "no estimate"
             return False
+        # a ratio on the edge of the three moves the centre that way (the step is bounded by
+        # the rate); a flat misfit leaves sigma
+        target = (est.endpoint_damping, est.endpoint_stiffness, est.coulomb_force,
+                  self.values[3] if est.sigma_reason == FLAT_MISFIT else est.sigma)
         rate = self._rate
         moved = []
         for v, t, (lo, hi) in zip(self.values, target, self.bounds):

@@ -74,7 +74,7 @@ def test_fit_recovers_an_analytic_endpoint(seed):
     fc, sigma = DAHL.coulomb_force * rng.uniform(0.5, 2.0), DAHL.sigma * rng.uniform(0.6, 1.6)
     est = fit_series(*free_endpoint(be, ke, fc, sigma), ratio_grid(DAHL.sigma /
                                                                     DAHL.coulomb_force))
-    assert est.reason == ""
+    assert est.reason == "" and est.sigma_reason == ""
     for value, truth, tol in ((est.endpoint_damping, be, 0.01), (est.endpoint_stiffness, ke, 0.01),
                               (est.coulomb_force, fc, 0.01), (est.sigma, sigma, 0.05)):
         assert value == pytest.approx(truth, rel=tol)
@@ -84,7 +84,7 @@ def test_fit_recovers_an_analytic_endpoint(seed):
 def test_fit_reports_a_ratio_outside_its_grid():
     x, fp = free_endpoint(0.03, 0.06, 0.03, 12.8)
     est = fit_series(x, fp, ratio_grid(40.0, span=2.0))     # 20..80 /rad; the truth is 427
-    assert "edge of the searched range" in est.reason
+    assert "edge of the searched range" in est.sigma_reason
 
 
 def test_fit_without_motion_is_not_identified():
@@ -325,16 +325,18 @@ def test_no_adaptation_without_excitation(amp, w, noise):
     assert "excitation too low" in ad.reason
 
 
-def test_adaptation_converges_on_a_free_endpoint_and_stops_at_its_bound():
+@pytest.mark.parametrize("sigma_factor", [0.6, 1.5])
+def test_adaptation_converges_on_a_free_endpoint_and_stops_at_its_bound(sigma_factor):
+    """sigma/F_c far outside the adaptation's first three candidates: they move to it."""
     truth = (PLANT.endpoint_damping * 1.3, PLANT.endpoint_stiffness * 0.8,
-             DAHL.coulomb_force * 1.3, DAHL.sigma)
+             DAHL.coulomb_force * 1.3, DAHL.sigma * sigma_factor)
     x, fp = free_endpoint(*truth, seconds=12.0)
     cfg = config(adaptation=True, adaptation_time=1.0)
     ad = FrictionAdaptation(cfg, DT)
     for xe, f in zip(x.tolist(), fp.tolist()):
         ad.update(xe, xe, f, True, 0.0)
     assert ad.updates > 0
-    for value, t in zip(ad.values[:3], truth[:3]):
+    for value, t in zip(ad.values, truth):
         assert value == pytest.approx(t, rel=0.05)
     tight = FrictionAdaptation(config(adaptation=True, adaptation_time=1.0,
                                       adaptation_bound=0.1), DT)
