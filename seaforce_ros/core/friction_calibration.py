@@ -27,18 +27,18 @@ inverse normal matrix for b_e, k_e, F_c; for log ``a`` the profiled misfit's cur
 (``var = s^2 / c`` for ``rss(l) = rss_min + c (l - l*)^2``); sigma's adds F_c's.
 
 :class:`FrictionCalibration` (action ``~/calibrate_friction``): overrides the channel's mode
-while it runs, like a grasp. A position servo on the motor (the ``hold`` gains) tracks
-``X_ref = x_0 + A e(t) sin(w t)``, ``w = speed/A``, ``e`` a raised-cosine fade over one period
-at both ends, for ``friction.calibration_duration``; its torque never exceeds
+while it runs, like a grasp. A position servo on the motor (the ``hold`` gains) tracks ``X_ref
+= x_0 + A e(t) sin(w t)``, ``w = speed/A``, ``e`` a raised-cosine fade over one period at both
+ends, for ``friction.calibration_duration``; its torque never exceeds
 ``min(friction.torque_limit, max_torque)``; while the plant applies something else (a command
-timeout) the reference waits. The fit takes the samples after the fade-in (the Dahl states
-have forgotten their start by then), and ramps its inputs over samples it never saw. Then it holds ``x_0`` while it solves one
-candidate per sample, reports the new values with their 1-sigma and the change, and the
-controller applies them (bumplessly, at the start of the next sample) if the goal asked for
-it. It aborts with the reason, commanding zero torque from then on, on a non-finite input, a
-tracking error beyond ``friction.max_tracking_error`` (the finger is blocked: not free) or an
-endpoint outside the joint range; a fit that cannot tell the parameters apart is reported,
-not applied.
+timeout) the reference waits. The fit takes the samples after the fade-in (the Dahl states have
+forgotten their start by then), and ramps its inputs over samples it never saw. Then it holds
+``x_0`` while it solves one candidate per sample, reports the new values with their 1-sigma and
+the change, and the controller applies them (bumplessly, at the start of the next sample) if
+the goal asked for it. It aborts with the reason, commanding zero torque from then on, on a
+non-finite input, a tracking error beyond ``friction.max_tracking_error`` (the finger is
+blocked: not free) or an endpoint outside the joint range; a fit that cannot tell the
+parameters apart is reported, not applied.
 
 :class:`FrictionAdaptation` (``friction.adaptation``): the same fit with three candidate
 ratios around the present one and forgetting (``friction.adaptation_time``, only while the

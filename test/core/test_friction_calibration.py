@@ -14,11 +14,11 @@ from hypothesis import strategies as st
 from seaforce_ros.core import (ChannelController, ChannelSimulator, ControllerConfig,
                                DahlParams, PlantParams, position_sine, run_closed_loop)
 from seaforce_ros.core.analysis import impedance_from_position, magnitude_db
+from seaforce_ros.core.control_cycle import ControlCycle
 from seaforce_ros.core.environment import contact_object
 from seaforce_ros.core.friction_calibration import (
     CalibrationGoal, FrictionAdaptation, FrictionCalibration, FrictionFit,
     InvalidCalibrationError, check_calibration_goal, ratio_grid, with_friction)
-from seaforce_ros.core.params import FrictionParams
 from seaforce_ros.identification.dahl_model import dahl_force
 
 DT = 5e-4
@@ -413,3 +413,28 @@ def test_reference_waits_while_the_plant_applies_something_else():
     assert cal.progress == before
     ctl.update(0.0, 0.0, 0.0)
     assert cal.progress > before
+
+
+@pytest.mark.parametrize("bad,words", [
+    (dict(x=(0.0, math.nan)), "fault latched: non-finite state"),
+    (dict(advance=0.2), "no state for"),                         # a stall of the stream
+    (dict(fp=(0.0, 2e3)), "fault latched: implausible state")])
+def test_the_cycle_aborts_a_calibration_with_the_torque(bad, words):
+    """Whatever zeroes a channel's torque in the ControlCycle ends its calibration: aborted
+    with the reason, nothing applied, zero torque on that sample."""
+    ctrls = [ChannelController(CONFIG, DT) for _ in range(2)]
+    cc = ControlCycle(("wrist", "pinch"), ctrls)
+    cal = FrictionCalibration(CalibrationGoal("pinch", 0.3, 1.0, True), CONFIG, DT)
+    ctrls[1].request_calibration(cal)
+    now, wall = 50.0, 1_800_000_000_000_000_000
+    state = dict(x=(0.0, 0.0), v=(0.0, 0.0), fp=(0.0, 0.0), fa=(0.0, 0.0), advance=DT)
+    for k in range(1, 30):
+        s = {**state, **(bad if k == 29 else {})}
+        now += s["advance"]
+        wall += int(s["advance"] * 1e9)
+        out = cc.step(["wrist", "pinch"], k, wall, list(s["x"]), list(s["v"]), list(s["fp"]),
+                      list(s["fa"]), [0, 0], wall, now)
+        if k == 20:
+            assert cal.started and cal.active
+    assert cal.outcome == "aborted" and words in cal.message, cal.message
+    assert out.effort[1] == 0.0 and not cal.applied and ctrls[1].calibration is None
