@@ -4,8 +4,8 @@ simulated gripper whose true endpoint friction drifted at random (lockstep, dete
 Bad goals end at once with the reason (unknown, faulted, busy channel; NaN, too fast, beyond
 the joint range); a cancel returns to the mode and changes nothing; a calibration recovers the
 drifted b_e, k_e, F_c, sigma within 10 % of the sim's truth, applies them and sets the
-channel's parameters to them. The impedance after recalibration is asserted in
-test/core/test_friction_calibration.py (same core, no ROS in between)."""
+channel's parameters to them, and dob_full_ff's |Z| at 1 rad/s (the stiff position drive, 0.5
+rad) is then within 2 dB of what the offline simulator gives with the true parameters."""
 import math
 import os
 import time
@@ -17,12 +17,33 @@ from seaforce_msgs.action import CalibrateFriction
 from seaforce_msgs.msg import ActuatorState, ControllerStatus
 
 from helpers.nodes import start_node
-from helpers.states import value
+from helpers.states import by_cycle, value
+from seaforce_ros.core import (ChannelController, ChannelSimulator, ControllerConfig,
+                               DahlParams, PlantParams, position_sine, run_closed_loop)
+from seaforce_ros.core.analysis import impedance_from_position, magnitude_db
+from seaforce_ros.core.friction_calibration import with_friction
+
+DT = 5e-4
+SETTLE = 3.0                     # s of the drive before |Z| is measured, then one period
 
 KEYS = ('plant.endpoint_damping', 'plant.endpoint_stiffness', 'dahl.coulomb_force',
         'dahl.sigma')
 MODEL = {'plant.endpoint_damping': 3.3879e-2, 'plant.endpoint_stiffness': 0.0637,
          'dahl.coulomb_force': 0.032, 'dahl.sigma': 12.8}
+
+
+def z_true_db(truth):
+    """|Z| [dB] of dob_full_ff at 1 rad/s in the offline simulator, the model = the truth."""
+    plant = PlantParams.table_i().scaled(
+        endpoint_damping=truth['plant.endpoint_damping'] / MODEL['plant.endpoint_damping'],
+        endpoint_stiffness=truth['plant.endpoint_stiffness'] / MODEL['plant.endpoint_stiffness'])
+    dahl = DahlParams(sigma=truth['dahl.sigma'], coulomb_force=truth['dahl.coulomb_force'])
+    config = with_friction(ControllerConfig(mode='dob_full_ff'), [truth[k] for k in KEYS])
+    n = int((SETTLE + 2.0 * math.pi) / DT) + 1
+    rec = run_closed_loop(ChannelSimulator(plant, dahl, dt=DT, seed=1,
+                                           environment=position_sine(0.5, 1.0)),
+                          ChannelController(config, DT), n)
+    return magnitude_db(impedance_from_position(rec['f_e'], rec['x_e'], 1.0, DT, SETTLE))
 
 
 class Client:
@@ -115,3 +136,24 @@ def test_calibrate_friction_after_a_random_drift(processes, tmp_path, probe):
     assert [params[f'pinch.{k}'] for k in KEYS] == list(result.new_values)
     assert feedback and all(0.0 <= f.progress <= 1.0 for f in feedback)
     assert {f.phase for f in feedback} <= {'move', 'solve'}
+
+    # |Z| of dob_full_ff at 1 rad/s with the recalibrated values, over ROS
+    ok, reason = probe.set_parameters('/sim', {'pinch.environment.amplitude': 0.5,
+                                               'pinch.environment.frequency': 1.0})
+    assert ok, reason
+    start = probe.messages('actuator_state')[-1].cycle
+    ok, reason = probe.set_parameters('/sim', {'pinch.environment.mode': 'position_sine'})
+    assert ok, reason
+    switched = probe.wait_messages('actuator_state', 1, where=lambda m: m.cycle > start)
+    first = switched[-1].cycle + int(SETTLE / DT) + 200
+    last = first + int(2.0 * math.pi / DT)
+    probe.wait_messages('actuator_state', 1, timeout=120, where=lambda m: m.cycle >= last)
+    msgs = [m for m in by_cycle(probe.messages('actuator_state')) if first <= m.cycle <= last]
+    assert len(msgs) > 0.9 * (last - first), 'too many states lost to measure |Z|'
+    cycles = np.array([m.cycle for m in msgs], float)
+    grid = np.arange(first, last + 1, dtype=float)
+    f_e = np.interp(grid, cycles, [value(m, 'pinch', 'external_force') for m in msgs])
+    x_e = np.interp(grid, cycles, [value(m, 'pinch', 'endpoint_position') for m in msgs])
+    z_ros = magnitude_db(impedance_from_position(f_e, x_e, 1.0, DT))
+    z_true = z_true_db(truth)
+    assert abs(z_ros - z_true) < 2.0, f'|Z| {z_ros:.2f} dB vs {z_true:.2f} dB ({where})'
