@@ -8,14 +8,13 @@ channel's parameters to them, and dob_full_ff's |Z| at 1 rad/s (the stiff positi
 rad) is then within 2 dB of what the offline simulator gives with the true parameters."""
 import math
 import os
-import time
 
 import numpy as np
 from action_msgs.msg import GoalStatus
-from rclpy.action import ActionClient
 from seaforce_msgs.action import CalibrateFriction
 from seaforce_msgs.msg import ActuatorState, ControllerStatus
 
+from helpers.actions import ActionTestClient
 from helpers.nodes import start_node
 from helpers.states import by_cycle, value
 from seaforce_ros.core import (ChannelController, ChannelSimulator, ControllerConfig,
@@ -46,38 +45,13 @@ def z_true_db(truth):
     return magnitude_db(impedance_from_position(rec['f_e'], rec['x_e'], 1.0, DT, SETTLE))
 
 
-class Client:
+class Client(ActionTestClient):
     def __init__(self, probe):
-        self.client = ActionClient(probe.node, CalibrateFriction, '/controller/calibrate_friction')
-        assert self.client.wait_for_server(timeout_sec=30.0)
+        super().__init__(probe, CalibrateFriction, '/controller/calibrate_friction')
 
-    @staticmethod
-    def _wait(future, timeout, what):
-        deadline = time.monotonic() + timeout
-        while not future.done():
-            assert time.monotonic() < deadline, f'no {what} within {timeout} s'
-            time.sleep(0.01)
-        return future.result()
-
-    def send(self, channel='pinch', amplitude=0.4, speed=1.0, apply=True):
-        goal = CalibrateFriction.Goal(channel=channel, amplitude=float(amplitude),
+    def goal(self, channel='pinch', amplitude=0.4, speed=1.0, apply=True):
+        return CalibrateFriction.Goal(channel=channel, amplitude=float(amplitude),
                                       speed=float(speed), apply=apply)
-        feedback = []
-        handle = self._wait(self.client.send_goal_async(
-            goal, feedback_callback=lambda m: feedback.append(m.feedback)), 30.0, 'goal answer')
-        assert handle.accepted
-        return handle, feedback
-
-    def result(self, handle, timeout=30.0):
-        return self._wait(handle.get_result_async(), timeout, 'result')
-
-    def rejected(self, **fields):
-        handle, _ = self.send(**fields)
-        answer = self.result(handle)
-        assert answer.status == GoalStatus.STATUS_ABORTED
-        assert answer.result.message.startswith('rejected: '), answer.result.message
-        assert not answer.result.applied
-        return answer.result.message
 
 
 def test_calibrate_friction_after_a_random_drift(processes, tmp_path, probe):
@@ -111,8 +85,7 @@ def test_calibrate_friction_after_a_random_drift(processes, tmp_path, probe):
     probe.wait_for(lambda: feedback and feedback[-1].progress > 0.05, timeout=60,
                    what='progress')
     assert 'busy' in client.rejected()
-    client._wait(handle.cancel_goal_async(), 30.0, 'cancel answer')
-    answer = client.result(handle)
+    answer = client.cancel(handle)
     assert answer.status == GoalStatus.STATUS_CANCELED, answer.result.message
     assert not answer.result.applied
     assert probe.get_parameters('/controller', [f'pinch.{k}' for k in KEYS]) == {

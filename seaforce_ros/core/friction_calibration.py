@@ -57,7 +57,6 @@ read the attributes.
 
 import dataclasses
 import math
-import threading
 from collections import namedtuple
 
 import numpy as np
@@ -65,6 +64,7 @@ import numpy as np
 from .dahl import dahl_step
 from .errors import SeaforceError
 from .estimator import BLOCK, svf_coefficients
+from .handover import Claim
 from .params import FrictionParams
 
 __all__ = ["FrictionFit", "FrictionEstimate", "FrictionCalibration", "CalibrationGoal",
@@ -437,25 +437,17 @@ class FrictionCalibration:
         self._solutions = []
         self._hold = False
         self._cancel = None
-        self._lock = threading.Lock()
-        self._claimed = False
-        self._withdrawn = False
+        self._claim = Claim()
 
     # --- requests (thread rules in the module docstring) -----------------------------------
     def claim(self):
         """(cycle thread) Take the calibration over: False if it was withdrawn first."""
-        with self._lock:
-            if self._withdrawn:
-                return False
-            self._claimed = True
-            return True
+        return self._claim.claim()
 
     def withdraw(self, reason, outcome="aborted"):
         """(any thread) End a calibration the cycle has not claimed: True if ended."""
-        with self._lock:
-            if self._claimed:
-                return False
-            self._withdrawn = True
+        if not self._claim.withdraw():
+            return False
         self._finish(outcome, reason)
         return True
 
@@ -480,7 +472,8 @@ class FrictionCalibration:
 
     @property
     def started(self):
-        return self._claimed
+        """The cycle has claimed it (it runs, or ran)."""
+        return self._claim.claimed
 
     def _finish(self, outcome, message):
         self.outcome = outcome
