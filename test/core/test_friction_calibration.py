@@ -19,6 +19,7 @@ from seaforce_ros.core.environment import contact_object
 from seaforce_ros.core.friction_calibration import (
     CalibrationGoal, FrictionAdaptation, FrictionCalibration, FrictionFit,
     InvalidCalibrationError, check_calibration_goal, ratio_grid, with_friction)
+from seaforce_ros.core.grasp import Grasp, GraspGoal
 from seaforce_ros.identification.dahl_model import dahl_force
 
 DT = 5e-4
@@ -438,3 +439,24 @@ def test_the_cycle_aborts_a_calibration_with_the_torque(bad, words):
             assert cal.started and cal.active
     assert cal.outcome == "aborted" and words in cal.message, cal.message
     assert out.effort[1] == 0.0 and not cal.applied and ctrls[1].calibration is None
+
+
+def test_a_grasp_and_a_calibration_never_share_a_channel():
+    ctl = ChannelController(CONFIG, DT)
+    cal = FrictionCalibration(CalibrationGoal("pinch", 0.3, 1.0, True), CONFIG, DT)
+    ctl.request_calibration(cal)
+    ctl.update(0.0, 0.0, 0.0)
+    grasp = Grasp(GraspGoal("pinch", 0.3, 0.3, 0.6, False), CONFIG, DT)
+    ctl.request_grasp(grasp)
+    ctl.update(0.0, 0.0, 0.0)
+    assert grasp.outcome == "aborted" and "friction calibration" in grasp.message
+    assert ctl.calibration is cal and ctl.grasp is None
+    cal.request_cancel()
+    ctl.update(0.0, 0.0, 0.0)
+    grasp = Grasp(GraspGoal("pinch", 0.3, 0.3, 0.6, False), CONFIG, DT)
+    ctl.request_grasp(grasp)
+    ctl.update(0.0, 0.0, 0.0)
+    other = FrictionCalibration(CalibrationGoal("pinch", 0.3, 1.0, True), CONFIG, DT)
+    ctl.request_calibration(other)
+    ctl.update(0.0, 0.0, 0.0)
+    assert ctl.grasp is grasp and other.outcome == "aborted" and "busy" in other.message
