@@ -11,6 +11,7 @@ import os
 
 import numpy as np
 from action_msgs.msg import GoalStatus
+from diagnostic_msgs.msg import DiagnosticArray
 from seaforce_msgs.action import CalibrateFriction
 from seaforce_msgs.msg import ActuatorState, ControllerStatus
 
@@ -130,3 +131,22 @@ def test_calibrate_friction_after_a_random_drift(processes, tmp_path, probe):
     z_ros = magnitude_db(impedance_from_position(f_e, x_e, 1.0, DT))
     z_true = z_true_db(truth)
     assert abs(z_ros - z_true) < 2.0, f'|Z| {z_ros:.2f} dB vs {z_true:.2f} dB ({where})'
+
+    # the online adaptation's state is in /diagnostics (here: backdriven, it adapts or says
+    # why not), within its bounds around the recalibrated values
+    probe.record(DiagnosticArray, '/diagnostics')
+    ok, reason = probe.set_parameters('/controller', {'pinch.friction.adaptation': True})
+    assert ok, reason
+
+    def adaptation(diag):
+        for status in diag.status:
+            if status.name == 'controller: pinch':
+                values = {kv.key: kv.value for kv in status.values}
+                if values.get('friction_adaptation', 'off') != 'off':
+                    return values
+        return None
+    diag = probe.wait_messages('/diagnostics', 1, timeout=30,
+                               where=lambda d: adaptation(d) is not None)[-1]
+    values = adaptation(diag)
+    damping = float(values['adapted_endpoint_damping'])
+    assert result.new_values[0] / 2.0 <= damping <= result.new_values[0] * 2.0, values
