@@ -52,21 +52,23 @@ def calibrate(config, plant, dahl, amplitude, speed, seed=2):
     return cal, ctl.config
 
 
-def per_sample_cost(config, calibrate_too, n=4000):
-    """Seconds per controller update (free endpoint, the finger still or calibrating)."""
-    sim = ChannelSimulator(config.plant, config.dahl, dt=DT, seed=3)
+def per_sample_cost(config, calibrate_too, n=6000):
+    """(mean, 99.9th percentile) seconds per controller update: the finger backdriven by the position drive
+    (the adaptation, when on, runs there), or a calibration running in free air."""
+    env = None if calibrate_too else position_sine(0.5, 1.0)
+    sim = ChannelSimulator(config.plant, config.dahl, dt=DT, seed=3, environment=env)
     ctl = ChannelController(config, DT)
     if calibrate_too:
         ctl.request_calibration(FrictionCalibration(CalibrationGoal("pinch", 0.5, 1.0, True),
                                                     config, DT))
     m = sim.measurement()
-    elapsed = 0.0
+    times = []
     for _ in range(n):
         t0 = time.perf_counter()
         u = ctl.update(m.x, m.v, m.f_p)
-        elapsed += time.perf_counter() - t0
+        times.append(time.perf_counter() - t0)
         m = sim.step(u)
-    return elapsed / n
+    return float(np.mean(times)), float(np.percentile(times, 99.9))
 
 
 def one_case(base, factors, amplitude, speed):
@@ -126,13 +128,19 @@ def main():
         [0.6, 0.6, 0.6, 0.7], [1.6, 1.4, 1.6, 1.4], size=(args.random, 4))]
     for factors in cases:
         one_case(base, factors, args.amplitude, args.speed)
-    still = per_sample_cost(base, False)
-    moving = per_sample_cost(base, True)
-    print(f"\nper-sample cost: dob_full_ff update {1e6 * still:.1f} us, with a calibration "
-          f"running {1e6 * moving:.1f} us (x{moving / still:.2f}; "
-          f"{len(FrictionCalibration(CalibrationGoal('p', 0.5, 1.0), base, DT).fit.ratios)} "
-          "candidate sigma/F_c)")
-
+    rows = (("dob_full_ff", base, False),
+            ("dob_full_ff + adaptation", base.replace(friction=dataclasses.replace(
+                base.friction, adaptation=True)), False),
+            ("calibration running", base, True))
+    print(f"\nper-sample cost of the controller update [us] "
+          f"({len(FrictionCalibration(CalibrationGoal('p', 0.5, 1.0), base, DT).fit.ratios)} "
+          "candidate sigma/F_c in a calibration, 3 in the adaptation)")
+    reference = None
+    for label, cfg, calibrating in rows:
+        mean, tail = per_sample_cost(cfg, calibrating)
+        reference = reference or mean
+        print(f"  {label:26s} mean {1e6 * mean:7.1f}  p99.9 {1e6 * tail:7.1f}  "
+              f"(x{mean / reference:.2f} of dob_full_ff's mean)")
 
 if __name__ == "__main__":
     main()

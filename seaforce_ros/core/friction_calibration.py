@@ -40,15 +40,16 @@ non-finite input, a tracking error beyond ``friction.max_tracking_error`` (the f
 blocked: not free) or an endpoint outside the joint range; a fit that cannot tell the
 parameters apart is reported, not applied.
 
-:class:`FrictionAdaptation` (``friction.adaptation``): the same fit with three candidate
-ratios around the present one and forgetting (``friction.adaptation_time``, only while the
-finger moves), fed only while the contact estimator reports no contact. At each block it moves
-b_e, k_e, F_c, sigma a step ``BLOCK dt / adaptation_time`` towards the fit, clipped to
-``[v/(1+r), v(1+r)]`` of the configured ``v`` (``r = friction.adaptation_bound``), and only
-when the motion excites every term: the velocity only b_e explains above
-``min_velocity_excitation``, the motion only k_e explains above ``min_position_excitation``,
-and the Dahl force's part only F_c explains above :data:`MIN_DAHL_EXCITATION` (reversals).
-Below that it stops (``adapting`` False, ``reason`` says why).
+:class:`FrictionAdaptation` (``friction.adaptation``): the same fit with three candidate ratios
+around the present one and forgetting (``friction.adaptation_time``, only while the finger
+moves), fed only while the contact estimator reports no contact. At each block it moves b_e,
+k_e, F_c, sigma a step ``BLOCK dt / adaptation_time`` towards the fit (solving one candidate
+per sample after it), clipped to ``[v/(1+r), v(1+r)]`` of the configured ``v`` (``r =
+friction.adaptation_bound``), and only when the motion excites every term: the velocity only
+b_e explains above ``min_velocity_excitation``, the motion only k_e explains above
+``min_position_excitation``, and the Dahl force's part only F_c explains above
+:data:`MIN_DAHL_EXCITATION` (reversals). Below that it stops (``adapting`` False, ``reason``
+says why).
 
 Threads: the cycle thread runs ``update``, ``claim`` and ``abort_now``; the action server may
 call :meth:`FrictionCalibration.request_cancel`, :meth:`FrictionCalibration.withdraw` and
@@ -243,7 +244,11 @@ class FrictionFit:
         if not np.all(d > 0.0):
             return None
         gn = g / np.outer(d, d)
-        if np.linalg.cond(gn) > 1e10:
+        try:
+            pivots = np.diag(np.linalg.cholesky(gn))
+        except np.linalg.LinAlgError:
+            return None
+        if pivots.min() ** 2 < 1e-10:       # a regressor (almost) explained by the others
             return None
         inv = np.linalg.inv(gn) / np.outer(d, d)
         theta = inv @ h
@@ -253,6 +258,8 @@ class FrictionFit:
     def estimate(self, solutions):
         """The :class:`FrictionEstimate` from ``solutions`` (one :meth:`solve_candidate`
         result per ratio)."""
+        if len(solutions) != len(self.ratios):
+            raise ValueError(f"{len(solutions)} solutions for {len(self.ratios)} ratios")
         n = self.samples
         costs = [s[1] if s is not None else math.inf for s in solutions]
         best = int(np.argmin(costs))
@@ -631,6 +638,7 @@ class FrictionAdaptation:
                                self.params.adaptation_time)
         self.fit.reset(force)
         self._settle = 0
+        self._solving = None         # the candidates solved since the last fold
 
     def update(self, xe, xd, fp, free, dahl_force, steps=1):
         """One sample (X_e_hat, the Dahl input, F_p; ``free``: the contact estimator sees no
@@ -642,16 +650,23 @@ class FrictionAdaptation:
             fit.reset(dahl_force / fc if fc > 0.0 else 0.0)
         folds = fit.folds
         fit.update(xe, xd, fp, record=free and self._settle > SETTLE_SAMPLES, steps=steps)
-        if fit.folds == folds:
-            return False
-        if len(fit.ratios) < 3:
-            self.reason = "sigma = 0: no hysteresis model to adapt"
-            return False
-        return self._step()
+        solving = self._solving
+        if solving is not None:
+            # one candidate's normal equations per sample (bounded cost per cycle)
+            solving.append(fit.solve_candidate(len(solving)))
+            if len(solving) < len(fit.ratios):
+                return False
+            self._solving = None
+            return self._step(solving)
+        if fit.folds != folds:
+            if len(fit.ratios) < 3:
+                self.reason = "sigma = 0: no hysteresis model to adapt"
+            else:
+                self._solving = []
+        return False
 
-    def _step(self):
+    def _step(self, solutions):
         fit = self.fit
-        solutions = [fit.solve_candidate(k) for k in range(3)]
         est = fit.estimate(solutions)
         fp = self.params
         low = []
