@@ -41,7 +41,8 @@ from .errors import InvalidParameterError, NonPassiveError
 
 __all__ = [
     "MODES", "DOB_MODES", "PlantParams", "DahlParams", "DobParams", "EstimatorParams",
-    "GraspParams", "FrictionParams",
+    "GraspParams",
+    "FrictionParams",
     "ControllerConfig", "PARAMETERS", "ParameterInfo", "DEFAULT_CUTOFF",
     "DEFAULT_HOLD_STIFFNESS", "DEFAULT_HOLD_DAMPING",
 ]
