@@ -29,6 +29,14 @@ arriving -- ends at once ABORTED with ``rejected: <reason>`` in ``result.message
 rejection carries no reason). Each channel's contact and object estimates are in
 ``controller_status`` whatever the mode.
 
+Friction calibration: the action ``~/calibrate_friction`` (``seaforce_msgs/action/
+CalibrateFriction``) hands a :class:`~seaforce_ros.core.friction_calibration.FrictionCalibration`
+to the channel's controller the same way (one goal per channel, none while a grasp holds it;
+rejected with the reason like a grasp goal); when it applies the new values the node sets the
+channel's ``plant.endpoint_damping``, ``plant.endpoint_stiffness``, ``dahl.coulomb_force`` and
+``dahl.sigma`` to them. ``<channel>.friction.adaptation`` turns the online adaptation on; its
+state is in ``/diagnostics``.
+
 Layouts: separate processes (this executable) or composed with the plant in ``bringup`` /
 ``hardware_bringup``; with ``loop:=direct`` there the plant's cycle thread calls
 :meth:`DirectPort.step` instead of going through DDS, and parameters and ``~/reset`` still
@@ -45,7 +53,9 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.task import Future
+from seaforce_msgs.action import CalibrateFriction as CalibrateFrictionAction
 from seaforce_msgs.action import Grasp as GraspAction
 from seaforce_msgs.msg import ActuatorCommand, ActuatorState, ControllerStatus
 from std_srvs.srv import Trigger
@@ -55,6 +65,8 @@ from .core.control_cycle import DEFAULT_LATCHED, FAULT_KINDS, ControlCycle, Stat
 from .core.controller import ChannelController
 from .core.episodes import Episode, EventLog
 from .core.errors import SeaforceError
+from .core.friction_calibration import (CalibrationGoal, FrictionCalibration,
+                                       InvalidCalibrationError, check_calibration_goal)
 from .core.grasp import Grasp, GraspGoal, InvalidGoalError, check_goal
 from .core.params import ControllerConfig
 from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
@@ -65,6 +77,10 @@ from .timing import LoopStats
 LOOPS = ('topics', 'direct')
 GRASP_FEEDBACK_RATE = 50.0     # Hz
 GRASP_START_TIMEOUT = 1.0      # s a goal waits for the cycle to take its grasp over
+
+#: The parameters a friction calibration sets, in the order of its result's arrays.
+_FRICTION_KEYS = ('plant.endpoint_damping', 'plant.endpoint_stiffness', 'dahl.coulomb_force',
+                  'dahl.sigma')
 
 _CHECK_PARAMS = {'state_timeout': 'state_timeout', 'state_limits.position': 'position_limit',
                  'state_limits.velocity': 'velocity_limit', 'state_limits.force': 'force_limit',
@@ -178,6 +194,14 @@ class ControllerNode(Node):
                      cancel_callback=lambda handle: CancelResponse.ACCEPT,
                      callback_group=ReentrantCallbackGroup())
         self.create_timer(1.0 / GRASP_FEEDBACK_RATE, self._grasp_tick)
+        # friction calibration (issue 13)
+        self._calibrations = {}          # channel index -> (calibration, handle, Future, start)
+        ActionServer(self, CalibrateFrictionAction, '~/calibrate_friction',
+                     execute_callback=self._execute_calibration,
+                     goal_callback=lambda goal: GoalResponse.ACCEPT,
+                     cancel_callback=lambda handle: CancelResponse.ACCEPT,
+                     callback_group=ReentrantCallbackGroup())
+        self.create_timer(1.0 / GRASP_FEEDBACK_RATE, self._calibration_tick)
         self._state_topic = self.resolve_topic_name('actuator_state')
         self.create_timer(GRAPH_PERIOD, self._watch_graph)
         self.add_on_set_parameters_callback(self._validate_parameters)
@@ -316,6 +340,8 @@ class ControllerNode(Node):
         if held is not None:
             raise InvalidGoalError(f'channel {goal.channel} is held by another grasp goal '
                                    f'({held[0].phase}); cancel it first')
+        if index in self._calibrations:
+            raise InvalidGoalError(f'channel {goal.channel} is calibrating its friction')
         fault = self.cycle.fault(index)
         if fault:
             raise InvalidGoalError(f'channel {goal.channel} is faulted: {fault}'
@@ -405,6 +431,129 @@ class ControllerNode(Node):
         result.grip_force = grasp.grip_force if grasp is not None else nan
         return result
 
+    # --- friction calibration (issue 13) -------------------------------------------------
+    def _calibration_for(self, goal):
+        """(channel index, FrictionCalibration) for a goal, or InvalidCalibrationError."""
+        if goal.channel not in self.channels:
+            raise InvalidCalibrationError(f'unknown channel {goal.channel!r}; the channels '
+                                          'are ' + ', '.join(self.channels))
+        index = self.channels.index(goal.channel)
+        if index in self._calibrations or index in self._grasps:
+            raise InvalidCalibrationError(f'channel {goal.channel} is busy with another '
+                                          'calibration or a grasp goal; cancel it first')
+        fault = self.cycle.fault(index)
+        if fault:
+            raise InvalidCalibrationError(f'channel {goal.channel} is faulted: {fault}' + (
+                '; call ~/reset' if self.cycle.latched(index) else ''))
+        now = time.monotonic()
+        if self._last_state is None or now - self._last_state > self.cycle.checks.state_timeout:
+            raise InvalidCalibrationError('no actuator_state is arriving: the control cycle '
+                                          'is not running')
+        config = self.configs[index]
+        request = CalibrationGoal(goal.channel, goal.amplitude, goal.speed, goal.apply)
+        try:
+            check_calibration_goal(request, config.friction,
+                                   self.controllers[index].endpoint_position_estimate)
+        except InvalidCalibrationError as exc:
+            raise InvalidCalibrationError(f'{goal.channel}: {exc}') from None
+        return index, FrictionCalibration(request, config, self.dt)
+
+    async def _execute_calibration(self, handle):
+        goal = handle.request
+        try:
+            index, calibration = self._calibration_for(goal)
+        except InvalidCalibrationError as exc:
+            self._rejections.begin(time.monotonic(), f'calibration goal rejected: {exc}')
+            self._rejections.end(time.monotonic())
+            log_events(self.get_logger(), self._grasp_log.drain())
+            handle.abort()
+            return self._calibration_result(None, f'rejected: {exc}')
+        done = Future()
+        self._calibrations[index] = (calibration, handle, done, time.monotonic())
+        self.controllers[index].request_calibration(calibration)
+        self.get_logger().info(f'{goal.channel}: friction calibration, {goal.amplitude:g} rad '
+                               f'at up to {goal.speed:g} rad/s'
+                               + (', applying' if goal.apply else ''))
+        return await done
+
+    @shutdown_safe
+    def _calibration_tick(self):
+        for index, (calibration, handle, done, started) in list(self._calibrations.items()):
+            channel = self.channels[index]
+            if handle.is_cancel_requested and calibration.active:
+                if not calibration.withdraw('canceled before it started', 'canceled'):
+                    calibration.request_cancel('canceled')
+            if calibration.active and not calibration.started and \
+                    time.monotonic() - started > GRASP_START_TIMEOUT:
+                calibration.withdraw(f'the control cycle did not take the calibration within '
+                                     f'{GRASP_START_TIMEOUT:g} s (are states arriving?)')
+            if calibration.active:
+                feedback = CalibrateFrictionAction.Feedback()
+                feedback.phase = calibration.phase
+                feedback.progress = calibration.progress
+                handle.publish_feedback(feedback)
+                continue
+            del self._calibrations[index]
+            message = calibration.message
+            if calibration.applied:
+                message = self._store_friction(index, calibration.new, message)
+            result = self._calibration_result(calibration, message)
+            if calibration.outcome == 'succeeded':
+                handle.succeed()
+            elif calibration.outcome == 'canceled':
+                handle.canceled()
+            else:
+                handle.abort()
+            self.get_logger().info(f'{channel}: friction calibration {calibration.outcome}: '
+                                   f'{message}')
+            done.set_result(result)
+
+    def _store_friction(self, index, new, message):
+        """Set the channel's friction parameters to the applied values (the controller already
+        runs on them: the same config comes back, bumplessly)."""
+        channel = self.channels[index]
+        values = dict(zip(_FRICTION_KEYS, (new.endpoint_damping, new.endpoint_stiffness,
+                                           new.coulomb_force, new.sigma)))
+        results = self.set_parameters([Parameter(f'{channel}.{key}', value=float(value))
+                                       for key, value in values.items()])
+        failed = [r.reason for r in results if not r.successful]
+        if failed:
+            return f'{message}; parameters not updated: {failed[0]}'
+        return message
+
+    @staticmethod
+    def _calibration_result(calibration, message):
+        result = CalibrateFrictionAction.Result()
+        result.names = list(_FRICTION_KEYS)
+        result.message = message
+        nan = math.nan
+        old = new = None
+        if calibration is not None:
+            old, new = calibration.old, calibration.new
+        olds = ([old.endpoint_damping, old.endpoint_stiffness, old.coulomb_force, old.sigma]
+                if old else [nan] * 4)
+        news = ([new.endpoint_damping, new.endpoint_stiffness, new.coulomb_force, new.sigma]
+                if new else [nan] * 4)
+        result.old_values = [float(v) for v in olds]
+        result.new_values = [float(v) for v in news]
+        result.new_values_sigma = ([float(v) for v in (
+            new.endpoint_damping_sigma, new.endpoint_stiffness_sigma, new.coulomb_force_sigma,
+            new.sigma_sigma)] if new else [nan] * 4)
+        result.change = [n - o for n, o in zip(result.new_values, result.old_values)]
+        result.applied = bool(calibration is not None and calibration.applied)
+        return result
+
+    @staticmethod
+    def _friction_diagnostics(ctrl):
+        adaptation = ctrl.adaptation
+        if not ctrl.config.friction.adaptation:
+            return {'friction_adaptation': 'off'}
+        be, ke, fc, sigma = adaptation.values
+        return {'friction_adaptation': 'adapting' if adaptation.adapting else
+                adaptation.reason, 'adapted_endpoint_damping': be,
+                'adapted_endpoint_stiffness': ke, 'adapted_coulomb_force': fc,
+                'adapted_sigma': sigma, 'friction_adaptation_updates': adaptation.updates}
+
     # --- faults --------------------------------------------------------------------------
     def _on_reset(self, request, response):
         response.success = True
@@ -441,7 +590,8 @@ class ControllerNode(Node):
                 f'FAULT: {fault}' if cycle.latched(i) else (fault or ctrl.mode),
                 {'mode': ctrl.mode, 'fault': fault or 'none', 'torque': ctrl.torque,
                  'disturbance': ctrl.disturbance, 'feedforward': ctrl.feedforward,
-                 'grasp': ctrl.grasp_phase or 'none', 'contact': ctrl.estimator.contact}))
+                 'grasp': ctrl.grasp_phase or 'none', 'contact': ctrl.estimator.contact,
+                 **self._friction_diagnostics(ctrl)}))
         publish_diagnostics(self, self.diag_pub, statuses)
 
 

@@ -4,9 +4,10 @@ Bags are written and read with ``rosbags`` (no rosbag2 on PyPI). For a bag writt
 interchangeable with one from ``ros2 bag record``, rosbags must know the exact ``.msg``
 definitions of ``seaforce_msgs``: this module finds them (installed share directory through the
 ament index, else ``msg_defs/msg`` of a source checkout) and registers them, on top of the
-standard ROS 2 Jazzy types, in a typestore. The Grasp action's goal, result and feedback, and
-the feedback topic's message (``Grasp_FeedbackMessage``, what ``ros2 bag record`` of the
-action's hidden topics stores), are registered too, from ``action/Grasp.action``.
+standard ROS 2 Jazzy types, in a typestore. The actions' (Grasp, CalibrateFriction) goal,
+result and feedback, and the feedback topic's message (``Grasp_FeedbackMessage``, what ``ros2
+bag record`` of the action's hidden topics stores), are registered too, from
+``action/<Name>.action``.
 
 No rclpy import here: offline tools (identification, Z-width) use it without ROS running.
 """
@@ -17,7 +18,7 @@ from typing import Dict, Optional
 
 MSG_PACKAGE = 'seaforce_msgs'
 MESSAGE_NAMES = ('ActuatorState', 'ActuatorCommand', 'ControllerStatus')
-ACTION_NAMES = ('Grasp',)
+ACTION_NAMES = ('Grasp', 'CalibrateFriction')
 
 
 class InterfaceDefinitionError(RuntimeError):

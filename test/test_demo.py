@@ -41,6 +41,20 @@ def _run_demo(processes, tmp_path, *extra):
     png = out / 'work_loops.png'
     assert png.is_file() and png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert png.stat().st_size > 20_000
+    # the sim's plant is 10-20 % off the model; the friction calibration recovers the
+    # endpoint friction (the hose and motor errors remain). One period at 3 rad/s through a
+    # real-time loop on a loaded host (lost samples, command timeouts) does not resolve the
+    # few dB it gains there (the core sim: -39.7 -> -44.0 dB; test/core/
+    # test_friction_calibration.py asserts the recovery): the recalibrated feed-forward still
+    # makes the finger lighter than the DOB alone
+    assert re.search(r'^Friction calibration .*: identified', text, re.M), text
+    for label in ('b_e', 'k_e', 'F_c'):
+        row = re.search(rf'^{label} \[.*?\]\s+(\S+)\s+(\S+)\s+(\S+)\s+(\S+)\s+([-+]\d+\.\d)%$',
+                        text, re.M)
+        assert row and abs(float(row.group(5))) < 15.0, text
+    recalibrated = float(re.search(r'^recalibrated dob_full_ff \|Z\| at 3\.0 rad/s: '
+                                   r'(-?\d+\.\d) dB', text, re.M).group(1))
+    assert recalibrated < rows['dob'] - 3.0, text
     # every process the demo started has ended (they carry the marker in their environment)
     assert _processes_with_marker(marker) == []
     return rows, width, text, out

@@ -10,16 +10,15 @@
 """
 import math
 import os
-import time
 
 import numpy as np
 import pytest
 import yaml
 from action_msgs.msg import GoalStatus
-from rclpy.action import ActionClient
 from seaforce_msgs.action import Grasp
 from seaforce_msgs.msg import ActuatorState, ControllerStatus
 
+from helpers.actions import ActionTestClient
 from helpers.nodes import start_node
 from helpers.states import value
 
@@ -34,45 +33,17 @@ ATTEMPTS = 3
 CONTACT_DAMPING = 0.08          # grasp.contact_damping's default (the soft objects' creep)
 
 
-class Client:
+class Client(ActionTestClient):
     """Grasp goals through an ActionClient on the probe's node."""
 
     def __init__(self, probe):
-        self.client = ActionClient(probe.node, Grasp, '/controller/grasp')
-        assert self.client.wait_for_server(timeout_sec=30.0)
+        super().__init__(probe, Grasp, '/controller/grasp')
 
-    @staticmethod
-    def _wait(future, timeout, what):
-        deadline = time.monotonic() + timeout
-        while not future.done():
-            assert time.monotonic() < deadline, f'no {what} within {timeout} s'
-            time.sleep(0.01)
-        return future.result()
-
-    def send(self, channel='pinch', closing_velocity=0.3, grip_force=0.3, max_force=0.6,
+    def goal(self, channel='pinch', closing_velocity=0.3, grip_force=0.3, max_force=0.6,
              probe=True):
-        goal = Grasp.Goal(channel=channel, closing_velocity=float(closing_velocity),
+        return Grasp.Goal(channel=channel, closing_velocity=float(closing_velocity),
                           grip_force=float(grip_force), max_force=float(max_force),
                           probe=probe)
-        feedback = []
-        handle = self._wait(self.client.send_goal_async(
-            goal, feedback_callback=lambda m: feedback.append(m.feedback)), 30.0, 'goal answer')
-        assert handle.accepted
-        return handle, feedback
-
-    def result(self, handle, timeout=30.0):
-        return self._wait(handle.get_result_async(), timeout, 'result')
-
-    def cancel(self, handle, timeout=30.0):
-        self._wait(handle.cancel_goal_async(), timeout, 'cancel answer')
-        return self.result(handle, timeout)
-
-    def rejected(self, **fields):
-        handle, _ = self.send(**fields)
-        answer = self.result(handle)
-        assert answer.status == GoalStatus.STATUS_ABORTED
-        assert answer.result.message.startswith('rejected: '), answer.result.message
-        return answer.result.message
 
 
 def draw_objects(rng, n):

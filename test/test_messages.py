@@ -67,6 +67,30 @@ def test_grasp_action_interface():
         assert store.hash_rihs01(name) == hashes[name], part
 
 
+def test_calibrate_friction_action_interface():
+    """Issue 13's goal (channel, amplitude, speed, apply), result (old/new values, 1-sigma,
+    change, message) and feedback; rosbags hashes them as rosidl does."""
+    from ament_index_python.packages import get_package_share_directory
+    from seaforce_msgs.action import CalibrateFriction
+
+    from seaforce_ros.interfaces import make_typestore
+    assert list(CalibrateFriction.Goal.get_fields_and_field_types().items()) == [
+        ('channel', 'string'), ('amplitude', 'double'), ('speed', 'double'),
+        ('apply', 'boolean')]
+    assert list(CalibrateFriction.Result.get_fields_and_field_types()) == [
+        'names', 'old_values', 'new_values', 'new_values_sigma', 'change', 'applied',
+        'message']
+    assert list(CalibrateFriction.Feedback.get_fields_and_field_types()) == [
+        'phase', 'progress']
+    share = pathlib.Path(get_package_share_directory('seaforce_msgs'))
+    hashes = {h['type_name']: h['hash_string'] for h in json.loads(
+        (share / 'action' / 'CalibrateFriction.json').read_text())['type_hashes']}
+    store = make_typestore()
+    for part in ('Goal', 'Result', 'Feedback', 'FeedbackMessage'):
+        name = f'seaforce_msgs/action/CalibrateFriction_{part}'
+        assert store.hash_rihs01(name) == hashes[name], part
+
+
 def test_messages_cross_process_field_for_field(processes, ros_context):
     """Each message published here arrives unchanged in another process over a real topic."""
     import rclpy

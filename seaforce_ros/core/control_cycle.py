@@ -47,7 +47,8 @@ While a channel is faulted its estimators keep running on valid samples, so
 
 A grasp (:mod:`.grasp`) ends, aborted with the reason, whenever its channel's torque is zeroed
 here (a latched fault, a re-arming condition, a stall of the state stream): nothing it commanded
-comes back when the channel re-arms, which it does in the channel's mode.
+comes back when the channel re-arms, which it does in the channel's mode. So does a friction
+calibration (:mod:`.friction_calibration`): nothing is applied.
 """
 
 import math
@@ -371,6 +372,9 @@ class ControlCycle:
                 if ctrl.grasp is not None:
                     ctrl.abort_grasp(f"fault latched: {self._latched[i]}" if self._latched[i]
                                      else stream)
+                if ctrl.calibration is not None:
+                    ctrl.abort_calibration(f"fault latched: {self._latched[i]}"
+                                           if self._latched[i] else stream)
                 ctrl.reenter(fai)          # estimators stay live; no windup meanwhile
                 try:
                     ctrl.update(xi, vi, fpi, steps)
@@ -440,6 +444,7 @@ class ControlCycle:
             self._latch(i, reason)
             return
         self.controllers[i].abort_grasp(reason)
+        self.controllers[i].abort_calibration(reason)
         self._needs_reset[i] = True
         self._rearming[i] = reason
         self._channel_ep[i].begin(now, f"{self.channels[i]}: {reason}: zero torque until a "
@@ -456,6 +461,7 @@ class ControlCycle:
         if self._latched[i]:
             return
         self.controllers[i].abort_grasp(f"fault latched: {reason}")
+        self.controllers[i].abort_calibration(f"fault latched: {reason}")
         self._latched[i] = reason
         self._needs_reset[i] = True
         self.faults_latched += 1

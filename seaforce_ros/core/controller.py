@@ -43,6 +43,13 @@ Discretisation (sample period T = ``dt``):
   it first.
 * the contact estimator (:mod:`.estimator`) runs in every mode on X_e_hat, F_p
   and F_d.
+* a friction calibration (:mod:`.friction_calibration`, requested with
+  :meth:`ChannelController.request_calibration`) overrides the mode while it runs: a position
+  servo moves the free finger and fits b_e, k_e, F_c, sigma; when it ends the mode resumes
+  bumplessly from the torque then, with the new values if it applied them. Any mode change
+  aborts it. With ``friction.adaptation`` the feed-forward's values follow the same fit slowly
+  while the estimator sees no contact (``dob_linear_ff``, ``dob_full_ff``, ``impedance``, and
+  a grasp's approach).
 * chirp: ``F_a = u_0 + A w(t) sin(phi(t))``, log chirp, u_0 the torque at
   entry, w a 50 ms raised-cosine fade-in/out. It plays once per selection of
   the mode (``configure``): a chirp that finished, or that the plant
@@ -69,10 +76,11 @@ import math
 
 from .dahl import DahlState
 from .estimator import ContactEstimator
+from .friction_calibration import FrictionAdaptation, FrictionCalibration, with_friction
 from .grasp import Grasp
 from .handover import Mailbox
 from .errors import NonFiniteInputError
-from .params import ControllerConfig, DOB_MODES
+from .params import ControllerConfig, DahlParams, DOB_MODES
 from .signals import faded_log_chirp
 
 __all__ = ["ChannelController"]
@@ -131,6 +139,10 @@ class ChannelController:
         self._t_mode = 0.0
         self.mode = config.mode
         self._dahl = DahlState(config.dahl)
+        # friction calibration and adaptation (issue 13)
+        self._calibration_box = Mailbox()
+        self.calibration = None
+        self.adaptation = FrictionAdaptation(config, self.dt)
         self._apply_config(config)
         self.reset()
 
@@ -155,6 +167,10 @@ class ChannelController:
                 self._end_grasp(f"mode set to {c.mode}")
             else:
                 grasp.release(f"mode set to {c.mode}", "aborted")
+        calibration = getattr(self, "calibration", None)
+        if calibration is not None and c.mode != self.mode:
+            self._end_calibration(f"mode set to {c.mode}")
+        self.adaptation.configure(c)
         self._config = c
         dt = self.dt
         p = c.plant
@@ -196,6 +212,7 @@ class ChannelController:
         [N m], the torque the plant reports it applies (its first output equals it). A
         grasp ends (aborted)."""
         self._end_grasp("the controller was re-initialised")
+        self._end_calibration("the controller was re-initialised")
         pending = self._pending.take()
         if pending is not None:
             self._apply_config(pending)
@@ -229,11 +246,14 @@ class ChannelController:
         equilibrium within ~1/lambda; ``hold`` returns to its target through a transfer
         offset that decays in 50 ms: no step, and a finger under load is not pushed away a
         little more at every blip. After a longer interruption use :meth:`reset`, which
-        re-captures the targets where the finger is."""
+        re-captures the targets where the finger is. A friction calibration's reference waits
+        for that sample."""
         self._interrupt_chirp()
         self.torque = float(applied_torque)
         if self._enter != _ENTER:
             self._enter = _REENTER
+        if self.calibration is not None:
+            self.calibration.hold_reference()
 
     # --- grasps ----------------------------------------------------------------------------
     def request_grasp(self, grasp):
@@ -268,6 +288,58 @@ class ChannelController:
         if self.mode == "chirp" and self._t_mode > 0.0:
             self._chirp_played = True
 
+    # --- friction calibration (issue 13) -----------------------------------------------------
+    def request_calibration(self, calibration):
+        """Start ``calibration`` (:class:`~.friction_calibration.FrictionCalibration`, goal
+        already checked) at the start of the next :meth:`update` (any thread) unless withdrawn
+        by then; cancel it with ``calibration.request_cancel``."""
+        if not isinstance(calibration, FrictionCalibration):
+            raise TypeError("calibration must be a FrictionCalibration")
+        self._calibration_box.put(calibration)
+
+    def abort_calibration(self, reason):
+        """End the running calibration now, commanding nothing more (the caller zeroes the
+        torque). Same thread as :meth:`update`."""
+        self._end_calibration(reason)
+
+    def _end_calibration(self, reason):
+        calibration = self.calibration
+        if calibration is not None:
+            calibration.abort_now(reason)
+            self.calibration = None
+            self._enter = _ENTER
+
+    def _start_calibration(self, calibration):
+        if not calibration.claim():
+            return
+        if self.calibration is not None or self.grasp is not None:
+            calibration.abort_now("the channel is busy with another calibration or a grasp")
+            return
+        self._interrupt_chirp()
+        self.calibration = calibration
+
+    def _run_calibration(self, calibration, x, v, xe_hat, xd, f_p, steps):
+        u = calibration.update(x, v, xe_hat, xd, f_p, self.torque, steps)
+        if not calibration.active:
+            self.calibration = None
+            if calibration.outcome == "succeeded" and calibration.goal.apply:
+                self._apply_config(with_friction(self._config, calibration.new))
+                calibration.applied = True
+            self._enter = _ENTER         # back to the mode, from this torque
+        self.disturbance = math.nan
+        self.torque = u
+        return u
+
+    def _adapt(self, xe_hat, xd, f_p, fd, steps):
+        adaptation = self.adaptation
+        grasp = self.grasp
+        free = not self.estimator.contact and (grasp is None or grasp.phase == "approach")
+        if adaptation.update(xe_hat, xd, f_p, free, fd, steps):
+            be, ke, fc, sigma = adaptation.values
+            self._be, self._ke = be, ke
+            self._dahl.set_params(DahlParams(
+                sigma=sigma, coulomb_force=fc, exponent=self._config.dahl.exponent))
+
     # --- per sample -------------------------------------------------------------
     def update(self, x, v, f_p, steps=1):
         """One sample: ``(X [rad], V [rad/s], F_p [N m]) -> F_a [N m]``.
@@ -295,6 +367,8 @@ class ChannelController:
             self._enter = _ENTER
         if self._grasp_box:
             self._start_grasp(self._grasp_box.take())
+        if self._calibration_box:
+            self._start_calibration(self._calibration_box.take())
 
         # hose inversion: delta = F_p/(b_s s + k_s), exact FOH
         if self._first:
@@ -326,6 +400,10 @@ class ChannelController:
         self.dahl_force = fd
         self.feedforward = fcmp + fd
         self.estimator.update(xe_hat, f_p, fd, steps)
+        if self.calibration is not None:
+            return self._run_calibration(self.calibration, x, v, xe_hat, xd, f_p, steps)
+        if self._config.friction.adaptation and (self._use_ff or self.grasp is not None):
+            self._adapt(xe_hat, xd, f_p, fd, steps)
 
         mode = self.mode
         enter = self._enter == _ENTER
@@ -403,6 +481,9 @@ class ChannelController:
             return                          # withdrawn before it started
         if self.grasp is not None:
             grasp.abort_now("another grasp holds the channel")
+            return
+        if self.calibration is not None:
+            grasp.abort_now("a friction calibration holds the channel")
             return
         self._interrupt_chirp()
         self.grasp = grasp

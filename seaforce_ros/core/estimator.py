@@ -90,7 +90,8 @@ import scipy.linalg
 from .params import EstimatorParams, PlantParams
 
 __all__ = ["ContactEstimator", "ObjectEstimate", "NO_ESTIMATE", "BLOCK", "LOSS_TIME",
-           "DETECT_TIME", "SPREAD_FACTOR", "SPREAD_TIME", "FLOOR_FRACTION"]
+           "DETECT_TIME", "SPREAD_FACTOR", "SPREAD_TIME", "FLOOR_FRACTION",
+           "svf_coefficients"]
 
 #: A contact ends when the residual stays below half the threshold this long [s].
 LOSS_TIME = 0.02
@@ -129,6 +130,18 @@ velocity_excitation : rms endpoint velocity only b_o explains [rad/s]
 """
 
 NO_ESTIMATE = ObjectEstimate(_NAN, _NAN, _NAN, _NAN, _NAN, 0.0, 0.0)
+
+
+def svf_coefficients(cutoff, dt):
+    """The state-variable filter ``H(s) = w^2/(s^2 + 2 zeta w s + w^2)`` (Butterworth, ``w =
+    2 pi cutoff``, ``cutoff`` in Hz) discretised exactly for an input held over ``dt`` [s]:
+    ``(a11, a12, b1, a21, a22, b2)`` of ``p' = a11 p + a12 q + b1 u``, ``q' = a21 p + a22 q +
+    b2 u``, with ``p = H u`` and ``q = s H u``."""
+    w = 2.0 * math.pi * cutoff
+    a_c = np.array([[0.0, 1.0, 0.0], [-w * w, -2.0 * _ZETA * w, w * w], [0.0, 0.0, 0.0]])
+    e = scipy.linalg.expm(a_c * dt)
+    return (float(e[0, 0]), float(e[0, 1]), float(e[0, 2]),
+            float(e[1, 0]), float(e[1, 1]), float(e[1, 2]))
 
 
 class ContactEstimator:
@@ -183,10 +196,7 @@ class ContactEstimator:
         self._rest = float(rest_position)
         w = 2.0 * math.pi * params.filter_cutoff
         dt = self.dt
-        a_c = np.array([[0.0, 1.0, 0.0], [-w * w, -2.0 * _ZETA * w, w * w], [0.0, 0.0, 0.0]])
-        e = scipy.linalg.expm(a_c * dt)
-        self._coef = (float(e[0, 0]), float(e[0, 1]), float(e[0, 2]),
-                      float(e[1, 0]), float(e[1, 1]), float(e[1, 2]))
+        self._coef = svf_coefficients(params.filter_cutoff, dt)
         self._be, self._ke = plant.endpoint_damping, plant.endpoint_stiffness
         # y = f1 + k_e (p - rest) + b_e q + m_e (q - q_prev)/T, constants folded
         self._model = (self._ke, self._be, plant.endpoint_inertia, self._ke * self._rest,

@@ -66,9 +66,9 @@ later) and reads the attributes.
 """
 
 import math
-import threading
 
 from .errors import SeaforceError
+from .handover import Claim
 from .params import EstimatorParams, GraspParams
 from .signals import faded_log_chirp
 
@@ -236,27 +236,19 @@ class Grasp:
         self._release_contact = 0.0
         self._pending_outcome = None
         self._release_request = None
-        self._claim_lock = threading.Lock()
-        self._claimed = False
-        self._withdrawn = False
+        self._claim = Claim()
         self._hold_alpha = -math.expm1(-self.dt / _HOLD_AVERAGE)
 
     # --- requests ---------------------------------------------------------------------
     def claim(self):
         """(cycle thread) Take the grasp over: False if it was withdrawn first."""
-        with self._claim_lock:
-            if self._withdrawn:
-                return False
-            self._claimed = True
-            return True
+        return self._claim.claim()
 
     def withdraw(self, reason, outcome="aborted"):
         """(any thread) End a grasp the cycle has not claimed yet: True if it is ended (it
         will never start), False if it runs (then :meth:`request_release` it)."""
-        with self._claim_lock:
-            if self._claimed:
-                return False
-            self._withdrawn = True
+        if not self._claim.withdraw():
+            return False
         self.outcome = outcome
         self.message = reason
         self._enter("done")
@@ -301,7 +293,7 @@ class Grasp:
     @property
     def started(self):
         """The cycle has claimed it (it runs, or ran)."""
-        return self._claimed
+        return self._claim.claimed
 
     def _enter(self, phase):
         self.phase = phase

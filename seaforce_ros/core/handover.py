@@ -4,12 +4,15 @@ A node's executor thread sets parameters and serves ``~/reset`` while the plant'
 runs the cycle (the direct layout). ``x = self._pending; self._pending = None`` in the cycle
 would lose a value the other thread stores between the two statements; :class:`Mailbox`
 uses a one-slot deque, whose ``append`` and ``popleft`` are single atomic operations: the
-newest value put is the one taken, and none is taken twice.
+newest value put is the one taken, and none is taken twice. :class:`Claim` decides, once,
+whether a request handed to the cycle (a grasp, a friction calibration) starts there or is
+withdrawn by the thread that made it.
 """
 
+import threading
 from collections import deque
 
-__all__ = ["Mailbox"]
+__all__ = ["Mailbox", "Claim"]
 
 
 class Mailbox:
@@ -30,3 +33,32 @@ class Mailbox:
 
     def __bool__(self):
         return bool(self._slot)
+
+
+class Claim:
+    """Either the cycle claims a request or another thread withdraws it first, never both."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._claimed = False
+        self._withdrawn = False
+
+    def claim(self):
+        """(cycle thread) True if the request is now the cycle's, False if it was withdrawn."""
+        with self._lock:
+            if self._withdrawn:
+                return False
+            self._claimed = True
+            return True
+
+    def withdraw(self):
+        """(any thread) True if withdrawn (it will never start), False if the cycle has it."""
+        with self._lock:
+            if self._claimed:
+                return False
+            self._withdrawn = True
+            return True
+
+    @property
+    def claimed(self):
+        return self._claimed

@@ -25,6 +25,9 @@ keys below are relative to ``<channel>.``)::
     grasp.{approach_damping, approach_force, contact_damping, max_closing_velocity, max_travel,
            squeeze_time, probe_amplitude, probe_start_frequency, probe_end_frequency,
            probe_duration, release_time}
+    friction.{calibration_duration, max_speed, torque_limit, max_tracking_error, position_min,
+              position_max, adaptation, adaptation_time, adaptation_bound,
+              min_velocity_excitation, min_position_excitation}
     max_torque
     allow_non_passive
 """
@@ -39,6 +42,7 @@ from .errors import InvalidParameterError, NonPassiveError
 __all__ = [
     "MODES", "DOB_MODES", "PlantParams", "DahlParams", "DobParams", "EstimatorParams",
     "GraspParams",
+    "FrictionParams",
     "ControllerConfig", "PARAMETERS", "ParameterInfo", "DEFAULT_CUTOFF",
     "DEFAULT_HOLD_STIFFNESS", "DEFAULT_HOLD_DAMPING",
 ]
@@ -328,6 +332,67 @@ class GraspParams:
         _check_range("grasp.probe_amplitude", self.probe_amplitude, 0.0, 0.9)
 
 
+# --- endpoint friction calibration and adaptation (issue 13) ------------------------------
+@dataclass(frozen=True)
+class FrictionParams:
+    """Endpoint friction calibration and online adaptation (:mod:`.friction_calibration`).
+
+    Parameters
+    ----------
+    calibration_duration : float, 1..120
+        Length of a calibration motion, fades included [s].
+    max_speed : float > 0
+        Largest peak speed a calibration goal may ask for [rad/s].
+    torque_limit : float > 0
+        Most torque the calibration's position servo commands [N m] (and never more than
+        ``max_torque``).
+    max_tracking_error : float > 0
+        |X_ref - X| beyond which a calibration aborts: the finger is blocked, not free [rad].
+    position_min, position_max : float
+        Joint range of the endpoint the calibration motion must stay in [rad].
+    adaptation : bool
+        Adapt b_e, k_e, F_c, sigma slowly while the contact estimator says the finger is free.
+    adaptation_time : float > 0
+        Time constant with which adapted values follow the fit, and the fit's memory [s].
+    adaptation_bound : float, 0..10
+        Adapted values stay within ``[v/(1 + r), v (1 + r)]`` of the configured ``v``.
+    min_velocity_excitation : float > 0
+        Endpoint velocity only b_e explains (rms over the memory) below which adaptation
+        stops [rad/s].
+    min_position_excitation : float > 0
+        Endpoint motion only k_e explains below which adaptation stops [rad].
+    """
+
+    calibration_duration: float = 12.0
+    max_speed: float = 3.0
+    torque_limit: float = 0.5
+    max_tracking_error: float = 0.2
+    position_min: float = -1.5
+    position_max: float = 1.5
+    adaptation: bool = False
+    adaptation_time: float = 30.0
+    adaptation_bound: float = 1.0
+    min_velocity_excitation: float = 0.1
+    min_position_excitation: float = 0.02
+
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self):
+        _check_range("friction.calibration_duration", self.calibration_duration, 1.0, 120.0)
+        for name in ("max_speed", "torque_limit", "max_tracking_error", "adaptation_time",
+                     "min_velocity_excitation", "min_position_excitation"):
+            _check_positive("friction." + name, getattr(self, name))
+        _check_finite("friction.position_min", self.position_min)
+        _check_finite("friction.position_max", self.position_max)
+        if not self.position_max > self.position_min:
+            raise InvalidParameterError("friction.position_max", self.position_max,
+                                        f"> friction.position_min = {self.position_min:g} rad")
+        if not isinstance(self.adaptation, bool):
+            raise InvalidParameterError("friction.adaptation", self.adaptation, "a bool")
+        _check_range("friction.adaptation_bound", self.adaptation_bound, 0.0, 10.0)
+
+
 def check_dob_passivity(plant, dob):
     """Raise :class:`NonPassiveError` if ``dob`` violates eq. 28 for ``plant``.
 
@@ -505,6 +570,40 @@ PARAMETERS = {
     "grasp.release_time": ParameterInfo(
         "grasp.release_time", "ramp of the grasp force to zero on a cancel or an abort [s]",
         1e-3, 10.0),
+    # --- endpoint friction calibration and adaptation (issue 13)
+    "friction.calibration_duration": ParameterInfo(
+        "friction.calibration_duration", "length of a ~/calibrate_friction motion, fades "
+        "included [s]", 1.0, 120.0),
+    "friction.max_speed": ParameterInfo(
+        "friction.max_speed", "largest peak speed a friction calibration goal may ask for "
+        "[rad/s]", 1e-3, 100.0),
+    "friction.torque_limit": ParameterInfo(
+        "friction.torque_limit", "most torque the friction calibration's position servo "
+        "commands (and never more than max_torque) [N m]", 1e-3, 100.0),
+    "friction.max_tracking_error": ParameterInfo(
+        "friction.max_tracking_error", "|X_ref - X| beyond which a friction calibration "
+        "aborts (the finger is blocked, not free) [rad]", 1e-4, 10.0),
+    "friction.position_min": ParameterInfo(
+        "friction.position_min", "lower end of the joint range a friction calibration "
+        "motion must stay in [rad]", -100.0, 100.0),
+    "friction.position_max": ParameterInfo(
+        "friction.position_max", "upper end of the joint range a friction calibration "
+        "motion must stay in [rad]", -100.0, 100.0),
+    "friction.adaptation": ParameterInfo(
+        "friction.adaptation", "adapt b_e, k_e, F_c, sigma (eq. 14, 29) slowly while the "
+        "contact estimator says the finger is free (bool)"),
+    "friction.adaptation_time": ParameterInfo(
+        "friction.adaptation_time", "time constant of the online friction adaptation and "
+        "memory of its fit [s]", 0.1, 1e4),
+    "friction.adaptation_bound": ParameterInfo(
+        "friction.adaptation_bound", "adapted b_e, k_e, F_c, sigma stay within [v/(1+r), "
+        "v (1+r)] of the configured v [dimensionless]", 0.0, 10.0),
+    "friction.min_velocity_excitation": ParameterInfo(
+        "friction.min_velocity_excitation", "rms endpoint velocity only b_e explains below "
+        "which the friction adaptation stops [rad/s]", 1e-6, 100.0),
+    "friction.min_position_excitation": ParameterInfo(
+        "friction.min_position_excitation", "rms endpoint motion only k_e explains below "
+        "which the friction adaptation stops [rad]", 1e-6, 10.0),
     "max_torque": ParameterInfo(
         "max_torque", "the controller's fault limit: a computed |F_a| above it latches a "
         "torque_limit fault (zero torque) [N m], > 0", 0.0, 1e3),
@@ -514,7 +613,7 @@ PARAMETERS = {
 }
 
 #: The parameter groups of :class:`ControllerConfig` (``<group>.<attribute>`` fields).
-_GROUPS = ("plant", "dahl", "dob", "estimator", "grasp")
+_GROUPS = ("plant", "dahl", "dob", "estimator", "grasp", "friction")
 
 
 @dataclass(frozen=True)
@@ -545,6 +644,8 @@ class ControllerConfig:
         Contact detection and object impedance estimation.
     grasp : GraspParams
         Grasp phases.
+    friction : FrictionParams
+        Endpoint friction calibration and adaptation.
     chirp_amplitude : float >= 0
         [N m].
     chirp_start_frequency, chirp_end_frequency : float > 0
@@ -581,6 +682,7 @@ class ControllerConfig:
     dahl_deadband: float = 1e-4
     max_torque: float = 5.0
     allow_non_passive: bool = False
+    friction: FrictionParams = field(default_factory=FrictionParams)
 
     def __post_init__(self):
         if isinstance(self.dob, DobParams) and self.dob.nominal_inertia is None \
@@ -594,7 +696,8 @@ class ControllerConfig:
         if self.mode not in MODES:
             raise InvalidParameterError("mode", self.mode, "one of " + ", ".join(MODES))
         for name, cls in (("plant", PlantParams), ("dahl", DahlParams), ("dob", DobParams),
-                          ("estimator", EstimatorParams), ("grasp", GraspParams)):
+                          ("estimator", EstimatorParams), ("grasp", GraspParams),
+                          ("friction", FrictionParams)):
             if not isinstance(getattr(self, name), cls):
                 raise InvalidParameterError(name, getattr(self, name), f"a {cls.__name__}")
         _check_positive("plant.hose_damping", self.plant.hose_damping)

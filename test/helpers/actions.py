@@ -1,0 +1,49 @@
+"""Goals of the controller's actions (~/grasp, ~/calibrate_friction) from a test probe."""
+import time
+
+from action_msgs.msg import GoalStatus
+from rclpy.action import ActionClient
+
+
+def wait_future(future, timeout, what):
+    deadline = time.monotonic() + timeout
+    while not future.done():
+        assert time.monotonic() < deadline, f'no {what} within {timeout} s'
+        time.sleep(0.01)
+    return future.result()
+
+
+class ActionTestClient:
+    """Goals of ``action_type`` to the action ``name`` through the probe's node; subclasses
+    build the goal from keyword fields (:meth:`goal`)."""
+
+    def __init__(self, probe, action_type, name):
+        self.action_type = action_type
+        self.client = ActionClient(probe.node, action_type, name)
+        assert self.client.wait_for_server(timeout_sec=30.0)
+
+    def goal(self, **fields):
+        raise NotImplementedError
+
+    def send(self, **fields):
+        feedback = []
+        handle = wait_future(self.client.send_goal_async(
+            self.goal(**fields), feedback_callback=lambda m: feedback.append(m.feedback)),
+            30.0, 'goal answer')
+        assert handle.accepted
+        return handle, feedback
+
+    def result(self, handle, timeout=30.0):
+        return wait_future(handle.get_result_async(), timeout, 'result')
+
+    def cancel(self, handle, timeout=30.0):
+        wait_future(handle.cancel_goal_async(), timeout, 'cancel answer')
+        return self.result(handle, timeout)
+
+    def rejected(self, **fields):
+        """A goal that must end at once, ABORTED with ``rejected: <reason>``: the message."""
+        handle, _ = self.send(**fields)
+        answer = self.result(handle)
+        assert answer.status == GoalStatus.STATUS_ABORTED
+        assert answer.result.message.startswith('rejected: '), answer.result.message
+        return answer.result.message
