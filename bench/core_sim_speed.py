@@ -10,7 +10,9 @@ Prints, in one run:
   (goal <= 3 s) next to the same loop built from the naive pieces;
 * the contact estimator and the grasp logic per cycle (goal <= 5 us mean), over a recorded
   grasp (approach, contact, squeeze, probe, hold), next to the controller update without the
-  estimator measured in the same run, and their ratio.
+  estimator measured in the same run, and their ratio;
+* the passivity guard per cycle (issue 13), on a recorded run in which it acts (m_n = 0.1 m,
+  lambda = 2 pi 50, stiff object), next to the controller update measured in the same run.
 
 Timing figures are printed, never asserted.
 
@@ -29,6 +31,8 @@ from seaforce_ros.core import (MODES, ChannelController, ChannelSimulator, Contr
 from seaforce_ros.core.environment import contact_object
 from seaforce_ros.core.estimator import ContactEstimator
 from seaforce_ros.core.grasp import Grasp, GraspGoal
+from seaforce_ros.core.params import DobParams, GuardParams
+from seaforce_ros.core.passivity_guard import PassivityGuard
 from seaforce_ros.core.simulator import discretise
 
 DT = 5e-4
@@ -184,6 +188,7 @@ def main():
     print(f"  run_closed_loop               {wall:6.2f} s  ({60.0 / wall:5.1f}x real time)")
     print(f"  naive numpy baseline          {wall_naive:6.2f} s  ({60.0 / wall_naive:5.1f}x real time)")
     grasp_rows()
+    guard_rows()
     return 0
 
 
@@ -240,6 +245,43 @@ def grasp_rows():
     print(f"  controller update with a grasp (everything)       {fmt(t_full)}")
     print(f"  (estimator + grasp) / controller update without estimator: "
           f"{np.mean(t_both) / np.mean(t_plain):.2f}")
+
+
+
+# --- passivity guard (issue 13) ---------------------------------------------------------------
+def guard_rows():
+    """The guard alone per cycle on the inputs it saw in a run where it acts, vs the controller
+    update (dob, guard disabled) on the same samples, and the whole update with it active."""
+    light = DobParams(cutoff=2 * math.pi * 50, nominal_inertia=0.1 * PLANT.motor_inertia)
+    xe = -0.3 * 50.0 / (PLANT.endpoint_stiffness + 50.0)     # pressed in by k_e, kicked
+    env = contact_object(-0.3, 50.0, 0.005)
+    sim = ChannelSimulator(PLANT, DAHL, environment=env)
+    sim.reset(state=(xe, 0.0, xe, 0.2), environment=env)
+    active = ControllerConfig(mode="dob", dob=light, passivity=GuardParams(mode="active"))
+    ctl = ChannelController(active)
+    n = 20000
+    rows = []
+    m = sim.measurement()
+    for _ in range(n):
+        u = ctl.update(m.x, m.v, m.f_p)
+        rows.append((m.x, m.v, m.f_p))
+        m = sim.step(u)
+    acting = ctl.passivity_guard.dissipated
+    x, v, fp = (list(c) for c in zip(*rows))
+    guard = PassivityGuard(active.passivity, DT, light.nominal_inertia, active.max_torque)
+    t_guard = timed_calls(guard.update, lambda i: (fp[i], x[i], v[i]), n)
+    plain = ChannelController(active.replace(passivity=GuardParams(), allow_non_passive=True))
+    t_plain = timed_calls(plain.update, lambda i: (x[i], v[i], fp[i]), n)
+    full = ChannelController(active)
+    t_full = timed_calls(full.update, lambda i: (x[i], v[i], fp[i]), n)
+    print(f"\npassivity guard per cycle, over a recorded {n * DT:.0f} s run in stiff contact with "
+          f"m_n = 0.1 m (the guard dissipated {acting * 1e3:.2f} mJ):")
+    for name, t in (("controller update, dob, guard disabled           ", t_plain),
+                    ("PassivityGuard.update                            ", t_guard),
+                    ("controller update, dob, guard active (everything)", t_full)):
+        print(f"  {name} {fmt(t)}   median {np.median(t):5.2f} us")
+    print(f"  guard / controller update without it (medians): "
+          f"{np.median(t_guard) / np.median(t_plain):.2f}")
 
 
 if __name__ == "__main__":

@@ -68,7 +68,7 @@ from .core.errors import SeaforceError
 from .core.friction_calibration import (CalibrationGoal, FrictionCalibration,
                                        InvalidCalibrationError, check_calibration_goal)
 from .core.grasp import Grasp, GraspGoal, InvalidGoalError, check_goal
-from .core.params import ControllerConfig
+from .core.params import ControllerConfig, guard_carries
 from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
                          GRAPH_PERIOD, declare, diagnostic_status, diagnostics_publisher,
                          log_events, node_label, publish_diagnostics, run, shutdown_safe)
@@ -207,6 +207,8 @@ class ControllerNode(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self.create_timer(values['diagnostics_period'], self._publish_diagnostics)
+        for channel, config in zip(self.channels, self.configs):
+            self._warn_guarded(channel, None, config)
         modes = ', '.join(f'{c}={ctrl.mode}' for c, ctrl in zip(self.channels, controllers))
         self.get_logger().info(f'controlling {self.channels} at {values["rate"]:.0f} Hz '
                                f'({modes}), loop={self.loop}')
@@ -262,6 +264,13 @@ class ControllerNode(Node):
             self.configs[index] = config
             if config.mode != old.mode:
                 self.get_logger().info(f'{self.channels[index]}: mode {old.mode} -> {config.mode}')
+            self._warn_guarded(self.channels[index], old, config)
+
+    def _warn_guarded(self, channel, old, config):
+        """Warn once when an active passivity guard carries a DOB setting outside eq. 28."""
+        text = guard_carries(config)
+        if text and (old is None or text != guard_carries(old)):
+            self.get_logger().warning(f'{channel}: {text}')
 
     # --- the 2 kHz path ------------------------------------------------------------------
     @shutdown_safe
@@ -293,14 +302,15 @@ class ControllerNode(Node):
                 [c.feedforward for c in ctrls], [c.endpoint_velocity_estimate for c in ctrls],
                 [c.dahl_force for c in ctrls], [cycle.fault(i) for i in range(len(ctrls))],
                 [c.estimator.contact for c in ctrls], [c.estimator.force for c in ctrls],
-                [c.grasp_phase for c in ctrls])
+                [c.grasp_phase for c in ctrls], *_guard_status(ctrls))
 
     def _publish_status(self, values, cycle, stamp):
         s = self._status
         s.header.stamp = stamp
         s.cycle = cycle
         (s.mode, s.disturbance, s.feedforward, s.endpoint_velocity_estimate, s.dahl_force,
-         s.fault, s.contact, s.contact_force, s.grasp_phase) = values
+         s.fault, s.contact, s.contact_force, s.grasp_phase, s.passivity_energy,
+         s.passivity_dissipated, s.passivity_damping) = values
         estimates = [c.estimator.estimate() for c in self.controllers]
         s.contact_position = [e.contact_position for e in estimates]
         s.object_stiffness = [e.stiffness for e in estimates]
@@ -591,8 +601,25 @@ class ControllerNode(Node):
                 {'mode': ctrl.mode, 'fault': fault or 'none', 'torque': ctrl.torque,
                  'disturbance': ctrl.disturbance, 'feedforward': ctrl.feedforward,
                  'grasp': ctrl.grasp_phase or 'none', 'contact': ctrl.estimator.contact,
+                 'passivity_guard': ctrl.config.passivity.mode,
+                 **dict(zip(_GUARD_FIELDS, _guard_values(ctrl))),
                  **self._friction_diagnostics(ctrl)}))
         publish_diagnostics(self, self.diag_pub, statuses)
+
+
+_GUARD_FIELDS = ('passivity_energy', 'passivity_dissipated', 'passivity_damping')
+
+
+def _guard_values(ctrl):
+    """The passivity guard's observed energy [J], the energy its damping took out [J] and the
+    damping it adds (``monitor``: would add) [N m s/rad]; NaN when it is disabled."""
+    g = ctrl.passivity_guard
+    return (math.nan,) * 3 if g is None else (g.energy, g.dissipated, g.damping)
+
+
+def _guard_status(ctrls):
+    """The :data:`_GUARD_FIELDS` of ``controller_status``: one list per field."""
+    return tuple(list(column) for column in zip(*(_guard_values(c) for c in ctrls)))
 
 
 class DirectPort:

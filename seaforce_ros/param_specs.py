@@ -19,6 +19,8 @@ from .ros_common import EXECUTORS, ParamSpec, StartupError
 
 #: The zero-torque mode was called ``off``, which YAML 1.1 reads as a boolean.
 MODE_RENAMED = 'the zero-torque mode formerly called off is passive'
+#: The passivity guard's settings are not off/on, which YAML 1.1 reads as booleans.
+GUARD_RENAMED = 'the guard is disabled, monitor or active (off/on would be YAML booleans)'
 
 PLANT_KEYS = tuple(k for k in PARAMETERS if k.startswith('plant.'))
 DAHL_KEYS = tuple(k for k in PARAMETERS if k.startswith('dahl.'))
@@ -84,8 +86,9 @@ def controller_channel_specs(channel: str) -> List[ParamSpec]:
             default = float(default)
         specs.append(ParamSpec(f'{channel}.{key}', default, info.description, low=info.low,
                                high=info.high,
-                               choices=MODES if key == 'mode' else (),
-                               choice_hint=MODE_RENAMED if key == 'mode' else ''))
+                               choices=MODES if key == 'mode' else info.choices,
+                               choice_hint=MODE_RENAMED if key == 'mode' else (
+                                   GUARD_RENAMED if key == 'passivity_guard' else '')))
     return specs
 
 

@@ -39,7 +39,9 @@ def test_message_fields_match_design():
         ('contact', 'sequence<boolean>'), ('contact_position', 'sequence<double>'),
         ('contact_force', 'sequence<double>'), ('object_stiffness', 'sequence<double>'),
         ('object_stiffness_sigma', 'sequence<double>'), ('object_damping', 'sequence<double>'),
-        ('object_damping_sigma', 'sequence<double>'), ('grasp_phase', 'sequence<string>')]
+        ('object_damping_sigma', 'sequence<double>'), ('grasp_phase', 'sequence<string>'),
+        ('passivity_energy', 'sequence<double>'), ('passivity_dissipated', 'sequence<double>'),
+        ('passivity_damping', 'sequence<double>')]
 
 
 def test_grasp_action_interface():

@@ -107,7 +107,8 @@ def test_zwidth_from_backdrive_bags_matches_direct_computation(tmp_path, capsys)
                                            contact_position=one, contact_force=one,
                                            object_stiffness=one, object_stiffness_sigma=one,
                                            object_damping=one, object_damping_sigma=one,
-                                           grasp_phase=[""]),
+                                           grasp_phase=[""], passivity_energy=one,
+                                           passivity_dissipated=one, passivity_damping=one),
                                          "seaforce_msgs/msg/ControllerStatus")
             w.write(c_status, 0, status)
             for i in range(n):

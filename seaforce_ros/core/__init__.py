@@ -7,6 +7,7 @@ errors      exception types
 params      validated parameter dataclasses, flat ROS-key mapping
 plant       continuous LTI model (Fig. 4 plants, impedances)
 passivity   DOB admittance (eq. 25), passivity bounds (eq. 28), numerical check
+passivity_guard  time-domain passivity guard of the DOB's motor port
 analysis    force-feedback comparison (Fig. 7), low-frequency limits, Z-width,
             impedance from time series, hold-gain design
 dahl        Dahl hysteresis (eq. 14-15), exact per-sample update

@@ -50,6 +50,10 @@ Discretisation (sample period T = ``dt``):
   aborts it. With ``friction.adaptation`` the feed-forward's values follow the same fit slowly
   while the estimator sees no contact (``dob_linear_ff``, ``dob_full_ff``, ``impedance``, and
   a grasp's approach).
+* the passivity guard (:mod:`.passivity_guard`, ``passivity_guard`` not ``disabled``)
+  watches the DOB's port ``(F_p + F_ref, V)`` whenever the DOB runs; when ``active`` its
+  damping force is added to F_ref (the port impedance becomes Z + alpha). It restarts
+  (full reserve, no damping) at every mode entry, so entries stay bumpless.
 * chirp: ``F_a = u_0 + A w(t) sin(phi(t))``, log chirp, u_0 the torque at
   entry, w a 50 ms raised-cosine fade-in/out. It plays once per selection of
   the mode (``configure``): a chirp that finished, or that the plant
@@ -79,6 +83,7 @@ from .estimator import ContactEstimator
 from .friction_calibration import FrictionAdaptation, FrictionCalibration, with_friction
 from .grasp import Grasp
 from .handover import Mailbox
+from .passivity_guard import PassivityGuard
 from .errors import NonFiniteInputError
 from .params import ControllerConfig, DahlParams, DOB_MODES
 from .signals import faded_log_chirp
@@ -120,6 +125,9 @@ class ChannelController:
         Contact and object estimates (updated in every mode).
     grasp : Grasp or None
         The grasp that overrides the mode, while it runs.
+    passivity_guard : PassivityGuard or None
+        The time-domain passivity guard of the DOB's motor port (None when disabled); it runs
+        while the DOB does (the DOB modes and a grasp) and restarts at every mode entry.
     """
 
     def __init__(self, config=None, dt=5e-4):
@@ -196,6 +204,17 @@ class ChannelController:
         self.estimator.configure(c.estimator, p, c.rest_position)
         self._use_ff = c.mode in ("dob_linear_ff", "dob_full_ff", "impedance")
         self._use_dahl = c.mode in ("dob_full_ff", "impedance")
+        self._configure_guard(c)
+
+    # --- time-domain passivity guard (issue 13) ---------------------------------------------
+    def _configure_guard(self, c):
+        """The guard of ``c.passivity`` (None when disabled) on the DOB's port, whose apparent
+        inertia is m_n; its force is bounded by ``max_torque``."""
+        if c.passivity.mode == "disabled":
+            self.passivity_guard = None
+        else:
+            self.passivity_guard = PassivityGuard(c.passivity, self.dt, c.dob.nominal_inertia,
+                                                  c.max_torque)
 
     def _hose_coefficients(self, period):
         """Exact first-order-hold discretisation of ``delta' = (F_p - k_s delta)/b_s`` over
@@ -219,6 +238,8 @@ class ChannelController:
             self._chirp_played = False
         self._interrupt_chirp()
         self.estimator.reset()
+        if self.passivity_guard is not None:
+            self.passivity_guard.reset()
         self.torque = float(applied_torque)
         self.disturbance = math.nan
         self.feedforward = 0.0
@@ -410,6 +431,9 @@ class ChannelController:
         reenter = self._enter == _REENTER
         self._enter = 0
         u_prev = self.torque
+        guard = self.passivity_guard
+        if guard is not None and enter:
+            guard.reset()           # a new port: the full reserve, no damping (bumpless)
         grasp = self.grasp
         if grasp is not None or self._dob_mode:
             if grasp is not None:
@@ -429,6 +453,8 @@ class ChannelController:
                 if enter:
                     self._x0 = xe_hat
                 f_ref = fcmp + fd - self._kt * (xe_hat - self._x0) - self._bt * ve_hat
+            if guard is not None:   # damping on the DOB's port (F_p + F_ref, V): Z -> Z + alpha
+                f_ref += guard.update(f_p + f_ref, x, v, steps)
             e = f_ref + f_p - self._kn * x
             lam_h = self._lam_half_dt * steps
             ramp = self._lam_mn * v + self._lam_bn * x

@@ -30,6 +30,8 @@ keys below are relative to ``<channel>.``)::
               min_velocity_excitation, min_position_excitation}
     max_torque
     allow_non_passive
+    passivity_guard
+    passivity.{reserve, max_damping, velocity_deadband, release_time}
 """
 
 import dataclasses
@@ -43,6 +45,7 @@ __all__ = [
     "MODES", "DOB_MODES", "PlantParams", "DahlParams", "DobParams", "EstimatorParams",
     "GraspParams",
     "FrictionParams",
+    "GUARD_MODES", "GuardParams", "guard_carries",
     "ControllerConfig", "PARAMETERS", "ParameterInfo", "DEFAULT_CUTOFF",
     "DEFAULT_HOLD_STIFFNESS", "DEFAULT_HOLD_DAMPING",
 ]
@@ -393,6 +396,52 @@ class FrictionParams:
         _check_range("friction.adaptation_bound", self.adaptation_bound, 0.0, 10.0)
 
 
+# --- the time-domain passivity guard (issue 13) -------------------------------------------
+#: Settings of ``<channel>.passivity_guard``. Not off/on: YAML 1.1 reads those as booleans.
+GUARD_MODES = ("disabled", "monitor", "active")
+
+
+@dataclass(frozen=True)
+class GuardParams:
+    """Time-domain passivity guard on the DOB's motor port (:mod:`.passivity_guard`).
+
+    Parameters
+    ----------
+    mode : str
+        ``disabled``; ``monitor`` (observe the port energy, add nothing); ``active`` (add
+        damping when the energy runs out: a DOB setting outside eq. 28 is then accepted
+        without ``allow_non_passive``).
+    reserve : float, 1e-9..1
+        R: the port's initial energy and the most credit the observer keeps [J]; the damping
+        starts when the energy has fallen to R/2 and is ``max_damping`` at 0.
+    max_damping : float, 0..100
+        alpha_max, the largest damping the guard adds [N m s/rad]; passivates the DOB at every
+        frequency when ``>= lambda (m - m_n) - b`` (the high-frequency deficit of eq. 25).
+    velocity_deadband : float, 0..100
+        Dead zone of the motor velocity the damping acts on [rad/s] (a noisy velocity).
+    release_time : float, 1e-3..1000
+        tau_r: time constant with which damping the guard no longer needs is released [s].
+    """
+
+    mode: str = "disabled"
+    reserve: float = 1e-3
+    max_damping: float = 0.5
+    velocity_deadband: float = 0.0
+    release_time: float = 5.0
+
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self):
+        if self.mode not in GUARD_MODES:
+            raise InvalidParameterError("passivity_guard", self.mode,
+                                        "one of " + ", ".join(GUARD_MODES))
+        _check_range("passivity.reserve", self.reserve, 1e-9, 1.0)
+        _check_range("passivity.max_damping", self.max_damping, 0.0, 100.0)
+        _check_range("passivity.velocity_deadband", self.velocity_deadband, 0.0, 100.0)
+        _check_range("passivity.release_time", self.release_time, 1e-3, 1e3)
+
+
 def check_dob_passivity(plant, dob):
     """Raise :class:`NonPassiveError` if ``dob`` violates eq. 28 for ``plant``.
 
@@ -417,6 +466,34 @@ def check_dob_passivity(plant, dob):
             f"{k_max:.6g} N m/rad (eq. 28)")
 
 
+def guard_carries(config):
+    """Why ``config`` (a validated :class:`~.params.ControllerConfig`) needs its passivity
+    guard: the eq. 28 violation that ``passivity_guard: active`` let through without
+    ``allow_non_passive``, and whether ``passivity.max_damping`` covers the DOB's
+    high-frequency deficit ``lambda (m - m_n) - b``. '' when the DOB setting is passive, the
+    guard is not active, or ``allow_non_passive`` accepted it anyway. The node logs it as a
+    warning when the configuration is accepted.
+    """
+    if config.passivity.mode != "active" or config.allow_non_passive:
+        return ""
+    try:
+        check_dob_passivity(config.plant, config.dob)
+    except NonPassiveError as exc:
+        text = (f"{exc.name} = {exc.value!r} is outside the passivity bound ({exc.bound}): "
+                "accepted because passivity_guard is active, which adds damping when the "
+                "motor port has given back its reserve")
+        p, dob = config.plant, config.dob
+        deficit = dob.cutoff * (p.motor_inertia - dob.nominal_inertia) - p.motor_damping
+        if deficit > 0.0:
+            alpha = config.passivity.max_damping
+            text += (f"; passivity.max_damping = {alpha:g} N m s/rad "
+                     + ("covers" if alpha >= deficit else "is below (the guard may not hold "
+                        "it in every contact)")
+                     + f" the high-frequency deficit lambda (m - m_n) - b = {deficit:.4g}")
+        return text
+    return ""
+
+
 # --- the parameter table ----------------------------------------------------
 @dataclass(frozen=True)
 class ParameterInfo:
@@ -438,6 +515,8 @@ class ParameterInfo:
     description: str
     low: Optional[float] = None
     high: Optional[float] = None
+    #: allowed strings of a string parameter other than ``mode`` (a ROS descriptor's choices)
+    choices: tuple = ()
 
 
 #: Every per-channel controller parameter: flat key -> :class:`ParameterInfo`. The ROS
@@ -604,6 +683,26 @@ PARAMETERS = {
     "friction.min_position_excitation": ParameterInfo(
         "friction.min_position_excitation", "rms endpoint motion only k_e explains below "
         "which the friction adaptation stops [rad]", 1e-6, 10.0),
+    # time-domain passivity guard (issue 13)
+    "passivity_guard": ParameterInfo(
+        "passivity.mode", "time-domain passivity guard on the motor port, one of "
+        + ", ".join(GUARD_MODES) + ": monitor observes the port energy, active also adds "
+        "damping when it runs out (a DOB setting outside eq. 28 then needs no "
+        "allow_non_passive)", choices=GUARD_MODES),
+    "passivity.reserve": ParameterInfo(
+        "passivity.reserve", "R, the motor port's initial energy and the most credit the "
+        "guard keeps; damping starts below R/2 [J]", 1e-9, 1.0),
+    "passivity.max_damping": ParameterInfo(
+        "passivity.max_damping", "largest damping the guard adds to the motor port, reached "
+        "at zero energy [N m s/rad] (passivates the DOB when >= lambda (m - m_n) - b)",
+        0.0, 100.0),
+    "passivity.velocity_deadband": ParameterInfo(
+        "passivity.velocity_deadband", "dead zone of the motor velocity the guard's damping "
+        "acts on (for a noisy velocity; a band leaves oscillations slower than it) [rad/s]",
+        0.0, 100.0),
+    "passivity.release_time": ParameterInfo(
+        "passivity.release_time", "time constant with which the guard releases damping it "
+        "no longer needs [s]", 1e-3, 1e3),
     "max_torque": ParameterInfo(
         "max_torque", "the controller's fault limit: a computed |F_a| above it latches a "
         "torque_limit fault (zero torque) [N m], > 0", 0.0, 1e3),
@@ -613,7 +712,7 @@ PARAMETERS = {
 }
 
 #: The parameter groups of :class:`ControllerConfig` (``<group>.<attribute>`` fields).
-_GROUPS = ("plant", "dahl", "dob", "estimator", "grasp", "friction")
+_GROUPS = ("plant", "dahl", "dob", "estimator", "grasp", "friction", "passivity")
 
 
 @dataclass(frozen=True)
@@ -646,6 +745,8 @@ class ControllerConfig:
         Grasp phases.
     friction : FrictionParams
         Endpoint friction calibration and adaptation.
+    passivity : GuardParams
+        Time-domain passivity guard (``passivity_guard``, ``passivity.*``).
     chirp_amplitude : float >= 0
         [N m].
     chirp_start_frequency, chirp_end_frequency : float > 0
@@ -674,6 +775,7 @@ class ControllerConfig:
     target_force: float = 0.0
     estimator: EstimatorParams = field(default_factory=EstimatorParams)
     grasp: GraspParams = field(default_factory=GraspParams)
+    passivity: GuardParams = field(default_factory=GuardParams)
     chirp_amplitude: float = 0.3
     chirp_start_frequency: float = 0.01
     chirp_end_frequency: float = 1000.0
@@ -697,7 +799,7 @@ class ControllerConfig:
             raise InvalidParameterError("mode", self.mode, "one of " + ", ".join(MODES))
         for name, cls in (("plant", PlantParams), ("dahl", DahlParams), ("dob", DobParams),
                           ("estimator", EstimatorParams), ("grasp", GraspParams),
-                          ("friction", FrictionParams)):
+                          ("friction", FrictionParams), ("passivity", GuardParams)):
             if not isinstance(getattr(self, name), cls):
                 raise InvalidParameterError(name, getattr(self, name), f"a {cls.__name__}")
         _check_positive("plant.hose_damping", self.plant.hose_damping)
@@ -719,7 +821,8 @@ class ControllerConfig:
             raise InvalidParameterError("allow_non_passive", self.allow_non_passive,
                                         "a bool")
         if not self.allow_non_passive:
-            check_dob_passivity(self.plant, self.dob)
+            if self.passivity.mode != "active":     # an active guard carries eq. 28
+                check_dob_passivity(self.plant, self.dob)
             # impedance mode: ranges verified stable in simulation (Table I,
             # endpoint free and driven); the free endpoint went unstable at
             # K_t ~ 2 k_s and at B_t ~ 25 b_s (V_e_hat amplifies the pressure

@@ -15,13 +15,13 @@ from collections import namedtuple
 
 import numpy as np
 
-from .params import PlantParams, DobParams
+from .params import PlantParams, DobParams, guard_carries  # noqa: F401 (re-exported)
 from .plant import poly_tf
 
 __all__ = [
     "dob_admittance_coefficients", "dob_admittance", "dob_admittance_at",
     "DobBounds", "dob_passivity_bounds", "dob_passivity_closed_form",
-    "PassivityVerdict", "numerical_passivity",
+    "PassivityVerdict", "numerical_passivity", "guard_carries",
 ]
 
 
@@ -219,3 +219,4 @@ def numerical_passivity(num, den, omega=None, tol=1e-9):
             if min(lo, hi) < 0:
                 return verdict(False, f"Re Y(jw) < 0 near w = {w:.4g} rad/s")
     return verdict(True, "")
+

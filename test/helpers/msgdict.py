@@ -84,4 +84,7 @@ def sample_messages():
     status.object_damping = [float('nan'), -0.0021]
     status.object_damping_sigma = [float('nan'), 0.012]
     status.grasp_phase = ['', 'hold']
+    status.passivity_energy = [float('nan'), -2.5e-4]
+    status.passivity_dissipated = [float('nan'), 0.0125]
+    status.passivity_damping = [float('nan'), 0.5]
     return {'actuator_state': state, 'actuator_command': command, 'controller_status': status}
