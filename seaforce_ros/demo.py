@@ -448,13 +448,14 @@ def _calibrate(observer, children, args):
         print(f'[demo] friction calibration: the finger in free air, '
               f'{args.calibration_time:g} s of motion ...', flush=True)
         deadline = time.monotonic() + 3.0 * args.calibration_time + 60.0
-        future = client.send_goal_async(goal)
+        # (requests from the spin thread: from this one rclpy can drop the answer)
+        future = observer.background.call(lambda: client.send_goal_async(goal))
         while not future.done():
             children.check()
             if time.monotonic() > deadline:
                 raise RuntimeError('the calibration goal was not answered')
             time.sleep(0.05)
-        result_future = future.result().get_result_async()
+        result_future = observer.background.call(future.result().get_result_async)
         while not result_future.done():
             children.check()
             if time.monotonic() > deadline:

@@ -140,10 +140,12 @@ def grasp_one(obs, children, name, k, b, speed, grip):
                     max_force=max_force, probe=True)
     feedback = []
     start = obs.latest()[0]
-    handle = obs.wait(obs.action.send_goal_async(
-        goal, feedback_callback=lambda m: feedback.append(m.feedback.phase)), 'goal answer',
+    # (requests from the spin thread: from this one rclpy can drop the answer)
+    call = obs.background.call
+    handle = obs.wait(call(lambda: obs.action.send_goal_async(
+        goal, feedback_callback=lambda m: feedback.append(m.feedback.phase))), 'goal answer',
         children)
-    ended = handle.get_result_async()
+    ended = call(handle.get_result_async)
     deadline = time.monotonic() + 120.0
     while not feedback or feedback[-1] != 'hold':
         children.check()
@@ -155,7 +157,7 @@ def grasp_one(obs, children, name, k, b, speed, grip):
     settle = max(0.5, 6.0 * (b + 0.08) / k)                     # the soft object's creep
     obs.wait_cycle(obs.latest()[0] + int(settle / DT), children)
     canceled = obs.latest()[0]
-    obs.wait(handle.cancel_goal_async(), 'cancel answer', children)
+    obs.wait(call(handle.cancel_goal_async), 'cancel answer', children)
     answer = obs.wait(ended, 'result', children)
     obs.wait_cycle(obs.latest()[0] + 200, children)
     with obs.lock:

@@ -543,6 +543,33 @@ class BackgroundNode:
                     return
                 raise
 
+    def call(self, fn, timeout: float = 10.0):
+        """``fn()`` run on the spin thread; its result (or its exception).
+
+        For rclpy calls that race the executor when made from another thread: Jazzy's
+        ``ActionClient.send_goal_async``, ``cancel_goal_async`` and ``get_result_async`` send the
+        request first and register the future that waits for its answer after, so an answer
+        the spin thread takes in between is dropped ("Ignoring unexpected ... response") and
+        the future never completes. On the spin thread nothing runs in between.
+        """
+        def run():
+            # an exception must not reach the wheel's EventsExecutor (it crashes the process)
+            try:
+                return True, fn()
+            except Exception as exc:  # handed to the caller below
+                return False, exc
+        task = self.executor.create_task(run)
+        deadline = time.monotonic() + timeout
+        while not task.done():
+            if time.monotonic() > deadline:
+                raise TimeoutError(f'{self.node.get_name()}: the spin thread did not run a call '
+                                   f'within {timeout:g} s')
+            time.sleep(0.002)
+        ok, value = task.result()
+        if not ok:
+            raise value
+        return value
+
     def close(self) -> None:
         """Stop spinning, release the executor, destroy the node, shut the context down.
 

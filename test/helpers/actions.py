@@ -15,9 +15,12 @@ def wait_future(future, timeout, what):
 
 class ActionTestClient:
     """Goals of ``action_type`` to the action ``name`` through the probe's node; subclasses
-    build the goal from keyword fields (:meth:`goal`)."""
+    build the goal from keyword fields (:meth:`goal`). Every request is sent from the probe's
+    spin thread (``BackgroundNode.call``): sent from the test's thread, an answer can arrive
+    before rclpy registers the future waiting for it, and is dropped."""
 
     def __init__(self, probe, action_type, name):
+        self._call = probe.background.call
         self.action_type = action_type
         self.client = ActionClient(probe.node, action_type, name)
         assert self.client.wait_for_server(timeout_sec=30.0)
@@ -27,17 +30,18 @@ class ActionTestClient:
 
     def send(self, **fields):
         feedback = []
-        handle = wait_future(self.client.send_goal_async(
-            self.goal(**fields), feedback_callback=lambda m: feedback.append(m.feedback)),
+        goal = self.goal(**fields)
+        handle = wait_future(self._call(lambda: self.client.send_goal_async(
+            goal, feedback_callback=lambda m: feedback.append(m.feedback))),
             30.0, 'goal answer')
         assert handle.accepted
         return handle, feedback
 
     def result(self, handle, timeout=30.0):
-        return wait_future(handle.get_result_async(), timeout, 'result')
+        return wait_future(self._call(handle.get_result_async), timeout, 'result')
 
     def cancel(self, handle, timeout=30.0):
-        wait_future(handle.cancel_goal_async(), timeout, 'cancel answer')
+        wait_future(self._call(handle.cancel_goal_async), timeout, 'cancel answer')
         return self.result(handle, timeout)
 
     def rejected(self, **fields):
