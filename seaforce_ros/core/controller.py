@@ -53,7 +53,8 @@ Discretisation (sample period T = ``dt``):
 * the passivity guard (:mod:`.passivity_guard`, ``passivity_guard`` not ``disabled``)
   watches the DOB's port ``(F_p + F_ref, V)`` whenever the DOB runs; when ``active`` its
   damping force is added to F_ref (the port impedance becomes Z + alpha). It restarts
-  (full reserve, no damping) at every mode entry, so entries stay bumpless.
+  (full reserve, no damping) at every mode entry, so entries stay bumpless; a parameter set
+  within the mode keeps its ledger.
 * chirp: ``F_a = u_0 + A w(t) sin(phi(t))``, log chirp, u_0 the torque at
   entry, w a 50 ms raised-cosine fade-in/out. It plays once per selection of
   the mode (``configure``): a chirp that finished, or that the plant
@@ -209,12 +210,18 @@ class ChannelController:
     # --- time-domain passivity guard (issue 13) ---------------------------------------------
     def _configure_guard(self, c):
         """The guard of ``c.passivity`` (None when disabled) on the DOB's port, whose apparent
-        inertia is m_n; its force is bounded by ``max_torque``."""
+        inertia is m_n; its force is bounded by ``max_torque``. A running guard is configured,
+        not replaced: :meth:`update` restarts its ledger on a mode entry only (a restart on
+        every parameter set would refill the reserve, and parameters set again and again
+        would disarm it)."""
+        guard = getattr(self, "passivity_guard", None)
         if c.passivity.mode == "disabled":
             self.passivity_guard = None
-        else:
+        elif guard is None:
             self.passivity_guard = PassivityGuard(c.passivity, self.dt, c.dob.nominal_inertia,
                                                   c.max_torque)
+        else:
+            guard.configure(c.passivity, c.dob.nominal_inertia, c.max_torque)
 
     def _hose_coefficients(self, period):
         """Exact first-order-hold discretisation of ``delta' = (F_p - k_s delta)/b_s`` over
@@ -382,13 +389,17 @@ class ChannelController:
                    if not math.isfinite(val)][0]
             raise NonFiniteInputError(*bad)
         pending = self._pending.take()
+        keep_ledger = False     # the guard's ledger goes on through a same-mode parameter set
         if pending is not None:
+            keep_ledger = pending.mode == self.mode and self._enter != _ENTER
             self._apply_config(pending)
             self._chirp_played = False
             self._enter = _ENTER
         if self._grasp_box:
+            keep_ledger = False
             self._start_grasp(self._grasp_box.take())
         if self._calibration_box:
+            keep_ledger = False
             self._start_calibration(self._calibration_box.take())
 
         # hose inversion: delta = F_p/(b_s s + k_s), exact FOH
@@ -432,7 +443,7 @@ class ChannelController:
         self._enter = 0
         u_prev = self.torque
         guard = self.passivity_guard
-        if guard is not None and enter:
+        if guard is not None and enter and not keep_ledger:
             guard.reset()           # a new port: the full reserve, no damping (bumpless)
         grasp = self.grasp
         if grasp is not None or self._dob_mode:

@@ -437,3 +437,36 @@ def test_guard_is_bumpless_and_runs_only_with_the_dob():
     ctl.update(m.x, m.v, m.f_p)
     assert ctl.passivity_guard.energy == ctl.config.passivity.reserve
     assert ctl.passivity_guard.damping == 0.0
+
+
+def test_a_parameter_change_keeps_the_ledger_a_mode_entry_restarts_it():
+    """While the guard damps, setting any other parameter (here the impedance target and the
+    guard's own release time) keeps its energy and damping: a restart would refill the reserve,
+    so a parameter set again and again would disarm it. A mode entry starts a new ledger."""
+    light = dob_setting(0.1, 50)
+    cfg = ControllerConfig(mode="dob", dob=light, allow_non_passive=True, passivity=ACTIVE)
+    env, state = ENVIRONMENTS["stiff"]
+    sim = ChannelSimulator(TABLE_I, None, dt=DT, seed=3, environment=env)
+    sim.reset(state=state, environment=env)
+    ctl = ChannelController(cfg, dt=DT)
+    m = sim.measurement()
+    for i in range(4000):
+        m = sim.step(ctl.update(m.x, m.v, m.f_p))
+        g = ctl.passivity_guard
+        if g.damping > 0.0 and g.energy < 0.5 * cfg.passivity.reserve:
+            break
+    else:
+        pytest.fail("the guard never acted: no state to carry over")
+    changed = cfg.replace(target_stiffness=0.5, passivity=GuardParams(
+        mode="active", release_time=2.0))
+    for config in (changed, cfg):
+        energy, damping = g.energy, g.damping
+        ctl.configure(config)
+        m = sim.step(ctl.update(m.x, m.v, m.f_p))
+        assert ctl.passivity_guard is g
+        # one sample's work on the port is micro-joules: carried on, not refilled to R
+        assert abs(g.energy - energy) < 0.05 * cfg.passivity.reserve
+        assert g.damping >= 0.9 * damping                         # held, not dropped
+    ctl.configure(cfg.replace(mode="dob_linear_ff"))
+    ctl.update(m.x, m.v, m.f_p)
+    assert (g.energy, g.damping) == (cfg.passivity.reserve, 0.0)   # a new port's ledger
