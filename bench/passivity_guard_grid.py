@@ -44,6 +44,7 @@ from seaforce_ros.core.analysis import frequency_response, impedance_from_positi
 from seaforce_ros.core.environment import contact_object
 from seaforce_ros.core.params import GuardParams
 from seaforce_ros.core.plant import PlantModel
+from seaforce_ros.core.simulator import run_closed_loop
 
 DT = 5e-4
 PLANT = PlantParams.table_i()
@@ -64,26 +65,17 @@ REST = {"free": (free(), (0.0, 0.0, 0.0, 0.5)), "soft": pressed(1.0, 0.02, 0.2),
 
 
 def simulate(dob, guard, env, state, seconds):
+    """Closed loop, ``dob`` mode, until ``seconds`` or the first torque beyond MAX_TORQUE:
+    (completed, motor velocity, X_e, F_e, most damping the guard added)."""
     sim = ChannelSimulator(PLANT, None, dt=DT, seed=3, environment=env)
     sim.reset(state=state, environment=env)
     cfg = ControllerConfig(mode="dob", dob=dob, allow_non_passive=True, max_torque=MAX_TORQUE,
                            passivity=GuardParams(mode=guard))
-    ctl = ChannelController(cfg, dt=DT)
-    g = ctl.passivity_guard
     n = int(round(seconds / DT))
-    v, xe, fe = np.zeros(n), np.zeros(n), np.zeros(n)
-    alpha = 0.0
-    m = sim.measurement()
-    update, step = ctl.update, sim.step
-    for i in range(n):
-        u = update(m.x, m.v, m.f_p)
-        if not abs(u) <= MAX_TORQUE:
-            return False, v[:i], xe[:i], fe[:i], alpha
-        v[i], xe[i], fe[i] = sim.state[1], m.x_e, m.f_e
-        if g is not None and g.damping > alpha:
-            alpha = g.damping
-        m = step(u)
-    return True, v, xe, fe, alpha
+    r = run_closed_loop(sim, ChannelController(cfg, dt=DT), n, max_torque=MAX_TORQUE)
+    damping = r.get("passivity_damping", np.zeros(1))
+    alpha = float(damping.max()) if damping.size else 0.0
+    return r["u"].size == n, r["v_true"], r["x_e"], r["f_e"], alpha
 
 
 def rms(a):

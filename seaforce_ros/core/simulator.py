@@ -414,7 +414,7 @@ class ChannelSimulator:
         return m
 
 
-def run_closed_loop(sim, controller, n_steps, on_switch=None):
+def run_closed_loop(sim, controller, n_steps, on_switch=None, max_torque=None):
     """Run ``controller`` on ``sim`` for ``n_steps`` samples.
 
     Exactly::
@@ -439,14 +439,19 @@ def run_closed_loop(sim, controller, n_steps, on_switch=None):
         ``on_switch(i, sim, controller)`` called before each update, or a
         dict ``{i: callable(sim, controller)}`` of one-off actions (mode or
         environment switches).
+    max_torque : float, optional
+        Stop at the first command beyond +-``max_torque`` [N m] (or not finite): the record
+        ends before that sample, where the cycle would latch a fault (fewer than ``n_steps``
+        samples tell the caller so).
 
     Returns
     -------
     dict of numpy arrays, all aligned to the sample times ``t`` [s]:
     measurement fields ``x v f_p f_a x_e f_e`` (what the controller saw),
     ``u`` (command), true ``x_true v_true x_e_true v_e_true f_p_true
-    dahl_true``, and the controller's ``disturbance feedforward
-    endpoint_velocity_estimate dahl_force`` when it has them.
+    dahl_true``, the controller's ``disturbance feedforward
+    endpoint_velocity_estimate dahl_force`` when it has them, and its passivity guard's
+    ``passivity_energy passivity_damping`` when it runs one.
     """
     names = ("t", "x", "v", "f_p", "f_a", "x_e", "f_e", "u", "x_true", "v_true",
              "x_e_true", "v_e_true", "f_p_true", "dahl_true")
@@ -454,6 +459,11 @@ def run_closed_loop(sim, controller, n_steps, on_switch=None):
               "dahl_force")
     has_status = all(hasattr(controller, s) for s in status)
     rec = {n: [] for n in names + (status if has_status else ())}
+    guard = getattr(controller, "passivity_guard", None)
+    if guard is not None:
+        r_energy = rec["passivity_energy"] = []
+        r_damping = rec["passivity_damping"] = []
+    limit = None if max_torque is None else float(max_torque)
     hooks = on_switch if isinstance(on_switch, dict) else None
     update = controller.update
     ks, bs = sim.plant.hose_stiffness, sim.plant.hose_damping
@@ -468,6 +478,8 @@ def run_closed_loop(sim, controller, n_steps, on_switch=None):
         elif on_switch is not None:
             on_switch(i, sim, controller)
         u = update(m.x, m.v, m.f_p)
+        if limit is not None and not abs(u) <= limit:
+            break
         z = sim._z
         r_t.append(sim.t)
         r_x.append(m.x)
@@ -486,5 +498,8 @@ def run_closed_loop(sim, controller, n_steps, on_switch=None):
         if has_status:
             for s in status:
                 rec[s].append(getattr(controller, s))
+        if guard is not None:
+            r_energy.append(guard.energy)
+            r_damping.append(guard.damping)
         m = sim.step(u)
     return {n: np.asarray(v, dtype=float) for n, v in rec.items()}

@@ -29,6 +29,7 @@ from seaforce_ros.core.environment import contact_object
 from seaforce_ros.core.params import GuardParams, PARAMETERS
 from seaforce_ros.core.passivity import guard_carries
 from seaforce_ros.core.passivity_guard import PassivityGuard
+from seaforce_ros.core.simulator import run_closed_loop
 
 TABLE_I = PlantParams.table_i()
 M, B, K = TABLE_I.motor_inertia, TABLE_I.motor_damping, TABLE_I.motor_stiffness
@@ -279,21 +280,12 @@ def simulate(dob, guard_mode, environment, state, seconds, dahl=None, max_torque
     sim.reset(state=state, environment=environment)
     cfg = ControllerConfig(mode="dob", dob=dob, allow_non_passive=True, max_torque=max_torque,
                            passivity=GuardParams(mode=guard_mode))
-    ctl = ChannelController(cfg, dt=DT)
-    g = ctl.passivity_guard
     n = int(round(seconds / DT))
-    rec = {k: np.zeros(n) for k in ("v", "x_e", "f_e", "energy", "damping")}
-    m = sim.measurement()
-    for i in range(n):
-        u = ctl.update(m.x, m.v, m.f_p)
-        if not abs(u) <= max_torque:
-            return False, {k: r[:i] for k, r in rec.items()}
-        rec["v"][i] = sim.state[1]
-        rec["x_e"][i], rec["f_e"][i] = m.x_e, m.f_e
-        if g is not None:
-            rec["energy"][i], rec["damping"][i] = g.energy, g.damping
-        m = sim.step(u)
-    return True, rec
+    r = run_closed_loop(sim, ChannelController(cfg, dt=DT), n, max_torque=max_torque)
+    none = np.zeros(r["u"].size)
+    return r["u"].size == n, {"v": r["v_true"], "x_e": r["x_e"], "f_e": r["f_e"],
+                              "energy": r.get("passivity_energy", none),
+                              "damping": r.get("passivity_damping", none)}
 
 
 def rms(a):
