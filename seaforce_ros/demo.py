@@ -55,6 +55,15 @@ DT = 5e-4
 ATTEMPTS = 3
 
 
+def prepare(out):
+    """A demo's start: localhost-only discovery unless set, the output directory made;
+    ``(out directory, lib dir with the executables, default config file)``."""
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    out = pathlib.Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    return (out, *_package_paths())
+
+
 def _package_paths():
     """(lib dir with the executables, default config file)."""
     try:
@@ -273,10 +282,7 @@ def main(argv=None):
                         help='skip the friction calibration and the re-measurement')
     args = parser.parse_args(argv)
 
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    lib, config = _package_paths()
+    out, lib, config = prepare(args.out)
     config = pathlib.Path(args.config) if args.config else config
     overrides = out / 'demo-overrides.yaml'
     overrides.write_text(

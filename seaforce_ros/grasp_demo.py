@@ -17,8 +17,6 @@ Usage: python -m seaforce_ros.demo grasp [--out DIR] [--seed N] [--lockstep]
 from __future__ import annotations
 
 import argparse
-import os
-import pathlib
 import sys
 import threading
 import time
@@ -26,7 +24,7 @@ import time
 import numpy as np
 import yaml
 
-from .demo import _package_paths, run_guarded
+from .demo import prepare, run_guarded
 
 CHANNEL = 'pinch'
 DT = 5e-4
@@ -243,10 +241,7 @@ def main(argv=None):
                         help='separate sim_node/controller_node in deterministic lockstep')
     args = parser.parse_args(argv)
 
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    lib, config = _package_paths()
+    out, lib, config = prepare(args.out)
     plant, factors = true_plant(args.seed)
     sim = {'clock_mode': 'lockstep' if args.lockstep else 'realtime',
            f'{CHANNEL}.environment.mode': 'object', f'{CHANNEL}.environment.position': 10.0,
