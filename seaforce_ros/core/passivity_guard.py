@@ -45,12 +45,15 @@ Observer (per sample, no window)
 Capping only lowers E, so ``E_k >= 0`` for all k certifies
 ``sum F dX >= -(R + S_0)``: the guarded port is passive with the bounded initial energy R.
 
-Controller: damping that is held and released slowly
-----------------------------------------------------
+Controller: damping that is held, learned against a source, and released slowly
+-------------------------------------------------------------------------------
 ::
 
     alpha_demand = alpha_max clip((R/2 - E)/(R/2), 0, 1)
-    alpha_k      = max(alpha_demand, alpha_{k-1} exp(-T/tau_r))      (0 below 1e-3 alpha_max)
+    D_k          = D_{k-1} exp(-T/tau_r) + alpha_{k-1} dz(V_{k-1}) V_{k-1} T   (the guard's flow)
+    floor_k      = the peak alpha_demand of the last burst once the ledger is back at R;
+                   released (x exp(-T/tau_r)) only while D_k < R/2; dropped by a slow drain
+    alpha_k      = max(alpha_demand, floor_k, alpha_{k-1} exp(-T/tau_r))  (0 below 1e-3 alpha_max)
     F_guard      = -alpha_k dz(V)                                    |F_guard| <= max_torque
 
 ``dz`` is the dead zone ``passivity.velocity_deadband``. The top half of the reserve is
@@ -68,7 +71,24 @@ Why not the other variants (all measured on the simulated grid, bench/passivity_
   -- the damping drops to zero and the oscillation grows back: a limit cycle fed by one reserve
   per drive cycle (residual 30-170 % of the drive's velocity). Holding the damping and
   releasing it with ``tau_r`` (``passivity.release_time``, 5 s) keeps "just enough" damping
-  instead of re-learning it every cycle; what is left is a rare short burst (Limits).
+  instead of re-learning it every cycle.
+* **Hold and release alone**: against a position source the released damping falls below what
+  the port needs, and the source has refilled the ledger meanwhile (through the held damping),
+  so the instability returns as a burst worth R/2 every ~``tau_r ln(alpha_peak/alpha_needed)``
+  (5-10 s in the bench for 7 of the 45 settings). Hence the **learned floor**. An episode
+  (demand > 0) is a *burst* when it starts within 0.2 s of a full ledger: an oscillation that
+  spends R/2 that fast grows at a rate no drive cycle has (measured: 0.01-0.12 s from full to
+  R/2 for the first instability of the bench's settings, 0.3-7 s for the b_n = -2 k/lambda
+  ports, which give energy back at the drive frequency itself). A burst that ends with the
+  ledger full again has met a source; its peak demand -- the damping at which the port
+  stopped giving energy back -- becomes the floor, kept while the guard's own flow ``D`` (the
+  energy its damping took out over the last ~tau_r) shows the source still working against
+  it, released with tau_r once that flow is below R/2 (a passive object comes to rest; the
+  person lets go). A slow drain drops the floor: the demand follows such a port better than
+  a constant damping (a floor there cost 1-3 dB of |Z| where the unguarded drive is stable).
+  Over 120 s of the bonded drive at 10 rad/s no burst returns (was: one every 5-10 s); a
+  floor of 1.5x the peak gained nothing more there. An ever-held peak was the alternative: it
+  never gives the finger its lightness back after one transient.
 * **A narrow ramp** (full damping just below E = 0) chatters; **a wide ramp without hold**
   lets the damping follow the reactive swing of the oscillation it should damp.
 * **Windowed PO** (energy over the last N samples): no passivity certificate beyond the
@@ -85,13 +105,13 @@ Why not the other variants (all measured on the simulated grid, bench/passivity_
   is active.
 
 Limits. Passivity of the port buys stability against *passive* environments. A position
-source (the bonded drive) keeps refilling the ledger through the guard's own damping: there
-the released damping lets the instability back once per ~``tau_r ln(alpha_peak/alpha_needed)``
-for one short burst worth R/2 (the bench shows them at 10 rad/s for the settings that
-diverge without the guard). Against passive objects it happens at most once, after a
-transient that refilled the ledger. The first instability of a setting also spends R/2 before
-the damping starts. ``S`` counts the inertia only: with ``k_n > 0`` the nominal spring's
-swing (``k_n dX^2/2``) needs room in the reserve.
+source refills the ledger through the guard's own damping; the learned floor holds the
+damping while it does. A source too slow to keep ``D`` above R/2 (the bonded drive at
+0.5 rad/s, 0.05 rad: 0.025 rad/s) leaves the ledger near R/2 with the demand hovering around
+what the port needs: a weak oscillation whose energy stays bounded by the reserve (residual
+up to ~0.2 rad/s in the bench's settings that diverge without the guard). The first
+instability of a setting also spends R/2 before the damping starts. ``S`` counts the inertia
+only: with ``k_n > 0`` the nominal spring's swing (``k_n dX^2/2``) needs room in the reserve.
 
 Modes: ``monitor`` observes and computes the damping it would add, and adds nothing;
 ``active`` adds it. The class is plain Python with explicit state; the hot path uses floats
@@ -106,7 +126,9 @@ from .params import GuardParams
 __all__ = ["PassivityGuard"]
 
 #: Held damping below this fraction of ``max_damping`` is released to zero.
-_RELEASE_FLOOR = 1e-3
+_RELEASE_TO_ZERO = 1e-3
+#: An episode that starts within this time [s] of a full ledger is a burst (module docstring).
+_BURST_WINDOW = 0.2
 
 
 class PassivityGuard:
@@ -134,6 +156,11 @@ class PassivityGuard:
         Energy the guard's damping has taken out since :meth:`reset` [J] (0 in ``monitor``).
     damping : float
         alpha [N m s/rad]; in ``monitor`` the damping it would add.
+    floor : float
+        The learned floor of alpha [N m s/rad] (0 until an episode ended with a full ledger).
+    flow : float
+        D: the energy the guard's damping took out, forgotten with tau_r [J] (in ``monitor``
+        what it would have taken out).
     force : float
         ``-alpha dz(V)`` [N m] (what :meth:`update` returns in ``active``).
     active : bool
@@ -166,7 +193,7 @@ class PassivityGuard:
         self._reserve = params.reserve
         self._half_band = 0.5 * params.reserve
         self._alpha_max = params.max_damping
-        self._floor = _RELEASE_FLOOR * params.max_damping
+        self._zero_below = _RELEASE_TO_ZERO * params.max_damping
         self._deadband = params.velocity_deadband
         self._decay = math.exp(-self.dt / params.release_time)
         self._half_m = 0.5 * inertia
@@ -177,6 +204,8 @@ class PassivityGuard:
         self.energy = self._reserve
         self.dissipated = 0.0
         self.damping = 0.0
+        self.floor = 0.0
+        self.flow = 0.0
         self.force = 0.0
         self.active = False
         self.saturated = False
@@ -185,6 +214,9 @@ class PassivityGuard:
         self._x = 0.0
         self._f = 0.0
         self._storage = 0.0
+        self._peak = 0.0
+        self._burst = False
+        self._since_full = 0.0
 
     def update(self, effort, x, v, steps=1):
         """One sample: port effort ``F_p + F_ref`` [N m], motor position X [rad], velocity
@@ -202,7 +234,8 @@ class PassivityGuard:
             return self._refuse(effort, x, v)
         self._x, self._f, self._storage = x, effort, storage
         reserve = self._reserve
-        if e > reserve:
+        full = e >= reserve
+        if full:
             e = reserve
         self.energy = e
         # the damping: what the deficit asks for, or the held damping if that is more
@@ -214,8 +247,31 @@ class PassivityGuard:
             demand = amax * (half - e) / half
             if demand >= amax:
                 demand, saturated = amax, True
-        held = self.damping * (self._decay if steps == 1 else self._decay ** steps)
-        if held < self._floor:
+        decay = self._decay if steps == 1 else self._decay ** steps
+        flow = self.flow * decay
+        floor = self.floor
+        if full:
+            self._since_full = 0.0
+        else:
+            self._since_full += self.dt * steps
+        if demand > 0.0 and self._peak == 0.0:  # an episode starts
+            self._burst = self._since_full < _BURST_WINDOW
+            if not self._burst:
+                floor = 0.0                     # a slow drain: the floor is not what it needs
+        if demand > self._peak:
+            self._peak = demand                 # the most the episode asked for
+        elif full and self._peak > 0.0:         # ended with the ledger refilled: a source
+            if self._burst and self._peak > floor:
+                floor = self._peak
+            self._peak = 0.0
+        if flow < half:
+            floor *= decay                      # nothing works against the damping: release
+        if floor < self._zero_below:
+            floor = 0.0
+        held = self.damping * decay
+        if held < floor:
+            held = floor
+        if held < self._zero_below:
             held = 0.0
         alpha = demand if demand >= held else held
         db = self._deadband
@@ -227,6 +283,8 @@ class PassivityGuard:
         elif f < -fmax:
             f, saturated = -fmax, True
         self.damping = alpha
+        self.floor = floor
+        self.flow = flow - f * v * self.dt * steps
         self.active = alpha > 0.0
         self.saturated = saturated
         self.force = f
