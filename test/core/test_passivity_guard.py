@@ -8,8 +8,8 @@ Stability, as the closed-loop tests define it ("energy bounded, no growing oscil
   back more than its reserve R plus the kinetic energy it held at the start;
 * *no growing oscillation*, endpoint at rest (free air after a kick, pressed into an object):
   the rms motor velocity over the last 0.25 s is below ``LIMIT_CYCLE`` (0.01 rad/s: the
-  unguarded limit cycles of the grid are 0.17-6 rad/s, sensor noise ~0.002 rad/s) and not
-  above 1.25 x that of the 0.25 s before;
+  unguarded limit cycles of the grid are 0.17-6 rad/s, sensor noise ~0.002 rad/s) and, above
+  half of it, not above 1.25 x that of the 0.25 s before;
 * *no growing oscillation*, bonded position drive: the motor velocity repeats with the drive,
   ``rms(v(t) - v(t - period)) <= 5 %`` of ``rms(v)`` over the last period.
 """
@@ -95,7 +95,10 @@ def test_damping_is_held_and_released_with_the_release_time():
     assert g.damping == pytest.approx(0.5 * math.exp(-DT / 0.1))
     g.update(0.0, 0.0, 1.0, steps=4)            # over the real elapsed time
     assert g.damping == pytest.approx(0.5 * math.exp(-5 * DT / 0.1))
-    g.energy = 0.375e-3                          # a new demand (0.125) below the held value
+    g.energy = 0.375e-3                          # a new demand (0.125) below the held value:
+    g.update(0.0, 0.0, 1.0)                      # held, not released, while the deficit lasts
+    assert g.damping == pytest.approx(0.5 * math.exp(-5 * DT / 0.1))
+    g.energy = 0.6e-3                            # no deficit: released again
     g.update(0.0, 0.0, 1.0)
     assert g.damping == pytest.approx(0.5 * math.exp(-6 * DT / 0.1))
     for _ in range(4000):                        # released to zero below 1e-3 max_damping
@@ -112,15 +115,15 @@ def test_an_episode_that_ends_with_a_full_ledger_leaves_its_peak_as_a_floor():
     g.energy = 0.2e-3                            # demand 0.3: an episode
     g.update(0.0, 0.0, 1.0)
     assert g.damping == pytest.approx(0.3) and g.floor == 0.0
-    g.energy = 0.6e-3                            # over: short of full, no floor
+    g.energy = 0.6e-3                            # over: short of full, no floor; released
     g.update(0.0, 0.0, 1.0)
     assert g.floor == 0.0
-    g.energy = 0.25e-3                           # the same episode asks for more: peak 0.25
-    g.update(0.0, 0.0, 1.0)                      # ... below the held 0.3
+    g.energy = 0.25e-3                           # the same episode asks for 0.25, below the
+    g.update(0.0, 0.0, 1.0)                      # held 0.3 d (not released: a deficit)
     g.energy = 0.1e-3                            # peak 0.4
     g.update(0.0, 0.0, 1.0)
     d = math.exp(-DT / 0.1)                      # D: the damping's work alpha V^2 T, forgotten
-    assert g.flow == pytest.approx(DT * (3 * 0.3 * d**3 + 0.4))   # held 0.3 d^(k-1), then 0.4
+    assert g.flow == pytest.approx(DT * (0.3 * d**3 + 0.3 * d * d**2 + 0.3 * d * d + 0.4))
     g.energy = 1e-3                              # refilled to R: the floor is the peak
     g.update(0.0, 0.0, 1.0)
     assert g.floor == 0.4 and g.damping == 0.4   # D >= R/2 already (0.3-0.4 W for 4 samples)
@@ -216,7 +219,8 @@ params = st.builds(GuardParams, mode=st.sampled_from(["active", "monitor"]),
 def test_invariants_over_arbitrary_sequences(p, inertia, max_force, seq):
     """Never injects energy (F v <= 0), never beyond alpha_max |v| or max_force, the ledger
     never credits more than the port absorbed (R + work - change of storage, capping only
-    lowers it), the dissipated energy never decreases, monitor adds nothing."""
+    lowers it), the dissipated energy never decreases, monitor adds nothing; the learned floor
+    stays within [0, alpha_max] and under the damping, the guard's flow D is never negative."""
     g = PassivityGuard(p, DT, inertia, max_force)
     work = 0.0
     prev = None
@@ -233,6 +237,7 @@ def test_invariants_over_arbitrary_sequences(p, inertia, max_force, seq):
         assert g.force * v <= 0.0
         assert abs(g.force) <= min(max_force, g.damping * abs(v)) * (1 + 1e-12)
         assert 0.0 <= g.damping <= p.max_damping
+        assert 0.0 <= g.floor <= g.damping and g.flow >= 0.0
         assert out == (g.force if p.mode == "active" else 0.0)
         assert g.energy <= p.reserve
         assert g.energy <= p.reserve + work - (storage - s0) + 1e-9 * (1 + abs(work))
@@ -340,7 +345,7 @@ def settles(dob, guard_mode, name, seconds=1.5):
     last, before = rms(r["v"][-k:]), rms(r["v"][-2 * k:-k])
     if last > LIMIT_CYCLE:
         return False, f"sustained oscillation {last:.3g} rad/s rms", r
-    if last > 1.25 * before + 1e-3:
+    if last > 1.25 * before + 1e-3 and last > 0.5 * LIMIT_CYCLE:
         return False, f"growing: {before:.3g} -> {last:.3g} rad/s rms", r
     return True, "", r
 
@@ -388,6 +393,32 @@ def test_the_guard_keeps_aggressive_settings_stable_in_every_environment(fractio
     ok, z, r = driven(dob, "active", 10.0)
     assert ok and r["energy"].min() >= 0.0, "drive"
     assert unguarded, "a grid setting should need the guard somewhere"
+
+
+# in stiff contact a weak limit cycle runs until it has spent R/2 (1-3 s), and the damping
+# that stopped it, released, can let it grow once more (4-10 s) before the deficit holds it:
+# to at most REGROWTH rad/s rms after 3 s (measured: 0.03), against 0.17-6 rad/s unguarded
+SETTLE_GUARDED = {"free": 3.0, "soft": 3.0, "stiff": 12.0}
+REGROWTH = 0.05
+
+
+@pytest.mark.parametrize("damping_fraction", [0.0, -0.5, -2.0])
+@pytest.mark.parametrize("cutoff_hz", [10, 20, 50])
+def test_the_whole_bench_grid_is_stable_with_the_guard(cutoff_hz, damping_fraction):
+    """Every setting of bench/passivity_guard_grid.py (m_n 0.1-1 m, this lambda and b_n) with
+    the guard active: it settles in free air and against the soft object within 3 s and
+    against the stiff one within 12 s, never above REGROWTH after 3 s, and repeats with the
+    bonded drive at 10 rad/s after 3 s; the ledger never below zero."""
+    for fraction in (0.1, 0.25, 0.5, 0.75, 1.0):
+        dob = dob_setting(fraction, cutoff_hz, damping_fraction)
+        for name in ENVIRONMENTS:
+            ok, why, r = settles(dob, "active", name, seconds=SETTLE_GUARDED[name])
+            assert ok and r["energy"].min() >= 0.0, (fraction, name, why)
+            k = int(0.25 / DT)
+            regrowth = max(rms(r["v"][i:i + k]) for i in range(int(3.0 / DT) - k, r["v"].size, k))
+            assert regrowth < REGROWTH, (fraction, name, regrowth)
+        ok, _, r = driven(dob, "active", 10.0, settle=3.0)
+        assert ok and r["energy"].min() >= 0.0, (fraction, "drive")
 
 
 @pytest.mark.parametrize("fraction, cutoff_hz, damping_fraction",
