@@ -13,7 +13,13 @@ signs at random), objects drawn at random. Prints:
   the estimator adapted and the largest excess of its detection residual over its mean, as a
   fraction of the threshold (the margin against a false contact).
 
+``--calibrate``: before each grasp the controller recalibrates the endpoint friction in free air
+(:class:`~seaforce_ros.core.friction_calibration.FrictionCalibration`, 0.1 rad at 0.5 rad/s,
+``friction.calibration_duration``; objects sit 0.15 rad or more away), as a user would run
+``~/calibrate_friction`` before grasping; the rest of the model stays ``--error`` off.
+
 Run:  PYTHONPATH=. python bench/grasp_accuracy.py [--draws N] [--error 0.15] [--seed S]
+      [--calibrate]
 """
 import argparse
 import math
@@ -24,6 +30,7 @@ import numpy as np
 from seaforce_ros.core import ChannelController, ChannelSimulator, ControllerConfig, DahlParams
 from seaforce_ros.core import PlantParams
 from seaforce_ros.core.environment import contact_object, free
+from seaforce_ros.core.friction_calibration import CalibrationGoal, FrictionCalibration
 from seaforce_ros.core.grasp import Grasp, GraspGoal
 
 DT = 5e-4
@@ -38,17 +45,38 @@ def wrong_plant(rng, error):
             DahlParams(sigma=d.sigma * sign(), coulomb_force=d.coulomb_force * sign()))
 
 
+#: set by ``--calibrate``: a friction calibration before each grasp
+CALIBRATE = False
+
+
+def controller_on(sim):
+    """The controller on ``sim`` and its first measurement, friction recalibrated in free air
+    first when ``CALIBRATE`` (it must succeed): (controller, config, measurement)."""
+    config = ControllerConfig()
+    ctl = ChannelController(config, dt=DT)
+    m = sim.measurement()
+    if CALIBRATE:
+        cal = FrictionCalibration(CalibrationGoal('pinch', 0.1, 0.5, True), config, DT)
+        ctl.request_calibration(cal)
+        for _ in range(int((config.friction.calibration_duration + 1.0) / DT)):
+            m = sim.step(ctl.update(m.x, m.v, m.f_p))
+            if cal.outcome is not None:
+                break
+        if cal.outcome != 'succeeded' or not cal.applied:
+            raise RuntimeError(f'friction calibration: {cal.outcome}: {cal.message}')
+        config = ctl.config
+    return ctl, config, m
+
+
 def grasp(k, b, position, v, grip, rng, error, hold=True):
     """One grasp; returns the measured figures (None where it did not get there)."""
     plant, dahl = wrong_plant(rng, error)
     sim = ChannelSimulator(plant, dahl, seed=int(rng.integers(1 << 30)),
                            environment=contact_object(position, k, b))
-    config = ControllerConfig()
-    ctl = ChannelController(config, dt=DT)
+    ctl, config, m = controller_on(sim)
     max_force = 2.0 * grip
     g = Grasp(GraspGoal('pinch', v, grip, max_force, True), config, DT)
     ctl.request_grasp(g)
-    m = sim.measurement()
     t = 0.0
     touched = estimate = None
     forces, phases = [], []
@@ -122,12 +150,10 @@ def free_motion(v, rng, error, travel=0.5):
     highest threshold [N m], largest |d - m| / threshold) while the approach is armed."""
     plant, dahl = wrong_plant(rng, error)
     sim = ChannelSimulator(plant, dahl, seed=int(rng.integers(1 << 30)), environment=free())
-    config = ControllerConfig()
-    ctl = ChannelController(config, dt=DT)
+    ctl, config, m = controller_on(sim)
     g = Grasp(GraspGoal('pinch', v, 0.3, 0.6, True), config, DT)
     ctl.request_grasp(g)
     est = ctl.estimator
-    m = sim.measurement()
     start = None
     low, high, worst = math.inf, 0.0, 0.0
     while g.active:
@@ -157,12 +183,17 @@ def main():
     parser.add_argument('--seed', type=int, default=12)
     parser.add_argument('--worst-of', type=int, default=3, help='grasps per detection cell')
     parser.add_argument('--free', type=int, default=10, help='plants per free-motion speed')
+    parser.add_argument('--calibrate', action='store_true',
+                        help='recalibrate the endpoint friction before each grasp')
     args = parser.parse_args()
+    global CALIBRATE
+    CALIBRATE = args.calibrate
     rng = np.random.default_rng(args.seed)
     print(f'the sim\'s plant {100 * args.error:.0f} % off the controller\'s model (each '
           f'parameter, random signs); {args.draws} objects: k log-uniform 0.2..20 N m/rad, '
           'b 0.04..0.1 N m s/rad, at 0.15..0.3 rad, closed at 0.05..0.3 rad/s, grip '
-          '0.2..0.5 N m, max_force 2 grip')
+          '0.2..0.5 N m, max_force 2 grip'
+          + ('; friction recalibrated in free air before each grasp' if CALIBRATE else ''))
     rows = []
     for _ in range(args.draws):
         k = float(np.exp(rng.uniform(np.log(0.2), np.log(20.0))))

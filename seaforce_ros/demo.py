@@ -432,8 +432,10 @@ def _get_parameter(node, target, name, timeout=20.0):
     return parameter_value_to_python(response.values[0])
 
 
-def _calibrate(observer, children, args):
-    """Release the finger into free air and run ~/calibrate_friction; its result."""
+def run_friction_calibration(observer, children, args):
+    """Release the finger into free air and run ~/calibrate_friction; its result. The
+    controller's ``state_timeout`` and the channel's mode are left as the calibration set them
+    (``hold``): the caller restores them."""
     from rclpy.action import ActionClient
     from seaforce_msgs.action import CalibrateFriction
     node = observer.node
@@ -475,11 +477,24 @@ def _calibrate(observer, children, args):
         print(f'[demo]   aborted: {result.message}', flush=True)
 
 
+def print_calibration(result, truth, seconds):
+    """The table of what ~/calibrate_friction recovered: model, new value, 1-sigma, the sim's
+    truth (``{'<ch>.sim.<key>': value}``; the model where it has none) and the error."""
+    print(f'\nFriction calibration (~/calibrate_friction, {seconds:g} s in free air): '
+          f'{result.message}')
+    print(f'{"parameter":18s}{"model":>11s}{"recalibrated":>14s}{"1-sigma":>10s}'
+          f'{"sim truth":>11s}{"error":>9s}')
+    for label, key, old, new, sigma in zip(FRICTION_LABELS, result.names, result.old_values,
+                                           result.new_values, result.new_values_sigma):
+        true = truth.get(f'{CHANNEL}.sim.{key}', old)
+        print(f'{label:18s}{old:11.4g}{new:14.4g}{sigma:10.2g}{true:11.4g}'
+              f'{100.0 * (new / true - 1.0):+8.1f}%')
+
+
 def recalibrate(observer, children, args, z_before):
     """Calibrate, drive the finger again, measure dob_full_ff, print what was recovered."""
     state_timeout = _get_parameter(observer.node, '/controller', 'state_timeout')
-    result = _calibrate(observer, children, args)
-    truth = model_error(args)
+    result = run_friction_calibration(observer, children, args)
     _set_parameters(observer.node, '/controller', {'state_timeout': state_timeout,
                                                    f'{CHANNEL}.mode': 'dob_full_ff'})
     if not result.applied:
@@ -493,15 +508,7 @@ def recalibrate(observer, children, args, z_before):
         children.check()
         time.sleep(0.1)
     z_after = measure(observer.window(first, last), args.frequency, args.amplitude)['z_db']
-    print(f'\nFriction calibration (~/calibrate_friction, {args.calibration_time:g} s in free '
-          f'air): {result.message}')
-    print(f'{"parameter":18s}{"model":>11s}{"recalibrated":>14s}{"1-sigma":>10s}'
-          f'{"sim truth":>11s}{"error":>9s}')
-    for label, key, old, new, sigma in zip(FRICTION_LABELS, result.names, result.old_values,
-                                           result.new_values, result.new_values_sigma):
-        true = truth.get(f'{CHANNEL}.sim.{key}', old)
-        print(f'{label:18s}{old:11.4g}{new:14.4g}{sigma:10.2g}{true:11.4g}'
-              f'{100.0 * (new / true - 1.0):+8.1f}%')
+    print_calibration(result, model_error(args), args.calibration_time)
     print(f'recalibrated dob_full_ff |Z| at {args.frequency} rad/s: {z_after:.1f} dB '
           f'(was {z_before:.1f} dB with the model)')
 

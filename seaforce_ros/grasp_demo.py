@@ -5,14 +5,17 @@ layout for a 2 kHz loop; ``--lockstep``: separate ``sim_node`` / ``controller_no
 in the deterministic lockstep mode) with the simulated plant 10-20 % off the controller's model
 (every Table I and Dahl parameter, signs at random from ``--seed``), and sends the ``pinch``
 finger a ``seaforce_msgs/action/Grasp`` goal for each of three objects placed in its way by the
-sim's ``object`` environment (soft, medium, stiff). Per object it holds until the grip has
-settled, cancels (the release), and prints the true vs. estimated stiffness and damping with
-their 1-sigma, the contact detection delay, the peak contact force before the squeeze, and the
-held grip vs. ``grip_force``; it writes a force-position plot per object. The controller sees
+sim's ``object`` environment (soft, medium, stiff). First, with no object in reach, the
+finger's endpoint friction is recalibrated (``~/calibrate_friction``, ``--calibration-time`` s
+in free air; ``--no-calibration`` grasps with the model as it is): the model's b_e and Dahl
+F_c, 10-20 % off, turn into object damping error (README, Grasping). Per object it holds until
+the grip has settled, cancels (the release), and prints the true vs. estimated stiffness and
+damping with their 1-sigma, the contact detection delay, the peak contact force before the
+squeeze, and the held grip vs. ``grip_force``; it writes a force-position plot per object. The controller sees
 motor position and hose pressure only: the object's true force comes from the simulator.
 
 Usage: python -m seaforce_ros.demo grasp [--out DIR] [--seed N] [--lockstep]
-       [--speed RAD_S] [--grip N_M]
+       [--speed RAD_S] [--grip N_M] [--calibration-time S] [--no-calibration]
 """
 from __future__ import annotations
 
@@ -24,7 +27,8 @@ import time
 import numpy as np
 import yaml
 
-from .demo import prepare, run_guarded
+from .demo import (_get_parameter, _set_parameters, prepare, print_calibration,
+                   run_friction_calibration, run_guarded)
 
 CHANNEL = 'pinch'
 DT = 5e-4
@@ -231,6 +235,20 @@ def report(results, factors, args):
           'grip_force')
 
 
+def calibrate(observer, children, args, truth):
+    """~/calibrate_friction with no object in reach; the controller's state_timeout and the
+    channel's mode as they were; prints what it recovered."""
+    node = observer.node
+    before = {name: _get_parameter(node, '/controller', name)
+              for name in ('state_timeout', f'{CHANNEL}.mode')}
+    result = run_friction_calibration(observer, children, args)
+    _set_parameters(node, '/controller', before)
+    _set_parameters(node, '/sim', {f'{CHANNEL}.environment.mode': 'object'})
+    print_calibration(result, truth, args.calibration_time)
+    if not result.applied:
+        print('(not applied: the grasps use the model as it is)')
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(prog='demo grasp', description=__doc__.split('\n\n')[0])
     parser.add_argument('--out', default='out/demo', help='output directory (PNGs, logs)')
@@ -239,6 +257,10 @@ def main(argv=None):
     parser.add_argument('--grip', type=float, default=0.3, help='grip_force [N m]')
     parser.add_argument('--lockstep', action='store_true',
                         help='separate sim_node/controller_node in deterministic lockstep')
+    parser.add_argument('--calibration-time', type=float, default=10.0,
+                        help='friction calibration length before the grasps [s]')
+    parser.add_argument('--no-calibration', action='store_true',
+                        help='grasp with the model as it is (no friction calibration first)')
     args = parser.parse_args(argv)
 
     out, lib, config = prepare(args.out)
@@ -267,6 +289,8 @@ def main(argv=None):
             if time.monotonic() > deadline:
                 raise RuntimeError('no controller_status / grasp action within 60 s')
             time.sleep(0.1)
+        if not args.no_calibration:
+            calibrate(observer, children, args, plant)
         results = []
         for name, k, b in OBJECTS:
             print(f'[demo grasp] {name} object (k = {k} N m/rad, b = {b} N m s/rad) ...',

@@ -85,8 +85,9 @@ def test_demo_lockstep_orders_the_modes_as_the_paper(processes, tmp_path):
 
 
 def test_grasp_demo_measures_three_objects_and_stops_its_nodes(processes, tmp_path):
-    """`scripts/demo grasp`: three simulated objects (soft, medium, stiff; the plant 10-20 %
-    off the model) grasped over ROS; a table row each, a plot each, every process ended."""
+    """`scripts/demo grasp`: the friction recalibrated first, then three simulated objects
+    (soft, medium, stiff; the plant 10-20 % off the model) grasped over ROS; a table row each
+    (estimates within 2.5 of their 1-sigma), a plot each, every process ended."""
     out = tmp_path / 'grasp'
     marker = f'SEAFORCE_DEMO_TEST={uuid.uuid4().hex}'
     env = dict(os.environ)
@@ -101,9 +102,12 @@ def test_grasp_demo_measures_three_objects_and_stops_its_nodes(processes, tmp_pa
                         rf'\s+(-?\d+\.\d+)\s+(\d+\.\d+)\s+(\d+\.\d)\s+(\d+\.\d+)\s+(\d+\.\d+)$',
                         text, re.M)
         assert row, f'no table row for {name}:\n{text}'
-        k, k_hat, k_sigma = (float(row.group(i)) for i in (1, 2, 3))
+        k, k_hat, k_sigma, b, b_hat, b_sigma = (float(row.group(i)) for i in range(1, 7))
         assert abs(k_hat - k) <= 2.5 * k_sigma, row.group(0)
+        assert abs(b_hat - b) <= 2.5 * b_sigma, row.group(0)
         png = out / f'grasp_{name}.png'
         assert png.is_file() and png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert re.search(r'grip held within \d+\.\d %', text), text
+    assert re.search(r'^Friction calibration \(~/calibrate_friction, 10 s in free air\): '
+                     r'identified$', text, re.M), text
     assert _processes_with_marker(marker) == []

@@ -12,10 +12,9 @@ import os
 import numpy as np
 from action_msgs.msg import GoalStatus
 from diagnostic_msgs.msg import DiagnosticArray
-from seaforce_msgs.action import CalibrateFriction
 from seaforce_msgs.msg import ActuatorState, ControllerStatus
 
-from helpers.actions import ActionTestClient
+from helpers.actions import CalibrationClient
 from helpers.nodes import start_node
 from helpers.states import by_cycle, value
 from seaforce_ros.core import (ChannelController, ChannelSimulator, ControllerConfig,
@@ -46,15 +45,6 @@ def z_true_db(truth):
     return magnitude_db(impedance_from_position(rec['f_e'], rec['x_e'], 1.0, DT, SETTLE))
 
 
-class Client(ActionTestClient):
-    def __init__(self, probe):
-        super().__init__(probe, CalibrateFriction, '/controller/calibrate_friction')
-
-    def goal(self, channel='pinch', amplitude=0.4, speed=1.0, apply=True):
-        return CalibrateFriction.Goal(channel=channel, amplitude=float(amplitude),
-                                      speed=float(speed), apply=apply)
-
-
 def test_calibrate_friction_after_a_random_drift(processes, tmp_path, probe):
     """The drift drawn by the test (seed printed on failure; SEAFORCE_FRICTION_SEED repeats
     it): b_e and F_c x0.6..1.6, k_e x0.6..1.4, sigma x0.7..1.4 of the model."""
@@ -72,7 +62,7 @@ def test_calibrate_friction_after_a_random_drift(processes, tmp_path, probe):
         'state_timeout': 5.0, 'pinch.mode': 'dob_full_ff', 'pinch.friction.calibration_duration':
         10.0, 'wrist.mode': 'force', 'wrist.target.force': 2.0, 'wrist.max_torque': 1.0})
     probe.wait_messages('controller_status', 5, timeout=60)
-    client = Client(probe)
+    client = CalibrationClient(probe)
     assert 'unknown channel' in client.rejected(channel='thumb')
     assert 'amplitude = nan' in client.rejected(amplitude=math.nan)
     assert 'friction.max_speed' in client.rejected(speed=10.0)

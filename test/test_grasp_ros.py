@@ -1,8 +1,9 @@
 """Grasping over ROS: the controller_node's ``~/grasp`` action on the simulated gripper.
 
 * Objects drawn at random by the test (stiffness, damping, where, closing speed, grip; the sim's
-  plant 15 % off the controller's model), one after the other in one lockstep run: the goals of
-  the issue asserted from what the sim reports (true contact force) and what the controller
+  plant 15 % off the controller's model, its endpoint friction recalibrated first with
+  ``~/calibrate_friction``, as README says to), one after the other in one lockstep run: the
+  goals of the issue asserted from what the sim reports (true contact force) and what the controller
   publishes (controller_status at every cycle, feedback, result).
 * The direct layout (bringup, real time): bad goals rejected with a reason, a second goal on a
   held channel, a goal on a faulted channel, a cancel that releases into the mode before the
@@ -18,7 +19,7 @@ from action_msgs.msg import GoalStatus
 from seaforce_msgs.action import Grasp
 from seaforce_msgs.msg import ActuatorState, ControllerStatus
 
-from helpers.actions import ActionTestClient
+from helpers.actions import ActionTestClient, CalibrationClient
 from helpers.nodes import start_node
 from helpers.states import value
 
@@ -123,10 +124,10 @@ def _grasp_once(probe, client, obj, where):
 
 def test_grasp_random_objects_over_ros(processes, tmp_path, probe):
     """Three objects drawn by the test (seed printed on failure; SEAFORCE_GRASP_SEED repeats a
-    run), the sim's plant 15 % off the model: stiffness within 10 % (25 % beyond 5 N m/rad,
-    30 % beyond 15)
+    run), the sim's plant 15 % off the model, the friction recalibrated first (10 s in free
+    air, 0.1 rad at 0.5 rad/s): stiffness within 10 % (25 % beyond 5 N m/rad, 30 % beyond 15)
     0.5 s after the contact and within 2.5 of its reported 1-sigma; damping within 30 % up to
-    3 N m/rad; contact detected within 10 ms at 0.15-0.3 rad/s (30 ms slower), peak contact
+    5 N m/rad; contact detected within 10 ms at 0.15-0.3 rad/s (30 ms slower), peak contact
     force before the squeeze below 0.05 N m (up to 5 N m/rad); grip within 5 % in a settled
     hold (8 % below 0.3 N m/rad: the finger's own spring's error); max_force never exceeded;
     the cancel releases the object into passive: zero torque."""
@@ -144,8 +145,16 @@ def test_grasp_random_objects_over_ros(processes, tmp_path, probe):
     start_node(processes, 'sim_node', 'sim', tmp_path, sim)
     probe.wait_messages('actuator_state', 1, timeout=60, where=lambda m: m.cycle == 0)
     start_node(processes, 'controller_node', 'controller', tmp_path,
-               {'state_timeout': 5.0, 'status_rate': 2000.0})
+               {'state_timeout': 5.0, 'status_rate': 2000.0,
+                'pinch.friction.calibration_duration': 10.0})
     probe.wait_messages('controller_status', 5, timeout=60)       # the loop runs
+    # with no object in reach: without it the model's b_e and Dahl F_c errors alone put the
+    # object damping 30-60 % off at 3-5 N m/rad (README, Grasping)
+    calibration = CalibrationClient(probe)
+    handle, _ = calibration.send(amplitude=0.1, speed=0.5)
+    answer = calibration.result(handle, timeout=240.0)
+    assert answer.status == GoalStatus.STATUS_SUCCEEDED and answer.result.applied, (
+        seed, answer.result.message)
     client = Client(probe)
     for n, obj in enumerate(draw_objects(rng, 3)):
         where = f'seed {seed}, object {n}: {obj}'
@@ -168,7 +177,7 @@ def test_grasp_random_objects_over_ros(processes, tmp_path, probe):
         assert max(force.values()) <= max_force, where
         assert abs(k_hat - k) <= (0.10 if k <= 5.0 else 0.25 if k <= 15.0 else 0.30) * k, (where, k_hat)
         assert abs(k_hat - k) <= 2.5 * k_sigma, (where, k_hat, k_sigma)
-        if k <= 3.0:
+        if k <= 5.0:
             assert abs(b_hat - b) <= 0.30 * b, (where, b_hat)
         assert abs(b_hat - b) <= 2.5 * b_sigma, (where, b_hat, b_sigma)
         if k <= 5.0:

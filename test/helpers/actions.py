@@ -3,6 +3,7 @@ import time
 
 from action_msgs.msg import GoalStatus
 from rclpy.action import ActionClient
+from seaforce_msgs.action import CalibrateFriction
 
 
 def wait_future(future, timeout, what):
@@ -51,3 +52,15 @@ class ActionTestClient:
         assert answer.status == GoalStatus.STATUS_ABORTED
         assert answer.result.message.startswith('rejected: '), answer.result.message
         return answer.result.message
+
+
+class CalibrationClient(ActionTestClient):
+    """``~/calibrate_friction`` goals (default: the ``pinch`` finger, 0.4 rad at 1 rad/s,
+    applied)."""
+
+    def __init__(self, probe):
+        super().__init__(probe, CalibrateFriction, '/controller/calibrate_friction')
+
+    def goal(self, channel='pinch', amplitude=0.4, speed=1.0, apply=True):
+        return CalibrateFriction.Goal(channel=channel, amplitude=float(amplitude),
+                                      speed=float(speed), apply=apply)
