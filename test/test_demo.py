@@ -22,7 +22,8 @@ def _processes_with_marker(marker: str):
 
 def _run_demo(processes, tmp_path, *extra):
     """The README's main job, ``scripts/demo`` with one period of a 3 rad/s drive per mode
-    (short); -> (table rows {mode: |Z| dB}, impedance range dB, output text, out dir)."""
+    (short), and its friction calibration unless ``--no-calibration`` is in ``extra``;
+    -> (table rows {mode: |Z| dB}, impedance range dB, output text, out dir)."""
     out = tmp_path / 'demo'
     marker = f'SEAFORCE_DEMO_TEST={uuid.uuid4().hex}'
     env = dict(os.environ)
@@ -41,6 +42,10 @@ def _run_demo(processes, tmp_path, *extra):
     png = out / 'work_loops.png'
     assert png.is_file() and png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert png.stat().st_size > 20_000
+    if '--no-calibration' in extra:
+        assert 'Friction calibration' not in text, text
+        assert _processes_with_marker(marker) == []
+        return rows, width, text, out
     # the sim's plant is 10-20 % off the model; the friction calibration recovers the
     # endpoint friction (the hose and motor errors remain). One period at 3 rad/s through a
     # real-time loop on a loaded host (lost samples, command timeouts) does not resolve the
@@ -76,8 +81,9 @@ def test_demo_prints_the_table_writes_the_png_and_stops_its_nodes(processes, tmp
 def test_demo_lockstep_orders_the_modes_as_the_paper(processes, tmp_path):
     """``--lockstep``: the plant steps only on the controller's answer, so the figures are the
     loop's own on any host: the paper's ordering hold >> passive > dob > dob_linear_ff >
-    dob_full_ff, about 50 dB of range at 3 rad/s, and no cycle without a command."""
-    rows, width, text, _out = _run_demo(processes, tmp_path, '--lockstep')
+    dob_full_ff, about 50 dB of range at 3 rad/s, and no cycle without a command (the
+    friction calibration is the first test's)."""
+    rows, width, text, _out = _run_demo(processes, tmp_path, '--lockstep', '--no-calibration')
     assert rows['hold'] > rows['passive'] + 10, rows
     assert rows['passive'] > rows['dob'] > rows['dob_linear_ff'] > rows['dob_full_ff'], rows
     assert width > 40.0, text

@@ -124,7 +124,7 @@ def _grasp_once(probe, client, obj, where):
 
 def test_grasp_random_objects_over_ros(processes, tmp_path, probe):
     """Three objects drawn by the test (seed printed on failure; SEAFORCE_GRASP_SEED repeats a
-    run), the sim's plant 15 % off the model, the friction recalibrated first (10 s in free
+    run), the sim's plant 15 % off the model, the friction recalibrated first (6 s in free
     air, 0.1 rad at 0.5 rad/s): stiffness within 10 % (25 % beyond 5 N m/rad, 30 % beyond 15)
     0.5 s after the contact and within 2.5 of its reported 1-sigma; damping within 30 % up to
     5 N m/rad; contact detected within 10 ms at 0.15-0.3 rad/s (30 ms slower), peak contact
@@ -146,7 +146,7 @@ def test_grasp_random_objects_over_ros(processes, tmp_path, probe):
     probe.wait_messages('actuator_state', 1, timeout=60, where=lambda m: m.cycle == 0)
     start_node(processes, 'controller_node', 'controller', tmp_path,
                {'state_timeout': 5.0, 'status_rate': 2000.0,
-                'pinch.friction.calibration_duration': 10.0})
+                'pinch.friction.calibration_duration': 6.0})
     probe.wait_messages('controller_status', 5, timeout=60)       # the loop runs
     # with no object in reach: without it the model's b_e and Dahl F_c errors alone put the
     # object damping 30-60 % off at 3-5 N m/rad (README, Grasping)

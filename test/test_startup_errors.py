@@ -91,9 +91,14 @@ BAD_VALUE_IDS = [f'{exe}-{"-".join(f"{k}={v}" for k, v in o.items())}'
 @pytest.fixture(scope='module')
 def bad_value_runs(tmp_path_factory):
     """Every BAD_VALUES case run to its end, four at a time (each is a Python start-up)."""
+    # the directories from this thread: the factory's first mktemp creates its base directory,
+    # and from four threads at once that races (this file run alone: "bad1 is not a
+    # normalized and relative path")
+    directories = [tmp_path_factory.mktemp(f'bad{index}') for index in range(len(BAD_VALUES))]
+
     def run(case):
         index, (exe, node, overrides, _) = case
-        directory = tmp_path_factory.mktemp(f'bad{index}')
+        directory = directories[index]
         argv = [str(executable(exe)), '--ros-args', '--params-file', str(CONFIG),
                 '--params-file', str(params_file(node, overrides, directory))]
         if exe == 'hardware_node':

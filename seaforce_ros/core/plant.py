@@ -20,7 +20,6 @@ from eq. 25. The endpoint impedance then is::
 """
 
 import numpy as np
-import control
 
 from .params import PlantParams
 
@@ -31,6 +30,10 @@ _S = np.poly1d([1.0, 0.0])
 
 def poly_tf(num, den):
     """``control.tf`` from two ``numpy.poly1d`` (leading zeros trimmed)."""
+    # imported here: python-control takes about a second to import, and every executable
+    # that reaches this module (through core.analysis) would pay it before checking its
+    # arguments
+    import control
     num = np.atleast_1d(np.trim_zeros(np.asarray(np.poly1d(num).coeffs, float), "f"))
     den = np.atleast_1d(np.trim_zeros(np.asarray(np.poly1d(den).coeffs, float), "f"))
     if num.size == 0:

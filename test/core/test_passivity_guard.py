@@ -395,10 +395,10 @@ def test_the_guard_keeps_aggressive_settings_stable_in_every_environment(fractio
     assert unguarded, "a grid setting should need the guard somewhere"
 
 
-# in stiff contact a weak limit cycle runs until it has spent R/2 (1-3 s), and the damping
-# that stopped it, released, can let it grow once more (4-10 s) before the deficit holds it:
-# to at most REGROWTH rad/s rms after 3 s (measured: 0.03), against 0.17-6 rad/s unguarded
-SETTLE_GUARDED = {"free": 3.0, "soft": 3.0, "stiff": 12.0}
+# in stiff contact a weak limit cycle runs until it has spent R/2 (1-3 s); after 3 s nothing
+# above REGROWTH rad/s rms (unguarded: 0.17-6 rad/s). Released while the deficit lasted, the
+# damping let it grow once more, 2-10 s later, to 0.03-0.09 rad/s: now it is held
+SETTLE_GUARDED = {"free": 3.0, "soft": 3.0, "stiff": 6.0}
 REGROWTH = 0.05
 
 
@@ -407,7 +407,7 @@ REGROWTH = 0.05
 def test_the_whole_bench_grid_is_stable_with_the_guard(cutoff_hz, damping_fraction):
     """Every setting of bench/passivity_guard_grid.py (m_n 0.1-1 m, this lambda and b_n) with
     the guard active: it settles in free air and against the soft object within 3 s and
-    against the stiff one within 12 s, never above REGROWTH after 3 s, and repeats with the
+    against the stiff one within 6 s, never above REGROWTH after 3 s, and repeats with the
     bonded drive at 10 rad/s after 3 s; the ledger never below zero."""
     for fraction in (0.1, 0.25, 0.5, 0.75, 1.0):
         dob = dob_setting(fraction, cutoff_hz, damping_fraction)
