@@ -241,11 +241,14 @@ def test_spd_inverse():
        scale=st.lists(st.floats(0.5, 2.0), min_size=3, max_size=3))
 def test_random_objects_and_plants(k, b, xc, v0, depth_force, probe, omega, scale):
     """Any object from 0.2 to 20 N m/rad, any damping, any endpoint plant within a factor 2 of
-    Table I, any press and probe: with an exact model the estimates are right, never reported
+    Table I, any press within the joint range and probe: with an exact model the estimates are right, never reported
     below the excitation thresholds, and the 1-sigma covers the error."""
     plant = TABLE_I.scaled(endpoint_inertia=scale[0], endpoint_damping=scale[1],
                            endpoint_stiffness=scale[2])
-    depth = depth_force / k
+    # pressed up to depth_force, within the joint range (friction.position_max, 1.5 rad): a
+    # soft object pressed with 1 N m would take the endpoint 4-5 rad (a CI run drew k 0.25,
+    # 4 rad, and the fit was 9 % off, 1.3 of its 1-sigma)
+    depth = min(depth_force / k, 1.5 - xc)
     # a probe the object follows (it never lets go: unilateral contact)
     omega = min(omega, 0.3 * k / max(b, 1e-9))
     motion = Motion(xc=xc, v0=v0, depth=depth, amplitude=probe * depth / 2.0,
