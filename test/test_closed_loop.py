@@ -11,7 +11,8 @@ from seaforce_msgs.msg import ActuatorState, ControllerStatus, ActuatorCommand
 from std_srvs.srv import Trigger
 
 from helpers.nodes import start_node
-from helpers.states import by_cycle, stamp_ns, torque_off_after_commands_stop, value
+from helpers.states import (by_cycle, counted_past, stamp_ns, torque_off_after_commands_stop,
+                            value)
 
 DRIVE = {'pinch.environment.mode': 'position_sine', 'pinch.environment.amplitude': 0.2,
          'pinch.environment.frequency': 1.0}
@@ -151,12 +152,12 @@ def test_sim_zeroes_torque_when_controller_is_killed(processes, tmp_path, probe)
     # just after its start): zero torque within command_timeout (20 cycles) + one cycle of it.
     assert cycles[first_to] - cycles[last_driven] <= timeout_cycles + 1, (
         cycles[last_driven], cycles[first_to])
-    # from then on zero torque; the flag held on every state stamped 5x command_timeout
-    # past the kill (until then an answer the starved controller had sent before it died may
-    # still arrive fresh: it clears the flag, it cannot bring torque back after
-    # command_timeout)
+    # from then on zero torque; the flag held on every state 5x command_timeout (in the
+    # plant's cycles) past the kill (until then an answer the starved controller had sent
+    # before it died may still arrive fresh: it clears the flag, it cannot bring torque back
+    # after command_timeout)
     assert np.all(efforts[first_to + 1:] == 0.0)
-    late = np.array([stamp_ns(m) > after for m in states])
+    late = counted_past(states, cycles, killed_ns, 5 * timeout_cycles)
     assert late.any() and np.all(flags[late] > 0), cycles[late & (flags == 0)]
     assert len(states) - first_to > 100  # and it stayed so for a while
     assert sim.popen.poll() is None, 'the sim keeps running'

@@ -17,7 +17,8 @@ from ethercat.emulator.config import default_config
 from helpers.commands import command_only
 from helpers.nodes import CONFIG, start_node
 from helpers.processes import executable
-from helpers.states import by_cycle, stamp_ns, torque_off_after_commands_stop, value
+from helpers.states import (by_cycle, counted_past, stamp_ns, torque_off_after_commands_stop,
+                            value)
 from seaforce_ros.core.analysis import impedance_from_position
 
 BUS = pathlib.Path(__file__).resolve().parent / 'data' / 'bus_emulated.yaml'
@@ -176,10 +177,11 @@ def test_controller_killed_gives_zero_torque(ecat_emulator, processes, tmp_path,
     else:
         assert 'zero torque' in ctrl.output(), ctrl.output()[-3000:]
     assert np.all(efforts[first_to:] == 0.0)
-    # every state stamped 5x command_timeout past the kill is flagged (between the first
-    # flag and then, an answer the starved controller had sent before it died may still
-    # arrive fresh: it clears the flag, it cannot bring torque back after command_timeout)
-    late = np.array([stamp_ns(m) > after for m in states])
+    # every state 5x command_timeout (in the plant's cycles) past the kill is flagged
+    # (between the first flag and then, an answer the starved controller had sent before it
+    # died may still arrive fresh: it clears the flag, it cannot bring torque back after
+    # command_timeout)
+    late = counted_past(states, cycles, killed_ns, 5 * round(0.01 * RATE))
     assert late.any() and np.all(flags[late] > 0), cycles[late & (flags == 0)]
     assert not harness.client.torque_applied('pinch_drive')
     assert hardware.wait_for_output('pinch: no fresh actuator_command', timeout=5), \

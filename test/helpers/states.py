@@ -34,3 +34,16 @@ def torque_off_after_commands_stop(states: List, channel: str):
     last_driven = int(np.flatnonzero(efforts != 0.0)[-1])
     first_off = last_driven + int(np.argmax(flags[last_driven:] > 0))
     return cycles, flags, efforts, last_driven, first_off
+
+
+def counted_past(states: List, cycles, killed_ns: int, steps: int):
+    """Mask of ``states`` more than ``steps`` plant cycles past the cycle the plant ran when a
+    process was killed at ``killed_ns`` (the first state stamped at or after it). The plant
+    counts its command timeout in its own cycles: a plant whose cycle stalled over the kill
+    flags the timeout on schedule in cycles, later in wall time (a loaded CI host: 33 cycles
+    stamped 50 ms after the kill still carried the last command, legitimately)."""
+    stamps = np.array([stamp_ns(m) for m in states])
+    at = np.flatnonzero(stamps >= killed_ns)
+    if at.size == 0:
+        return np.zeros(len(states), dtype=bool)
+    return np.asarray(cycles) > cycles[at[0]] + steps
