@@ -88,8 +88,11 @@ Why not the other variants (all measured on the simulated grid, bench/passivity_
   stopped giving energy back -- becomes the floor, kept while the guard's own flow ``D`` (the
   energy its damping took out over the last ~tau_r) shows the source still working against
   it, released with tau_r once that flow is below R/2 (a passive object comes to rest; the
-  person lets go). A slow drain drops the floor: the demand follows such a port better than
-  a constant damping (a floor there cost 1-3 dB of |Z| where the unguarded drive is stable).
+  person lets go). The floor's own damping is such work: any motion faster than
+  ``sqrt(R/(2 floor tau_r))`` rms (0.016-0.05 rad/s for floors of 0.4-0.04 at the defaults),
+  the finger's commanded motion included, keeps it. A slow drain drops the floor (the held
+  damping then follows the demand once the ledger is back above R/2): a floor there cost 1-3
+  dB of |Z| where the unguarded drive is stable.
   Over 120 s of the bonded drive at 10 rad/s no burst returns (was: one every 5-10 s); a
   floor of 1.5x the peak gained nothing more there. An ever-held peak was the alternative: it
   never gives the finger its lightness back after one transient.
@@ -119,8 +122,9 @@ only: with ``k_n > 0`` the nominal spring's swing (``k_n dX^2/2``) needs room in
 
 Modes: ``monitor`` observes and computes the damping it would add, and adds nothing;
 ``active`` adds it. The class is plain Python with explicit state; the hot path uses floats
-only. A NaN/inf input or an overflowing ledger gives zero force and sets :attr:`fault` (the
-state is left as it was) until :meth:`reset`.
+only. A NaN/inf input, ``steps`` not >= 1, or an overflowing ledger or force gives zero force
+for that sample and sets :attr:`fault`, which stays set until :meth:`reset` (the ledger is left
+as it was, but for an overflowing force; later finite samples are used again).
 """
 
 import math
@@ -185,7 +189,9 @@ class PassivityGuard:
         self.reset()
 
     def configure(self, params, inertia=0.0, max_force=math.inf):
-        """New settings (validated :class:`GuardParams`); the state is kept."""
+        """New settings (validated :class:`GuardParams`); the state is kept, its damping and
+        floor within the new ``max_damping`` (held damping is not released while a deficit
+        lasts: a lowered maximum must bind at once)."""
         if not isinstance(params, GuardParams):
             raise TypeError("params must be a GuardParams")
         if not (math.isfinite(inertia) and inertia >= 0.0):
@@ -202,6 +208,9 @@ class PassivityGuard:
         self._decay = math.exp(-self.dt / params.release_time)
         self._half_m = 0.5 * inertia
         self._f_max = float(max_force)
+        if hasattr(self, "damping"):
+            self.damping = min(self.damping, params.max_damping)
+            self.floor = min(self.floor, self.damping)
 
     def reset(self):
         """Full reserve, no damping, no history."""
@@ -226,8 +235,9 @@ class PassivityGuard:
         """One sample: port effort ``F_p + F_ref`` [N m], motor position X [rad], velocity
         V [rad/s], ``steps`` sample periods since the previous one. Returns the force to add
         to F_ref [N m] (0.0 unless ``active``)."""
-        if not (math.isfinite(effort) and math.isfinite(x) and math.isfinite(v)):
-            return self._refuse(effort, x, v)
+        if not (math.isfinite(effort) and math.isfinite(x) and math.isfinite(v)
+                and 1 <= steps < 1e9):
+            return self._refuse(effort, x, v, steps)
         storage = self._half_m * v * v
         if self._first:
             self._first = False
@@ -235,7 +245,7 @@ class PassivityGuard:
         e = (self.energy + 0.5 * (effort + self._f) * (x - self._x)
              - (storage - self._storage))
         if not math.isfinite(e):
-            return self._refuse(effort, x, v)
+            return self._refuse(effort, x, v, steps)
         self._x, self._f, self._storage = x, effort, storage
         reserve = self._reserve
         full = e >= reserve
@@ -281,6 +291,8 @@ class PassivityGuard:
         db = self._deadband
         vd = v - db if v > db else (v + db if v < -db else 0.0)
         f = -alpha * vd
+        if not math.isfinite(f):
+            return self._refuse(effort, x, v, steps)
         fmax = self._f_max
         if f > fmax:
             f, saturated = fmax, True
@@ -297,9 +309,9 @@ class PassivityGuard:
             return f
         return 0.0
 
-    def _refuse(self, effort, x, v):
-        self.fault = (f"non-finite input or energy (effort {effort!r}, x {x!r}, v {v!r}): "
-                      "no damping added")
+    def _refuse(self, effort, x, v, steps):
+        self.fault = (f"non-finite input, energy or force, or steps not >= 1 (effort "
+                      f"{effort!r}, x {x!r}, v {v!r}, steps {steps!r}): no damping added")
         self.force = 0.0
         self.active = self.saturated = False
         return 0.0

@@ -107,6 +107,35 @@ def test_damping_is_held_and_released_with_the_release_time():
     assert g.floor == 0.0 and g.damping == 0.0 and not g.active and g.update(0.0, 0.0, 1.0) == 0.0
 
 
+def test_a_lowered_max_damping_binds_at_once():
+    """Held damping is not released while a deficit lasts: a configure with a lower
+    max_damping caps the damping and the floor at once (the controller configures its guard
+    on every parameter set within the mode)."""
+    g = guard(reserve=1e-3, max_damping=0.5, release_time=0.1)
+    g.update(0.0, 0.0, 0.0)
+    g.energy = 0.0
+    g.update(0.0, 0.0, 1.0)
+    assert g.damping == 0.5
+    g.floor = 0.4
+    g.configure(GuardParams(mode="active", reserve=1e-3, max_damping=0.05, release_time=0.1))
+    assert g.damping == 0.05 and g.floor == 0.05
+    for _ in range(100):                         # still a deficit: held, never above the cap
+        g.energy = 0.2e-3
+        assert abs(g.update(0.0, 0.0, 1.0)) <= 0.05
+        assert g.damping <= 0.05
+
+
+@pytest.mark.parametrize("steps", [0, -200, math.nan, math.inf])
+def test_steps_not_at_least_one_give_zero_force_and_a_flag(steps):
+    g = guard(reserve=1e-3, max_damping=0.5, release_time=0.1)
+    g.update(0.0, 0.0, 0.0)
+    g.energy = 0.0
+    g.update(0.0, 0.0, 1.0)
+    state = (g.energy, g.damping, g.floor, g.flow)
+    assert g.update(0.0, 0.0, 1.0, steps) == 0.0
+    assert "steps" in g.fault and (g.energy, g.damping, g.floor, g.flow) == state
+
+
 def test_an_episode_that_ends_with_a_full_ledger_leaves_its_peak_as_a_floor():
     """Against a source: the floor is held while the guard's flow D >= R/2, then released with
     the release time; an episode that ends short of a full ledger learns nothing."""
@@ -414,9 +443,10 @@ def test_the_whole_bench_grid_is_stable_with_the_guard(cutoff_hz, damping_fracti
         for name in ENVIRONMENTS:
             ok, why, r = settles(dob, "active", name, seconds=SETTLE_GUARDED[name])
             assert ok and r["energy"].min() >= 0.0, (fraction, name, why)
-            k = int(0.25 / DT)
-            regrowth = max(rms(r["v"][i:i + k]) for i in range(int(3.0 / DT) - k, r["v"].size, k))
-            assert regrowth < REGROWTH, (fraction, name, regrowth)
+            if name == "stiff":                    # (free, soft: 3 s runs, settled)
+                k = int(0.25 / DT)
+                regrowth = max(rms(r["v"][i:i + k]) for i in range(int(3.0 / DT), r["v"].size, k))
+                assert regrowth < REGROWTH, (fraction, name, regrowth)
         ok, _, r = driven(dob, "active", 10.0, settle=3.0)
         assert ok and r["energy"].min() >= 0.0, (fraction, "drive")
 
@@ -452,14 +482,18 @@ def test_a_slow_drain_learns_no_floor():
     cfg = ControllerConfig(mode="dob", dob=dob, allow_non_passive=True, max_torque=5.0,
                            passivity=ACTIVE)
     ctl = ChannelController(cfg, dt=DT)
-    floors, damping = [], 0.0
-    for _ in range(30):                            # 15 s, the floor read every 0.5 s
-        r = run_closed_loop(sim, ctl, 1000, max_torque=5.0)
-        assert r["u"].size == 1000 and r["passivity_energy"].min() >= 0.0
-        floors.append(ctl.passivity_guard.floor)
-        damping = max(damping, r["passivity_damping"].max())
-    assert damping > 0.0, "the guard should have had to act"
-    assert max(floors) == 0.0
+    g = ctl.passivity_guard
+    update, floors = g.update, []
+
+    def recorded(*args):                           # the floor after every sample
+        out = update(*args)
+        floors.append(g.floor)
+        return out
+    g.update = recorded
+    r = run_closed_loop(sim, ctl, 30000, max_torque=5.0)      # 15 s
+    assert r["u"].size == 30000 and r["passivity_energy"].min() >= 0.0
+    assert r["passivity_damping"].max() > 0.0, "the guard should have had to act"
+    assert len(floors) == 30000 and max(floors) == 0.0
 
 
 def at_the_bound(cutoff_hz):
