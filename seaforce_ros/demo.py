@@ -399,7 +399,7 @@ def model_error(args):
     return {key: float(v) for key, v in true_plant(args.seed)[0].items()}
 
 
-def _set_parameters(node, target, values, timeout=20.0):
+def set_parameters(node, target, values, timeout=20.0):
     from rclpy.parameter import Parameter
     from rclpy.parameter_client import AsyncParameterClient
 
@@ -417,7 +417,7 @@ def _set_parameters(node, target, values, timeout=20.0):
         raise RuntimeError(f'{target} rejected {list(values)}: {failed[0]}')
 
 
-def _get_parameter(node, target, name, timeout=20.0):
+def get_parameter(node, target, name, timeout=20.0):
     from rclpy.parameter import parameter_value_to_python
     from rclpy.parameter_client import AsyncParameterClient
 
@@ -443,10 +443,10 @@ def run_friction_calibration(observer, children, args):
     # over-compensates k_e lets the free finger creep away, out of the joint range); a
     # longer state_timeout while it runs: a loaded host's real-time loop stalls now and then,
     # and a stall aborts a calibration (zero torque, nothing applied)
-    _set_parameters(node, '/controller', {
+    set_parameters(node, '/controller', {
         f'{CHANNEL}.mode': 'hold', 'state_timeout': CALIBRATION_STATE_TIMEOUT,
         f'{CHANNEL}.friction.calibration_duration': float(args.calibration_time)})
-    _set_parameters(node, '/sim', {f'{CHANNEL}.environment.mode': 'free'})
+    set_parameters(node, '/sim', {f'{CHANNEL}.environment.mode': 'free'})
     client = ActionClient(node, CalibrateFriction, '/controller/calibrate_friction')
     if not client.wait_for_server(timeout_sec=20.0):
         raise RuntimeError('the ~/calibrate_friction action server did not come up')
@@ -493,15 +493,15 @@ def print_calibration(result, truth, seconds):
 
 def recalibrate(observer, children, args, z_before):
     """Calibrate, drive the finger again, measure dob_full_ff, print what was recovered."""
-    state_timeout = _get_parameter(observer.node, '/controller', 'state_timeout')
+    state_timeout = get_parameter(observer.node, '/controller', 'state_timeout')
     result = run_friction_calibration(observer, children, args)
-    _set_parameters(observer.node, '/controller', {'state_timeout': state_timeout,
+    set_parameters(observer.node, '/controller', {'state_timeout': state_timeout,
                                                    f'{CHANNEL}.mode': 'dob_full_ff'})
     if not result.applied:
         print(f'\nfriction calibration: {result.message}')
         return
     before = observer.latest_cycle()
-    _set_parameters(observer.node, '/sim', {f'{CHANNEL}.environment.mode': 'position_sine'})
+    set_parameters(observer.node, '/sim', {f'{CHANNEL}.environment.mode': 'position_sine'})
     first = before + int(round(1.0 / DT))
     last = first + args.periods * (int(math.ceil(2 * math.pi / args.frequency / DT)) + 1) - 1
     while (observer.latest_cycle() or 0) < last:

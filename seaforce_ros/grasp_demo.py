@@ -27,8 +27,8 @@ import time
 import numpy as np
 import yaml
 
-from .demo import (_get_parameter, _set_parameters, prepare, print_calibration,
-                   run_friction_calibration, run_guarded)
+from .demo import (get_parameter, prepare, print_calibration, run_friction_calibration,
+                   run_guarded, set_parameters)
 
 CHANNEL = 'pinch'
 DT = 5e-4
@@ -239,11 +239,11 @@ def calibrate(observer, children, args, truth):
     """~/calibrate_friction with no object in reach; the controller's state_timeout and the
     channel's mode as they were; prints what it recovered."""
     node = observer.node
-    before = {name: _get_parameter(node, '/controller', name)
+    before = {name: get_parameter(node, '/controller', name)
               for name in ('state_timeout', f'{CHANNEL}.mode')}
     result = run_friction_calibration(observer, children, args)
-    _set_parameters(node, '/controller', before)
-    _set_parameters(node, '/sim', {f'{CHANNEL}.environment.mode': 'object'})
+    set_parameters(node, '/controller', before)
+    observer.set_sim({f'{CHANNEL}.environment.mode': 'object'})
     print_calibration(result, truth, args.calibration_time)
     if not result.applied:
         print('(not applied: the grasps use the model as it is)')

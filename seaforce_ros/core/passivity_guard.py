@@ -185,6 +185,7 @@ class PassivityGuard:
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
             raise ValueError(f"dt = {dt!r} must be > 0 and finite")
         self.dt = float(dt)
+        self.damping = self.floor = 0.0
         self.configure(params, inertia, max_force)
         self.reset()
 
@@ -208,9 +209,8 @@ class PassivityGuard:
         self._decay = math.exp(-self.dt / params.release_time)
         self._half_m = 0.5 * inertia
         self._f_max = float(max_force)
-        if hasattr(self, "damping"):
-            self.damping = min(self.damping, params.max_damping)
-            self.floor = min(self.floor, self.damping)
+        self.damping = min(self.damping, params.max_damping)
+        self.floor = min(self.floor, self.damping)
 
     def reset(self):
         """Full reserve, no damping, no history."""
