@@ -119,19 +119,26 @@ def start_scenario(layout, executor, qos, rate, workdir, prefix=()):
             for k, a in argvs.items()}
 
 
+def observe(procs, listener, name, settle, seconds):
+    """After ``settle`` s (discovery, settling), ``seconds`` of the ``name`` diagnostics rows
+    and each process's CPU use over them [% of one core]: (rows, {key: percent})."""
+    time.sleep(settle)
+    c0 = {k: cpu_seconds(p.pid) for k, p in procs.items()}
+    t0 = time.monotonic()
+    time.sleep(seconds)
+    t1 = time.monotonic()
+    c1 = {k: cpu_seconds(p.pid) for k, p in procs.items()}
+    time.sleep(1.2)
+    return (listener.window(name, t0 + 1.0, t1 + 1.2),
+            {k: 100.0 * (c1[k] - c0[k]) / (t1 - t0) for k in procs})
+
+
 def run_nodes(layout, executor, qos, rate, seconds, workdir, prefix=()):
     """The project's sim_node + controller_node (or bringup); figures from /diagnostics."""
     procs = start_scenario(layout, executor, qos, rate, workdir, prefix)
     listener = DiagnosticsListener()
     try:
-        time.sleep(4.0)  # discovery and settling
-        c0 = {k: cpu_seconds(p.pid) for k, p in procs.items()}
-        t0 = time.monotonic()
-        time.sleep(seconds)
-        t1 = time.monotonic()
-        c1 = {k: cpu_seconds(p.pid) for k, p in procs.items()}
-        time.sleep(1.2)
-        sim = listener.window('sim: cycle', t0 + 1.0, t1 + 1.2)
+        sim, cpu = observe(procs, listener, 'sim: cycle', 4.0, seconds)
     finally:
         listener.close()
         _stop(procs.values())
@@ -148,7 +155,7 @@ def run_nodes(layout, executor, qos, rate, seconds, workdir, prefix=()):
         'timeouts': int(sim[-1]['command_timeouts']) - int(sim[0]['command_timeouts']),
         'period_p99_ms': statistics.median(f('period_p99_ms') or [float('nan')]),
         'period_max_ms': max(f('period_max_ms') or [float('nan')]),
-        'cpu': {k: 100.0 * (c1[k] - c0[k]) / (t1 - t0) for k in procs},
+        'cpu': cpu,
     }
 
 

@@ -24,14 +24,13 @@ import pathlib
 import subprocess
 import sys
 import tempfile
-import time
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / 'test'))
 sys.path.insert(0, str(ROOT / 'bench'))
 
-from control_loop import (CONFIG, LIB, DiagnosticsListener, _stop, cpu_seconds,  # noqa: E402
+from control_loop import (CONFIG, LIB, DiagnosticsListener, _stop, observe,  # noqa: E402
                           start_hogs)
 
 BUS = ROOT / 'test' / 'data' / 'bus_emulated.yaml'
@@ -42,14 +41,7 @@ def measure(argvs, name, seconds, listener):
                                  stdin=subprocess.DEVNULL, start_new_session=True)
              for k, a in argvs.items()}
     try:
-        time.sleep(5.0)
-        c0 = {k: cpu_seconds(p.pid) for k, p in procs.items()}
-        t0 = time.monotonic()
-        time.sleep(seconds)
-        t1 = time.monotonic()
-        c1 = {k: cpu_seconds(p.pid) for k, p in procs.items()}
-        time.sleep(1.2)
-        rows = listener.window(name, t0 + 1.0, t1 + 1.2)
+        rows, cpu = observe(procs, listener, name, 5.0, seconds)
     finally:
         _stop(procs.values())
     if len(rows) < 2:
@@ -65,7 +57,7 @@ def measure(argvs, name, seconds, listener):
             'busy50': med('busy_p50_ms'), 'busy99': med('busy_p99_ms'),
             'rtt50': med('round_trip_p50_ms'), 'rtt99': med('round_trip_p99_ms'),
             'in_time': 1.0 - late / max(1, cycles), 'wkc': wkc, 'cycles': cycles,
-            'cpu': {k: 100.0 * (c1[k] - c0[k]) / (t1 - t0) for k in procs}}
+            'cpu': cpu}
 
 
 def main():

@@ -25,7 +25,6 @@ import sys
 import tempfile
 import time
 
-import numpy as np
 import yaml
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent

@@ -4,11 +4,10 @@ import math
 
 import numpy as np
 import pytest
-import yaml
 
 from seaforce_ros import zwidth
 from seaforce_ros.core.analysis import impedance_from_position
-from seaforce_ros.core.params import ControllerConfig, DahlParams, PlantParams
+from seaforce_ros.core.params import DahlParams, PlantParams
 from seaforce_ros import bags
 from seaforce_ros.identification.dahl_fit import fit_dahl_loop
 from seaforce_ros.identification.experiments import chirp_experiment, work_loop_experiment

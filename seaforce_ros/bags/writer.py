@@ -20,7 +20,6 @@ committed batches. The writer then refuses further writes.
 from __future__ import annotations
 
 import errno
-import os
 import pathlib
 import sqlite3
 from dataclasses import dataclass, field

@@ -9,7 +9,6 @@ import numpy as np
 
 from .passivity import numerical_passivity
 from .plant import PlantModel
-from .params import PlantParams
 
 __all__ = [
     "magnitude_db", "zwidth_db", "frequency_response", "max_passive_external_gain",

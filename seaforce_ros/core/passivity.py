@@ -10,12 +10,11 @@ real positive residues, (iii) Re Y(jw) >= 0 for all w (Colgate & Hogan).
 Y, and is used to cross-check the closed form.
 """
 
-import math
 from collections import namedtuple
 
 import numpy as np
 
-from .params import PlantParams, DobParams, guard_carries  # noqa: F401 (re-exported)
+from .params import guard_carries  # noqa: F401 (re-exported)
 from .plant import poly_tf
 
 __all__ = [

@@ -113,7 +113,6 @@ def fit_dahl_loop(series, plant, settle=None, fit_exponent=False, exponent=1.0,
     x_e = x_e[:k1]
     resid_force = resid_force[:k1]
     target = resid_force[k0:]
-    ones = np.ones_like(target)
 
     def model(p):
         sig, fc = math.exp(p[0]), math.exp(p[1])

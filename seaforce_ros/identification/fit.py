@@ -29,7 +29,6 @@ import numpy as np
 import scipy.optimize
 
 from .dahl_model import DahlPath
-from .spectral import FrequencyResponse
 
 __all__ = ["SIGMA_FLOOR", "ParameterFit", "fit_mass_spring_damper", "fit_hose",
            "fit_endpoint_with_dahl", "HysteresisEstimate", "RationalFit", "fit_rational",

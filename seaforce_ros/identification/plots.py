@@ -16,6 +16,18 @@ def _plt():
     return plt
 
 
+def _save(plt, fig, path, title=""):
+    """Title (a figure-wide one), layout, PNG at ``path``; the figure is closed. Returns the
+    path."""
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    path = pathlib.Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def _db(h):
     return 20.0 * np.log10(np.abs(h))
 
@@ -64,13 +76,7 @@ def bode_fig4(result, path, title=""):
             mag.set_ylabel("magnitude [dB]")
             ph.set_ylabel("phase [deg]")
         mag.legend(fontsize=7, loc="best")
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    path = pathlib.Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path, title)
 
 
 def dahl_fig6(fit, path, title=""):
@@ -94,13 +100,7 @@ def dahl_fig6(fit, path, title=""):
     zoom.set_xlim(x0 - span, x0 + 0.1 * span)
     zoom.set_ylim(-1.5 * fit.coulomb_force, 1.5 * fit.coulomb_force)
     zoom.set_title("close-up at the turnaround")
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    path = pathlib.Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path, title)
 
 
 def zwidth_fig5c(omega, curves, path, title="", markers=None):
@@ -121,8 +121,4 @@ def zwidth_fig5c(omega, curves, path, title="", markers=None):
     ax.legend(fontsize=8)
     if title:
         ax.set_title(title)
-    fig.tight_layout()
-    path = pathlib.Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)

@@ -21,11 +21,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Sequence
+from typing import Dict, Optional
 
 import numpy as np
 
-from ..core.analysis import fourier_coefficient, impedance_from_position
+from ..core.analysis import impedance_from_position
 from ..core.params import ControllerConfig
 from .errors import IdentificationError
 from .experiments import work_loop_experiment
