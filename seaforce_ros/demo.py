@@ -384,8 +384,6 @@ def report(results, args):
 
 
 # --- model error, and what the friction calibration recovers (issue 13) -------------------
-FRICTION_KEYS = ('plant.endpoint_damping', 'plant.endpoint_stiffness', 'dahl.coulomb_force',
-                 'dahl.sigma')
 FRICTION_LABELS = ('b_e [N m s/rad]', 'k_e [N m/rad]', 'F_c [N m]', 'sigma [N m/rad]')
 CALIBRATION_ATTEMPTS = 3
 CALIBRATION_STATE_TIMEOUT = 0.25   # s, controller state_timeout while calibrating

@@ -8,7 +8,6 @@ eq. 28) are checked by the core in the nodes' on-set callbacks.
 """
 from __future__ import annotations
 
-import math
 from typing import Dict, List
 
 from .core.environment import DRIVE_DAMPING, DRIVE_STIFFNESS, ENVIRONMENT_MODES
@@ -155,7 +154,3 @@ def channel_error(exc: Exception, channel: str) -> str:
     if isinstance(exc, InvalidParameterError):
         return str(exc.in_channel(channel))
     return f'channel {channel}: {exc}'
-
-
-def is_finite_number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)

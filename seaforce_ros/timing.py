@@ -52,8 +52,6 @@ class LoopStats:
         self._missed = 0
         self._last = None
         self._window_start = None
-        self.total_cycles = 0
-        self.total_missed = 0
 
     def tick(self, now: float = None) -> None:
         """Record the start of a cycle at monotonic time ``now`` [s]."""
@@ -61,7 +59,6 @@ class LoopStats:
             now = time.monotonic()
         last = self._last
         self._last = now
-        self.total_cycles += 1
         if last is None:
             self._window_start = now
             return
@@ -70,7 +67,6 @@ class LoopStats:
         self._count += 1
         if period > 2.0 * self.nominal_period:
             self._missed += 1
-            self.total_missed += 1
 
     def summary(self, reset: bool = True) -> LoopSummary:
         """Statistics of the window since the last reset."""

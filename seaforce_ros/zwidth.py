@@ -105,11 +105,6 @@ def _modes(text):
     return modes
 
 
-def _params(path, channel, option):
-    from .identification.output import read_params_file
-    return read_params_file(path, channel, option)
-
-
 def _bag_item(item):
     """``(mode or '', path)`` of a positional BAG or MODE=BAG."""
     if "=" not in item or os.path.exists(item):

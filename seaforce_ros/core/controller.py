@@ -204,7 +204,6 @@ class ChannelController:
         self._f_target = c.target_force
         self.estimator.configure(c.estimator, p, c.rest_position)
         self._use_ff = c.mode in ("dob_linear_ff", "dob_full_ff", "impedance")
-        self._use_dahl = c.mode in ("dob_full_ff", "impedance")
         self._configure_guard(c)
 
     # --- time-domain passivity guard (issue 13) ---------------------------------------------

@@ -11,7 +11,7 @@ import fcntl
 import socket
 import struct
 import time
-from typing import Dict, List, Tuple
+from typing import List
 
 from .bus_config import BusConfig, SlaveConfig
 from .errors import BusError, IdentityError
@@ -232,9 +232,3 @@ class EthercatBus:
                     set_promiscuous(self.interface, was)
                 except OSError:
                     pass  # the interface went away meanwhile: nothing to restore
-
-    def slave_states(self) -> Dict[str, Tuple[int, int]]:
-        """name -> (AL state, AL status code), read from the bus."""
-        self.master.read_state()
-        return {s.name: (self.master.slaves[i].state, self.master.slaves[i].al_status)
-                for i, s in enumerate(self.config.slaves)}

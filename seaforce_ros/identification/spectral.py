@@ -218,11 +218,6 @@ class BlackmanTukey:
         g2 = np.abs(s_ry) ** 2 / (np.maximum(self._auto_r, 1e-300) * s_yy)
         return np.clip(g2, 1e-12, 1.0)
 
-    @property
-    def reference_spectrum(self):
-        """S_rr on the grid."""
-        return self._auto_r
-
     def response(self, output, inp, name=""):
         """H = y/u from two ``(S_r., S_..)`` pairs (see :meth:`signal`) with its band."""
         s_ry, s_yy = output
