@@ -397,7 +397,9 @@ def model_error(args):
     return {key: float(v) for key, v in true_plant(args.seed)[0].items()}
 
 
-def set_parameters(node, target, values, timeout=20.0):
+def set_parameters(node, target, values, timeout=20.0, atomically=False):
+    """Set ``values`` (name -> value) on ``target``'s node, all or none if ``atomically``;
+    RuntimeError with the node's reason if it refuses or does not answer."""
     from rclpy.parameter import Parameter
     from rclpy.parameter_client import AsyncParameterClient
 
@@ -405,12 +407,14 @@ def set_parameters(node, target, values, timeout=20.0):
     client = AsyncParameterClient(node, target)
     if not client.wait_for_services(timeout_sec=timeout):
         raise RuntimeError(f'the parameter services of {target} did not come up')
+    parameters = [Parameter(k, value=v) for k, v in values.items()]
+    request = (client.set_parameters_atomically if atomically else client.set_parameters)
     try:
-        response = request_until_answered(lambda: client.set_parameters(
-            [Parameter(k, value=v) for k, v in values.items()]), timeout)
+        response = request_until_answered(lambda: request(parameters), timeout)
     except TimeoutError:
         raise RuntimeError(f'no answer setting {list(values)} on {target}') from None
-    failed = [r.reason for r in response.results if not r.successful]
+    results = [response.result] if atomically else response.results
+    failed = [r.reason for r in results if not r.successful]
     if failed:
         raise RuntimeError(f'{target} rejected {list(values)}: {failed[0]}')
 
@@ -494,7 +498,7 @@ def recalibrate(observer, children, args, z_before):
     state_timeout = get_parameter(observer.node, '/controller', 'state_timeout')
     result = run_friction_calibration(observer, children, args)
     set_parameters(observer.node, '/controller', {'state_timeout': state_timeout,
-                                                   f'{CHANNEL}.mode': 'dob_full_ff'})
+                                                  f'{CHANNEL}.mode': 'dob_full_ff'})
     if not result.applied:
         print(f'\nfriction calibration: {result.message}')
         return

@@ -75,7 +75,6 @@ class Observer:
                                       RECORD_QOS)
         self.action = ActionClient(self.node, Grasp, '/controller/grasp')
         self.Goal = Grasp.Goal
-        self.params = None
 
     def _on_state(self, msg):
         i = list(msg.name).index(CHANNEL)
@@ -104,18 +103,8 @@ class Observer:
             time.sleep(0.05)
 
     def set_sim(self, values, timeout=20.0):
-        from rclpy.parameter import Parameter
-        from rclpy.parameter_client import AsyncParameterClient
-
-        from .ros_common import request_until_answered
-        if self.params is None:
-            self.params = AsyncParameterClient(self.node, '/sim')
-            if not self.params.wait_for_services(timeout_sec=timeout):
-                raise RuntimeError('the sim parameter services did not come up')
-        response = request_until_answered(lambda: self.params.set_parameters_atomically(
-            [Parameter(k, value=v) for k, v in values.items()]), timeout)
-        if not response.result.successful:
-            raise RuntimeError(f'sim parameters rejected: {response.result.reason}')
+        """The sim's parameters ``values``, all at once (an object moves with its spring)."""
+        set_parameters(self.node, '/sim', values, timeout, atomically=True)
 
     def wait(self, future, what, children, timeout=120.0):
         deadline = time.monotonic() + timeout
