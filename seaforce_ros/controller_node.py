@@ -340,26 +340,46 @@ class ControllerNode(Node):
             node_label(i) for i in self.get_publishers_info_by_topic(self._state_topic)))
 
     # --- grasps --------------------------------------------------------------------------
-    def _grasp_for(self, goal):
-        """(channel index, Grasp) for an action goal, or InvalidGoalError with the reason."""
-        if goal.channel not in self.channels:
-            raise InvalidGoalError(f'unknown channel {goal.channel!r}; the channels are '
-                                   + ', '.join(self.channels))
-        index = self.channels.index(goal.channel)
+    def _channel_for(self, channel, error):
+        """The index of a goal's ``channel`` if a goal can run on it now, else ``error`` (an
+        exception class) with the reason: unknown, busy, faulted, stopped by the plant, no
+        states arriving."""
+        if channel not in self.channels:
+            raise error(f'unknown channel {channel!r}; the channels are '
+                        + ', '.join(self.channels))
+        index = self.channels.index(channel)
         held = self._grasps.get(index)
         if held is not None:
-            raise InvalidGoalError(f'channel {goal.channel} is held by another grasp goal '
-                                   f'({held[0].phase}); cancel it first')
+            raise error(f'channel {channel} is held by a grasp goal ({held[0].phase}); '
+                        'cancel it first')
         if index in self._calibrations:
-            raise InvalidGoalError(f'channel {goal.channel} is calibrating its friction')
+            raise error(f'channel {channel} is calibrating its friction; cancel it first')
         fault = self.cycle.fault(index)
         if fault:
-            raise InvalidGoalError(f'channel {goal.channel} is faulted: {fault}'
-                                   + ('; call ~/reset' if self.cycle.latched(index) else ''))
-        now = time.monotonic()
-        if self._last_state is None or now - self._last_state > self.cycle.checks.state_timeout:
-            raise InvalidGoalError('no actuator_state is arriving: the control cycle is not '
-                                   'running')
+            raise error(f'channel {channel} is faulted: {fault}'
+                        + ('; call ~/reset' if self.cycle.latched(index) else ''))
+        stopped = self.cycle.plant_stopped(index)
+        if stopped:
+            raise error(f'the plant has stopped channel {channel}: {stopped}')
+        stalled = self._stalled()
+        if stalled:
+            raise error(stalled + ': the control cycle is not running')
+        return index
+
+    def _stalled(self):
+        """'no actuator_state for ...' when none has arrived for longer than state_timeout
+        (then the cycle, when states return, sees the stall first and re-arms), else ''."""
+        timeout = self.cycle.checks.state_timeout
+        if self._last_state is None:
+            return 'no actuator_state is arriving'
+        age = time.monotonic() - self._last_state
+        if age > timeout:
+            return f'no actuator_state for {age:.2f} s (> state_timeout {timeout:g} s)'
+        return ''
+
+    def _grasp_for(self, goal):
+        """(channel index, Grasp) for an action goal, or InvalidGoalError with the reason."""
+        index = self._channel_for(goal.channel, InvalidGoalError)
         config = self.configs[index]
         request = GraspGoal(goal.channel, goal.closing_velocity, goal.grip_force,
                             goal.max_force, goal.probe)
@@ -378,7 +398,7 @@ class ControllerNode(Node):
             self._rejections.end(time.monotonic())
             log_events(self.get_logger(), self._grasp_log.drain())
             handle.abort()
-            return self._grasp_result(None, None, f'rejected: {exc}')
+            return self._grasp_result(None, f'rejected: {exc}')
         done = Future()
         self._grasps[index] = (grasp, handle, done, time.monotonic())
         self.controllers[index].request_grasp(grasp)
@@ -400,11 +420,18 @@ class ControllerNode(Node):
                     time.monotonic() - started > GRASP_START_TIMEOUT:
                 grasp.withdraw(f'the control cycle did not take the grasp within '
                                f'{GRASP_START_TIMEOUT:g} s (are states arriving?)')
+            stalled = self._stalled() if grasp.active and grasp.started else ''
+            if stalled:
+                # the cycle does not run (a plant that died, a cut link): the goal ends now;
+                # the cycle, if states come back, sees the stall before the grasp and re-arms
+                estimator = self.controllers[index].estimator
+                grasp.abort_now(stalled + ': the plant stopped, or the link to it',
+                                estimator.estimate() if grasp.contact else None)
             if grasp.active:
                 handle.publish_feedback(self._grasp_feedback(index, grasp))
                 continue
             del self._grasps[index]
-            result = self._grasp_result(grasp, self.controllers[index].estimator, grasp.message)
+            result = self._grasp_result(grasp, grasp.message)
             if grasp.outcome == 'canceled':
                 handle.canceled()
             else:
@@ -420,19 +447,19 @@ class ControllerNode(Node):
         feedback.phase = grasp.phase
         feedback.endpoint_position = est.position
         feedback.force = -sign * est.force
-        feedback.object_stiffness = estimate.stiffness
-        feedback.object_damping = estimate.damping
+        # before this goal's contact the estimator still has the last object's fit
+        feedback.object_stiffness = estimate.stiffness if grasp.contact else math.nan
+        feedback.object_damping = estimate.damping if grasp.contact else math.nan
         return feedback
 
     @staticmethod
-    def _grasp_result(grasp, estimator, message):
+    def _grasp_result(grasp, message):
         result = GraspAction.Result()
         result.message = message
         result.contact = bool(grasp is not None and grasp.contact)
         nan = math.nan
-        estimate = None
-        if result.contact:          # the object as the grasp let go of it (or as it is now)
-            estimate = grasp.estimate if grasp.estimate is not None else estimator.estimate()
+        # the object as the grasp let go of it, or as it was when the grasp was aborted
+        estimate = grasp.estimate if result.contact else None
         result.contact_position = estimate.contact_position if estimate else nan
         result.object_stiffness = estimate.stiffness if estimate else nan
         result.object_stiffness_sigma = estimate.stiffness_sigma if estimate else nan
@@ -444,21 +471,7 @@ class ControllerNode(Node):
     # --- friction calibration (issue 13) -------------------------------------------------
     def _calibration_for(self, goal):
         """(channel index, FrictionCalibration) for a goal, or InvalidCalibrationError."""
-        if goal.channel not in self.channels:
-            raise InvalidCalibrationError(f'unknown channel {goal.channel!r}; the channels '
-                                          'are ' + ', '.join(self.channels))
-        index = self.channels.index(goal.channel)
-        if index in self._calibrations or index in self._grasps:
-            raise InvalidCalibrationError(f'channel {goal.channel} is busy with another '
-                                          'calibration or a grasp goal; cancel it first')
-        fault = self.cycle.fault(index)
-        if fault:
-            raise InvalidCalibrationError(f'channel {goal.channel} is faulted: {fault}' + (
-                '; call ~/reset' if self.cycle.latched(index) else ''))
-        now = time.monotonic()
-        if self._last_state is None or now - self._last_state > self.cycle.checks.state_timeout:
-            raise InvalidCalibrationError('no actuator_state is arriving: the control cycle '
-                                          'is not running')
+        index = self._channel_for(goal.channel, InvalidCalibrationError)
         config = self.configs[index]
         request = CalibrationGoal(goal.channel, goal.amplitude, goal.speed, goal.apply)
         try:
@@ -497,6 +510,9 @@ class ControllerNode(Node):
                     time.monotonic() - started > GRASP_START_TIMEOUT:
                 calibration.withdraw(f'the control cycle did not take the calibration within '
                                      f'{GRASP_START_TIMEOUT:g} s (are states arriving?)')
+            stalled = self._stalled() if calibration.active and calibration.started else ''
+            if stalled:        # as for a grasp (_grasp_tick)
+                calibration.abort_now(stalled + ': the plant stopped, or the link to it')
             if calibration.active:
                 feedback = CalibrateFrictionAction.Feedback()
                 feedback.phase = calibration.phase

@@ -184,6 +184,7 @@ class ControlCycle:
         self._rearming = [""] * n          # re-arming condition holding this sample
         self._needs_reset = [True] * n     # full re-initialisation at the next clean sample
         self._stopped = [0] * n            # cycles the plant has been applying fai, not ours
+        self._status = [0] * n             # ... and its status bits then
         self._stream_ep = Episode(self.events, quiet_period)
         self._channel_ep = [Episode(self.events, quiet_period) for _ in range(n)]
         self._drop_ep = Episode(self.events, quiet_period)
@@ -233,6 +234,11 @@ class ControlCycle:
 
     def latched(self, i):
         return self._latched[i]
+
+    def plant_stopped(self, i):
+        """Why the plant applies its own torque on channel ``i`` instead of the command (its
+        latest state's ``STATUS_COMMAND_TIMEOUT``/``STATUS_FAULT``), or ''."""
+        return _plant_stop_reason(self._status[i]) if self._stopped[i] else ""
 
     # --- the cycle -------------------------------------------------------------------------
     def step(self, names, cycle, stamp_ns, x, v, f_p, f_a, status, now_ns, now):
@@ -390,7 +396,14 @@ class ControlCycle:
                 # the plant applies fai instead of our torque: follow it (no windup); a brief
                 # stop keeps the targets, a longer one than state_timeout re-captures them
                 self._stopped[i] += steps
+                self._status[i] = status[j]
                 if self._stopped[i] > self._gap_cycles:
+                    if ctrl.grasp is not None or ctrl.calibration is not None:
+                        reason = ("the plant stopped the channel ("
+                                  f"{_plant_stop_reason(status[j])}) for longer than "
+                                  "state_timeout")
+                        ctrl.abort_grasp(reason)
+                        ctrl.abort_calibration(reason)
                     ctrl.reset(fai)
                 else:
                     ctrl.reenter(fai)
@@ -493,3 +506,12 @@ class ControlCycle:
             ("motor_effort", f_a), ("status", status)) if len(seq) != len(names))
         return f"malformed actuator_state: {len(names)} names but {sizes} entries"
 
+
+
+def _plant_stop_reason(status):
+    """The plant-side stop ``status`` (``STATUS_*`` bits) says, in words."""
+    words = [text for bit, text in ((STATUS_FAULT, "a plant fault: clear it with the plant's "
+                                                   "~/reset"),
+                                    (STATUS_COMMAND_TIMEOUT, "command timeout"))
+             if status & bit]
+    return ", ".join(words) or f"status {status}"

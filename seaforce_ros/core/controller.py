@@ -299,7 +299,8 @@ class ChannelController:
     def _end_grasp(self, reason):
         grasp = self.grasp
         if grasp is not None:
-            grasp.abort_now(reason)
+            # the object as far as it was measured: the estimator is reset after this
+            grasp.abort_now(reason, self.estimator.estimate() if grasp.contact else None)
             self.grasp = None
             self._enter = _ENTER
 

@@ -12,7 +12,8 @@ Phases:
 
 * ``approach`` -- a PI speed servo ``F_g = clamp(B (v_cmd - V_e) + I, +-approach_force)``,
   ``I' = B w_i (v_cmd - V_e)`` (``w_i`` = :data:`APPROACH_INTEGRAL`; ``I`` clamped to the same
-  bounds and held while the output is at a bound, so the acceleration does not wind it up): the finger moves at the commanded speed in its minimum-impedance mode, the integral
+  bounds and held while the output is at a bound, so the acceleration does not wind it up):
+  the finger moves at the commanded speed in its minimum-impedance mode, the integral
   takes up what the friction model misses, and it never pushes harder than
   ``approach_force`` (it feels the object instead of hitting it). ``B`` sets the loop's
   cross-over ``B/(m_n + m_e)``, well below the DOB's lambda and the estimator's filter. The
@@ -26,7 +27,8 @@ Phases:
   is freed before the servo's integral gets there) started touching the object, and that is
   the contact. A contact on the closing side ends the approach; an object closer to the start
   than the arming distance is not detected. No contact within ``max_travel`` (or
-  ``2 max_travel/|v_cmd| + 1 s``): aborted.
+  ``2 max_travel/|v_cmd| + 1 s``): aborted. Goals slower than :data:`MIN_CLOSING_VELOCITY`
+  are refused.
 * ``contact`` -- ``f = approach_force`` for :data:`CONTACT_TIME` (the touch settles).
 * ``squeeze`` -- ``f`` ramps (raised cosine) to ``grip_force`` in ``squeeze_time``.
 * ``probe`` (if the goal asks for it) -- ``f = grip_force + A w(t) sin(phi(t))``, a log chirp
@@ -35,22 +37,33 @@ Phases:
   (the probe uses at most half of the head-room to ``max_force``).
 * ``hold`` -- ``f = grip_force`` until the goal is released.
 
+In every contact phase the finger may travel at most ``max_travel`` past the point where the
+contact was detected; in ``hold`` the contact force estimate may fall below
+:data:`SLIP_FRACTION` of the held grip (its average) for at most :data:`SLIP_TIME` (a creeping
+soft object's force only rises towards the grip). Beyond either the object gave way -- it
+slipped out, was pulled out, broke -- and the grip would drive a free finger: the grasp
+aborts and drops the push at once. The estimator's own end of the contact may come late
+then: a free finger driven by the grip moves at ``grip_force/contact_damping``, and the
+model's error in b_e times that speed looks like a contact force (15 % of b_e: ~6 % of the
+grip).
+
 From ``contact`` on, ``F_g = s f - bias - B_c V_e_hat``: the estimator's free-motion bias (the
 friction model's error, measured while approaching) is commanded away, so the real contact
 force is ``f`` despite the model's error, and ``B_c = contact_damping`` damps the contact (a
 pure force source against a stiff object rings, the more so with a wrong model; a soft object
 settles with ``(b_o + B_c)/k_o``).
 
-* ``release`` -- ``F_g`` ramps to zero in ``release_time`` (cancel, or an abort: the
-  estimated contact force beyond ``max_force``, the contact lost, no contact found), then
+* ``release`` -- ``F_g`` ramps to zero in ``release_time`` (a cancel, or an abort: the
+  estimated contact force beyond ``max_force``, no contact found; at once when the object is
+  gone: the contact lost, the travel or slip limits above), then
   stays zero, the contact damper still on, until the object has relaxed: the finger is still
   (the filtered V_e below :data:`STILL_SPEED` for :data:`STILL_TIME`) or :data:`RELAX_TIMES`
   time constants ``(b_o + B_c)/k_o`` of the estimated object have passed (a finger at minimum
   impedance creeps at the friction model's error over ``B_c``; :data:`RELAX_TIME` without an
-  estimate, :data:`RELAX_TIME_MAX` at most); then the grasp is ``done`` and the controller returns to the mode
-  the channel had before, bumplessly from a torque that holds no grip and no push-back (a
-  ``hold`` entered straight from the ramp would capture the object's push-back as its bias).
-  The estimator's fit is frozen meanwhile (the release is not a sample of the object) and the
+  estimate, :data:`RELAX_TIME_MAX` at most); then the grasp is ``done`` and the controller
+  returns to the mode the channel had before, bumplessly from a torque that holds no grip and
+  no push-back (a ``hold`` entered straight from the ramp would capture the object's
+  push-back as its bias). The estimator's fit is frozen meanwhile (the release is not a sample of the object) and the
   contact declared over at the end.
 
 The commanded contact force ``f`` never leaves ``[0, max_force]`` in any phase (the approach's
@@ -73,8 +86,9 @@ from .params import EstimatorParams, GraspParams
 from .signals import faded_log_chirp
 
 __all__ = ["GraspGoal", "Grasp", "InvalidGoalError", "check_goal", "PHASES", "ARM_TIME",
-           "STEADY_SPEED", "ARM_DAHL", "ARM_TIME_MAX", "CONTACT_TIME", "APPROACH_INTEGRAL", "STILL_SPEED",
-           "STILL_TIME", "RELAX_TIMES", "RELAX_TIME", "RELAX_TIME_MAX"]
+           "STEADY_SPEED", "ARM_DAHL", "ARM_TIME_MAX", "CONTACT_TIME", "APPROACH_INTEGRAL",
+           "STILL_SPEED", "STILL_TIME", "RELAX_TIMES", "RELAX_TIME", "RELAX_TIME_MAX",
+           "SLIP_FRACTION", "SLIP_TIME", "MIN_CLOSING_VELOCITY"]
 
 #: Phases in order; ``done`` after the release.
 PHASES = ("approach", "contact", "squeeze", "probe", "hold", "release", "done")
@@ -90,6 +104,9 @@ STILL_TIME = 0.02      # s ... for this long, or the object's relaxation is over
 RELAX_TIMES = 5.0      # its time constants (b_o + B_c)/k_o ...
 RELAX_TIME = 0.5       # s without an estimate of the object,
 RELAX_TIME_MAX = 5.0   # s at most
+SLIP_FRACTION = 0.3    # in hold, a contact force estimate below this part of the held grip ...
+SLIP_TIME = 0.01       # s ... for this long: the object gave way (slipped out, was pulled out)
+MIN_CLOSING_VELOCITY = STEADY_SPEED    # rad/s, the slowest approach a goal may ask for
 _HOLD_AVERAGE = 0.1    # s, time constant of the grip force average in hold
 
 
@@ -142,10 +159,12 @@ def check_goal(goal, params, estimator, max_torque):
     if not isinstance(goal.probe, bool):
         raise InvalidGoalError(f"probe = {goal.probe!r}: must be a bool")
     v = goal.closing_velocity
-    if v == 0.0 or abs(v) > params.max_closing_velocity:
+    if not MIN_CLOSING_VELOCITY <= abs(v) <= params.max_closing_velocity:
         raise InvalidGoalError(
-            f"closing_velocity = {v!r} rad/s: must be non-zero with |closing_velocity| <= "
-            f"grasp.max_closing_velocity = {params.max_closing_velocity:g} rad/s")
+            f"closing_velocity = {v!r} rad/s: |closing_velocity| must be within "
+            f"{MIN_CLOSING_VELOCITY:g} (slower, the approach's arming cannot tell the speed "
+            f"from the friction model's error) and grasp.max_closing_velocity = "
+            f"{params.max_closing_velocity:g} rad/s")
     if not goal.grip_force > estimator.contact_threshold:
         raise InvalidGoalError(
             f"grip_force = {goal.grip_force!r} N m: must be > estimator.contact_threshold = "
@@ -232,6 +251,8 @@ class Grasp:
         self._integral = 0.0       # the approach servo's integral action [N m]
         self._at_cap = False       # ... and its output at approach_force towards the object
         self._start = None         # filtered endpoint position at the start
+        self._contact_at = math.nan    # ... and at the contact's detection
+        self._slip = 0.0           # time the hold's contact force has been below the slip level
         self._release_from = 0.0     # F_g and the commanded contact force when the release began
         self._release_contact = 0.0
         self._pending_outcome = None
@@ -258,25 +279,29 @@ class Grasp:
         """(any thread) Release at the next sample: ramp down, then ``canceled``."""
         self._release_request = reason
 
-    def release(self, reason="released", outcome="canceled"):
-        """Ramp the force to zero, then end with ``outcome`` and ``reason`` (no effect once
-        releasing or done)."""
+    def release(self, reason="released", outcome="canceled", drop=False):
+        """Ramp the force to zero (``drop``: at once -- nothing holds the finger back any more),
+        then end with ``outcome`` and ``reason`` (no effect once releasing or done)."""
         if self.phase in ("release", "done"):
             return
         self._pending_outcome = outcome
         self.message = reason
-        self._release_from = self._pushed
-        self._release_contact = self.force_command
+        self._release_from = 0.0 if drop else self._pushed
+        self._release_contact = 0.0 if drop else self.force_command
         self._steady = 0.0
         self._relax = None          # how long the object may take (at the ramp's end)
         self._enter("release")
 
-    def abort_now(self, reason):
-        """End at once, commanding nothing more (the torque has been zeroed by the cycle)."""
+    def abort_now(self, reason, estimate=None):
+        """End at once, commanding nothing more (the torque has been zeroed by the cycle);
+        ``estimate``: the object as the estimator has it now (kept if a contact was found:
+        the estimator is reset after this)."""
         if self.phase == "done":
             return
         self.outcome = "aborted"
         self.message = reason
+        if self.contact and estimate is not None:
+            self.estimate = estimate
         self.force_command = self._output = self._pushed = 0.0
         self._enter("done")
 
@@ -312,11 +337,13 @@ class Grasp:
         phase = self.phase
         if phase == "hold" and est.contact:
             # the common case, kept short: the grip, averaged; checks as below
-            c = -self._sign * est.force
-            if c <= self._max:
-                grip = self.grip_force
-                self.grip_force = c if grip != grip else \
-                    grip + self._hold_alpha * steps * (c - grip)
+            s = self._sign
+            c = -s * est.force
+            grip = self.grip_force
+            if SLIP_FRACTION * grip <= c <= self._max and \
+                    s * (est.position - self._contact_at) <= self.params.max_travel:
+                self._slip = 0.0
+                self.grip_force = grip + self._hold_alpha * steps * (c - grip)
                 pushed = self._hold_command - est.bias
                 self._pushed = pushed
                 self._output = output = pushed - self._damping * ve
@@ -357,7 +384,8 @@ class Grasp:
                 return f
             phase = "contact"
         if not est.contact:
-            self.release(f"contact lost at {est.position:.4g} rad in {phase}", "aborted")
+            self.release(f"contact lost at {est.position:.4g} rad in {phase}", "aborted",
+                         drop=True)
             return self.update(est, ve, 0)
         c = -s * est.force                 # contact force estimate, > 0 pushing back
         if c > self._max:
@@ -365,6 +393,15 @@ class Grasp:
                          f"{self._max:g} N m in {phase}", "aborted")
             return self.update(est, ve, 0)
         p = self.params
+        travel = s * (est.position - self._contact_at)
+        if travel > p.max_travel:
+            # the object gave way (or was taken away) and the contact estimate still sees
+            # one: the model's error at the speed the grip drives a free finger to
+            self.release(f"the finger went {travel:.3g} rad past the contact in {phase} "
+                         f"(grasp.max_travel {p.max_travel:g} rad): the object gave way, or "
+                         f"is too soft for this grip",
+                         "aborted", drop=True)
+            return self.update(est, ve, 0)
         t = self._t
         if phase == "contact":
             f = self._touch
@@ -373,17 +410,30 @@ class Grasp:
         elif phase == "squeeze":
             x = min(1.0, t / p.squeeze_time)
             f = self._touch + (self._grip - self._touch) * (0.5 - 0.5 * math.cos(math.pi * x))
-            if x >= 1.0:
-                self._enter("probe" if self._amp > 0.0 else "hold")
-                self.message = "probing" if self._amp > 0.0 else "holding"
+            if x >= 1.0 and self._amp > 0.0:
+                self._enter("probe")
+                self.message = "probing"
+            elif x >= 1.0:
+                self._enter_hold(c)
+                self.message = "holding"
         elif phase == "probe":
             f = self._grip + self._amp * self._probe(t)
             if t >= p.probe_duration:
-                self._enter("hold")
+                self._enter_hold(c)
                 self.message = "holding"
-        else:   # hold (its first sample; then the short path above)
+        else:   # hold, when the short path above did not decide
             f = self._grip
-            self.grip_force = c
+            grip = self.grip_force
+            if c < SLIP_FRACTION * grip:
+                # a creeping soft object's force only rises towards the grip; this one fell
+                self._slip += self.dt * steps
+                if self._slip >= SLIP_TIME:
+                    self.release(f"the object gave way in hold: contact force estimate "
+                                 f"{c:.3g} N m, held {grip:.3g} N m", "aborted", drop=True)
+                    return self.update(est, ve, 0)
+            else:
+                self._slip = 0.0
+            self.grip_force = grip + self._hold_alpha * steps * (c - grip)
         f = min(max(f, 0.0), self._max)
         self.force_command = s * f
         # the model's free-motion error (the estimator's bias) shifts the real contact force:
@@ -391,6 +441,11 @@ class Grasp:
         self._pushed = s * f - est.bias
         self._output = self._pushed - self._damping * ve
         return self._output
+
+    def _enter_hold(self, c):
+        self._enter("hold")
+        self.grip_force = c        # the average's start
+        self._slip = 0.0
 
     def _approach(self, est, s, steps):
         """The approach servo's force, or the phase changes (contact, release)."""
@@ -422,6 +477,7 @@ class Grasp:
                 return 0.0
             self.contact = True
             self.contact_time = self._t
+            self._contact_at = est.position
             self.message = "contact"
             self._enter("contact")
             return 0.0

@@ -298,7 +298,8 @@ class GraspParams:
     max_closing_velocity : float > 0
         Largest |closing_velocity| a goal may ask for [rad/s].
     max_travel : float > 0
-        Approach distance without contact after which the grasp gives up [rad].
+        Approach distance without contact after which the grasp gives up, and travel past
+        the contact after which the object gave way [rad].
     squeeze_time : float > 0
         Duration of the ramp from the touch force to ``grip_force`` [s].
     probe_amplitude : float, 0..0.9
@@ -633,8 +634,8 @@ PARAMETERS = {
         "grasp.max_closing_velocity", "largest |closing_velocity| a grasp goal may ask for "
         "[rad/s]", 1e-6, 100.0),
     "grasp.max_travel": ParameterInfo(
-        "grasp.max_travel", "approach distance without contact after which a grasp gives up "
-        "[rad]", 1e-6, 100.0),
+        "grasp.max_travel", "approach distance without contact after which a grasp gives up, "
+        "and travel past the contact after which the object gave way [rad]", 1e-6, 100.0),
     "grasp.squeeze_time": ParameterInfo(
         "grasp.squeeze_time", "ramp from the touch force to grip_force [s]", 1e-3, 100.0),
     "grasp.probe_amplitude": ParameterInfo(

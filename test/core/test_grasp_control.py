@@ -275,11 +275,16 @@ OBJECTS = [   # (k [N m/rad], b [N m s/rad], position [rad], closing speed [rad/
 def draw_objects(seed, n):
     """``n`` objects from the goal ranges, drawn by the test: k log-uniform 0.2..20 N m/rad,
     b 0.04..0.1 N m s/rad, at 0.15..0.3 rad, closed at 0.05..0.3 rad/s, gripped with
-    0.2..0.5 N m (max_force 1.5..2.5 x grip)."""
+    0.2..0.5 N m but at most k x 1 rad (a softer object is squeezed past grasp.max_travel,
+    1.5 rad, and the grasp aborts: test_an_object_too_soft_for_the_grip_aborts)."""
     rng = np.random.default_rng(seed)
-    return [(float(np.exp(rng.uniform(np.log(0.2), np.log(20.0)))), float(rng.uniform(0.04, 0.1)),
-             float(rng.uniform(0.15, 0.3)), float(rng.uniform(0.05, 0.3)),
-             float(rng.uniform(0.2, 0.5))) for _ in range(n)]
+    objects = []
+    for _ in range(n):
+        k = float(np.exp(rng.uniform(np.log(0.2), np.log(20.0))))
+        b, position, v = rng.uniform(0.04, 0.1), rng.uniform(0.15, 0.3), rng.uniform(0.05, 0.3)
+        grip = min(float(rng.uniform(0.2, 0.5)), max(0.2, k * 1.0))
+        objects.append((k, float(b), float(position), float(v), grip))
+    return objects
 
 
 @pytest.mark.parametrize('k, b, position, v, grip', OBJECTS + draw_objects(12, 4))
