@@ -507,7 +507,6 @@ class ControlCycle:
         return f"malformed actuator_state: {len(names)} names but {sizes} entries"
 
 
-
 def _plant_stop_reason(status):
     """The plant-side stop ``status`` (``STATUS_*`` bits) says, in words."""
     words = [text for bit, text in ((STATUS_FAULT, "a plant fault: clear it with the plant's "

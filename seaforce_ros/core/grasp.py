@@ -366,6 +366,8 @@ class Grasp:
                     est.let_go()
                     self.outcome = self._pending_outcome
                     self._enter("done")
+                    self.force_command = self._output = 0.0   # done: nothing remains
+                    return 0.0
             self.force_command = self._release_contact * scale
             # the damper stays: the object unloads the finger gently (a finger at minimum
             # impedance let go of a squeezed object would fly open)
@@ -387,20 +389,21 @@ class Grasp:
             self.release(f"contact lost at {est.position:.4g} rad in {phase}", "aborted",
                          drop=True)
             return self.update(est, ve, 0)
-        c = -s * est.force                 # contact force estimate, > 0 pushing back
-        if c > self._max:
-            self.release(f"contact force estimate {c:.4g} N m beyond max_force "
-                         f"{self._max:g} N m in {phase}", "aborted")
-            return self.update(est, ve, 0)
         p = self.params
         travel = s * (est.position - self._contact_at)
         if travel > p.max_travel:
             # the object gave way (or was taken away) and the contact estimate still sees
-            # one: the model's error at the speed the grip drives a free finger to
+            # one: the model's error at the speed the grip drives a free finger to (first:
+            # a force estimate this far past the contact is no object to ramp down from)
             self.release(f"the finger went {travel:.3g} rad past the contact in {phase} "
                          f"(grasp.max_travel {p.max_travel:g} rad): the object gave way, or "
                          f"is too soft for this grip",
                          "aborted", drop=True)
+            return self.update(est, ve, 0)
+        c = -s * est.force                 # contact force estimate, > 0 pushing back
+        if c > self._max:
+            self.release(f"contact force estimate {c:.4g} N m beyond max_force "
+                         f"{self._max:g} N m in {phase}", "aborted")
             return self.update(est, ve, 0)
         t = self._t
         if phase == "contact":

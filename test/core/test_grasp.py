@@ -1,5 +1,6 @@
 """Grasp: goal checks, each phase and transition branch by branch against a scripted estimator,
 then properties over arbitrary estimator sequences and requests. No simulator, no ROS."""
+import dataclasses
 import math
 import re
 
@@ -8,8 +9,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from seaforce_ros.core.grasp import (ARM_TIME, ARM_TIME_MAX, CONTACT_TIME, RELAX_TIMES,
-                                     STILL_SPEED, STILL_TIME, Grasp, GraspGoal,
-                                     InvalidGoalError, check_goal)
+                                     SLIP_FRACTION, SLIP_TIME, STILL_SPEED, STILL_TIME, Grasp,
+                                     GraspGoal, InvalidGoalError, check_goal)
 from seaforce_ros.core.estimator import ObjectEstimate
 from seaforce_ros.core.params import ControllerConfig, EstimatorParams, GraspParams
 
@@ -229,8 +230,8 @@ def test_no_contact_within_the_time_limit_aborts():
 
 
 # --- contact, squeeze, probe, hold ---------------------------------------------------
-def run_to_hold(grip=0.5, max_force=1.0, probe=True):
-    g, est = armed(grip=grip, max_force=max_force, probe=probe)
+def run_to_hold(grip=0.5, max_force=1.0, probe=True, config=CONFIG):
+    g, est = armed(grip=grip, max_force=max_force, probe=probe, config=config)
     est.velocity = 0.0
     est.touch(0.01)
     seen = {}
@@ -341,6 +342,62 @@ def test_abort_now_commands_nothing_more():
     assert g.message == 'fault latched: x'
 
 
+def test_abort_now_keeps_the_estimate_of_a_contact():
+    g, est, _ = run_to_hold()
+    g.abort_now('the plant stopped', est.estimate())
+    assert g.estimate == est.estimate() and g.contact
+    g2 = make()                                      # no contact: nothing to keep
+    g2.abort_now('the plant stopped', est.estimate())
+    assert g2.estimate is None and not g2.contact
+
+
+@pytest.mark.parametrize('phase', ['contact', 'squeeze', 'hold'])
+def test_travel_past_the_contact_beyond_max_travel_drops_the_grip(phase):
+    """An object that gives way leaves the estimator seeing a contact (the model's error at
+    the speed the grip drives a free finger); the grasp lets go at once: nothing pushes from
+    the next sample on, the damper stays."""
+    g, est, _ = run_to_hold() if phase == 'hold' else (None, None, None)
+    if g is None:
+        g, est = armed()
+        est.touch(0.03)
+        g.update(est, 0.0)
+        if phase == 'squeeze':
+            steps(g, est, CONTACT_TIME + DT, move=False)
+        assert g.phase == phase
+    contact_at = est.position       # the finger has not moved since the touch
+    est.position = contact_at + GP.max_travel * 0.999
+    g.update(est, 0.0)
+    assert g.phase == phase
+    est.position = contact_at + GP.max_travel * 1.001
+    f = g.update(est, 0.4)
+    assert g.phase == 'release' and g.force_command == 0.0
+    assert f == pytest.approx(-GP.contact_damping * 0.4)
+    assert f'past the contact in {phase}' in g.message and 'gave way' in g.message
+    finish_release(g, est)
+    assert g.outcome == 'aborted'
+
+
+def test_a_hold_whose_force_falls_below_the_slip_level_drops_the_grip():
+    """In hold the object's force only rises towards the grip (a soft object creeps); below
+    SLIP_FRACTION of the grip for SLIP_TIME the object gave way: release at once, aborted.
+    A shorter dip (a probe's echo, noise) does not."""
+    g, est, _ = run_to_hold(probe=False)
+    steps(g, est, 0.3, move=False)
+    assert g.phase == 'hold'
+    grip = g.grip_force
+    est.touch(0.9 * SLIP_FRACTION * grip)
+    steps(g, est, SLIP_TIME - 3 * DT, move=False)
+    est.touch(grip)
+    steps(g, est, 0.05, move=False)
+    assert g.phase == 'hold'
+    est.touch(0.9 * SLIP_FRACTION * grip)
+    out = steps(g, est, SLIP_TIME + 2 * DT, move=False)
+    assert g.phase == 'release' and 'gave way in hold' in g.message
+    assert out[-1] == 0.0 and g.force_command == 0.0
+    finish_release(g, est)
+    assert g.outcome == 'aborted'
+
+
 def test_withdraw_only_before_the_cycle_claims_it():
     goal = GraspGoal('pinch', 0.3, 0.5, 1.0, True)
     g = Grasp(goal, CONFIG, DT)
@@ -355,30 +412,47 @@ EVENTS = st.one_of(
     st.tuples(st.just('state'), st.booleans(), st.sampled_from([-1, 1]),
               st.floats(-3.0, 3.0), st.floats(-1.0, 1.0), st.floats(-0.05, 0.05),
               st.integers(1, 40), st.floats(-2.0, 2.0)),
+    # what reaches the later phases: a steady approach at the goal's speed (it arms);
+    st.tuples(st.just('steady'), st.integers(int(ARM_TIME / DT), int(ARM_TIME / DT) + 200)),
+    # an object on the closing side pressing with a share of the grip, the finger moving
+    # (towards it: it gives way) at a speed
+    st.tuples(st.just('press'), st.floats(0.0, 1.5), st.floats(-1.0, 3.0), st.integers(1, 800)),
     st.tuples(st.just('release')), st.tuples(st.just('abort')))
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(events=st.lists(EVENTS, min_size=1, max_size=60),
-       v=st.sampled_from([-0.3, -0.05, 0.1, 0.3, 1.5]), grip=st.floats(0.01, 2.0),
-       headroom=st.floats(1.0, 3.0), probe=st.booleans())
-def test_properties_over_arbitrary_estimates(events, v, grip, headroom, probe):
-    """Invariants, whatever the estimator says and whenever releases and aborts come:
-
+INVARIANTS = """
     1. the commanded contact force never exceeds max_force (nor approach_force in approach);
     2. F_g stays within max_force + |bias| + contact_damping |V_e| (what a contact adds);
     3. phases only move forward; once done, F_g is zero for ever and the outcome is set;
     4. a release ends in 'canceled' unless an abort came first; an abort_now ends at once;
-    5. an abort never leaves a non-zero force: done means F_g == 0.
-    """
+    5. an abort never leaves a non-zero force: done means F_g == 0;
+    6. once the finger is more than max_travel past the contact (on the closing side) while
+       the grasp pushes, nothing pushes from that sample on: F_g is the damper's
+       -contact_damping V_e alone (zero once done) -- an object that gave way is dropped;
+    7. in hold, a contact force below SLIP_FRACTION of the grip for SLIP_TIME (and one
+       sample's rounding) ends the hold -- never a grip held on nothing.
+"""
+
+
+def goal_forces(grip, headroom):
+    """(grip, max_force) a goal may have: max_force above the touch, within max_torque."""
     max_force = min(grip * headroom, CONFIG.max_torque)
     if max_force <= GP.approach_force:
         max_force = GP.approach_force * 1.5
         grip = min(grip, max_force)
-    g = make(v=v, grip=grip, max_force=max_force, probe=probe)
-    est = Est()
+    return grip, max_force
+
+
+def check_invariants(g, est, events, max_travel, contact_at=None):
+    """Feed ``events`` to grasp ``g`` through the scripted estimator ``est``, asserting
+    :data:`INVARIANTS` at every sample; ``contact_at``: where a grasp already in contact
+    touched."""
+    v, grip, max_force = g.goal.closing_velocity, g.goal.grip_force, g.goal.max_force
+    sign = 1.0 if v > 0 else -1.0
+    dropped = False
+    slipping = 0
     order = ['approach', 'contact', 'squeeze', 'probe', 'hold', 'release', 'done']
-    last = 0
+    last = order.index(g.phase)
     released = aborted = False
     for ev in events:
         if ev[0] == 'release':
@@ -391,12 +465,33 @@ def test_properties_over_arbitrary_estimates(events, v, grip, headroom, probe):
             aborted = aborted or not was_done
             assert g.phase == 'done'
             continue
+        if ev[0] == 'steady':
+            ev = ('state', False, 1, 0.0, v, 0.0, ev[1], 0.0)
+        elif ev[0] == 'press':
+            _, share, speed, n = ev
+            ev = ('state', True, int(sign), -sign * share * grip, sign * speed, 0.0, n,
+                  sign * speed)
         _, contact, direction, force, velocity, bias, n, ve = ev
         est.contact, est.direction, est.force = contact, direction, force
         est.velocity, est.bias = velocity, bias
         for _ in range(n):
             est.position += velocity * DT
+            pushing = g.phase in ('contact', 'squeeze', 'probe', 'hold')
+            if g.phase == 'hold' and est.contact and \
+                    -sign * est.force < SLIP_FRACTION * g.grip_force:
+                slipping += 1
+            else:
+                slipping = 0
             f = g.update(est, ve)
+            if contact_at is None and g.contact:
+                contact_at = est.position
+            if pushing and sign * (est.position - contact_at) > max_travel:
+                dropped = True
+            if dropped:
+                assert g.force_command == 0.0                                        # 6
+                assert f == (0.0 if g.phase == 'done' else -GP.contact_damping * ve)  # 6
+            if slipping > SLIP_TIME / DT:
+                assert g.phase != 'hold'                                             # 7
             limit = GP.approach_force if g.phase == 'approach' else max_force
             assert abs(g.force_command) <= limit + 1e-12                           # 1
             assert abs(f) <= max_force + abs(bias) + GP.contact_damping * abs(ve) + 1e-12   # 2
@@ -407,3 +502,36 @@ def test_properties_over_arbitrary_estimates(events, v, grip, headroom, probe):
                 assert f == 0.0 and g.outcome in ('canceled', 'aborted')          # 3, 5
     if g.phase == 'done' and released and not aborted and g.outcome == 'canceled':
         assert g.message == 'client'                                               # 4
+
+
+def travel_config(max_travel):
+    return CONFIG.replace(grasp=dataclasses.replace(GP, max_travel=max_travel))
+
+
+TRAVELS = st.sampled_from([GP.max_travel, 0.2, 0.05])
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(events=st.lists(EVENTS, min_size=1, max_size=60),
+       v=st.sampled_from([-0.3, -0.05, 0.1, 0.3, 1.5]), grip=st.floats(0.01, 2.0),
+       headroom=st.floats(1.0, 3.0), probe=st.booleans(), max_travel=TRAVELS)
+def test_properties_over_arbitrary_estimates(events, v, grip, headroom, probe, max_travel):
+    """From the start of a grasp, whatever the estimator says and whenever releases and
+    aborts come: the INVARIANTS."""
+    grip, max_force = goal_forces(grip, headroom)
+    g = make(v=v, grip=grip, max_force=max_force, probe=probe,
+             config=travel_config(max_travel))
+    check_invariants(g, Est(), events, max_travel)
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(events=st.lists(EVENTS, min_size=1, max_size=30), grip=st.floats(0.05, 2.0),
+       headroom=st.floats(1.0, 3.0), probe=st.booleans(), max_travel=TRAVELS)
+def test_properties_from_a_hold(events, grip, headroom, probe, max_travel):
+    """From a settled hold (where an object gives way, slips, is pulled out): the INVARIANTS
+    whatever the estimator says next."""
+    grip, max_force = goal_forces(grip, headroom)
+    g, est, _ = run_to_hold(grip=grip, max_force=max_force, probe=probe,
+                            config=travel_config(max_travel))
+    assert g.phase == 'hold'
+    check_invariants(g, est, events, max_travel, contact_at=est.position)

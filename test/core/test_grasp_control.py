@@ -15,6 +15,7 @@ from seaforce_ros.core.control_cycle import ControlCycle
 from seaforce_ros.core.environment import contact_object, free
 from seaforce_ros.core.estimator import FLOOR_FRACTION, SPREAD_TIME
 from seaforce_ros.core.grasp import Grasp, GraspGoal, check_goal
+from seaforce_ros.core.plant_cycle import STATUS_COMMAND_TIMEOUT, STATUS_FAULT
 
 DT = 5e-4
 TABLE_I = PlantParams.table_i()
@@ -150,6 +151,56 @@ def test_a_second_grasp_on_a_held_channel_never_runs():
     assert g.ctl.grasp is first
 
 
+@pytest.mark.parametrize('seed', range(6))
+def test_an_object_taken_away_in_hold_is_let_go_at_once(seed):
+    """Closed loop, the sim's plant 15 % off the model, an object drawn at random taken away
+    in a settled hold (the sim's environment set free): the grasp lets go within 30 ms
+    (SLIP_TIME after the force estimate falls below SLIP_FRACTION of the grip), the finger --
+    free, pushed by the grip until then, at about grip / (contact_damping + b_e) -- has
+    travelled less than 0.07 rad by then and less than 0.15 rad when the grasp ends (the
+    damper stays through the release); the grasp ends aborted and the channel is back in
+    passive with zero torque. (Before: the estimator kept seeing a contact -- the model's
+    b_e error times that speed is ~6 % of the grip -- the hold went on pushing, and in one
+    run of six the finger ran 8 rad in 2 s on nothing.)"""
+    rng = np.random.default_rng(200 + seed)
+    plant, dahl = model_error(rng)
+    k = float(np.exp(rng.uniform(np.log(0.5), np.log(10.0))))
+    b = float(rng.uniform(0.04, 0.1))
+    grip = min(float(rng.uniform(0.2, 0.5)), k)
+    where = dict(seed=seed, k=k, b=b, grip=grip)
+    g = Grasping(contact_object(0.2, k, b), plant=plant, dahl=dahl, seed=seed)
+    grasp = g.start(float(rng.uniform(0.1, 0.3)), grip, 2.0 * grip, probe=False)
+    g.until(lambda: grasp.phase == 'hold').step(int(0.3 / DT))
+    assert grasp.phase == 'hold', (where, grasp.message)
+    g.sim.set_environment(free())
+    taken, at = g.t, g.m.x_e
+    while grasp.phase == 'hold' and g.t < taken + 1.0:
+        g.step()
+    assert g.t - taken <= 0.030, (where, g.t - taken)
+    assert g.m.x_e - at < 0.07, (where, g.m.x_e - at)
+    farthest = 0.0
+    while grasp.active and g.t < taken + 2.0:
+        g.step()
+        farthest = max(farthest, g.m.x_e - at)
+    assert farthest < 0.15, (where, farthest)
+    assert grasp.outcome == 'aborted', where
+    assert 'gave way' in grasp.message or 'contact lost' in grasp.message, grasp.message
+    g.step(2)
+    assert g.ctl.grasp is None and g.ctl.mode == 'passive' and g.log[-1][3] == 0.0
+
+
+def test_an_object_too_soft_for_the_grip_aborts():
+    """0.2 N m/rad gripped with 0.45 N m: 2.25 rad of squeeze, beyond grasp.max_travel (1.5
+    rad) past the contact -- the grasp gives up, never beyond max_force, and lets go."""
+    g = Grasping(contact_object(0.2, 0.2, 0.05))
+    grasp = g.start(0.2, 0.45, 0.9, probe=False)
+    g.until(lambda: not grasp.active, limit=30.0).step(2)
+    assert grasp.outcome == 'aborted' and grasp.contact
+    assert 'past the contact' in grasp.message and 'too soft for this grip' in grasp.message
+    assert max(f for _, f, _, _ in g.log) <= 0.9
+    assert g.ctl.mode == 'passive' and g.log[-1][3] == 0.0
+
+
 # --- through ControlCycle ---------------------------------------------------------------
 CH = ('wrist', 'pinch')
 
@@ -163,12 +214,12 @@ class Cycle:
         self.now = 10.0
         self.wall = 1_800_000_000_000_000_000
 
-    def state(self, x=0.0, fp=0.0, fa=0.0, age=0.0, advance=DT):
+    def state(self, x=0.0, fp=0.0, fa=0.0, age=0.0, advance=DT, status=0):
         self.cycle += 1
         self.now += advance
         self.wall += int(advance * 1e9)
         out = self.cc.step(list(CH), self.cycle, self.wall - int(age * 1e9), [0.0, x],
-                           [0.0, 0.0], [0.0, fp], [0.0, fa], [0, 0], self.wall, self.now)
+                           [0.0, 0.0], [0.0, fp], [0.0, fa], [0, status], self.wall, self.now)
         return list(out.effort)
 
     def grasp(self):
@@ -211,6 +262,35 @@ def test_a_stalled_state_stream_aborts_the_grasp():
     c.state()
     c.state(advance=0.3)
     assert g.outcome == 'aborted' and 'no state for' in g.message
+
+
+@pytest.mark.parametrize('status, words', [
+    (STATUS_FAULT, "a plant fault: clear it with the plant's ~/reset"),
+    (STATUS_COMMAND_TIMEOUT, 'command timeout')])
+def test_a_plant_that_stops_the_channel_for_longer_than_state_timeout_aborts_it(status, words):
+    """The plant applies its own torque (a command timeout, its fault): a short stop leaves
+    the grasp running, a longer one than state_timeout ends it with the plant's reason --
+    the grasp's targets do not survive it -- and plant_stopped says why meanwhile."""
+    c = Cycle()
+    c.state()
+    g = c.grasp()
+    for _ in range(20):
+        c.state()
+    assert c.cc.plant_stopped(1) == ''
+    for _ in range(5):
+        c.state(status=status)
+    assert g.active and c.cc.plant_stopped(1) == words
+    c.state()
+    assert c.cc.plant_stopped(1) == ''
+    limit = int(c.cc.checks.state_timeout / DT) + 5
+    for n in range(limit):
+        c.state(status=status)
+        if not g.active:
+            break
+    assert not g.active and n >= int(c.cc.checks.state_timeout / DT) - 2
+    assert g.outcome == 'aborted'
+    assert g.message == f'the plant stopped the channel ({words}) for longer than state_timeout'
+    assert c.ctrls[1].grasp is None
 
 
 OPS = st.one_of(
