@@ -1,8 +1,6 @@
 """Closed-loop simulated experiments (issue 3, done-when 2 and 3)."""
 
 import math
-import subprocess
-import sys
 import os
 
 import numpy as np

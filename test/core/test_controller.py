@@ -8,8 +8,7 @@ import pytest
 from seaforce_ros.core import (ChannelController, ChannelSimulator, ControllerConfig,
                                DahlParams, MODES, NonFiniteInputError, PlantParams,
                                SensorParams, position_sine, run_closed_loop, torque_sine)
-from seaforce_ros.core.analysis import (hold_margins, impedance_from_position,
-                                        magnitude_db)
+from seaforce_ros.core.analysis import hold_margins, impedance_from_position
 from seaforce_ros.core.params import DEFAULT_HOLD_DAMPING, DEFAULT_HOLD_STIFFNESS
 
 TABLE_I = PlantParams.table_i()
