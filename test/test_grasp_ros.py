@@ -4,13 +4,15 @@
   plant 15 % off the controller's model, its endpoint friction recalibrated first with
   ``~/calibrate_friction``, as README says to), one after the other in one lockstep run: the
   goals of the issue asserted from what the sim reports (true contact force) and what the controller
-  publishes (controller_status at every cycle, feedback, result).
+  publishes (controller_status at every cycle, feedback, result); then the plant dies
+  mid-grasp (its process killed): the goal aborted with the reason, the next one refused.
 * The direct layout (bringup, real time): bad goals rejected with a reason, a second goal on a
   held channel, a goal on a faulted channel, a cancel that releases into the mode before the
   goal without the grip, a fault during a grasp that leaves zero torque.
 """
 import math
 import os
+import signal
 
 import numpy as np
 import pytest
@@ -133,7 +135,9 @@ def test_grasp_random_objects_over_ros(processes, tmp_path, probe):
     5 N m/rad; contact detected within 10 ms at 0.15-0.3 rad/s (30 ms slower), peak contact
     force before the squeeze below 0.05 N m (up to 5 N m/rad); grip within 5 % in a settled
     hold (8 % below 0.3 N m/rad: the finger's own spring's error); max_force never exceeded;
-    the cancel releases the object into passive: zero torque."""
+    the cancel releases the object into passive: zero torque. Then the sim's process is
+    killed during a grasp: the goal ends ABORTED with 'no actuator_state for ...' and the
+    next goal is refused with that reason."""
     seed = int(os.environ.get('SEAFORCE_GRASP_SEED', int.from_bytes(os.urandom(4), 'little')))
     rng = np.random.default_rng(seed)
     signs = [float(s) for s in rng.choice((-1.0, 1.0), size=len(PLANT_KEYS) + 2)]
@@ -145,7 +149,7 @@ def test_grasp_random_objects_over_ros(processes, tmp_path, probe):
            'pinch.sim.dahl.coulomb_force': 0.032 * (1.0 + 0.15 * signs[-1])}
     probe.record(ActuatorState, 'actuator_state')
     probe.record(ControllerStatus, 'controller_status')
-    start_node(processes, 'sim_node', 'sim', tmp_path, sim)
+    plant = start_node(processes, 'sim_node', 'sim', tmp_path, sim)
     probe.wait_messages('actuator_state', 1, timeout=60, where=lambda m: m.cycle == 0)
     start_node(processes, 'controller_node', 'controller', tmp_path,
                {'state_timeout': 5.0, 'status_rate': 2000.0,
@@ -194,6 +198,22 @@ def test_grasp_random_objects_over_ros(processes, tmp_path, probe):
         # (feedback at 50 Hz of wall time: a fast lockstep run can pass a 0.1 s phase unseen)
         assert {f.phase for f in feedback} >= {'approach', 'hold'}, where
         assert all(math.isfinite(f.endpoint_position) for f in feedback), where
+
+    # the plant dies during a grasp (its process killed): the goal ends ABORTED with the
+    # reason once no state has come for state_timeout, and the next goal is refused with it
+    ok, reason = probe.set_parameters('/sim', {'pinch.environment.position': 10.0})
+    assert ok, reason
+    handle, feedback = client.send(closing_velocity=0.2, grip_force=0.3, max_force=0.6)
+    probe.wait_for(lambda: feedback and feedback[-1].phase == 'approach', timeout=60,
+                   what='approach')
+    plant.send_signal(signal.SIGKILL)
+    assert plant.wait(10.0) is not None
+    answer = client.result(handle, timeout=60.0)
+    assert answer.status == GoalStatus.STATUS_ABORTED, answer.result.message
+    assert answer.result.message.startswith('no actuator_state for '), answer.result.message
+    assert 'the plant stopped, or the link to it' in answer.result.message
+    refused = client.rejected()
+    assert 'no actuator_state for' in refused and 'held' not in refused, refused
 
 
 def test_rejections_cancel_and_faults_in_the_direct_layout(processes, tmp_path, probe):
