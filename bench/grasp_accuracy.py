@@ -238,14 +238,16 @@ def main():
     print(f'the sim\'s plant {100 * args.error:.0f} % off the controller\'s model (each '
           f'parameter, random signs); {args.draws} objects: k log-uniform 0.2..20 N m/rad, '
           'b 0.04..0.1 N m s/rad, at 0.15..0.3 rad, closed at 0.05..0.3 rad/s, grip '
-          '0.2..0.5 N m, max_force 2 grip'
+          '0.2..0.5 N m (at most k x 1 rad), max_force 2 grip'
           + ('; friction recalibrated in free air before each grasp' if CALIBRATE else ''))
     rows = []
     for _ in range(args.draws):
         k = float(np.exp(rng.uniform(np.log(0.2), np.log(20.0))))
-        rows.append(grasp(k, float(rng.uniform(0.04, 0.1)), float(rng.uniform(0.15, 0.3)),
-                          float(rng.uniform(0.05, 0.3)), float(rng.uniform(0.2, 0.5)), rng,
-                          args.error))
+        b, position, v = (float(rng.uniform(*r)) for r in ((0.04, 0.1), (0.15, 0.3),
+                                                            (0.05, 0.3)))
+        # a grip the object takes within grasp.max_travel (1.5 rad): at most k x 1 rad
+        grip = min(float(rng.uniform(0.2, 0.5)), max(0.2, k))
+        rows.append(grasp(k, b, position, v, grip, rng, args.error))
     table_estimates(rows)
     grip = np.array([r['grip_error'] for r in rows])
     soft = np.array([r['k'] < 0.3 for r in rows])

@@ -20,13 +20,15 @@ Phases:
   contact detection is armed once the finger moves steadily -- beyond the Dahl transition
   (:data:`ARM_DAHL` F_c/sigma of travel: the hysteresis model's error changes until then) and
   for :data:`ARM_TIME` within 15 % (or :data:`STEADY_SPEED`) of the commanded speed (the
-  model's error changes with the speed) -- when the estimator's bias is re-captured. A finger
-  held up by a contact on the closing side (after :data:`ARM_TIME_MAX` not beyond the arming
-  distance, for :data:`ARM_TIME` slower than a quarter of the commanded speed, pushing against
-  something with all of ``approach_force``: a finger the friction model's error holds up
-  is freed before the servo's integral gets there) started touching the object, and that is
-  the contact. A contact on the closing side ends the approach; an object closer to the start
-  than the arming distance is not detected. No contact within ``max_travel`` (or
+  model's error changes with the speed) -- when the estimator's bias is re-captured. Before
+  that, a contact on the closing side while the servo pushes towards it with all of
+  ``approach_force`` is the object's when the finger is held up (after :data:`ARM_TIME_MAX`,
+  for :data:`ARM_TIME` slower than a quarter of the commanded speed: a finger the friction
+  model's error holds up is freed before the servo's integral gets there) or bounces back
+  after it closed at half the commanded speed (a finger pushed towards the object cannot
+  move away by itself): it started touching the object, or met one nearer than it needs to
+  arm (``v_cmd`` x ~0.15 s). A contact on the closing side ends the approach (from the other
+  side it aborts). No contact within ``max_travel`` (or
   ``2 max_travel/|v_cmd| + 1 s``): aborted. Goals slower than :data:`MIN_CLOSING_VELOCITY`
   are refused.
 * ``contact`` -- ``f = approach_force`` for :data:`CONTACT_TIME` (the touch settles).
@@ -250,6 +252,7 @@ class Grasp:
         self._slow = 0.0           # time below a quarter of the approach speed [s]
         self._integral = 0.0       # the approach servo's integral action [N m]
         self._at_cap = False       # ... and its output at approach_force towards the object
+        self._closed = False       # the finger has moved towards the object at v_cmd/2
         self._start = None         # filtered endpoint position at the start
         self._contact_at = math.nan    # ... and at the contact's detection
         self._slip = 0.0           # time the hold's contact force has been below the slip level
@@ -462,17 +465,24 @@ class Grasp:
                 self._steady += elapsed
             else:
                 self._steady = 0.0
-            if abs(est.velocity) < 0.25 * abs(self._v):
+            speed = abs(self._v)
+            if abs(est.velocity) < 0.25 * speed:
                 self._slow += elapsed
             else:
                 self._slow = 0.0
+            if s * est.velocity >= 0.5 * speed:
+                self._closed = True
             if self._steady >= ARM_TIME and travel >= self._arm_travel:
                 est.rearm()
                 self._armed = True
-            elif (self._t >= ARM_TIME_MAX and travel < self._arm_travel and self._at_cap
-                  and self._slow >= ARM_TIME and est.contact and est.direction * s > 0):
-                # it never got going against a contact on the closing side: it started
-                # touching the object, and that is the contact (below)
+            elif self._at_cap and est.contact and est.direction * s > 0 and (
+                    (self._t >= ARM_TIME_MAX and self._slow >= ARM_TIME)
+                    or (self._closed and s * est.velocity < -max(0.25 * speed, STEADY_SPEED))):
+                # a contact on the closing side before the finger could arm, the servo
+                # pushing towards it with all it may: the finger is held up (it started
+                # touching the object, or met one before it moved steadily), or it bounced
+                # back off one (a closing finger pushed on towards the object cannot move
+                # away by itself) -- that is the contact (below)
                 self._armed = True
         if self._armed and est.contact:
             if est.direction * s < 0:

@@ -145,10 +145,35 @@ def test_never_armed_while_the_finger_does_not_move_steadily():
     steps(g, est, 2 * ARM_TIME_MAX)
     assert not g._armed and est.rearms == 0 and g.phase == 'approach'
     est.touch(0.01)
-    for i in range(int(ARM_TIME_MAX / DT)):            # oscillating, "touching" now and then
-        est.velocity = 0.3 * (-1) ** (i // 40)
+    for i in range(int(2 * ARM_TIME_MAX / DT)):        # oscillating about the commanded
+        est.velocity = 0.3 + 0.2 * (-1) ** (i // 40)   # speed, "touching" all along
         g.update(est, 0.0)
     assert not g._armed and g.phase == 'approach'
+
+
+def test_a_finger_that_bounces_back_before_it_armed_takes_that_as_the_contact():
+    """An object nearer than the finger needs to arm: the finger closing at speed meets it and
+    bounces back while the servo pushes on towards it with all of approach_force -- a free
+    finger pushed that way cannot move away. A finger that moves away without having closed
+    (it was moving so when the goal came) is no contact."""
+    g = make()
+    est = Est()
+    est.velocity = 0.3
+    steps(g, est, 0.5 * ARM_TIME)                      # closing, not armed yet
+    assert not g._armed
+    est.touch(0.03)
+    est.velocity = -0.1                                # ... bounced off something
+    out = []
+    while g.phase == 'approach' and len(out) < 0.05 / DT:
+        out += steps(g, est, DT)
+    assert g.phase == 'contact' and g.contact and est.rearms == 0
+    assert max(out) <= GP.approach_force
+    g2 = make()
+    est2 = Est()
+    est2.touch(0.03)
+    est2.velocity = -0.1                               # moving away from the start
+    steps(g2, est2, 2 * ARM_TIME_MAX)
+    assert g2.phase == 'approach' and not g2._armed
 
 
 def test_a_finger_that_starts_touching_the_object_takes_that_as_the_contact():

@@ -189,6 +189,35 @@ def test_an_object_taken_away_in_hold_is_let_go_at_once(seed):
     assert g.ctl.grasp is None and g.ctl.mode == 'passive' and g.log[-1][3] == 0.0
 
 
+@pytest.mark.parametrize('seed', range(8))
+def test_an_object_nearer_than_the_arming_distance_is_grasped(seed):
+    """An object 0-30 mm(rad) from the finger at rest -- touching it, or nearer than the
+    finger needs to move steadily before its detection arms: the finger is held up by it (a
+    soft one) or bounces back off it (a stiff one) and that is the contact; the grasp
+    reaches hold with the grip within 5 %, the peak contact force before the squeeze below
+    0.05 N m and max_force never exceeded. (Before: a stiff one made the approach bounce on
+    it until the time limit, 8.5 s, then abort with 'no contact'.)"""
+    rng = np.random.default_rng(300 + seed)
+    plant, dahl = model_error(rng)
+    position = float(rng.uniform(0.0, 0.03))
+    k = float(np.exp(rng.uniform(np.log(0.5), np.log(15.0))))
+    b = float(rng.uniform(0.04, 0.1))
+    v = float(rng.uniform(0.05, 0.3))
+    grip = min(float(rng.uniform(0.2, 0.5)), k)
+    where = dict(seed=seed, position=position, k=k, b=b, v=v, grip=grip)
+    g = Grasping(contact_object(position, k, b), plant=plant, dahl=dahl, seed=seed)
+    g.step(200)
+    grasp = g.start(v, grip, 2.0 * grip, probe=False)
+    g.until(lambda: grasp.phase in ('hold', 'release', 'done'), limit=5.0)
+    assert grasp.phase == 'hold' and grasp.contact, (where, grasp.message)
+    g.step(int(max(0.3, 6.0 * (b + g.config.grasp.contact_damping) / k) / DT))
+    forces = np.array([f for _, f, _, _ in g.log])
+    phases = [p for _, _, p, _ in g.log]
+    assert forces[:phases.index('squeeze')].max() < 0.05, where
+    assert forces.max() <= 2.0 * grip, where
+    assert abs(np.mean(forces[-int(0.1 / DT):]) - grip) <= 0.05 * grip, where
+
+
 def test_an_object_too_soft_for_the_grip_aborts():
     """0.2 N m/rad gripped with 0.45 N m: 2.25 rad of squeeze, beyond grasp.max_travel (1.5
     rad) past the contact -- the grasp gives up, never beyond max_force, and lets go."""
