@@ -236,9 +236,14 @@ class ControlCycle:
         return self._latched[i]
 
     def plant_stopped(self, i):
-        """Why the plant applies its own torque on channel ``i`` instead of the command (its
-        latest state's ``STATUS_COMMAND_TIMEOUT``/``STATUS_FAULT``), or ''."""
-        return _plant_stop_reason(self._status[i]) if self._stopped[i] else ""
+        """Why the plant applies its own torque on channel ``i`` instead of the command, or
+        '': its fault (``STATUS_FAULT``, latched on the plant's side until its reset) at
+        once, a command timeout (``STATUS_COMMAND_TIMEOUT``) once it has lasted longer than
+        ``state_timeout`` -- a late command now and then (a loaded host) is no stop."""
+        stopped, status = self._stopped[i], self._status[i]
+        if stopped and (status & STATUS_FAULT or stopped > self._gap_cycles):
+            return _plant_stop_reason(status)
+        return ""
 
     # --- the cycle -------------------------------------------------------------------------
     def step(self, names, cycle, stamp_ns, x, v, f_p, f_a, status, now_ns, now):

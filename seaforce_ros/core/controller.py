@@ -268,7 +268,8 @@ class ChannelController:
     def reenter(self, applied_torque):
         """Continue the mode at the next :meth:`update` from ``applied_torque`` [N m]: the
         plant zeroed or replaced the torque for a moment (a command timeout). The estimators
-        (hose inversion, Dahl state) and the mode's targets are kept; the next output equals
+        (hose inversion, Dahl state) and the mode's targets are kept (the contact estimator
+        goes quiet: :meth:`~.estimator.ContactEstimator.disturb`); the next output equals
         ``applied_torque``. The DOB integrator starts from it (no windup) and returns to its
         equilibrium within ~1/lambda; ``hold`` returns to its target through a transfer
         offset that decays in 50 ms: no step, and a finger under load is not pushed away a
@@ -276,6 +277,7 @@ class ChannelController:
         re-captures the targets where the finger is. A friction calibration's reference waits
         for that sample."""
         self._interrupt_chirp()
+        self.estimator.disturb()        # a torque its model did not see
         self.torque = float(applied_torque)
         if self._enter != _ENTER:
             self._enter = _REENTER
@@ -361,7 +363,9 @@ class ChannelController:
     def _adapt(self, xe_hat, xd, f_p, fd, steps):
         adaptation = self.adaptation
         grasp = self.grasp
-        free = not self.estimator.contact and (grasp is None or grasp.phase == "approach")
+        estimator = self.estimator
+        free = not (estimator.contact or estimator.quiet) and (
+            grasp is None or grasp.phase == "approach")
         if adaptation.update(xe_hat, xd, f_p, free, fd, steps):
             be, ke, fc, sigma = adaptation.values
             self._be, self._ke = be, ke

@@ -90,8 +90,8 @@ import scipy.linalg
 from .params import EstimatorParams, PlantParams
 
 __all__ = ["ContactEstimator", "ObjectEstimate", "NO_ESTIMATE", "BLOCK", "LOSS_TIME",
-           "DETECT_TIME", "SPREAD_FACTOR", "SPREAD_TIME", "FLOOR_FRACTION",
-           "svf_coefficients"]
+           "DETECT_TIME", "SPREAD_FACTOR", "SPREAD_TIME", "FLOOR_FRACTION", "QUIET_GAP",
+           "QUIET_TIME", "svf_coefficients"]
 
 #: A contact ends when the residual stays below half the threshold this long [s].
 LOSS_TIME = 0.02
@@ -107,6 +107,14 @@ SPREAD_FACTOR = 5.0
 SPREAD_TIME = 0.25
 #: ... and never below this fraction of ``contact_threshold`` (nor above it).
 FLOOR_FRACTION = 1.0 / 3.0
+#: A gap of more than this many sample periods between two updates (lost states), or a
+#: :meth:`ContactEstimator.disturb` (the plant replaced the torque), starts a quiet period:
+#: the inputs interpolated over a longer gap, or a torque the model did not see, are no
+#: sample of the endpoint's force.
+QUIET_GAP = 20
+#: The quiet period [s]: the filters settle (about four group delays) -- no contact starts,
+#: none ends, nothing is fitted, and the free-motion statistics and bias stay as they were.
+QUIET_TIME = 0.03
 #: Samples accumulated per block of the fit (one numpy outer product per block).
 BLOCK = 128
 _BLOCK_VALUES = 6 * BLOCK
@@ -206,6 +214,7 @@ class ContactEstimator:
         self._on = params.contact_threshold
         self._settle = int(math.ceil(_SETTLE_DELAYS * 2.0 * _ZETA / (w * dt)))
         self._loss_samples = max(1, int(round(LOSS_TIME / dt)))
+        self._quiet_samples = max(1, int(round(QUIET_TIME / dt)))
         self._recent_alpha = -math.expm1(-dt / RECENT)
         self._detect_alpha = -math.expm1(-dt / DETECT_TIME)
         self._spread_alpha = -math.expm1(-dt / SPREAD_TIME)
@@ -242,6 +251,8 @@ class ContactEstimator:
         self._on2 = self._ceiling2
         self._off = 0.5 * self._on
         self._frozen = False         # between freeze() and let_go()
+        self._quiet = 0              # samples left of a quiet period (QUIET_GAP)
+        self.quiet = False           # ... > 0: the residual is no sample of the force now
         self._clear_fit()
 
     def _clear_fit(self):
@@ -297,6 +308,13 @@ class ContactEstimator:
             self.direction = 0
         self._take_bias()
 
+    def disturb(self):
+        """The plant replaced the torque for a while (a command timeout, its fault): the
+        residual holds a force the model did not see until the filters have settled -- a
+        quiet period (:data:`QUIET_TIME`) starts, as after a gap of lost states."""
+        self._quiet = self._quiet_samples
+        self.quiet = True
+
     @property
     def threshold(self):
         """The contact threshold in force [N m] (adapted in free motion; see module
@@ -336,11 +354,22 @@ class ContactEstimator:
         acc = (q - q0) * inv_dt / steps
         r = f1 + ke * p - ke_rest + be * q + me * acc - self.bias
         self.force = r
-        self._recent += self._recent_alpha * (r - self._recent)
+        self._recent += (self._recent_alpha if steps == 1 else
+                         1.0 - (1.0 - self._recent_alpha) ** steps) * (r - self._recent)
         d = self.detection
         d += (self._detect_alpha if steps == 1 else 1.0 - (1.0 - self._detect_alpha) ** steps) \
             * (r - d)
         self.detection = d
+        if steps > QUIET_GAP or self._quiet:
+            # a gap or a torque the model did not see: nothing starts, ends, is fitted or
+            # tracked until the filters have settled
+            if steps > QUIET_GAP:
+                self._quiet = self._quiet_samples
+            else:
+                self._quiet = self._quiet - steps if self._quiet > steps else 0
+            self.quiet = self._quiet > 0
+            self._below = 0
+            return
         if self._frozen:
             return
         if self.contact:

@@ -343,7 +343,7 @@ class Grasp:
             s = self._sign
             c = -s * est.force
             grip = self.grip_force
-            if SLIP_FRACTION * grip <= c <= self._max and \
+            if SLIP_FRACTION * grip <= c <= self._max and not est.quiet and \
                     s * (est.position - self._contact_at) <= self.params.max_travel:
                 self._slip = 0.0
                 self.grip_force = grip + self._hold_alpha * steps * (c - grip)
@@ -404,7 +404,7 @@ class Grasp:
                          "aborted", drop=True)
             return self.update(est, ve, 0)
         c = -s * est.force                 # contact force estimate, > 0 pushing back
-        if c > self._max:
+        if c > self._max and not est.quiet:    # (quiet: no sample of it; f stays bounded)
             self.release(f"contact force estimate {c:.4g} N m beyond max_force "
                          f"{self._max:g} N m in {phase}", "aborted")
             return self.update(est, ve, 0)
@@ -427,7 +427,7 @@ class Grasp:
             if t >= p.probe_duration:
                 self._enter_hold(c)
                 self.message = "holding"
-        else:   # hold, when the short path above did not decide
+        elif not est.quiet:     # hold, when the short path above did not decide
             f = self._grip
             grip = self.grip_force
             if c < SLIP_FRACTION * grip:
@@ -440,6 +440,8 @@ class Grasp:
             else:
                 self._slip = 0.0
             self.grip_force = grip + self._hold_alpha * steps * (c - grip)
+        else:   # hold, quiet: the force estimate is no sample of the object (lost states, a
+            f = self._grip      # plant stop, after which the grip comes back)
         f = min(max(f, 0.0), self._max)
         self.force_command = s * f
         # the model's free-motion error (the estimator's bias) shifts the real contact force:
@@ -459,6 +461,12 @@ class Grasp:
         if self._start is None:
             self._start = est.position
         travel = s * (est.position - self._start)
+        if est.quiet:
+            # lost states or a plant stop: the motion the bias was captured in was
+            # interrupted, the servo's push may not have been applied -- arm again once the
+            # finger moves steadily (or is held up, or bounces back, after it)
+            self._armed = self._closed = False
+            self._steady = self._slow = 0.0
         if not self._armed:
             elapsed = self.dt * steps
             if abs(est.velocity - self._v) <= max(0.15 * abs(self._v), STEADY_SPEED):

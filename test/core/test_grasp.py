@@ -31,6 +31,7 @@ class Est:
         self.bias = 0.0
         self.rearms = 0
         self.frozen = False
+        self.quiet = False
 
     def rearm(self):
         self.rearms += 1
@@ -423,6 +424,40 @@ def test_a_hold_whose_force_falls_below_the_slip_level_drops_the_grip():
     assert g.outcome == 'aborted'
 
 
+def test_a_quiet_estimator_disarms_the_approach():
+    """Lost states or a plant stop in the approach (the estimator goes quiet): the motion the
+    bias was captured in was interrupted, so the grasp arms again -- a new bias -- once the
+    finger moves steadily; meanwhile no contact is taken."""
+    g, est = armed()
+    est.quiet = True
+    est.touch(0.03)
+    g.update(est, 0.0)
+    assert g.phase == 'approach' and not g._armed
+    est.quiet = est.contact = False
+    steps(g, est, ARM_TIME + 0.01)
+    assert g._armed and est.rearms == 2
+
+
+def test_a_quiet_estimator_neither_slips_nor_overloads_a_hold():
+    """In hold, while the estimator is quiet its force estimate is no sample of the object:
+    no slip and no max_force abort on it, the grip commanded on; once it is sampled again a
+    slip is a slip."""
+    g, est, _ = run_to_hold(probe=False)
+    steps(g, est, 0.3, move=False)
+    grip = g.grip_force
+    est.quiet = True
+    est.touch(0.1 * grip)
+    out = steps(g, est, 3 * SLIP_TIME, move=False)
+    est.touch(5.0)                                  # beyond max_force (1 N m)
+    out += steps(g, est, 3 * SLIP_TIME, move=False)
+    assert g.phase == 'hold' and g.force_command == 0.5 and g.grip_force == grip
+    assert all(f == pytest.approx(0.5) for f in out)
+    est.quiet = False
+    est.touch(0.1 * grip)
+    steps(g, est, SLIP_TIME + 2 * DT, move=False)
+    assert g.phase == 'release' and 'gave way in hold' in g.message
+
+
 def test_withdraw_only_before_the_cycle_claims_it():
     goal = GraspGoal('pinch', 0.3, 0.5, 1.0, True)
     g = Grasp(goal, CONFIG, DT)
@@ -442,6 +477,8 @@ EVENTS = st.one_of(
     # an object on the closing side pressing with a share of the grip, the finger moving
     # (towards it: it gives way) at a speed
     st.tuples(st.just('press'), st.floats(0.0, 1.5), st.floats(-1.0, 3.0), st.integers(1, 800)),
+    # lost states or a plant stop: the estimator is quiet (or no longer)
+    st.tuples(st.just('quiet'), st.booleans()),
     st.tuples(st.just('release')), st.tuples(st.just('abort')))
 
 
@@ -454,8 +491,9 @@ INVARIANTS = """
     6. once the finger is more than max_travel past the contact (on the closing side) while
        the grasp pushes, nothing pushes from that sample on: F_g is the damper's
        -contact_damping V_e alone (zero once done) -- an object that gave way is dropped;
-    7. in hold, a contact force below SLIP_FRACTION of the grip for SLIP_TIME (and one
-       sample's rounding) ends the hold -- never a grip held on nothing.
+    7. in hold, a contact force below SLIP_FRACTION of the grip for SLIP_TIME of samples
+       (and one sample's rounding; a quiet estimator's are none) ends the hold -- never a grip
+       held on nothing.
 """
 
 
@@ -490,6 +528,9 @@ def check_invariants(g, est, events, max_travel, contact_at=None):
             aborted = aborted or not was_done
             assert g.phase == 'done'
             continue
+        if ev[0] == 'quiet':
+            est.quiet = ev[1]
+            continue
         if ev[0] == 'steady':
             ev = ('state', False, 1, 0.0, v, 0.0, ev[1], 0.0)
         elif ev[0] == 'press':
@@ -504,7 +545,7 @@ def check_invariants(g, est, events, max_travel, contact_at=None):
             pushing = g.phase in ('contact', 'squeeze', 'probe', 'hold')
             if g.phase == 'hold' and est.contact and \
                     -sign * est.force < SLIP_FRACTION * g.grip_force:
-                slipping += 1
+                slipping += 0 if est.quiet else 1
             else:
                 slipping = 0
             f = g.update(est, ve)
