@@ -245,7 +245,7 @@ def main():
         k = float(np.exp(rng.uniform(np.log(0.2), np.log(20.0))))
         b, position, v = (float(rng.uniform(*r)) for r in ((0.04, 0.1), (0.15, 0.3),
                                                             (0.05, 0.3)))
-        # a grip the object takes within grasp.max_travel (1.5 rad): at most k x 1 rad
+        # a grip the object takes within grasp.give_way_travel (1.5 rad): at most k x 1 rad
         grip = min(float(rng.uniform(0.2, 0.5)), max(0.2, k))
         rows.append(grasp(k, b, position, v, grip, rng, args.error))
     table_estimates(rows)

@@ -77,6 +77,11 @@ from .timing import LoopStats
 LOOPS = ('topics', 'direct')
 GRASP_FEEDBACK_RATE = 50.0     # Hz
 GRASP_START_TIMEOUT = 1.0      # s a goal waits for the cycle to take its grasp over
+#: s without a state the cycle ran on after which the node (not the cycle, which does not
+#: run) ends a goal and refuses new ones -- at least state_timeout. Shorter stalls the cycle
+#: sees itself when states return (it re-arms and ends the goal); a starved node process
+#: would otherwise take its own scheduling hiccup (70 ms beside a CPU hog) for a dead plant.
+STALL_TIME = 0.5
 
 #: The parameters a friction calibration sets, in the order of its result's arrays.
 _FRICTION_KEYS = ('plant.endpoint_damping', 'plant.endpoint_stiffness', 'dahl.coulomb_force',
@@ -188,7 +193,7 @@ class ControllerNode(Node):
         self._grasps = {}                # channel index -> (Grasp, handle, Future, start time)
         self._grasp_log = EventLog()
         self._rejections = Episode(self._grasp_log)   # logged once per 10 s, with a count
-        self._last_state = None          # monotonic time of the latest state [s]
+        self._last_state = None          # monotonic time of the latest state run on [s]
         ActionServer(self, GraspAction, '~/grasp', execute_callback=self._execute_grasp,
                      goal_callback=lambda goal: GoalResponse.ACCEPT,
                      cancel_callback=lambda handle: CancelResponse.ACCEPT,
@@ -324,8 +329,9 @@ class ControllerNode(Node):
         t0 = time.perf_counter()
         self.stats.tick(now)
         self._states += 1
-        self._last_state = now
         out = self.cycle.step(names, cycle, stamp_ns, x, v, f_p, f_a, status, now_ns, now)
+        if out.answered:        # a state the cycle ran on (not one it dropped)
+            self._last_state = now
         if self.cycle.events:
             log_events(self.get_logger(), self.cycle.events.drain())
         elapsed = time.perf_counter() - t0
@@ -367,14 +373,15 @@ class ControllerNode(Node):
         return index
 
     def _stalled(self):
-        """'no actuator_state for ...' when none has arrived for longer than state_timeout
-        (then the cycle, when states return, sees the stall first and re-arms), else ''."""
-        timeout = self.cycle.checks.state_timeout
+        """'no actuator_state for ...' when the cycle has run on none for longer than
+        max(STALL_TIME, state_timeout) (then the cycle, when states return, sees the stall
+        first and re-arms), else ''."""
+        limit = max(STALL_TIME, self.cycle.checks.state_timeout)
         if self._last_state is None:
             return 'no actuator_state is arriving'
         age = time.monotonic() - self._last_state
-        if age > timeout:
-            return f'no actuator_state for {age:.2f} s (> state_timeout {timeout:g} s)'
+        if age > limit:
+            return f'no actuator_state for {age:.2f} s (> {limit:g} s)'
         return ''
 
     def _grasp_for(self, goal):
@@ -422,16 +429,23 @@ class ControllerNode(Node):
                                f'{GRASP_START_TIMEOUT:g} s (are states arriving?)')
             stalled = self._stalled() if grasp.active and grasp.started else ''
             if stalled:
-                # the cycle does not run (a plant that died, a cut link): the goal ends now;
-                # the cycle, if states come back, sees the stall before the grasp and re-arms
+                # the cycle does not run (a plant that died, a cut link): the goal ends now,
+                # the grasp in the cycle's thread when it runs again (it re-arms first: the
+                # controller is re-initialised before any update)
+                message = stalled + ': the plant stopped, or the link to it'
+                grasp.request_abort(message)
                 estimator = self.controllers[index].estimator
-                grasp.abort_now(stalled + ': the plant stopped, or the link to it',
-                                estimator.estimate() if grasp.contact else None)
+                del self._grasps[index]
+                handle.abort()
+                self.get_logger().warn(f'{channel}: grasp aborted: {message}')
+                done.set_result(self._grasp_result(
+                    grasp, message, estimator.estimate() if grasp.contact else None))
+                continue
             if grasp.active:
                 handle.publish_feedback(self._grasp_feedback(index, grasp))
                 continue
             del self._grasps[index]
-            result = self._grasp_result(grasp, grasp.message)
+            result = self._grasp_result(grasp, grasp.message, grasp.estimate)
             if grasp.outcome == 'canceled':
                 handle.canceled()
             else:
@@ -453,13 +467,15 @@ class ControllerNode(Node):
         return feedback
 
     @staticmethod
-    def _grasp_result(grasp, message):
+    def _grasp_result(grasp, message, estimate=None):
+        """The action's result: ``estimate`` the object as the grasp let go of it, or as it
+        was when the grasp was aborted (None: no contact)."""
         result = GraspAction.Result()
         result.message = message
         result.contact = bool(grasp is not None and grasp.contact)
         nan = math.nan
-        # the object as the grasp let go of it, or as it was when the grasp was aborted
-        estimate = grasp.estimate if result.contact else None
+        if not result.contact:
+            estimate = None
         result.contact_position = estimate.contact_position if estimate else nan
         result.object_stiffness = estimate.stiffness if estimate else nan
         result.object_stiffness_sigma = estimate.stiffness_sigma if estimate else nan
@@ -512,7 +528,14 @@ class ControllerNode(Node):
                                      f'{GRASP_START_TIMEOUT:g} s (are states arriving?)')
             stalled = self._stalled() if calibration.active and calibration.started else ''
             if stalled:        # as for a grasp (_grasp_tick)
-                calibration.abort_now(stalled + ': the plant stopped, or the link to it')
+                message = stalled + ': the plant stopped, or the link to it'
+                calibration.request_cancel(message, 'aborted')
+                del self._calibrations[index]
+                handle.abort()
+                self.get_logger().warn(f'{channel}: friction calibration aborted: {message}')
+                done.set_result(self._calibration_result(calibration,
+                                                         message + ', nothing applied'))
+                continue
             if calibration.active:
                 feedback = CalibrateFrictionAction.Feedback()
                 feedback.phase = calibration.phase

@@ -75,7 +75,7 @@ def test_calibrate_friction_after_a_random_drift(processes, tmp_path, probe):
     handle, feedback = client.send()
     probe.wait_for(lambda: feedback and feedback[-1].progress > 0.05, timeout=60,
                    what='progress')
-    assert 'busy' in client.rejected()
+    assert 'is calibrating its friction; cancel it first' in client.rejected()
     answer = client.cancel(handle)
     assert answer.status == GoalStatus.STATUS_CANCELED, answer.result.message
     assert not answer.result.applied

@@ -113,7 +113,8 @@ FLOOR_FRACTION = 1.0 / 3.0
 #: sample of the endpoint's force.
 QUIET_GAP = 20
 #: The quiet period [s]: the filters settle (about four group delays) -- no contact starts,
-#: none ends, nothing is fitted, and the free-motion statistics and bias stay as they were.
+#: none ends, nothing is fitted, and the free-motion statistics and bias stay as they were
+#: (the smoothed residuals run on: a re-arm after it takes the settled part).
 QUIET_TIME = 0.03
 #: Samples accumulated per block of the fit (one numpy outer product per block).
 BLOCK = 128
@@ -187,6 +188,10 @@ class ContactEstimator:
         Filtered endpoint position where the latest contact started [rad] (NaN before one).
     contacts : int
         Number of contacts started since the last reset.
+    quiet : bool
+        This sample was no sample of the force: within :data:`QUIET_TIME` after a gap of
+        more than :data:`QUIET_GAP` samples or a :meth:`disturb` (no contact started or
+        ended, nothing fitted, the free-motion statistics and bias left as they were).
     """
 
     def __init__(self, params=None, plant=None, dt=5e-4, rest_position=0.0):
@@ -251,8 +256,8 @@ class ContactEstimator:
         self._on2 = self._ceiling2
         self._off = 0.5 * self._on
         self._frozen = False         # between freeze() and let_go()
-        self._quiet = 0              # samples left of a quiet period (QUIET_GAP)
-        self.quiet = False           # ... > 0: the residual is no sample of the force now
+        self._quiet = 0              # samples still to be skipped (QUIET_TIME's)
+        self.quiet = False           # this sample was skipped
         self._clear_fit()
 
     def _clear_fit(self):
@@ -310,8 +315,8 @@ class ContactEstimator:
 
     def disturb(self):
         """The plant replaced the torque for a while (a command timeout, its fault): the
-        residual holds a force the model did not see until the filters have settled -- a
-        quiet period (:data:`QUIET_TIME`) starts, as after a gap of lost states."""
+        residual holds a force the model did not see until the filters have settled -- the
+        next :data:`QUIET_TIME` of samples are quiet, as after a gap of lost states."""
         self._quiet = self._quiet_samples
         self.quiet = True
 
@@ -362,14 +367,15 @@ class ContactEstimator:
         self.detection = d
         if steps > QUIET_GAP or self._quiet:
             # a gap or a torque the model did not see: nothing starts, ends, is fitted or
-            # tracked until the filters have settled
+            # tracked until the filters have settled (this sample, then QUIET_TIME's)
             if steps > QUIET_GAP:
                 self._quiet = self._quiet_samples
             else:
                 self._quiet = self._quiet - steps if self._quiet > steps else 0
-            self.quiet = self._quiet > 0
+            self.quiet = True
             self._below = 0
             return
+        self.quiet = False
         if self._frozen:
             return
         if self.contact:

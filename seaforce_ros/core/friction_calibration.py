@@ -458,9 +458,10 @@ class FrictionCalibration:
         self._finish(outcome, reason)
         return True
 
-    def request_cancel(self, reason="canceled"):
-        """(any thread) End at the next sample; nothing is applied."""
-        self._cancel = reason
+    def request_cancel(self, reason="canceled", outcome="canceled"):
+        """(any thread) End at the next sample with ``outcome`` (``'aborted'``: a goal the
+        node has already ended because the cycle stopped running); nothing is applied."""
+        self._cancel = (outcome, reason)
 
     def hold_reference(self):
         """(cycle thread) The plant applies something else than our torque this sample (a
@@ -542,7 +543,8 @@ class FrictionCalibration:
         u = self._bias + kp * error + kd * (rd - v)
         u = max(-self._limit, min(self._limit, u))
         if self._cancel is not None:
-            self._finish("canceled", self._cancel + ", nothing applied")
+            outcome, reason = self._cancel
+            self._finish(outcome, reason + ", nothing applied")
             return u
         if self.phase == "move":
             self.fit.update(xe, xd, fp, record=t >= self._fade, steps=steps)

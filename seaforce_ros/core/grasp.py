@@ -39,10 +39,11 @@ Phases:
   (the probe uses at most half of the head-room to ``max_force``).
 * ``hold`` -- ``f = grip_force`` until the goal is released.
 
-In every contact phase the finger may travel at most ``max_travel`` past the point where the
-contact was detected; in ``hold`` the contact force estimate may fall below
-:data:`SLIP_FRACTION` of the held grip (its average) for at most :data:`SLIP_TIME` (a creeping
-soft object's force only rises towards the grip). Beyond either the object gave way -- it
+In every contact phase the finger may travel at most ``give_way_travel`` past the point where
+the contact was detected; in ``hold`` the contact force estimate may fall below
+:data:`SLIP_FRACTION` of the held grip (its average) for at most :data:`SLIP_TIME` of samples
+(those seen: after lost states one sample is one; none while the estimator is quiet; a
+creeping soft object's force only rises towards the grip). Beyond either the object gave way -- it
 slipped out, was pulled out, broke -- and the grip would drive a free finger: the grasp
 aborts and drops the push at once. The estimator's own end of the contact may come late
 then: a free finger driven by the grip moves at ``grip_force/contact_damping``, and the
@@ -65,8 +66,8 @@ settles with ``(b_o + B_c)/k_o``).
   estimate, :data:`RELAX_TIME_MAX` at most); then the grasp is ``done`` and the controller
   returns to the mode the channel had before, bumplessly from a torque that holds no grip and
   no push-back (a ``hold`` entered straight from the ramp would capture the object's
-  push-back as its bias). The estimator's fit is frozen meanwhile (the release is not a sample of the object) and the
-  contact declared over at the end.
+  push-back as its bias). The estimator's fit is frozen meanwhile (the release is not a
+  sample of the object) and the contact declared over at the end.
 
 The commanded contact force ``f`` never leaves ``[0, max_force]`` in any phase (the approach's
 push never exceeds ``approach_force``). :meth:`Grasp.abort_now` ends a grasp at once (the
@@ -75,16 +76,16 @@ after it.
 
 Threads: the cycle thread runs :meth:`Grasp.update`, :meth:`Grasp.claim` (when it takes the
 grasp over) and :meth:`Grasp.abort_now`; another thread (the action server) may call
-:meth:`Grasp.request_release` (taken at the next sample) and :meth:`Grasp.withdraw` (effective
-only if the cycle has not claimed it yet: a grasp whose goal gave up waiting never starts
-later) and reads the attributes.
+:meth:`Grasp.request_release` and :meth:`Grasp.request_abort` (taken at the next sample) and
+:meth:`Grasp.withdraw` (effective only if the cycle has not claimed it yet: a grasp whose goal
+gave up waiting never starts later) and reads the attributes.
 """
 
 import math
 
 from .errors import SeaforceError
 from .handover import Claim
-from .params import EstimatorParams, GraspParams
+from .params import MIN_CLOSING_VELOCITY, EstimatorParams, GraspParams
 from .signals import faded_log_chirp
 
 __all__ = ["GraspGoal", "Grasp", "InvalidGoalError", "check_goal", "PHASES", "ARM_TIME",
@@ -96,7 +97,7 @@ __all__ = ["GraspGoal", "Grasp", "InvalidGoalError", "check_goal", "PHASES", "AR
 PHASES = ("approach", "contact", "squeeze", "probe", "hold", "release", "done")
 
 ARM_TIME = 0.05        # s within 15 % of the commanded speed before the detection is armed
-STEADY_SPEED = 0.01    # rad/s: ... or within this much of it (a slow approach)
+STEADY_SPEED = MIN_CLOSING_VELOCITY    # rad/s: ... or within this much of it (a slow one)
 ARM_DAHL = 4.0         # F_c/sigma of travel before it is armed (the Dahl transition)
 ARM_TIME_MAX = 0.5     # s after which a finger blocked by a contact started touching it
 CONTACT_TIME = 0.03    # s the touch force is held before the squeeze
@@ -108,7 +109,6 @@ RELAX_TIME = 0.5       # s without an estimate of the object,
 RELAX_TIME_MAX = 5.0   # s at most
 SLIP_FRACTION = 0.3    # in hold, a contact force estimate below this part of the held grip ...
 SLIP_TIME = 0.01       # s ... for this long: the object gave way (slipped out, was pulled out)
-MIN_CLOSING_VELOCITY = STEADY_SPEED    # rad/s, the slowest approach a goal may ask for
 _HOLD_AVERAGE = 0.1    # s, time constant of the grip force average in hold
 
 
@@ -215,7 +215,7 @@ class Grasp:
         Contact force estimate averaged in ``hold`` [N m] (NaN before hold).
     estimate : ObjectEstimate or None
         The object, as the estimator had it when the grasp let go (set when a grasp that
-        found a contact ends by its release; None otherwise).
+        found a contact ends, by its release or an abort; None otherwise).
     """
 
     def __init__(self, goal, config, dt=5e-4):
@@ -260,6 +260,7 @@ class Grasp:
         self._release_contact = 0.0
         self._pending_outcome = None
         self._release_request = None
+        self._abort_request = None
         self._claim = Claim()
         self._hold_alpha = -math.expm1(-self.dt / _HOLD_AVERAGE)
 
@@ -282,6 +283,11 @@ class Grasp:
         """(any thread) Release at the next sample: ramp down, then ``canceled``."""
         self._release_request = reason
 
+    def request_abort(self, reason):
+        """(any thread) :meth:`abort_now` at the next sample, in the cycle's thread: a goal
+        the node has already ended because the cycle stopped running (no states)."""
+        self._abort_request = reason
+
     def release(self, reason="released", outcome="canceled", drop=False):
         """Ramp the force to zero (``drop``: at once -- nothing holds the finger back any more),
         then end with ``outcome`` and ``reason`` (no effect once releasing or done)."""
@@ -296,9 +302,10 @@ class Grasp:
         self._enter("release")
 
     def abort_now(self, reason, estimate=None):
-        """End at once, commanding nothing more (the torque has been zeroed by the cycle);
-        ``estimate``: the object as the estimator has it now (kept if a contact was found:
-        the estimator is reset after this)."""
+        """(cycle thread) End at once, commanding nothing more (the cycle zeroes the torque,
+        or re-initialises the controller, right after); ``estimate``: the object as the
+        estimator has it now (kept if a contact was found: the estimator is reset after
+        this)."""
         if self.phase == "done":
             return
         self.outcome = "aborted"
@@ -332,6 +339,8 @@ class Grasp:
         """Advance ``steps`` samples; returns ``F_g`` [N m]. ``est`` is the channel's
         :class:`~.estimator.ContactEstimator`, already updated with this sample, ``ve`` the
         controller's endpoint velocity estimate V_e_hat [rad/s] (undelayed)."""
+        if self._abort_request is not None:
+            self.abort_now(self._abort_request, est.estimate() if self.contact else None)
         if self._release_request is not None:
             self.release(self._release_request)
             self._release_request = None
@@ -344,7 +353,7 @@ class Grasp:
             c = -s * est.force
             grip = self.grip_force
             if SLIP_FRACTION * grip <= c <= self._max and not est.quiet and \
-                    s * (est.position - self._contact_at) <= self.params.max_travel:
+                    s * (est.position - self._contact_at) <= self.params.give_way_travel:
                 self._slip = 0.0
                 self.grip_force = grip + self._hold_alpha * steps * (c - grip)
                 pushed = self._hold_command - est.bias
@@ -394,13 +403,13 @@ class Grasp:
             return self.update(est, ve, 0)
         p = self.params
         travel = s * (est.position - self._contact_at)
-        if travel > p.max_travel:
+        if travel > p.give_way_travel:
             # the object gave way (or was taken away) and the contact estimate still sees
             # one: the model's error at the speed the grip drives a free finger to (first:
             # a force estimate this far past the contact is no object to ramp down from)
             self.release(f"the finger went {travel:.3g} rad past the contact in {phase} "
-                         f"(grasp.max_travel {p.max_travel:g} rad): the object gave way, or "
-                         f"is too soft for this grip",
+                         f"(grasp.give_way_travel {p.give_way_travel:g} rad): the object gave "
+                         f"way, or is too soft for this grip",
                          "aborted", drop=True)
             return self.update(est, ve, 0)
         c = -s * est.force                 # contact force estimate, > 0 pushing back
@@ -420,19 +429,20 @@ class Grasp:
                 self._enter("probe")
                 self.message = "probing"
             elif x >= 1.0:
-                self._enter_hold(c)
+                self._enter_hold(c, est)
                 self.message = "holding"
         elif phase == "probe":
             f = self._grip + self._amp * self._probe(t)
             if t >= p.probe_duration:
-                self._enter_hold(c)
+                self._enter_hold(c, est)
                 self.message = "holding"
         elif not est.quiet:     # hold, when the short path above did not decide
             f = self._grip
             grip = self.grip_force
             if c < SLIP_FRACTION * grip:
                 # a creeping soft object's force only rises towards the grip; this one fell
-                self._slip += self.dt * steps
+                # (counted over the samples seen: one after a gap is one sample of it)
+                self._slip += self.dt
                 if self._slip >= SLIP_TIME:
                     self.release(f"the object gave way in hold: contact force estimate "
                                  f"{c:.3g} N m, held {grip:.3g} N m", "aborted", drop=True)
@@ -442,6 +452,7 @@ class Grasp:
             self.grip_force = grip + self._hold_alpha * steps * (c - grip)
         else:   # hold, quiet: the force estimate is no sample of the object (lost states, a
             f = self._grip      # plant stop, after which the grip comes back)
+            self._slip = 0.0
         f = min(max(f, 0.0), self._max)
         self.force_command = s * f
         # the model's free-motion error (the estimator's bias) shifts the real contact force:
@@ -450,9 +461,11 @@ class Grasp:
         self._output = self._pushed - self._damping * ve
         return self._output
 
-    def _enter_hold(self, c):
+    def _enter_hold(self, c, est):
         self._enter("hold")
-        self.grip_force = c        # the average's start
+        # the average starts from the force estimate, or from the grip commanded when the
+        # estimate is no sample of the object (a quiet estimator)
+        self.grip_force = self._grip if est.quiet else c
         self._slip = 0.0
 
     def _approach(self, est, s, steps):
@@ -464,10 +477,10 @@ class Grasp:
         if est.quiet:
             # lost states or a plant stop: the motion the bias was captured in was
             # interrupted, the servo's push may not have been applied -- arm again once the
-            # finger moves steadily (or is held up, or bounces back, after it)
+            # finger moves steadily (or is held up, or bounces back) after it
             self._armed = self._closed = False
             self._steady = self._slow = 0.0
-        if not self._armed:
+        elif not self._armed:
             elapsed = self.dt * steps
             if abs(est.velocity - self._v) <= max(0.15 * abs(self._v), STEADY_SPEED):
                 self._steady += elapsed

@@ -23,8 +23,8 @@ keys below are relative to ``<channel>.``)::
     estimator.{filter_cutoff, contact_threshold, baseline_time, baseline_distance, forgetting_time,
                min_position_excitation, min_velocity_excitation, model_uncertainty}
     grasp.{approach_damping, approach_force, contact_damping, max_closing_velocity, max_travel,
-           squeeze_time, probe_amplitude, probe_start_frequency, probe_end_frequency,
-           probe_duration, release_time}
+           give_way_travel, squeeze_time, probe_amplitude, probe_start_frequency,
+           probe_end_frequency, probe_duration, release_time}
     friction.{calibration_duration, max_speed, torque_limit, max_tracking_error, position_min,
               position_max, adaptation, adaptation_time, adaptation_bound,
               min_velocity_excitation, min_position_excitation}
@@ -47,7 +47,7 @@ __all__ = [
     "FrictionParams",
     "GUARD_MODES", "GuardParams", "guard_carries",
     "ControllerConfig", "PARAMETERS", "ParameterInfo", "DEFAULT_CUTOFF",
-    "DEFAULT_HOLD_STIFFNESS", "DEFAULT_HOLD_DAMPING",
+    "DEFAULT_HOLD_STIFFNESS", "DEFAULT_HOLD_DAMPING", "MIN_CLOSING_VELOCITY",
 ]
 
 #: Controller modes (DESIGN.md "Control").
@@ -67,6 +67,10 @@ DEFAULT_CUTOFF = 2.0 * math.pi * 20.0
 #: velocity: the largest K_p on a (K_p, K_d) grid for which the discrete
 #: closed loop keeps a 6 dB gain margin and closed-loop damping ratio >= 0.3,
 #: with the endpoint both free and clamped (see core/README.md).
+#: The slowest approach a grasp goal may ask for [rad/s] (slower, the approach's arming
+#: cannot tell the speed from the friction model's error).
+MIN_CLOSING_VELOCITY = 0.01
+
 DEFAULT_HOLD_STIFFNESS = 150.0
 DEFAULT_HOLD_DAMPING = 0.5
 
@@ -295,11 +299,13 @@ class GraspParams:
         source against a stiff object rings (the friction feed-forward cancels the finger's
         own damping); at most 10 b_s unless ``allow_non_passive`` (noise, as for
         ``target.damping``).
-    max_closing_velocity : float > 0
+    max_closing_velocity : float >= MIN_CLOSING_VELOCITY
         Largest |closing_velocity| a goal may ask for [rad/s].
     max_travel : float > 0
-        Approach distance without contact after which the grasp gives up, and travel past
-        the contact after which the object gave way [rad].
+        Approach distance without contact after which the grasp gives up [rad].
+    give_way_travel : float > 0
+        Travel past the contact point after which the object counts as given way (it broke,
+        slipped out, was taken away, or is too soft for the grip): the grasp drops it [rad].
     squeeze_time : float > 0
         Duration of the ramp from the touch force to ``grip_force`` [s].
     probe_amplitude : float, 0..0.9
@@ -317,6 +323,7 @@ class GraspParams:
     contact_damping: float = 0.08
     max_closing_velocity: float = 2.0
     max_travel: float = 1.5
+    give_way_travel: float = 1.5
     squeeze_time: float = 0.1
     probe_amplitude: float = 0.3
     probe_start_frequency: float = 2.0
@@ -329,8 +336,13 @@ class GraspParams:
 
     def validate(self):
         _check_nonnegative("grasp.contact_damping", self.contact_damping)
-        for name in ("approach_damping", "approach_force", "max_closing_velocity",
-                     "max_travel", "squeeze_time", "probe_start_frequency",
+        _check_finite("grasp.max_closing_velocity", self.max_closing_velocity)
+        if not self.max_closing_velocity >= MIN_CLOSING_VELOCITY:
+            raise InvalidParameterError(
+                "grasp.max_closing_velocity", self.max_closing_velocity,
+                f">= {MIN_CLOSING_VELOCITY:g} rad/s (goals slower than that are refused)")
+        for name in ("approach_damping", "approach_force", "max_travel", "give_way_travel",
+                     "squeeze_time", "probe_start_frequency",
                      "probe_end_frequency", "probe_duration", "release_time"):
             _check_positive("grasp." + name, getattr(self, name))
         _check_range("grasp.probe_amplitude", self.probe_amplitude, 0.0, 0.9)
@@ -632,10 +644,13 @@ PARAMETERS = {
         "rings against a pure force source), 0..10 b_s [N m s/rad]", 0.0, 1e3),
     "grasp.max_closing_velocity": ParameterInfo(
         "grasp.max_closing_velocity", "largest |closing_velocity| a grasp goal may ask for "
-        "[rad/s]", 1e-6, 100.0),
+        "(goals slower than 0.01 rad/s are refused) [rad/s]", MIN_CLOSING_VELOCITY, 100.0),
     "grasp.max_travel": ParameterInfo(
-        "grasp.max_travel", "approach distance without contact after which a grasp gives up, "
-        "and travel past the contact after which the object gave way [rad]", 1e-6, 100.0),
+        "grasp.max_travel", "approach distance without contact after which a grasp gives up "
+        "[rad]", 1e-6, 100.0),
+    "grasp.give_way_travel": ParameterInfo(
+        "grasp.give_way_travel", "travel past the contact point after which the object "
+        "counts as given way and the grasp drops it [rad]", 1e-6, 100.0),
     "grasp.squeeze_time": ParameterInfo(
         "grasp.squeeze_time", "ramp from the touch force to grip_force [s]", 1e-3, 100.0),
     "grasp.probe_amplitude": ParameterInfo(

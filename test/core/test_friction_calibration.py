@@ -222,6 +222,15 @@ def test_cancel_mode_change_reset_and_busy():
     u = ctl.update(0.0, 0.0, 0.0)
     assert cal.outcome == "canceled" and ctl.calibration is None
     assert ctl.update(0.0, 0.0, 0.0) == pytest.approx(u)         # back to the mode, bumpless
+    # the node ended the goal (no states for state_timeout): aborted in the cycle's thread
+    cal = FrictionCalibration(goal, CONFIG, DT)
+    ctl.request_calibration(cal)
+    ctl.update(0.0, 0.0, 0.0)
+    cal.request_cancel("no actuator_state for 0.06 s", "aborted")
+    assert cal.active
+    ctl.update(0.0, 0.0, 0.0)
+    assert cal.outcome == "aborted" and ctl.calibration is None and not cal.applied
+    assert cal.message == "no actuator_state for 0.06 s, nothing applied"
     for action, words in ((lambda c: c.configure(CONFIG.replace(mode="hold")), "mode set"),
                           (lambda c: c.reset(), "re-initialised")):
         cal = FrictionCalibration(goal, CONFIG, DT)

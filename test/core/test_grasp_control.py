@@ -252,7 +252,7 @@ def test_an_object_nearer_than_the_arming_distance_is_grasped(seed):
 
 
 def test_an_object_too_soft_for_the_grip_aborts():
-    """0.2 N m/rad gripped with 0.45 N m: 2.25 rad of squeeze, beyond grasp.max_travel (1.5
+    """0.2 N m/rad gripped with 0.45 N m: 2.25 rad of squeeze, beyond grasp.give_way_travel (1.5
     rad) past the contact -- the grasp gives up, never beyond max_force, and lets go."""
     g = Grasping(contact_object(0.2, 0.2, 0.05))
     grasp = g.start(0.2, 0.45, 0.9, probe=False)
@@ -496,7 +496,7 @@ OBJECTS = [   # (k [N m/rad], b [N m s/rad], position [rad], closing speed [rad/
 def draw_objects(seed, n):
     """``n`` objects from the goal ranges, drawn by the test: k log-uniform 0.2..20 N m/rad,
     b 0.04..0.1 N m s/rad, at 0.15..0.3 rad, closed at 0.05..0.3 rad/s, gripped with
-    0.2..0.5 N m but at most k x 1 rad (a softer object is squeezed past grasp.max_travel,
+    0.2..0.5 N m but at most k x 1 rad (a softer object is squeezed past grasp.give_way_travel,
     1.5 rad, and the grasp aborts: test_an_object_too_soft_for_the_grip_aborts)."""
     rng = np.random.default_rng(seed)
     objects = []
