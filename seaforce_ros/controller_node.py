@@ -361,9 +361,11 @@ class ControllerNode(Node):
         if index in self._calibrations:
             raise error(f'channel {channel} is calibrating its friction; cancel it first')
         fault = self.cycle.fault(index)
+        if fault and self.cycle.latched(index):
+            raise error(f'channel {channel} is faulted: {fault}; call ~/reset')
         if fault:
-            raise error(f'channel {channel} is faulted: {fault}'
-                        + ('; call ~/reset' if self.cycle.latched(index) else ''))
+            raise error(f'channel {channel} is {fault} (it re-initialises itself at the next '
+                        'clean state: send the goal again)')
         stopped = self.cycle.plant_stopped(index)
         if stopped:
             raise error(f'the plant has stopped channel {channel}: {stopped}')
