@@ -362,6 +362,10 @@ class Grasp:
                 return output
         if phase == "release":
             est.freeze()
+            if self.contact and (self._release_from or self._release_contact) and self._sign * (
+                    est.position - self._contact_at) > self.params.give_way_travel:
+                # the object gave way while the force ramped down: nothing pushes any more
+                self._release_from = self._release_contact = 0.0
             ramp = self.params.release_time
             scale = 1.0 - self._t / ramp
             if scale <= 0.0:

@@ -5,7 +5,7 @@ import math
 import re
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from seaforce_ros.core.grasp import (ARM_TIME, ARM_TIME_MAX, CONTACT_TIME, RELAX_TIMES,
@@ -403,6 +403,21 @@ def test_travel_past_the_contact_beyond_give_way_travel_drops_the_grip(phase):
     assert g.outcome == 'aborted'
 
 
+def test_an_object_that_gives_way_during_the_release_ramp_is_dropped():
+    """A cancel ramps the force down; if the finger runs past give_way_travel meanwhile (the
+    object gave way as the client let go: found by the properties below, the release request
+    and the travel on one sample), nothing pushes from then on."""
+    g, est, _ = run_to_hold()
+    g.request_release('released')
+    f = g.update(est, 0.0)
+    assert g.phase == 'release' and 0.0 < f < 0.5
+    est.position += GP.give_way_travel * 1.001
+    f = g.update(est, 0.2)
+    assert g.force_command == 0.0 and f == pytest.approx(-GP.contact_damping * 0.2)
+    finish_release(g, est)
+    assert g.outcome == 'canceled'
+
+
 def test_a_hold_whose_force_falls_below_the_slip_level_drops_the_grip():
     """In hold the object's force only rises towards the grip (a soft object creeps); below
     SLIP_FRACTION of the grip for SLIP_TIME the object gave way: release at once, aborted.
@@ -555,7 +570,8 @@ EVENTS = st.one_of(
 
 INVARIANTS = """
     1. the commanded contact force never exceeds max_force (nor approach_force in approach);
-    2. F_g stays within max_force + |bias| + contact_damping |V_e| (what a contact adds);
+    2. F_g stays within max_force + |bias| + contact_damping |V_e| (what a contact adds; the
+       largest |bias| so far: a release ramps down from what it pushed with then);
     3. phases only move forward; once done, F_g is zero for ever and the outcome is set;
     4. a release ends in 'canceled' unless an abort came first; an abort_now ends at once;
     5. an abort never leaves a non-zero force: done means F_g == 0;
@@ -588,6 +604,7 @@ def check_invariants(g, est, events, give_way_travel, contact_at=None):
     order = ['approach', 'contact', 'squeeze', 'probe', 'hold', 'release', 'done']
     last = order.index(g.phase)
     released = aborted = False
+    biggest_bias = 0.0
     for ev in events:
         if ev[0] == 'release':
             g.request_release('client')
@@ -631,7 +648,8 @@ def check_invariants(g, est, events, give_way_travel, contact_at=None):
                 assert g.phase != 'hold'                                             # 7
             limit = GP.approach_force if g.phase == 'approach' else max_force
             assert abs(g.force_command) <= limit + 1e-12                           # 1
-            assert abs(f) <= max_force + abs(bias) + GP.contact_damping * abs(ve) + 1e-12   # 2
+            biggest_bias = max(biggest_bias, abs(bias))
+            assert abs(f) <= max_force + biggest_bias + GP.contact_damping * abs(ve) + 1e-12  # 2
             now = order.index(g.phase)
             assert now >= last                                                       # 3
             last = now
@@ -662,6 +680,11 @@ def test_properties_over_arbitrary_estimates(events, v, grip, headroom, probe, g
 
 
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+# found by this test in CI: a release requested on the sample the finger passed
+# give_way_travel ramped down instead of dropping
+@example(events=[('quiet', True), ('press', 0.0, 2.0, 3), ('press', 0.0, 0.134765625, 696),
+                 ('release',), ('steady', 100)], grip=1.0, headroom=1.0, probe=False,
+         give_way_travel=0.05)
 @given(events=st.lists(EVENTS, min_size=1, max_size=30), grip=st.floats(0.05, 2.0),
        headroom=st.floats(1.0, 3.0), probe=st.booleans(), give_way_travel=TRAVELS)
 def test_properties_from_a_hold(events, grip, headroom, probe, give_way_travel):
