@@ -386,6 +386,22 @@ class ControllerNode(Node):
             return f'no actuator_state for {age:.2f} s (> {limit:g} s)'
         return ''
 
+    def _stall_message(self, job):
+        """Why a started, running grasp or calibration must end because the cycle does not
+        run (a plant that died, a cut link), else ''."""
+        stalled = self._stalled() if job.active and job.started else ''
+        return stalled + ': the plant stopped, or the link to it' if stalled else ''
+
+    def _end_stalled(self, goals, index, label, message, result):
+        """End the goal in ``goals`` (grasps or calibrations) on channel ``index`` now; its job
+        ends in the cycle's thread when the cycle runs again (re-initialised first: the
+        stall is older than state_timeout)."""
+        job, handle, done, _ = goals.pop(index)
+        job.request_abort(message)
+        handle.abort()
+        self.get_logger().warn(f'{self.channels[index]}: {label} aborted: {message}')
+        done.set_result(result)
+
     def _grasp_for(self, goal):
         """(channel index, Grasp) for an action goal, or InvalidGoalError with the reason."""
         index = self._channel_for(goal.channel, InvalidGoalError)
@@ -429,18 +445,10 @@ class ControllerNode(Node):
                     time.monotonic() - started > GRASP_START_TIMEOUT:
                 grasp.withdraw(f'the control cycle did not take the grasp within '
                                f'{GRASP_START_TIMEOUT:g} s (are states arriving?)')
-            stalled = self._stalled() if grasp.active and grasp.started else ''
-            if stalled:
-                # the cycle does not run (a plant that died, a cut link): the goal ends now,
-                # the grasp in the cycle's thread when it runs again (it re-arms first: the
-                # controller is re-initialised before any update)
-                message = stalled + ': the plant stopped, or the link to it'
-                grasp.request_abort(message)
+            message = self._stall_message(grasp)
+            if message:
                 estimator = self.controllers[index].estimator
-                del self._grasps[index]
-                handle.abort()
-                self.get_logger().warn(f'{channel}: grasp aborted: {message}')
-                done.set_result(self._grasp_result(
+                self._end_stalled(self._grasps, index, 'grasp', message, self._grasp_result(
                     grasp, message, estimator.estimate() if grasp.contact else None))
                 continue
             if grasp.active:
@@ -528,15 +536,11 @@ class ControllerNode(Node):
                     time.monotonic() - started > GRASP_START_TIMEOUT:
                 calibration.withdraw(f'the control cycle did not take the calibration within '
                                      f'{GRASP_START_TIMEOUT:g} s (are states arriving?)')
-            stalled = self._stalled() if calibration.active and calibration.started else ''
-            if stalled:        # as for a grasp (_grasp_tick)
-                message = stalled + ': the plant stopped, or the link to it'
-                calibration.request_cancel(message, 'aborted')
-                del self._calibrations[index]
-                handle.abort()
-                self.get_logger().warn(f'{channel}: friction calibration aborted: {message}')
-                done.set_result(self._calibration_result(calibration,
-                                                         message + ', nothing applied'))
+            message = self._stall_message(calibration)
+            if message:
+                self._end_stalled(self._calibrations, index, 'friction calibration', message,
+                                  self._calibration_result(calibration,
+                                                           message + ', nothing applied'))
                 continue
             if calibration.active:
                 feedback = CalibrateFrictionAction.Feedback()

@@ -403,13 +403,9 @@ class ControlCycle:
                 self._stopped[i] += steps
                 self._status[i] = status[j]
                 if self._stopped[i] > self._gap_cycles:
-                    if ctrl.grasp is not None or ctrl.calibration is not None:
-                        reason = ("the plant stopped the channel ("
-                                  f"{_plant_stop_reason(status[j])}) for longer than "
-                                  "state_timeout")
-                        ctrl.abort_grasp(reason)
-                        ctrl.abort_calibration(reason)
-                    ctrl.reset(fai)
+                    ctrl.reset(fai, f"the plant stopped the channel "
+                                    f"({_plant_stop_reason(status[j])}) for longer than "
+                                    "state_timeout")
                 else:
                     ctrl.reenter(fai)
             else:

@@ -231,13 +231,13 @@ class ChannelController:
         i1 = (1.0 - a) - (1.0 - a - pT * a) / pT
         return a, (1.0 - a - i1) / ks, i1 / ks
 
-    def reset(self, applied_torque=0.0):
+    def reset(self, applied_torque=0.0, reason="the controller was re-initialised"):
         """Clear all state (filters, integrator, estimates); the next :meth:`update` starts
         afresh from that sample and enters the mode bumplessly from ``applied_torque``
         [N m], the torque the plant reports it applies (its first output equals it). A
-        grasp ends (aborted)."""
-        self._end_grasp("the controller was re-initialised")
-        self._end_calibration("the controller was re-initialised")
+        grasp or a friction calibration ends (aborted, with ``reason``)."""
+        self._end_grasp(reason)
+        self._end_calibration(reason)
         pending = self._pending.take()
         if pending is not None:
             self._apply_config(pending)

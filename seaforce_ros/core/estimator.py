@@ -235,7 +235,7 @@ class ContactEstimator:
         """Forget everything: no contact, no fit; the next :meth:`update` starts the filters
         from its sample."""
         self._first = True
-        self._inputs = (0.0, 0.0)   # the previous (X_e_hat, F_p + F_d), for lost samples
+        self._x_in = self._g_in = 0.0   # the previous X_e_hat and F_p + F_d (lost samples)
         self.contact = False
         self.direction = 0
         self.force = 0.0
@@ -330,7 +330,7 @@ class ContactEstimator:
     def update(self, xe, fp, fd, steps=1):
         """One sample: estimated endpoint position X_e_hat [rad], pressure force F_p [N m],
         Dahl force F_d [N m]; ``steps`` sample periods since the previous one (the inputs
-        are interpolated linearly over them, as the controller's hose inversion does: held
+        are interpolated linearly over them, as the hose inversion and the friction fit do: held
         at the new value, a motion's ramp becomes a step that the filter's acceleration and
         the residual see as a force -- a late loop's lost samples made contacts in free
         motion)."""
@@ -339,7 +339,7 @@ class ContactEstimator:
             self._first = False
             self.position, self.velocity, self._f1, self._f2 = xe, 0.0, g, 0.0
             self.bias = g + self._ke * (xe - self._rest)
-            self._inputs = (xe, g)
+            self._x_in, self._g_in = xe, g
         a11, a12, b1, a21, a22, b2 = self._coef
         p, q0, f1, f2 = self.position, self.velocity, self._f1, self._f2
         if steps == 1:
@@ -347,13 +347,14 @@ class ContactEstimator:
             f1, f2 = a11 * f1 + a12 * f2 + b1 * g, a21 * f1 + a22 * f2 + b2 * g
         else:
             q = q0
-            x0, g0 = self._inputs
+            x0, g0 = self._x_in, self._g_in
             dx, dg = (xe - x0) / steps, (g - g0) / steps
             for k in range(1, steps + 1):
                 xk, gk = x0 + k * dx, g0 + k * dg
                 p, q = a11 * p + a12 * q + b1 * xk, a21 * p + a22 * q + b2 * xk
                 f1, f2 = a11 * f1 + a12 * f2 + b1 * gk, a21 * f1 + a22 * f2 + b2 * gk
-        self._inputs = (xe, g)
+        self._x_in = xe
+        self._g_in = g
         self.position, self.velocity, self._f1, self._f2 = p, q, f1, f2
         ke, be, me, ke_rest, inv_dt = self._model
         acc = (q - q0) * inv_dt / steps

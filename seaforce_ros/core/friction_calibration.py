@@ -458,10 +458,14 @@ class FrictionCalibration:
         self._finish(outcome, reason)
         return True
 
-    def request_cancel(self, reason="canceled", outcome="canceled"):
-        """(any thread) End at the next sample with ``outcome`` (``'aborted'``: a goal the
-        node has already ended because the cycle stopped running); nothing is applied."""
-        self._cancel = (outcome, reason)
+    def request_cancel(self, reason="canceled"):
+        """(any thread) End at the next sample, canceled; nothing is applied."""
+        self._cancel = ("canceled", reason)
+
+    def request_abort(self, reason):
+        """(any thread) End at the next sample, aborted (a goal the node has already ended
+        because the cycle stopped running); nothing is applied."""
+        self._cancel = ("aborted", reason)
 
     def hold_reference(self):
         """(cycle thread) The plant applies something else than our torque this sample (a

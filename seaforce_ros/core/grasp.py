@@ -235,6 +235,7 @@ class Grasp:
                      if goal.probe else 0.0)
         self._timeout = 2.0 * params.max_travel / abs(v) + 1.0
         self._damping = params.contact_damping
+        self._give_way = params.give_way_travel
         self._hold_command = self._sign * self._grip
         self.phase = "approach"
         self.outcome = None
@@ -353,7 +354,7 @@ class Grasp:
             c = -s * est.force
             grip = self.grip_force
             if SLIP_FRACTION * grip <= c <= self._max and not est.quiet and \
-                    s * (est.position - self._contact_at) <= self.params.give_way_travel:
+                    s * (est.position - self._contact_at) <= self._give_way:
                 self._slip = 0.0
                 self.grip_force = grip + self._hold_alpha * steps * (c - grip)
                 pushed = self._hold_command - est.bias
@@ -362,8 +363,7 @@ class Grasp:
                 return output
         if phase == "release":
             est.freeze()
-            if self.contact and (self._release_from or self._release_contact) and self._sign * (
-                    est.position - self._contact_at) > self.params.give_way_travel:
+            if (self._release_from or self._release_contact) and self._gave_way(est):
                 # the object gave way while the force ramped down: nothing pushes any more
                 self._release_from = self._release_contact = 0.0
             ramp = self.params.release_time
@@ -406,13 +406,13 @@ class Grasp:
                          drop=True)
             return self.update(est, ve, 0)
         p = self.params
-        travel = s * (est.position - self._contact_at)
-        if travel > p.give_way_travel:
+        if self._gave_way(est):
             # the object gave way (or was taken away) and the contact estimate still sees
             # one: the model's error at the speed the grip drives a free finger to (first:
             # a force estimate this far past the contact is no object to ramp down from)
+            travel = s * (est.position - self._contact_at)
             self.release(f"the finger went {travel:.3g} rad past the contact in {phase} "
-                         f"(grasp.give_way_travel {p.give_way_travel:g} rad): the object gave "
+                         f"(grasp.give_way_travel {self._give_way:g} rad): the object gave "
                          f"way, or is too soft for this grip",
                          "aborted", drop=True)
             return self.update(est, ve, 0)
@@ -464,6 +464,11 @@ class Grasp:
         self._pushed = s * f - est.bias
         self._output = self._pushed - self._damping * ve
         return self._output
+
+    def _gave_way(self, est):
+        """The finger is more than give_way_travel past the contact point, towards the
+        object (False before a contact: ``_contact_at`` is NaN)."""
+        return self._sign * (est.position - self._contact_at) > self._give_way
 
     def _enter_hold(self, c, est):
         self._enter("hold")

@@ -67,12 +67,12 @@ DEFAULT_CUTOFF = 2.0 * math.pi * 20.0
 #: velocity: the largest K_p on a (K_p, K_d) grid for which the discrete
 #: closed loop keeps a 6 dB gain margin and closed-loop damping ratio >= 0.3,
 #: with the endpoint both free and clamped (see core/README.md).
+DEFAULT_HOLD_STIFFNESS = 150.0
+DEFAULT_HOLD_DAMPING = 0.5
+
 #: The slowest approach a grasp goal may ask for [rad/s] (slower, the approach's arming
 #: cannot tell the speed from the friction model's error).
 MIN_CLOSING_VELOCITY = 0.01
-
-DEFAULT_HOLD_STIFFNESS = 150.0
-DEFAULT_HOLD_DAMPING = 0.5
 
 
 def _check_finite(name, value):

@@ -226,7 +226,7 @@ def test_cancel_mode_change_reset_and_busy():
     cal = FrictionCalibration(goal, CONFIG, DT)
     ctl.request_calibration(cal)
     ctl.update(0.0, 0.0, 0.0)
-    cal.request_cancel("no actuator_state for 0.06 s", "aborted")
+    cal.request_abort("no actuator_state for 0.06 s")
     assert cal.active
     ctl.update(0.0, 0.0, 0.0)
     assert cal.outcome == "aborted" and ctl.calibration is None and not cal.applied
