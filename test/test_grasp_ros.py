@@ -88,7 +88,11 @@ def _grasp_once(probe, client, obj, where):
                                    max_force=max_force)
     probe.wait_for(lambda: feedback and feedback[-1].phase == 'hold', timeout=180,
                    what=f'hold ({where})')
-    start = probe.messages('controller_status')[0].cycle
+    # the span starts at the first cycle both records hold: the two clears above are not one
+    # instant, and a state that arrived just before the first is gone while its status, which
+    # arrives after it, was kept by the second
+    start = max(probe.messages('controller_status')[0].cycle,
+                probe.messages('actuator_state')[0].cycle)
     touched = probe.wait_messages('actuator_state', 1, where=lambda m: m.cycle > start and
                                   value(m, 'pinch', 'external_force') < 0.0)[0].cycle
     wait_cycle(probe, 'controller_status', touched + int(0.5 / DT))
