@@ -7,15 +7,15 @@ PACKAGE = 'seaforce_ros'
 
 # Executables installed to lib/seaforce_ros so that `ros2 run seaforce_ros <name>` finds them.
 CONSOLE_SCRIPTS = [
-    'sim_node = seaforce_ros.sim_node:main',
-    'controller_node = seaforce_ros.controller_node:main',
-    'bringup = seaforce_ros.bringup:main',
-    'hardware_node = seaforce_ros.hardware_node:main',
-    'hardware_bringup = seaforce_ros.bringup:hardware_main',
-    'bag_recorder = seaforce_ros.bag_recorder:main',
-    'identify = seaforce_ros.identify:main',
-    'zwidth = seaforce_ros.zwidth:main',
-    'bag_reindex = seaforce_ros.bags.repair:main',
+    'sim_node = seaforce_ros.nodes.sim_node:main',
+    'controller_node = seaforce_ros.nodes.controller_node:main',
+    'bringup = seaforce_ros.nodes.bringup:main',
+    'hardware_node = seaforce_ros.nodes.hardware_node:main',
+    'hardware_bringup = seaforce_ros.nodes.bringup:hardware_main',
+    'bag_recorder = seaforce_ros.nodes.bag_recorder:main',
+    'identify = seaforce_ros.tools.identify:main',
+    'zwidth = seaforce_ros.tools.zwidth:main',
+    'bag_reindex = seaforce_ros.tools.bag_reindex:main',
 ]
 
 setup(

@@ -60,7 +60,7 @@ def cpu_seconds(pid):
 class DiagnosticsListener:
     def __init__(self):
         from diagnostic_msgs.msg import DiagnosticArray
-        from seaforce_ros.ros_common import BackgroundNode
+        from seaforce_ros.nodes.ros_common import BackgroundNode
         self.background = BackgroundNode('bench_control_loop')
         self.lock = threading.Lock()
         self.items = []

@@ -21,9 +21,9 @@ import rclpy  # noqa: E402
 from rclpy.executors import ExternalShutdownException  # noqa: E402
 from seaforce_msgs.msg import ActuatorCommand, ActuatorState  # noqa: E402
 
-from seaforce_ros.ros_common import (control_qos, make_executor, spin_forever,  # noqa: E402
+from seaforce_ros.nodes.ros_common import (control_qos, make_executor, spin_forever,  # noqa: E402
                                      stamp_now)
-from seaforce_ros.timing import Deadline, LoopStats  # noqa: E402
+from seaforce_ros.nodes.timing import Deadline, LoopStats  # noqa: E402
 
 
 def source(node, args):

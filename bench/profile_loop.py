@@ -57,7 +57,7 @@ def classify(frames):
     for func, module, bucket in LEAF_BUCKETS:
         if name == func and module in where:
             return bucket
-    # py-spy names files relative to their sys.path entry: 'seaforce_ros/sim_node.py'
+    # py-spy names files relative to their sys.path entry: 'seaforce_ros/nodes/sim_node.py'
     if where.startswith('seaforce_ros/'):
         return 'project Python (seaforce_ros)'
     if where.split('/')[0] in ('seaforce_msgs', 'std_msgs', 'builtin_interfaces',

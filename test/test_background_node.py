@@ -8,7 +8,7 @@ import threading
 
 import pytest
 
-from seaforce_ros.ros_common import BackgroundNode
+from seaforce_ros.nodes.ros_common import BackgroundNode
 
 
 @pytest.fixture

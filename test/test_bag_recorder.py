@@ -35,7 +35,7 @@ from helpers.processes import ROOT, executable
 
 from seaforce_ros import bags
 from seaforce_ros.bags.typestore import message_definition
-from seaforce_ros.ros_common import CONTROL_QOS, RECORD_QOS, STATUS_QOS
+from seaforce_ros.nodes.ros_common import CONTROL_QOS, RECORD_QOS, STATUS_QOS
 
 RELAXED = {'state_timeout': 0.5}
 FINAL = re.compile(r'final counts: (.*?); splits (\d+)')

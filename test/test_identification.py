@@ -10,7 +10,7 @@ import yaml
 
 from helpers.processes import executable
 
-from seaforce_ros import identify
+from seaforce_ros.tools import identify
 from seaforce_ros.core.params import DahlParams, PlantParams
 from seaforce_ros.core.sensors import SensorParams
 from seaforce_ros import bags as bagio

@@ -19,7 +19,7 @@ import yaml
 
 from helpers.processes import INSTALL_LIB, ROOT
 
-from seaforce_ros import bag_recorder, controller_node, hardware_node, param_specs, sim_node
+from seaforce_ros.nodes import bag_recorder, controller_node, hardware_node, param_specs, sim_node
 from seaforce_ros.core.params import MODES
 
 PACKAGE = 'seaforce_ros'

@@ -50,7 +50,7 @@ def test_grasp_action_interface():
     from ament_index_python.packages import get_package_share_directory
     from seaforce_msgs.action import Grasp
 
-    from seaforce_ros.interfaces import make_typestore
+    from seaforce_ros.bags.definitions import make_typestore
     assert list(Grasp.Goal.get_fields_and_field_types().items()) == [
         ('channel', 'string'), ('closing_velocity', 'double'), ('grip_force', 'double'),
         ('max_force', 'double'), ('probe', 'boolean')]
@@ -75,7 +75,7 @@ def test_calibrate_friction_action_interface():
     from ament_index_python.packages import get_package_share_directory
     from seaforce_msgs.action import CalibrateFriction
 
-    from seaforce_ros.interfaces import make_typestore
+    from seaforce_ros.bags.definitions import make_typestore
     assert list(CalibrateFriction.Goal.get_fields_and_field_types().items()) == [
         ('channel', 'string'), ('amplitude', 'double'), ('speed', 'double'),
         ('apply', 'boolean')]
@@ -128,7 +128,7 @@ def test_messages_cross_process_field_for_field(processes, ros_context):
 @pytest.mark.parametrize('topic', sorted(TYPES))
 def test_rosbags_and_rclpy_serialisation_interoperate(topic):
     """CDR bytes from rclpy decode in rosbags and vice versa, value for value."""
-    from seaforce_ros.interfaces import make_typestore
+    from seaforce_ros.bags.definitions import make_typestore
 
     store = make_typestore()
     msg = sample_messages()[topic]
@@ -149,7 +149,7 @@ def test_rosbags_and_rclpy_serialisation_interoperate(topic):
 
 def test_rosbags_typestore_uses_msg_defs_text():
     """The definitions registered for bags are the msg_defs files themselves (one source)."""
-    from seaforce_ros.interfaces import make_typestore, message_definitions
+    from seaforce_ros.bags.definitions import make_typestore, message_definitions
 
     root = pathlib.Path(__file__).resolve().parent.parent
     defs = message_definitions()

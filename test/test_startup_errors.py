@@ -19,7 +19,7 @@ import yaml
 from helpers.nodes import CONFIG, params_file, start_node
 from helpers.processes import executable
 
-from seaforce_ros import bag_recorder, controller_node, hardware_node, param_specs, sim_node
+from seaforce_ros.nodes import bag_recorder, controller_node, hardware_node, param_specs, sim_node
 from seaforce_ros.core.environment import ENVIRONMENT_MODES
 from seaforce_ros.core.params import MODES
 from seaforce_ros.ethercat.master import IFF_PROMISC, interface_flags

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from seaforce_ros import zwidth
+from seaforce_ros.tools import zwidth
 from seaforce_ros.core.analysis import impedance_from_position
 from seaforce_ros.core.params import DahlParams, PlantParams
 from seaforce_ros import bags

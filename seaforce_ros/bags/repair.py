@@ -1,4 +1,4 @@
-"""``bag_reindex``: make a bag that a kill or a full disk left incomplete readable by every tool.
+"""Make a bag that a kill or a full disk left incomplete readable by every tool.
 
 Like ``ros2 bag reindex``, for the two ways this package's (and rosbag2's) recordings end up
 incomplete:
@@ -18,9 +18,7 @@ recoverable is left where it is, out of the metadata, and named in the output.
 """
 from __future__ import annotations
 
-import argparse
 import pathlib
-import sys
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional
 
@@ -31,7 +29,7 @@ from .metadata import (METADATA_FILE, VERSION, BagMetadata, FileInfo, TopicInfo,
 from .reader import _storage_files
 from .sqlitefile import finish_in_place, needs_recovery, open_for_reading
 
-__all__ = ["reindex_bag", "RepairReport", "main"]
+__all__ = ["reindex_bag", "RepairReport"]
 
 
 @dataclass
@@ -195,30 +193,3 @@ def reindex_bag(path, custom_data=None):
                         f"topics " + ", ".join(f"{t.name} ({t.message_count})"
                                                for t in meta.topics))
     return report
-
-
-def main(argv=None):
-    """``bag_reindex BAG_DIR``: exit 0 when the bag is readable, 2 on bad input (one line)."""
-    parser = argparse.ArgumentParser(
-        prog="bag_reindex",
-        description="Repair a rosbag2 bag directory left incomplete by a killed recorder or a "
-                    "full disk: give cut-short mcap files their summary, recover sqlite3 "
-                    "files left with their WAL, and rewrite metadata.yaml from the files.")
-    parser.add_argument("bag", help="bag directory (holds metadata.yaml and the .mcap/.db3 "
-                                    "files)")
-    args = parser.parse_args(argv)
-    try:
-        report = reindex_bag(args.bag)
-    except (BagError, OSError) as exc:
-        print(f"bag_reindex: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("bag_reindex: interrupted", file=sys.stderr)
-        return 130
-    for line in report.lines:
-        print(line)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

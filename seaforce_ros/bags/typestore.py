@@ -1,7 +1,7 @@
 """Message types for bags: definitions, RIHS01 type hashes, header stamps (``rosbags``).
 
 One shared typestore of the ROS 2 Jazzy standard types plus ``seaforce_msgs``
-(:func:`seaforce_ros.interfaces.make_typestore`). The RIHS01 hash computed here from the
+(:func:`seaforce_ros.bags.definitions.make_typestore`). The RIHS01 hash computed here from the
 definitions is the one rosidl generates for the type (``share/<pkg>/msg/<Type>.json``) and the
 one the ROS graph reports for a publisher (``TopicEndpointInfo.topic_type_hash``).
 """
@@ -20,7 +20,7 @@ def typestore():
     """The shared rosbags typestore (ROS 2 Jazzy + ``seaforce_msgs``)."""
     global _STORE
     if _STORE is None:
-        from ..interfaces import make_typestore
+        from .definitions import make_typestore
         _STORE = make_typestore()
     return _STORE
 

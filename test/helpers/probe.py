@@ -7,7 +7,7 @@ from typing import Any, Callable, Dict, List, Optional
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 
-from seaforce_ros.ros_common import (RECORD_QOS, CONTROL_QOS, BackgroundNode,
+from seaforce_ros.nodes.ros_common import (RECORD_QOS, CONTROL_QOS, BackgroundNode,
                                      request_until_answered)
 
 

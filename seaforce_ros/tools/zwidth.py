@@ -31,7 +31,7 @@ __all__ = ["main", "build_parser"]
 
 
 def build_parser():
-    from .identification.output import positive_float
+    from ..identification.output import positive_float
     p = argparse.ArgumentParser(prog="zwidth", description="Endpoint impedance per mode and "
                                 "Z-width (minimum-impedance mode vs hold).")
     p.add_argument("bags", nargs="*", help="backdrive bags, BAG or MODE=BAG")
@@ -63,8 +63,8 @@ MIN_OMEGA, MAX_OMEGA = 0.01, 1000.0
 
 
 def _frequencies(text):
-    from .identification.errors import UsageError
-    from .identification.zwidth_lib import DC_OMEGA
+    from ..identification.errors import UsageError
+    from ..identification.zwidth_lib import DC_OMEGA
     out = []
     for item in text.split(","):
         item = item.strip().lower()
@@ -82,8 +82,8 @@ def _frequencies(text):
 
 def _check_mode(mode, what):
     """``mode`` if it is a controller mode (core.params.MODES), else a UsageError."""
-    from .core.params import MODES
-    from .identification.errors import UsageError
+    from ..core.params import MODES
+    from ..identification.errors import UsageError
     if mode not in MODES:
         raise UsageError(f"{what}: unknown mode {mode!r}; the modes are {', '.join(MODES)}")
     return mode
@@ -92,8 +92,8 @@ def _check_mode(mode, what):
 def _modes(text):
     """The --modes list: known modes, hold first if not given, no repeats, at least one mode
     besides hold (the Z-width compares the lowest-impedance mode with hold)."""
-    from .identification.errors import UsageError
-    from .identification.zwidth_lib import DEFAULT_MODES
+    from ..identification.errors import UsageError
+    from ..identification.zwidth_lib import DEFAULT_MODES
     items = DEFAULT_MODES if text is None else [m.strip() for m in text.split(",")
                                                 if m.strip()]
     modes = list(dict.fromkeys(_check_mode(m, "--modes") for m in items))
@@ -111,7 +111,7 @@ def _bag_item(item):
         return "", item
     mode, _, path = item.partition("=")
     if not path or not mode:
-        from .identification.errors import UsageError
+        from ..identification.errors import UsageError
         raise UsageError(f"{item}: no {'bag after' if mode else 'mode before'} '=' (give BAG "
                          "or MODE=BAG)")
     return _check_mode(mode, f"{item}"), path
@@ -119,7 +119,7 @@ def _bag_item(item):
 
 def _mode_in_bag(path, channel):
     """Most common ``mode`` of ``channel`` in the bag's controller_status (None if absent)."""
-    from .bags import Bag, typestore
+    from ..bags import Bag, typestore
     status = "seaforce_msgs/msg/ControllerStatus"
     store = typestore()
     counts = collections.Counter()
@@ -135,10 +135,10 @@ def _mode_in_bag(path, channel):
 
 
 def _from_bags(args, progress):
-    from .bags import read_channel
-    from .identification.errors import IdentificationError
-    from .identification.timeseries import prepare
-    from .identification.zwidth_lib import impedance_from_record
+    from ..bags import read_channel
+    from ..identification.errors import IdentificationError
+    from ..identification.timeseries import prepare
+    from ..identification.zwidth_lib import impedance_from_record
 
     points = collections.defaultdict(list)     # mode -> [(omega, Z)]
     for mode, path in [_bag_item(item) for item in args.bags]:
@@ -170,8 +170,8 @@ def _from_bags(args, progress):
 
 
 def _print_rows(title, rows, modes):
-    from .identification.output import format_table
-    from .identification.zwidth_lib import DC_OMEGA
+    from ..identification.output import format_table
+    from ..identification.zwidth_lib import DC_OMEGA
     print(title)
     headers = ["mode"] + [("DC (0.1)" if abs(r.omega - DC_OMEGA) < 1e-12 else f"{r.omega:g}")
                           + " rad/s" for r in rows]
@@ -187,8 +187,8 @@ def _print_rows(title, rows, modes):
 def _plant_dahl(path, channel, option, plant, dahl):
     """``(PlantParams, DahlParams)`` of ``channel`` in a params file; a group the file does not
     have is the given default."""
-    from .identification.output import read_params_file
-    from .identification.params_file import dahl_params, plant_params, where
+    from ..identification.output import read_params_file
+    from ..identification.params_file import dahl_params, plant_params, where
     p, d = read_params_file(path, channel, option)
     w = where(path, option)
     return (plant_params(p, w, channel) if p else plant,
@@ -204,9 +204,9 @@ def _config(path, channel, option, base):
 
 
 def run(args):
-    from .core.params import ControllerConfig, DahlParams, PlantParams
-    from .identification.errors import UsageError
-    from .identification.output import Progress, check_output_file
+    from ..core.params import ControllerConfig, DahlParams, PlantParams
+    from ..identification.errors import UsageError
+    from ..identification.output import Progress, check_output_file
 
     progress = Progress("zwidth", quiet=args.quiet)
     if args.plot:
@@ -234,7 +234,7 @@ def run(args):
                                               "--reference-params", truth_config)))
         omegas = _frequencies(args.frequencies)
         modes = _modes(args.modes)
-        from .identification.zwidth_lib import simulate_impedance, zwidth_rows
+        from ..identification.zwidth_lib import simulate_impedance, zwidth_rows
         results = []
         for i, (label, cfg) in enumerate(sets):
             z = simulate_impedance(plant, dahl, cfg, modes, omegas, amplitude=args.amplitude,
@@ -261,13 +261,13 @@ def run(args):
                              "parameters they were recorded with")
         for item in args.bags:
             _bag_item(item)
-        from .identification.zwidth_lib import zwidth_rows
+        from ..identification.zwidth_lib import zwidth_rows
         omegas, z_plot = _from_bags(args, progress)
         modes = list(z_plot)
         rows = zwidth_rows(omegas, z_plot)
         _print_rows("|Z| [dB re 1 N m s/rad] from the bags", rows, modes)
     if args.plot:
-        from .identification.plots import zwidth_fig5c
+        from ..identification.plots import zwidth_fig5c
         markers = {m: (np.asarray(omegas), z) for m, z in z_plot.items()}
         lines = dict(z_plot)
         if args.simulate and len(curves) == 2:
@@ -282,7 +282,7 @@ def run(args):
 
 
 def main(argv=None):
-    from .identification.output import run_cli
+    from ..identification.output import run_cli
     return run_cli("zwidth", run, build_parser().parse_args(argv))
 
 

@@ -24,7 +24,7 @@ __all__ = ["main", "build_parser"]
 
 
 def build_parser():
-    from .identification.output import positive_float
+    from ..identification.output import positive_float
     p = argparse.ArgumentParser(
         prog="identify",
         description="Identify the eight linear plant parameters (Table I) from a chirp bag, "
@@ -66,9 +66,9 @@ def build_parser():
 
 
 def _identify_chirp(args, progress):
-    from .bags import read_channel
-    from .identification.plant_id import identify_plant
-    from .identification.timeseries import prepare
+    from ..bags import read_channel
+    from ..identification.plant_id import identify_plant
+    from ..identification.timeseries import prepare
 
     progress("reading " + args.bag, 0.0)
     record = read_channel(args.bag, args.channel, args.topic, progress.stage(0.0, 0.25))
@@ -91,7 +91,7 @@ def _identify_chirp(args, progress):
 
 
 def _print_plant_table(result, truth, series, record):
-    from .identification.output import format_table
+    from ..identification.output import format_table
 
     # a 1-sigma that is zero or undefined is a degenerate covariance: not identified
     rows = [r[:4] + ((format(r[4], ".2g") if math.isfinite(r[4]) and r[4] > 0
@@ -164,9 +164,9 @@ def loop_lines(fit, bag, fit_exponent):
 
 
 def _dahl(args, plant, progress):
-    from .bags import read_channel
-    from .identification.dahl_fit import fit_dahl_loop
-    from .identification.timeseries import prepare
+    from ..bags import read_channel
+    from ..identification.dahl_fit import fit_dahl_loop
+    from ..identification.timeseries import prepare
 
     progress("reading " + args.dahl_bag, None)
     record = read_channel(args.dahl_bag, args.channel, args.topic)
@@ -184,7 +184,7 @@ def _dahl(args, plant, progress):
 
 def check_arguments(args):
     """Combinations and values argparse cannot check (UsageError naming the option)."""
-    from .identification.errors import UsageError
+    from ..identification.errors import UsageError
     if args.bag is not None and args.plant_params:
         raise UsageError("--plant-params replaces the chirp bag: give one of them, not both")
     if args.bag is None and not (args.plant_params and args.dahl_bag):
@@ -195,8 +195,8 @@ def check_arguments(args):
 
 
 def run(args):
-    from .identification.errors import IdentificationError
-    from .identification.output import (Progress, check_output_dir, check_params_update,
+    from ..identification.errors import IdentificationError
+    from ..identification.output import (Progress, check_output_dir, check_params_update,
                                         read_plant, write_params_file)
 
     progress = Progress("identify", quiet=args.quiet)
@@ -217,7 +217,7 @@ def run(args):
                         f"{result.excitation} excitation, fits over {result.band[0]:g}-"
                         f"{result.band[1]:g} rad/s)")
         if plots is not None:
-            from .identification.plots import bode_fig4
+            from ..identification.plots import bode_fig4
             path = bode_fig4(result, plots / f"{args.channel}_fig4_bode.png",
                              f"channel {args.channel}: identification ({args.bag})")
             print(f"wrote {path}")
@@ -237,7 +237,7 @@ def run(args):
                     "exponent": fit.exponent}
             comments.append(f"{args.channel}.dahl: work-loop bag {args.dahl_bag}")
         if plots is not None:
-            from .identification.plots import dahl_fig6
+            from ..identification.plots import dahl_fig6
             path = dahl_fig6(fit, plots / f"{args.channel}_fig6_dahl.png",
                              f"channel {args.channel}: Dahl fit ({args.dahl_bag})")
             print(f"wrote {path}")
@@ -250,7 +250,7 @@ def run(args):
 
 
 def main(argv=None):
-    from .identification.output import run_cli
+    from ..identification.output import run_cli
     return run_cli("identify", run, build_parser().parse_args(argv))
 
 

@@ -24,7 +24,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
-from .core.episodes import ERROR, WARNING
+from ..core.episodes import ERROR, WARNING
 
 #: Control-rate topics (actuator_state, actuator_command), publisher side: reliable (lockstep
 #: simulation advances one sample per command and must never lose a step), and a history of

@@ -29,7 +29,7 @@ from seaforce_msgs.msg import ActuatorCommand, ActuatorState
 from std_srvs.srv import Trigger
 
 from . import param_specs as ps
-from .core.plant_cycle import PlantCycle, PlantLimits
+from ..core.plant_cycle import PlantCycle, PlantLimits
 from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
                          GRAPH_PERIOD, declare, diagnostic_status, diagnostics_publisher,
                          log_events, node_label, publish_diagnostics, shutdown_safe)

@@ -25,10 +25,10 @@ import pathlib
 import sys
 import time
 
-from .ethercat.bus_config import BusConfig
-from .ethercat.cia402 import CW_DISABLE_VOLTAGE, MODE_CST, DriveSequencer
-from .ethercat.errors import BusConfigError, BusError
-from .ethercat.master import EthercatBus
+from ..ethercat.bus_config import BusConfig
+from ..ethercat.cia402 import CW_DISABLE_VOLTAGE, MODE_CST, DriveSequencer
+from ..ethercat.errors import BusConfigError, BusError
+from ..ethercat.master import EthercatBus
 from .plant_node import PlantNode, plant_specs, prepare_process
 from .ros_common import ParamSpec, StartupError, run
 
@@ -39,7 +39,7 @@ def _default_bus_config() -> str:
         return str(pathlib.Path(get_package_share_directory('seaforce_ros')) / 'config'
                    / 'ethercat_bus.yaml')
     except Exception:
-        return str(pathlib.Path(__file__).resolve().parent.parent / 'config' / 'ethercat_bus.yaml')
+        return str(pathlib.Path(__file__).resolve().parents[2] / 'config' / 'ethercat_bus.yaml')
 
 
 def node_specs():

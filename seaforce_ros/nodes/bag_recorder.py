@@ -54,8 +54,8 @@ from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProfile,
                        ReliabilityPolicy)
 
-from .bags import BagError, BagWriter, BagWriteError, QosProfile, check_output_directory
-from .bags.typestore import has_header, header_stamp_ns, knows, type_hash
+from ..bags import BagError, BagWriter, BagWriteError, QosProfile, check_output_directory
+from ..bags.typestore import has_header, header_stamp_ns, knows, type_hash
 from .ros_common import (RECORD_QOS, ParamSpec, StartupError, declare, diagnostic_status,
                          diagnostics_publisher, publish_diagnostics, run)
 from . import param_specs as ps

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 from typing import Dict, List
 
-from .core.environment import DRIVE_DAMPING, DRIVE_STIFFNESS, ENVIRONMENT_MODES
-from .core.errors import InvalidParameterError
-from .core.params import MODES, PARAMETERS, ControllerConfig, PlantParams
-from .core.sensors import SensorParams
+from ..core.environment import DRIVE_DAMPING, DRIVE_STIFFNESS, ENVIRONMENT_MODES
+from ..core.errors import InvalidParameterError
+from ..core.params import MODES, PARAMETERS, ControllerConfig, PlantParams
+from ..core.sensors import SensorParams
 from .ros_common import EXECUTORS, ParamSpec, StartupError
 
 #: The zero-torque mode was called ``off``, which YAML 1.1 reads as a boolean.
@@ -134,7 +134,7 @@ def channel_values(values: Dict[str, object], channel: str, prefix: str = '') ->
 def channels_from(values: Dict[str, object]) -> List[str]:
     """The validated ``channels`` parameter: unique, non-empty ROS-name-safe tokens.
 
-    Raises :class:`~seaforce_ros.ros_common.StartupError` saying what to write instead.
+    Raises :class:`~seaforce_ros.nodes.ros_common.StartupError` saying what to write instead.
     """
     channels = list(values['channels'])
     if not channels:

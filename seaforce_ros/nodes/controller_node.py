@@ -61,14 +61,14 @@ from seaforce_msgs.msg import ActuatorCommand, ActuatorState, ControllerStatus
 from std_srvs.srv import Trigger
 
 from . import param_specs as ps
-from .core.control_cycle import DEFAULT_LATCHED, FAULT_KINDS, ControlCycle, StateChecks
-from .core.controller import ChannelController
-from .core.episodes import Episode, EventLog
-from .core.errors import SeaforceError
-from .core.friction_calibration import (CalibrationGoal, FrictionCalibration,
+from ..core.control_cycle import DEFAULT_LATCHED, FAULT_KINDS, ControlCycle, StateChecks
+from ..core.controller import ChannelController
+from ..core.episodes import Episode, EventLog
+from ..core.errors import SeaforceError
+from ..core.friction_calibration import (CalibrationGoal, FrictionCalibration,
                                        InvalidCalibrationError, check_calibration_goal)
-from .core.grasp import Grasp, GraspGoal, InvalidGoalError, check_goal
-from .core.params import ControllerConfig, guard_carries
+from ..core.grasp import Grasp, GraspGoal, InvalidGoalError, check_goal
+from ..core.params import ControllerConfig, guard_carries
 from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
                          GRAPH_PERIOD, declare, diagnostic_status, diagnostics_publisher,
                          log_events, node_label, publish_diagnostics, run, shutdown_safe)

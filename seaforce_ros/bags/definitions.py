@@ -41,7 +41,7 @@ def msg_directory() -> pathlib.Path:
             pass
     except ImportError:
         pass
-    candidates.append(pathlib.Path(__file__).resolve().parent.parent / 'msg_defs' / 'msg')
+    candidates.append(pathlib.Path(__file__).resolve().parents[2] / 'msg_defs' / 'msg')
     for directory in candidates:
         if all((directory / f'{name}.msg').is_file() for name in MESSAGE_NAMES) and all(
                 (directory.parent / 'action' / f'{name}.action').is_file()

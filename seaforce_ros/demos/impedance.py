@@ -26,94 +26,34 @@ recalibrates b_e, k_e, F_c and sigma (``--calibration-time`` s), and ``dob_full_
 again: the table of what the calibration recovers, against the sim's truth, and the |Z| it
 gains (``--no-calibration`` skips it).
 
-Usage: python -m seaforce_ros.demo [--out DIR] [--periods N] [--amplitude RAD]
+Usage: python -m seaforce_ros.demos [--out DIR] [--periods N] [--amplitude RAD]
        [--frequency RAD_S] [--lockstep] [--ideal] [--seed N] [--calibration-time S]
        [--no-calibration]
-       python -m seaforce_ros.demo grasp [...]   (the grasping demo: seaforce_ros.grasp_demo)
+       python -m seaforce_ros.demos grasp [...]   (the grasping demo: seaforce_ros.demos.grasp)
 """
 from __future__ import annotations
 
 import argparse
 import math
-import os
 import pathlib
-import signal
-import subprocess
 import sys
 import threading
 import time
-from typing import Dict, List
+from typing import Dict
 
 import numpy as np
 
-from .core.plant_cycle import STATUS_COMMAND_TIMEOUT, STATUS_FAULT, STATUS_LIMIT
-from .identification.zwidth_lib import DEFAULT_MODES as MODES  # the paper's Fig. 5 modes
+from ..core.plant_cycle import STATUS_COMMAND_TIMEOUT, STATUS_FAULT, STATUS_LIMIT
+from ..identification.zwidth_lib import DEFAULT_MODES as MODES  # the paper's Fig. 5 modes
+from .common import (CHANNEL, DT, get_parameter, prepare, print_calibration,
+                     run_friction_calibration, run_guarded, set_parameters, true_plant)
 
-CHANNEL = 'pinch'
-DT = 5e-4
 #: measurements of a mode at most, when the controller's answers came late (real time only)
 ATTEMPTS = 3
 
 
-def prepare(out):
-    """A demo's start: localhost-only discovery unless set, the output directory made;
-    ``(out directory, lib dir with the executables, default config file)``."""
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    out = pathlib.Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    return (out, *_package_paths())
 
 
-def _package_paths():
-    """(lib dir with the executables, default config file)."""
-    try:
-        from ament_index_python.packages import (get_package_prefix,
-                                                 get_package_share_directory)
-        lib = pathlib.Path(get_package_prefix('seaforce_ros')) / 'lib' / 'seaforce_ros'
-        config = pathlib.Path(get_package_share_directory('seaforce_ros')) / 'config' / 'gripper.yaml'
-        if (lib / 'sim_node').exists() and config.exists():
-            return lib, config
-    except Exception:
-        pass
-    root = pathlib.Path(__file__).resolve().parent.parent
-    return root / 'install' / 'seaforce_ros' / 'lib' / 'seaforce_ros', root / 'config' / 'gripper.yaml'
-
-
-class Children:
-    """Node processes of the demo; each is ended by its own PID."""
-
-    def __init__(self, log_dir: pathlib.Path):
-        self.log_dir = log_dir
-        self.procs: List[subprocess.Popen] = []
-        self.observers = []              # closed (before the processes stop) by stop_all
-
-    def start(self, argv, name):
-        log = open(self.log_dir / f'{name}.log', 'wb')
-        proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT,
-                                stdin=subprocess.DEVNULL, start_new_session=True)
-        proc.log_path = self.log_dir / f'{name}.log'
-        self.procs.append(proc)
-        return proc
-
-    def check(self):
-        """RuntimeError if a node has exited."""
-        for proc in self.procs:
-            if proc.poll() is not None:
-                raise RuntimeError(f'{proc.args[0]} exited; see {proc.log_path}')
-
-    def stop_all(self):
-        for observer in self.observers:
-            observer.close()
-        for proc in self.procs:
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-        deadline = time.monotonic() + 5.0
-        for proc in self.procs:
-            try:
-                proc.wait(timeout=max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=5.0)
 
 
 class Observer:
@@ -122,7 +62,7 @@ class Observer:
     def __init__(self):
         from seaforce_msgs.msg import ActuatorState, ControllerStatus
 
-        from .ros_common import RECORD_QOS, STATUS_QOS, BackgroundNode
+        from ..nodes.ros_common import RECORD_QOS, STATUS_QOS, BackgroundNode
 
         self.background = BackgroundNode('seaforce_demo')
         self.node = self.background.node
@@ -159,7 +99,7 @@ class Observer:
         from rclpy.parameter import Parameter
         from rclpy.parameter_client import AsyncParameterClient
 
-        from .ros_common import request_until_answered
+        from ..nodes.ros_common import request_until_answered
         if self.param_client is None:
             self.param_client = AsyncParameterClient(self.node, '/controller')
             if not self.param_client.wait_for_services(timeout_sec=timeout):
@@ -193,7 +133,7 @@ class Observer:
 
 
 def measure(window, omega, amplitude):
-    from .core.analysis import impedance_from_position
+    from ..core.analysis import impedance_from_position
     z = impedance_from_position(window['f_e'], window['x_e'], omega, DT)
     f_e, x_e = window['f_e'], window['x_e']
     centre = np.abs(x_e) <= 0.2 * amplitude / 0.5
@@ -235,34 +175,10 @@ def plot(results, path, amplitude):
     plt.close(fig)
 
 
-def run_guarded(label, out, work):
-    """``work(children)`` -> exit code, with the demos' hygiene: SIGTERM is an interrupt, every
-    node started through ``children`` is ended by its PID (observers it lists closed first),
-    an error is one line and exit code 1, Ctrl-C 130."""
-    children = Children(out)
-
-    def on_signal(signum, frame):
-        raise KeyboardInterrupt
-    signal.signal(signal.SIGTERM, on_signal)
-    print(f'[{label}] ROS_DOMAIN_ID={os.environ.get("ROS_DOMAIN_ID", "0")}; logs in {out}/',
-          flush=True)
-    try:
-        return work(children)
-    except KeyboardInterrupt:
-        print(f'[{label}] interrupted; stopping the nodes', file=sys.stderr)
-        return 130
-    except (RuntimeError, ValueError) as exc:
-        print(f'[{label}] failed: {exc}', file=sys.stderr)
-        return 1
-    finally:
-        children.stop_all()
 
 
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
-    if argv[:1] == ['grasp']:
-        from .grasp_demo import main as grasp_main
-        return grasp_main(argv[1:])
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--out', default='out/demo', help='output directory (PNG, logs)')
     parser.add_argument('--periods', type=int, default=1,
@@ -383,114 +299,21 @@ def report(results, args):
               f'(hold vs {soft}); paper, on hardware: ~50 dB up to 3 rad/s')
 
 
-# --- model error, and what the friction calibration recovers (issue 13) -------------------
-FRICTION_LABELS = ('b_e [N m s/rad]', 'k_e [N m/rad]', 'F_c [N m]', 'sigma [N m/rad]')
-CALIBRATION_ATTEMPTS = 3
-CALIBRATION_STATE_TIMEOUT = 0.25   # s, controller state_timeout while calibrating
 
 
 def model_error(args):
     """``{'pinch.sim.<key>': value}`` of the sim's true plant: none with ``--ideal``."""
     if args.ideal:
         return {}
-    from .grasp_demo import true_plant
     return {key: float(v) for key, v in true_plant(args.seed)[0].items()}
 
 
-def set_parameters(node, target, values, timeout=20.0, atomically=False):
-    """Set ``values`` (name -> value) on ``target``'s node, all or none if ``atomically``;
-    RuntimeError with the node's reason if it refuses or does not answer."""
-    from rclpy.parameter import Parameter
-    from rclpy.parameter_client import AsyncParameterClient
-
-    from .ros_common import request_until_answered
-    client = AsyncParameterClient(node, target)
-    if not client.wait_for_services(timeout_sec=timeout):
-        raise RuntimeError(f'the parameter services of {target} did not come up')
-    parameters = [Parameter(k, value=v) for k, v in values.items()]
-    request = (client.set_parameters_atomically if atomically else client.set_parameters)
-    try:
-        response = request_until_answered(lambda: request(parameters), timeout)
-    except TimeoutError:
-        raise RuntimeError(f'no answer setting {list(values)} on {target}') from None
-    results = [response.result] if atomically else response.results
-    failed = [r.reason for r in results if not r.successful]
-    if failed:
-        raise RuntimeError(f'{target} rejected {list(values)}: {failed[0]}')
 
 
-def get_parameter(node, target, name, timeout=20.0):
-    from rclpy.parameter import parameter_value_to_python
-    from rclpy.parameter_client import AsyncParameterClient
-
-    from .ros_common import request_until_answered
-    client = AsyncParameterClient(node, target)
-    if not client.wait_for_services(timeout_sec=timeout):
-        raise RuntimeError(f'the parameter services of {target} did not come up')
-    try:
-        response = request_until_answered(lambda: client.get_parameters([name]), timeout)
-    except TimeoutError:
-        raise RuntimeError(f'no answer reading {name} on {target}') from None
-    return parameter_value_to_python(response.values[0])
 
 
-def run_friction_calibration(observer, children, args):
-    """Release the finger into free air and run ~/calibrate_friction; its result. The
-    controller's ``state_timeout`` and the channel's mode are left as the calibration set them
-    (``hold``): the caller restores them."""
-    from rclpy.action import ActionClient
-    from seaforce_msgs.action import CalibrateFriction
-    node = observer.node
-    # held where the drive left it, then released (in dob_full_ff a model that
-    # over-compensates k_e lets the free finger creep away, out of the joint range); a
-    # longer state_timeout while it runs: a loaded host's real-time loop stalls now and then,
-    # and a stall aborts a calibration (zero torque, nothing applied)
-    set_parameters(node, '/controller', {
-        f'{CHANNEL}.mode': 'hold', 'state_timeout': CALIBRATION_STATE_TIMEOUT,
-        f'{CHANNEL}.friction.calibration_duration': float(args.calibration_time)})
-    set_parameters(node, '/sim', {f'{CHANNEL}.environment.mode': 'free'})
-    client = ActionClient(node, CalibrateFriction, '/controller/calibrate_friction')
-    if not client.wait_for_server(timeout_sec=20.0):
-        raise RuntimeError('the ~/calibrate_friction action server did not come up')
-    time.sleep(0.5)                                  # the released finger settles
-    goal = CalibrateFriction.Goal(channel=CHANNEL, amplitude=0.4, speed=1.0, apply=True)
-    for attempt in range(1, CALIBRATION_ATTEMPTS + 1):
-        print(f'[demo] friction calibration: the finger in free air, '
-              f'{args.calibration_time:g} s of motion ...', flush=True)
-        deadline = time.monotonic() + 3.0 * args.calibration_time + 60.0
-        # (requests from the spin thread: from this one rclpy can drop the answer)
-        future = observer.background.call(lambda: client.send_goal_async(goal))
-        while not future.done():
-            children.check()
-            if time.monotonic() > deadline:
-                raise RuntimeError('the calibration goal was not answered')
-            time.sleep(0.05)
-        result_future = observer.background.call(future.result().get_result_async)
-        while not result_future.done():
-            children.check()
-            if time.monotonic() > deadline:
-                raise RuntimeError('the friction calibration did not end in time')
-            time.sleep(0.1)
-        result = result_future.result().result
-        if result.applied or attempt == CALIBRATION_ATTEMPTS:
-            return result
-        # a real-time loop on a loaded host stalls now and then: the stall zeroes the torque
-        # and aborts the calibration (nothing applied); try again
-        print(f'[demo]   aborted: {result.message}', flush=True)
 
 
-def print_calibration(result, truth, seconds):
-    """The table of what ~/calibrate_friction recovered: model, new value, 1-sigma, the sim's
-    truth (``{'<ch>.sim.<key>': value}``; the model where it has none) and the error."""
-    print(f'\nFriction calibration (~/calibrate_friction, {seconds:g} s in free air): '
-          f'{result.message}')
-    print(f'{"parameter":18s}{"model":>11s}{"recalibrated":>14s}{"1-sigma":>10s}'
-          f'{"sim truth":>11s}{"error":>9s}')
-    for label, key, old, new, sigma in zip(FRICTION_LABELS, result.names, result.old_values,
-                                           result.new_values, result.new_values_sigma):
-        true = truth.get(f'{CHANNEL}.sim.{key}', old)
-        print(f'{label:18s}{old:11.4g}{new:14.4g}{sigma:10.2g}{true:11.4g}'
-              f'{100.0 * (new / true - 1.0):+8.1f}%')
 
 
 def recalibrate(observer, children, args, z_before):

@@ -4,7 +4,7 @@ Every cycle it publishes ``actuator_state`` (one synchronous sample of every cha
 applies the torques :class:`~seaforce_ros.core.plant_cycle.PlantCycle` allows from the newest
 ``actuator_command`` — the same safety rules as hardware_node (per-channel command watchdog,
 fresh commands only, one command source, torque clamp, velocity trip, fault latch and
-``~/reset``; see :mod:`seaforce_ros.plant_node`). ``joint_states`` at ``joint_state_rate``
+``~/reset``; see :mod:`seaforce_ros.nodes.plant_node`). ``joint_states`` at ``joint_state_rate``
 and ``/diagnostics`` once per ``diagnostics_period``. The physics is
 :class:`seaforce_ros.core.simulator.ChannelSimulator` per channel (lumped hydraulic model,
 Dahl hysteresis, friction, sensors, endpoint environment).
@@ -29,12 +29,12 @@ import time
 from rcl_interfaces.msg import SetParametersResult
 
 from . import param_specs as ps
-from .core.environment import environment_from_dict
-from .core.errors import SeaforceError
-from .core.params import DahlParams, PlantParams
-from .core.plant_cycle import STATUS_COMMAND_TIMEOUT, STATUS_LIMIT
-from .core.sensors import SensorParams
-from .core.simulator import ChannelSimulator
+from ..core.environment import environment_from_dict
+from ..core.errors import SeaforceError
+from ..core.params import DahlParams, PlantParams
+from ..core.plant_cycle import STATUS_COMMAND_TIMEOUT, STATUS_LIMIT
+from ..core.sensors import SensorParams
+from ..core.simulator import ChannelSimulator
 from .plant_node import PlantNode, plant_specs, prepare_process
 from .ros_common import ParamSpec, StartupError, declare, log_events, run, shutdown_safe
 
@@ -233,7 +233,7 @@ class SimNode(PlantNode):
             lambda i: {'environment': self.sims[i].environment.mode})
 
     def shutdown(self):
-        """Stop the cycle thread (called by :func:`~seaforce_ros.ros_common.run`)."""
+        """Stop the cycle thread (called by :func:`~seaforce_ros.nodes.ros_common.run`)."""
         self._stop_threads()
 
 

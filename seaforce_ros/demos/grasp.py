@@ -14,7 +14,7 @@ damping with their 1-sigma, the contact detection delay, the peak contact force 
 squeeze, and the held grip vs. ``grip_force``; it writes a force-position plot per object. The controller sees
 motor position and hose pressure only: the object's true force comes from the simulator.
 
-Usage: python -m seaforce_ros.demo grasp [--out DIR] [--seed N] [--lockstep]
+Usage: python -m seaforce_ros.demos grasp [--out DIR] [--seed N] [--lockstep]
        [--speed RAD_S] [--grip N_M] [--calibration-time S] [--no-calibration]
 """
 from __future__ import annotations
@@ -27,30 +27,12 @@ import time
 import numpy as np
 import yaml
 
-from .demo import (get_parameter, prepare, print_calibration, run_friction_calibration,
-                   run_guarded, set_parameters)
+from .common import (CHANNEL, DT, PLANT_KEYS, get_parameter, prepare, print_calibration,
+                     run_friction_calibration, run_guarded, set_parameters, true_plant)
 
-CHANNEL = 'pinch'
-DT = 5e-4
-PLANT_KEYS = ('motor_inertia', 'motor_damping', 'motor_stiffness', 'endpoint_inertia',
-              'endpoint_damping', 'endpoint_stiffness', 'hose_damping', 'hose_stiffness')
 #: name, stiffness k_o [N m/rad], damping b_o [N m s/rad]
 OBJECTS = (('soft', 0.5, 0.05), ('medium', 3.0, 0.06), ('stiff', 12.0, 0.08))
 GAP = 0.2                 # rad between the finger and the next object's surface
-
-
-def true_plant(seed):
-    """The sim's plant: Table I and the Dahl fit with every parameter 10-20 % off, signs at
-    random; returns ``{'<ch>.sim.<key>': value}`` and ``{key: factor}``."""
-    from .core.params import DahlParams, PlantParams
-    rng = np.random.default_rng(seed)
-    table, dahl = PlantParams.table_i(), DahlParams()
-    factors = {key: float(1.0 + rng.choice((-1.0, 1.0)) * rng.uniform(0.10, 0.20))
-               for key in PLANT_KEYS + ('sigma', 'coulomb_force')}
-    values = {f'{CHANNEL}.sim.plant.{k}': getattr(table, k) * factors[k] for k in PLANT_KEYS}
-    values.update({f'{CHANNEL}.sim.dahl.{k}': getattr(dahl, k) * factors[k]
-                   for k in ('sigma', 'coulomb_force')})
-    return values, factors
 
 
 class Observer:
@@ -62,7 +44,7 @@ class Observer:
         from seaforce_msgs.action import Grasp
         from seaforce_msgs.msg import ActuatorState, ControllerStatus
 
-        from .ros_common import RECORD_QOS, BackgroundNode
+        from ..nodes.ros_common import RECORD_QOS, BackgroundNode
 
         self.background = BackgroundNode('seaforce_grasp_demo')
         self.node = self.background.node

@@ -1,0 +1,16 @@
+"""``python -m seaforce_ros.demos [grasp] [options]``: the impedance demo (the README's main
+job, :mod:`.impedance`) or, with ``grasp``, the grasping demo (:mod:`.grasp`)."""
+import sys
+
+
+def main(argv=None):
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ['grasp']:
+        from .grasp import main as grasp_main
+        return grasp_main(argv[1:])
+    from .impedance import main as impedance_main
+    return impedance_main(argv)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
