@@ -11,7 +11,7 @@ Prints, in one run:
 * the contact estimator and the grasp logic per cycle (goal <= 5 us mean), over a recorded
   grasp (approach, contact, squeeze, probe, hold), next to the controller update without the
   estimator measured in the same run, and their ratio;
-* the passivity guard per cycle (issue 13), on a recorded run in which it acts (m_n = 0.1 m,
+* the passivity guard per cycle, on a recorded run in which it acts (m_n = 0.1 m,
   lambda = 2 pi 50, stiff object), next to the controller update measured in the same run.
 
 Timing figures are printed, never asserted.
@@ -248,7 +248,7 @@ def grasp_rows():
 
 
 
-# --- passivity guard (issue 13) ---------------------------------------------------------------
+# --- passivity guard ---------------------------------------------------------------------------
 def guard_rows():
     """The guard alone per cycle on the inputs it saw in a run where it acts, vs the controller
     update (dob, guard disabled) on the same samples, and the whole update with it active."""

@@ -1,4 +1,4 @@
-"""Endpoint friction recalibration after a drift of the simulated plant (issue 13, part 2).
+"""Endpoint friction recalibration after a drift of the simulated plant.
 
 The sim's true endpoint drifts (default: b_e and F_c +50 %, k_e -30 %, the issue's case)
 while the controller keeps the Table I model. Printed:

@@ -49,7 +49,7 @@ from seaforce_ros.core.analysis import (design_hold_gains, frequency_response,
                                         hold_loop, hold_margins,
                                         impedance_from_position, magnitude_db)
 from seaforce_ros.core.environment import DRIVE_STIFFNESS
-from seaforce_ros.core.params import DEFAULT_HOLD_DAMPING, DEFAULT_HOLD_STIFFNESS
+from seaforce_ros.core.params import DEFAULT_HOLD_DAMPING, DEFAULT_HOLD_STIFFNESS, HoldParams
 from seaforce_ros.core.plant import PlantModel
 
 DT = 5e-4                      # s, 2 kHz
@@ -181,7 +181,7 @@ def simulated_impedance(plant, config, omega, amplitude):
 def hold_config(plant, gains):
     """ControllerConfig of the ``hold`` mode with the gains of ``gains``."""
     return ControllerConfig(mode="hold", plant=plant, dahl=DAHL,
-                            hold_stiffness=gains.stiffness, hold_damping=gains.damping)
+                            hold=HoldParams(stiffness=gains.stiffness, damping=gains.damping))
 
 
 def delay_check(plant, gains, delay, omega=3.0):

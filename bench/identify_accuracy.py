@@ -2,7 +2,7 @@
 """Identification accuracy over a randomised family of plants, and identify's time on a
 10-minute bag: prints figures, asserts nothing.
 
-Accuracy (issue 11). Each draw: the eight plant parameters log-uniform in [0.33x, 3x] of
+Accuracy. Each draw: the eight plant parameters log-uniform in [0.33x, 3x] of
 Table I, Dahl sigma and F_c log-uniform in [0.5x, 2x] of the paper's (n = 1); a 120 s
 external-torque log chirp (0.3 N m, 0.01-1000 Hz, motor passive) simulated by the independent
 simulator of ``test/helpers/second_sim.py`` (not the project's) with quantised, noisy sensors;
@@ -162,8 +162,8 @@ def soak(minutes, workdir):
                            "--dahl-force", "held", "--quiet"], capture_output=True, text=True)
     wall = time.perf_counter() - t0
     print(proc.stdout if proc.returncode == 0 else proc.stderr)
-    print(f"identify on the {minutes:g}-minute bag: {wall:.1f} s wall (17.6 s before issue 11; "
-          "limit 30 s)")
+    print(f"identify on the {minutes:g}-minute bag: {wall:.1f} s wall (17.6 s with the earlier "
+          "per-sample implementation; limit 30 s)")
 
 
 def main():

@@ -1,4 +1,4 @@
-"""The time-domain passivity guard over a grid of aggressive DOB settings (issue 13).
+"""The time-domain passivity guard over a grid of aggressive DOB settings.
 
 Grid: lambda in {2 pi 10, 2 pi 20, 2 pi 50} rad/s x m_n in {0.1, 0.25, 0.5, 0.75, 1} m x
 b_n in {0, -k/(2 lambda), -2 k/lambda} (the first two inside eq. 28's b_n range, the last

@@ -1,6 +1,6 @@
 """identify on a randomised family of plants, measured with an independent simulator.
 
-Oracles that do not come from the project's own simulator (issue 11):
+Oracles that do not come from the project's own simulator:
 
 * the data come from :mod:`helpers.second_sim` (trapezoidal integration with substeps, a
   continuous Dahl force, its own sensors; checked against scipy's ``solve_ivp`` below);

@@ -2,7 +2,7 @@
 launch package (not on PyPI): every <node> names an installed executable of this package,
 every $(find-pkg-share seaforce_ros)/... file is installed, every $(var X) is a declared
 <arg>, every <include> exists and gets only arguments it declares, every parameter a node is
-given is one that node declares, with the declared type and allowed values (the ParamSpec
+given is one that node declares, with the declared type and allowed values (the schema
 tables of the node modules), the hardware files require `interface`, and the installed
 copies are the sources.
 
@@ -49,7 +49,8 @@ def default_channels():
 
 
 def node_specs(node, channels):
-    """name -> ParamSpec of everything ``node`` declares (from the modules' own tables)."""
+    """name -> Spec of everything ``node`` declares (the schema's rows, as the node declares
+    them)."""
     if node == 'controller':
         specs = list(controller_node.node_specs())
         for channel in channels:
@@ -73,8 +74,7 @@ def exec_specs(executable, channels):
     for node in NODES[executable]:
         specs.update(node_specs(node, channels))
     if executable in COMPOSED_EXECS:   # ControllerNode(composed=True) adds it
-        specs['loop'] = controller_node.ParamSpec('loop', 'topics', 'layout',
-                                                  choices=controller_node.LOOPS, read_only=True)
+        specs.update({s.name: s for s in param_specs.node_specs('bringup')})
     return specs
 
 
@@ -227,7 +227,7 @@ def check_parameters(root, channels):
                 problems.append(f'{exe}: parameter {name!r} is not declared by '
                                 f'{"/".join(NODES[exe])}')
                 continue
-            expected_type = type_names[type(spec.default)]
+            expected_type = type_names[spec.type]
             if param.get('type') != expected_type:
                 problems.append(f'{exe}: <param name={name!r}> needs type="{expected_type}" '
                                 f'(declared {expected_type}; untyped values are read as YAML)')
@@ -259,7 +259,7 @@ def check_parameters(root, channels):
                 except (ValueError, KeyError):
                     problems.append(f'{exe}: {name}={candidate!r} is not a {expected_type}')
                     continue
-                reason = spec.check(typed)
+                reason = spec.reason(typed, name)
                 if reason is None and spec.low is not None and typed < spec.low:
                     reason = f'{name} below {spec.low}: {typed}'
                 if reason is None and spec.high is not None and typed > spec.high:

@@ -45,7 +45,7 @@ def test_message_fields_match_design():
 
 
 def test_grasp_action_interface():
-    """The action's goal and result are the fixed interface (DESIGN.md), the feedback the
+    """The action's goal and result are a fixed interface (other tools depend on them), the feedback the
     issue's; rosbags knows the feedback topic's message with rosidl's own type hash."""
     from ament_index_python.packages import get_package_share_directory
     from seaforce_msgs.action import Grasp

@@ -1,4 +1,4 @@
-"""The passivity guard over ROS (issue 13): the parameter and its values, a non-passive DOB
+"""The passivity guard over ROS: the parameter and its values, a non-passive DOB
 accepted with a warning when the guard is active, the guard's figures in controller_status and
 /diagnostics, and a light finger held stable against the sim's stiff bonded drive."""
 import math

@@ -1,4 +1,4 @@
-"""Start-up validation and the ROS user's parameter path (issue 10).
+"""Start-up validation and the ROS user's parameter path.
 
 Every bad configuration of a node ends in ``[<executable>] cannot start: <parameter>: <reason>``,
 exit code 2 and no traceback; a value is checked at declaration exactly as a later set would
@@ -231,7 +231,7 @@ def test_no_string_value_is_a_yaml_boolean():
         words |= set(spec.choices)
         if isinstance(spec.default, str) and spec.default:
             words.add(spec.default)
-        if isinstance(spec.default, list):
+        if spec.type is list:
             words |= set(spec.default)
     assert 'passive' in words and len(words) > 20
     for word in sorted(words):

@@ -53,13 +53,13 @@ calibration (:mod:`.friction_calibration`): nothing is applied.
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
 
 from .controller import ChannelController
 from .episodes import ERROR, Episode, EventLog
 from .errors import InvalidParameterError
 from .handover import Mailbox
 from .plant_cycle import STATUS_COMMAND_TIMEOUT, STATUS_FAULT
+from .schema import CONTROLLER, ParameterGroup, group, param
 
 __all__ = ["StateChecks", "ControlCycle", "ControlOutput", "FAULT_KINDS",
            "DEFAULT_LATCHED", "STALE_STATE", "STATE_GAP", "STATE_SOURCES", "FUTURE_STAMP",
@@ -91,42 +91,24 @@ DEFAULT_LATCHED = FAULT_KINDS[3:]
 _PLANT_STOPPED = STATUS_COMMAND_TIMEOUT | STATUS_FAULT
 
 
-@dataclass(frozen=True)
-class StateChecks:
-    """Run-time settings of :class:`ControlCycle` (ROS parameters of controller_node).
+@group("", nodes=(CONTROLLER,), per_channel=False)
+class StateChecks(ParameterGroup):
+    """Run-time settings of :class:`ControlCycle` (ROS parameters of controller_node)."""
 
-    Parameters
-    ----------
-    state_timeout : float > 0
-        Maximum age of a state (stamp vs now), maximum time between two states, and the
-        tolerance on stamps in the future [s].
-    position_limit : float > 0
-        Plausible |X| [rad].
-    velocity_limit : float > 0
-        Plausible |V| [rad/s].
-    force_limit : float > 0
-        Plausible |F_p| and |F_a| [N m].
-    latched : tuple of str
-        Kinds (:data:`FAULT_KINDS`) that latch until reset; the others re-arm.
-    """
-
-    state_timeout: float = 0.05
-    position_limit: float = 1e3
-    velocity_limit: float = 1e3
-    force_limit: float = 1e3
-    latched: tuple = field(default=DEFAULT_LATCHED)
-
-    def __post_init__(self):
-        for name in ("state_timeout", "position_limit", "velocity_limit", "force_limit"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                    or not (math.isfinite(value) and value > 0):
-                raise InvalidParameterError(name, value, "> 0 and finite")
-        unknown = [k for k in self.latched if k not in FAULT_KINDS]
-        if unknown or isinstance(self.latched, str):
-            raise InvalidParameterError("latched_faults", list(self.latched),
-                                        "a list of: " + ", ".join(FAULT_KINDS))
-        object.__setattr__(self, "latched", tuple(self.latched))
+    state_timeout: float = param(0.05, "s", "maximum age of a state (header stamp vs now) and "
+                                 "time between two states: older, or none for this long, "
+                                 "zeroes the torque until states flow again; a stamp this far "
+                                 "in the future is a fault", ge=1e-4, le=10.0)
+    position_limit: float = param(1e3, "rad", "plausible |motor_position|; beyond it the state "
+                                  "is a fault", gt=0.0, key="state_limits.position")
+    velocity_limit: float = param(1e3, "rad/s", "plausible |motor_velocity|; beyond it the "
+                                  "state is a fault", gt=0.0, key="state_limits.velocity")
+    force_limit: float = param(1e3, "N m", "plausible |pressure_force| and |motor_effort|; "
+                               "beyond it the state is a fault", gt=0.0,
+                               key="state_limits.force")
+    latched: tuple = param(list(DEFAULT_LATCHED), "", "conditions that latch until ~/reset; "
+                           "the others re-arm by themselves", choices=FAULT_KINDS,
+                           key="latched_faults")
 
 
 class ControlOutput:

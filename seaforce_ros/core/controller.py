@@ -143,12 +143,12 @@ class ChannelController:
         self._grasp_box = Mailbox()
         self.grasp = None
         self.estimator = ContactEstimator(config.estimator, config.plant, self.dt,
-                                          config.rest_position)
+                                          config.feedforward.rest_position)
         self._chirp_played = False
         self._t_mode = 0.0
         self.mode = config.mode
         self._dahl = DahlState(config.dahl)
-        # friction calibration and adaptation (issue 13)
+        # friction calibration and adaptation
         self._calibration_box = Mailbox()
         self.calibration = None
         self.adaptation = FrictionAdaptation(config, self.dt)
@@ -189,24 +189,24 @@ class ChannelController:
         self._ks, self._inv_bs = ks, 1.0 / bs
         self._h_a, self._h_c0, self._h_c1 = self._hose_coefficients(dt)
         self._be, self._ke = p.endpoint_damping, p.endpoint_stiffness
-        self._rest = c.rest_position
-        self._dahl_hw = 0.5 * c.dahl_deadband
+        self._rest = c.feedforward.rest_position
+        self._dahl_hw = 0.5 * c.feedforward.dahl_deadband
         self._dahl.set_params(c.dahl)
         lam = c.dob.cutoff
         self._lam_half_dt = 0.5 * lam * dt
         self._lam_mn = lam * c.dob.nominal_inertia
         self._lam_bn = lam * c.dob.nominal_damping
         self._kn = c.dob.nominal_stiffness
-        self._kp, self._kd = c.hold_stiffness, c.hold_damping
-        self._kf = c.force_feedback_gain
+        self._kp, self._kd = c.hold.stiffness, c.hold.damping
+        self._kf = c.force_feedback.gain
         self._bump_decay = math.exp(-dt / _BUMP_TAU)
-        self._kt, self._bt = c.target_stiffness, c.target_damping
-        self._f_target = c.target_force
-        self.estimator.configure(c.estimator, p, c.rest_position)
+        self._kt, self._bt = c.target.stiffness, c.target.damping
+        self._f_target = c.target.force
+        self.estimator.configure(c.estimator, p, c.feedforward.rest_position)
         self._use_ff = c.mode in ("dob_linear_ff", "dob_full_ff", "impedance")
         self._configure_guard(c)
 
-    # --- time-domain passivity guard (issue 13) ---------------------------------------------
+    # --- time-domain passivity guard ------------------------------------------------------
     def _configure_guard(self, c):
         """The guard of ``c.passivity`` (None when disabled) on the DOB's port, whose apparent
         inertia is m_n; its force is bounded by ``max_torque``. A running guard is configured,
@@ -318,7 +318,7 @@ class ChannelController:
         if self.mode == "chirp" and self._t_mode > 0.0:
             self._chirp_played = True
 
-    # --- friction calibration (issue 13) -----------------------------------------------------
+    # --- friction calibration -----------------------------------------------------------
     def request_calibration(self, calibration):
         """Start ``calibration`` (:class:`~.friction_calibration.FrictionCalibration`, goal
         already checked) at the start of the next :meth:`update` (any thread) unless withdrawn
@@ -508,10 +508,10 @@ class ChannelController:
         else:   # chirp
             if enter or reenter:
                 self._bias = u_prev
-                self._t_mode = self._config.chirp_duration if self._chirp_played else 0.0
+                self._t_mode = self._config.chirp.duration if self._chirp_played else 0.0
             else:
                 self._t_mode += self.dt * steps
-            if self._t_mode >= self._config.chirp_duration:
+            if self._t_mode >= self._config.chirp.duration:
                 self._chirp_played = True
             u = self._bias + self._chirp(self._t_mode)
         self.torque = u
@@ -531,8 +531,7 @@ class ChannelController:
         self._enter = _ENTER
 
     def _chirp(self, t):
-        c = self._config
-        T = c.chirp_duration
-        return c.chirp_amplitude * faded_log_chirp(t, c.chirp_start_frequency,
-                                                   c.chirp_end_frequency, T,
-                                                   min(_CHIRP_FADE, 0.1 * T))
+        c = self._config.chirp
+        T = c.duration
+        return c.amplitude * faded_log_chirp(t, c.start_frequency, c.end_frequency, T,
+                                             min(_CHIRP_FADE, 0.1 * T))

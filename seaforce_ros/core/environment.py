@@ -22,13 +22,12 @@ finger did in the paper's experiments).
   (same exact discretisation); contact starts and ends at the start of a step.
 
 Times are measured from when the environment is installed in the simulator.
-Sine frequencies are in rad/s, chirp frequencies in Hz (DESIGN.md).
+Sine frequencies are in rad/s, chirp frequencies in Hz (as the sim's parameters have them).
 """
 
 import math
-from dataclasses import dataclass
 
-from .errors import InvalidParameterError
+from .schema import SIM, ParameterGroup, group, param
 from .signals import log_chirp_phase
 
 __all__ = ["Environment", "free", "torque_sine", "torque_chirp", "position_sine",
@@ -41,62 +40,28 @@ DRIVE_STIFFNESS = 1000.0
 DRIVE_DAMPING = 1.2
 
 
-def _finite(name, value, lower=None, strict=False):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) \
-            or not math.isfinite(value):
-        raise InvalidParameterError(name, value, "a finite number")
-    if lower is not None and (value <= lower if strict else value < lower):
-        raise InvalidParameterError(name, value, ("> " if strict else ">= ") + str(lower))
+@group("environment", nodes=(SIM,))
+class Environment(ParameterGroup):
+    """An endpoint environment of the simulated gripper (use the factory functions in code)."""
 
-
-@dataclass(frozen=True)
-class Environment:
-    """An endpoint environment (use the factory functions).
-
-    Attributes
-    ----------
-    mode : str
-        One of :data:`ENVIRONMENT_MODES`.
-    amplitude : float
-        N m (torque modes) or rad (position_sine).
-    frequency : float
-        rad/s (sines).
-    start_frequency, end_frequency : float
-        Hz (chirp).
-    duration : float
-        s (chirp).
-    stiffness, damping : float
-        Position drive spring-damper, or the object's k_o and b_o [N m/rad], [N m s/rad].
-    offset : float
-        Centre of the position drive [rad].
-    position : float
-        Where the object's surface is (contact at X_e > position) [rad].
-    """
-
-    mode: str = "free"
-    amplitude: float = 0.0
-    frequency: float = 1.0
-    start_frequency: float = 0.01
-    end_frequency: float = 1000.0
-    duration: float = 60.0
-    stiffness: float = DRIVE_STIFFNESS
-    damping: float = DRIVE_DAMPING
-    offset: float = 0.0
-    position: float = 0.0
-
-    def __post_init__(self):
-        if self.mode not in ENVIRONMENT_MODES:
-            raise InvalidParameterError("environment.mode", self.mode,
-                                        "one of " + ", ".join(ENVIRONMENT_MODES))
-        _finite("environment.amplitude", self.amplitude, 0.0)
-        _finite("environment.frequency", self.frequency, 0.0)
-        _finite("environment.start_frequency", self.start_frequency, 0.0, strict=True)
-        _finite("environment.end_frequency", self.end_frequency, 0.0, strict=True)
-        _finite("environment.duration", self.duration, 0.0, strict=True)
-        _finite("environment.stiffness", self.stiffness, 0.0)
-        _finite("environment.damping", self.damping, 0.0)
-        _finite("environment.offset", self.offset)
-        _finite("environment.position", self.position)
+    mode: str = param("free", "", "endpoint environment: free, a torque sine or log chirp, a "
+                      "position drive (position_sine: the paper's bonded finger), or an object "
+                      "to grasp", choices=ENVIRONMENT_MODES)
+    amplitude: float = param(0.5, "N m or rad", "amplitude (N m for the torque modes, rad for "
+                             "position_sine)", ge=0.0, le=100.0)
+    frequency: float = param(1.0, "rad/s", "sine frequency", ge=0.0, le=1e5)
+    start_frequency: float = param(0.01, "Hz", "torque chirp start frequency", ge=1e-6,
+                                   le=1e4)
+    end_frequency: float = param(1000.0, "Hz", "torque chirp end frequency", ge=1e-6, le=1e4)
+    duration: float = param(60.0, "s", "torque chirp duration", ge=1e-3, le=1e6)
+    stiffness: float = param(DRIVE_STIFFNESS, "N m/rad", "position drive spring to the "
+                             "endpoint, or the object's stiffness k_o", ge=0.0, le=1e6)
+    damping: float = param(DRIVE_DAMPING, "N m s/rad", "position drive damper to the endpoint, "
+                           "or the object's damping b_o", ge=0.0, le=1e4)
+    offset: float = param(0.0, "rad", "centre of the position drive", ge=-100.0, le=100.0)
+    position: float = param(0.0, "rad", "object surface: mode object touches the endpoint at "
+                            "X_e > position, F_e = -(k_o (X_e - position) + b_o V_e) while it "
+                            "pushes", ge=-100.0, le=100.0)
 
     @property
     def is_position_drive(self):
@@ -155,17 +120,9 @@ def contact_object(position, stiffness, damping):
 
 
 def environment_from_dict(values):
-    """Build an environment from flat keys ``mode, amplitude, frequency,
-    start_frequency, end_frequency, duration, stiffness, damping, offset, position``
-    (optionally prefixed by
-    ``environment.`` or ``<channel>.environment.``)."""
-    kwargs = {}
-    for key, value in values.items():
-        name = key.rsplit(".", 1)[-1]
-        if name not in Environment.__dataclass_fields__:
-            raise InvalidParameterError(key, value, "an environment key: " +
-                                        ", ".join(Environment.__dataclass_fields__))
-        if isinstance(value, int) and not isinstance(value, bool):
-            value = float(value)
-        kwargs[name] = value
-    return Environment(**kwargs)
+    """An environment from flat keys ``mode, amplitude, frequency, start_frequency,
+    end_frequency, duration, stiffness, damping, offset, position``, optionally prefixed by
+    ``environment.`` or ``<channel>.environment.``; an unknown key or a bad value raises
+    :class:`InvalidParameterError` naming it."""
+    return Environment.from_values({"environment." + key.rsplit(".", 1)[-1]: value
+                                    for key, value in values.items()})

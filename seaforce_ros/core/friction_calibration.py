@@ -1,8 +1,8 @@
-"""Endpoint friction that recalibrates itself (issue 13, part 2).
+"""Endpoint friction that recalibrates itself: a calibration action and an online adaptation.
 
 The friction feed-forward (eq. 29 and the Dahl force, eq. 14) uses b_e, k_e, F_c and sigma
 identified once; they drift. In free air the external force is zero, so the endpoint's balance
-(DESIGN.md, motor frame) gives the friction from pressure and motor state alone::
+(paper Section II-C, motor frame) gives the friction from pressure and motor state alone::
 
     -F_p - m_e A_e = b_e V_e + k_e (X_e - rest) + F_c f(X_e; a),     a = sigma/F_c
 
@@ -427,7 +427,7 @@ class FrictionCalibration:
         self.fit = FrictionFit(p, d.exponent, ratio_grid(center), self.dt,
                                config.estimator.filter_cutoff)
         self._limit = min(fp.torque_limit, config.max_torque)
-        self._kp, self._kd = config.hold_stiffness, config.hold_damping
+        self._kp, self._kd = config.hold.stiffness, config.hold.damping
         self._amp = float(goal.amplitude)
         self._w = goal.speed / goal.amplitude
         self._duration = fp.calibration_duration

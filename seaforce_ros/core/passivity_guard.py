@@ -1,4 +1,4 @@
-"""Time-domain passivity guard on the DOB's motor port (issue 13).
+"""Time-domain passivity guard on the DOB's motor port.
 
 The passivity bound of eq. 28 (``m_n >= m - b/lambda``) is sufficient for coupled stability
 with *any* passive environment, and conservative for the environments a finger meets. This

@@ -55,11 +55,11 @@ Rules (each with a status bit per channel, an event for the log and a counter):
 import math
 from array import array
 from collections import deque
-from dataclasses import dataclass
 
 from .episodes import ERROR, INFO, Episode, EventLog
 from .errors import InvalidParameterError
 from .handover import Mailbox
+from .schema import HARDWARE, PLANTS, SIM, ParameterGroup, group, param
 
 __all__ = ["PlantLimits", "PlantCycle", "PlantOutput", "STATUS_OK", "STATUS_COMMAND_TIMEOUT",
            "STATUS_LIMIT", "STATUS_FAULT", "INT16_MIN", "INT16_MAX"]
@@ -80,40 +80,21 @@ RESET_GRACE_CYCLES = 200
 _TICK_RING = 1 << 16
 
 
-@dataclass(frozen=True)
-class PlantLimits:
-    """Run-time settings of :class:`PlantCycle` (ROS parameters of the plant nodes).
+@group("", nodes=PLANTS, per_channel=False)
+class PlantLimits(ParameterGroup):
+    """Run-time settings of :class:`PlantCycle` (ROS parameters of the plant nodes)."""
 
-    Parameters
-    ----------
-    command_timeout : float > 0
-        A channel whose newest command answers a state older than this gets zero torque [s].
-    torque_limit : float > 0
-        Commands are clamped to ``+-torque_limit`` [N m] (``STATUS_LIMIT``).
-    max_velocity : float >= 0
-        ``|V|`` beyond it latches the channel's fault [rad/s]; 0 disables the trip.
-    wkc_error_limit : int >= 1
-        Consecutive incomplete process-data exchanges that latch a bus fault.
-    """
-
-    command_timeout: float = 0.01
-    torque_limit: float = 5.0
-    max_velocity: float = 30.0
-    wkc_error_limit: int = 10
-
-    def __post_init__(self):
-        for name in ("command_timeout", "torque_limit"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                    or not (math.isfinite(value) and value > 0):
-                raise InvalidParameterError(name, value, "> 0 and finite")
-        v = self.max_velocity
-        if isinstance(v, bool) or not isinstance(v, (int, float)) \
-                or not (math.isfinite(v) and v >= 0):
-            raise InvalidParameterError("max_velocity", v, ">= 0 and finite (0: no trip)")
-        n = self.wkc_error_limit
-        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-            raise InvalidParameterError("wkc_error_limit", n, "an integer >= 1")
+    command_timeout: float = param(0.01, "s", "a channel that no fresh actuator_command names "
+                                   "for this long gets zero torque and STATUS_COMMAND_TIMEOUT; "
+                                   "a command is fresh when it answers a state at most this "
+                                   "old", ge=1e-4, le=10.0)
+    torque_limit: float = param(5.0, "N m", "commands are clamped to +-torque_limit "
+                                "(STATUS_LIMIT)", gt=0.0, le=1e3, node_defaults={SIM: 20.0})
+    max_velocity: float = param(30.0, "rad/s", "motor speed |V| beyond which the channel's "
+                                "torque is removed and a fault latched; 0 disables the trip",
+                                ge=0.0, le=1e4)
+    wkc_error_limit: int = param(10, "", "consecutive working-counter errors that latch a bus "
+                                 "fault (safe state)", ge=1, le=100000, nodes=(HARDWARE,))
 
 
 class PlantOutput:

@@ -14,50 +14,29 @@ A count of 0 (or ``bits=0``) disables the quantisation.
 """
 
 import math
-from dataclasses import dataclass
 
-from .errors import InvalidParameterError
+from .schema import SIM, ParameterGroup, group, param
 
 __all__ = ["SensorParams", "quantise", "adc"]
 
 TWO_PI = 2.0 * math.pi
 
 
-@dataclass(frozen=True)
-class SensorParams:
-    """Sensor resolution and noise.
+@group("sensors", nodes=(SIM,))
+class SensorParams(ParameterGroup):
+    """Sensor resolution and noise of the simulated gripper (per channel)."""
 
-    Parameters
-    ----------
-    pressure_range : float > 0
-        ADC full scale R, the range is ``[-R, R]`` [N m].
-    pressure_bits : int >= 0
-        ADC resolution (16 on the paper's EtherCAT terminal; 0: none).
-    pressure_noise : float >= 0
-        Standard deviation of the Gaussian pressure noise [N m].
-    motor_counts_per_rev : int >= 0
-        Motor encoder counts per revolution (0: no quantisation).
-    endpoint_counts_per_rev : int >= 0
-        Endpoint encoder counts per revolution (40,000; 0: none).
-    """
-
-    pressure_range: float = 10.0
-    pressure_bits: int = 16
-    pressure_noise: float = 5e-4
-    motor_counts_per_rev: int = 2 ** 20
-    endpoint_counts_per_rev: int = 40000
-
-    def __post_init__(self):
-        if not (math.isfinite(self.pressure_range) and self.pressure_range > 0):
-            raise InvalidParameterError("sensors.pressure_range", self.pressure_range,
-                                        "> 0 and finite")
-        if not (math.isfinite(self.pressure_noise) and self.pressure_noise >= 0):
-            raise InvalidParameterError("sensors.pressure_noise", self.pressure_noise,
-                                        ">= 0 and finite")
-        for name in ("pressure_bits", "motor_counts_per_rev", "endpoint_counts_per_rev"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise InvalidParameterError("sensors." + name, value, "an integer >= 0")
+    pressure_range: float = param(10.0, "N m", "pressure ADC full scale R: the range is "
+                                  "[-R, R] as F_p", gt=0.0, le=1e9, read_only=True)
+    pressure_bits: int = param(16, "", "pressure ADC resolution (16 on the paper's EtherCAT "
+                               "terminal; 0: none)", ge=0, le=64, nodes=())
+    pressure_noise: float = param(5e-4, "N m", "standard deviation of the Gaussian pressure "
+                                  "noise", ge=0.0, le=100.0, read_only=True)
+    motor_counts_per_rev: int = param(2 ** 20, "", "motor encoder counts per revolution (0: "
+                                      "ideal)", ge=0, le=2 ** 40, read_only=True)
+    endpoint_counts_per_rev: int = param(40000, "", "endpoint encoder counts per revolution "
+                                         "(10,000-line quadrature, paper II-B; 0: ideal)",
+                                         ge=0, le=2 ** 40, read_only=True)
 
     @classmethod
     def ideal(cls):

@@ -1,6 +1,6 @@
 """Fast offline simulator of one channel (plant + sensors + environment).
 
-Linear part: the 4-state lumped model (X, V, X_e, V_e) of DESIGN.md plus,
+Linear part: the 4-state lumped model (X, V, X_e, V_e) of the paper's Section II-C plus,
 for the position drive, the drive oscillator (x_d, y_d) and the
 spring-damper to the endpoint -- 6 states, discretised exactly (matrix
 exponential, zero-order hold) for the two inputs

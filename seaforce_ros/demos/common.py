@@ -17,7 +17,7 @@ DT = 5e-4
 
 PLANT_KEYS = ('motor_inertia', 'motor_damping', 'motor_stiffness', 'endpoint_inertia',
               'endpoint_damping', 'endpoint_stiffness', 'hose_damping', 'hose_stiffness')
-# --- model error, and what the friction calibration recovers (issue 13) -------------------
+# --- model error, and what the friction calibration recovers ------------------------------
 FRICTION_LABELS = ('b_e [N m s/rad]', 'k_e [N m/rad]', 'F_c [N m]', 'sigma [N m/rad]')
 CALIBRATION_ATTEMPTS = 3
 CALIBRATION_STATE_TIMEOUT = 0.25   # s, controller state_timeout while calibrating

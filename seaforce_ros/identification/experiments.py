@@ -19,7 +19,7 @@ import math
 
 from ..core.controller import ChannelController
 from ..core.environment import position_sine, torque_chirp
-from ..core.params import ControllerConfig, PlantParams
+from ..core.params import ChirpParams, ControllerConfig, PlantParams
 from ..core.simulator import ChannelSimulator, run_closed_loop
 
 __all__ = ["chirp_experiment", "work_loop_experiment", "ZeroTorque"]
@@ -73,9 +73,9 @@ def chirp_experiment(plant=None, dahl=None, sensors=None, amplitude=0.3, start_f
     elif excitation == "motor":
         sim = ChannelSimulator(plant, dahl=dahl, dt=dt, seed=seed, sensors=sensors,
                                motor_coulomb=motor_coulomb)
-        config = ControllerConfig(mode="chirp", plant=plant, chirp_amplitude=amplitude,
-                                  chirp_start_frequency=start_frequency,
-                                  chirp_end_frequency=end_frequency, chirp_duration=duration)
+        config = ControllerConfig(mode="chirp", plant=plant, chirp=ChirpParams(
+            amplitude=amplitude, start_frequency=start_frequency, end_frequency=end_frequency,
+            duration=duration))
         rec = run_closed_loop(sim, ChannelController(config, dt), n)
     else:
         raise ValueError(f"excitation must be 'external' or 'motor', not {excitation!r}")

@@ -12,9 +12,10 @@ import time
 
 import yaml
 
+from ..core.params import DahlParams, PlantParams
 from .errors import IdentificationError
-from .params_file import (ALL_NODES, DAHL_KEYS, HEADER_MARK, PLANT_KEYS, channel_groups, load,
-                          plant_params, read_text, update_text, where)
+from .params_file import (ALL_NODES, HEADER_MARK, channel_groups, load, plant_params, read_text,
+                          update_text, where)
 
 __all__ = ["check_output_file", "check_output_dir", "check_params_update", "write_params_file",
            "format_table", "Progress", "read_params_file", "read_plant", "positive_float",
@@ -56,10 +57,11 @@ def _values(channel, plant=None, dahl=None):
     """``{dotted parameter name: value}`` of the groups to write (6 significant digits)."""
     values = {}
     if plant is not None:
-        values.update({f"{channel}.plant.{k}": _float(getattr(plant, k)) for k in PLANT_KEYS})
+        values.update({f"{channel}.{spec.name}": _float(getattr(plant, spec.attribute))
+                       for spec in PlantParams.SPECS})
     if dahl is not None:
-        values.update({f"{channel}.dahl.{k}": _float(dahl[k]) for k in
-                       ("sigma", "coulomb_force", "exponent")})
+        values.update({f"{channel}.{spec.name}": _float(dahl[spec.attribute])
+                       for spec in DahlParams.SPECS})
     return values
 
 
@@ -78,10 +80,9 @@ def check_params_update(path, channel, plant=False, dahl=False, option=None):
     text = _existing_text(p, option)
     if text is not None:
         values = {}
-        if plant:
-            values.update({f"{channel}.plant.{k}": 1.0 for k in PLANT_KEYS})
-        if dahl:
-            values.update({f"{channel}.dahl.{k}": 1.0 for k in DAHL_KEYS})
+        for wanted, group in ((plant, PlantParams), (dahl, DahlParams)):
+            if wanted:
+                values.update({f"{channel}.{spec.name}": 1.0 for spec in group.SPECS})
         update_text(text, values, where(p, option))
     return p
 

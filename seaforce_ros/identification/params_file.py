@@ -35,8 +35,9 @@ __all__ = ["PLANT_KEYS", "DAHL_KEYS", "where", "read_text", "parse", "load", "se
            "flatten", "channel_groups", "plant_params", "dahl_params", "format_value",
            "update_text"]
 
-PLANT_KEYS = tuple(f.name for f in dataclasses.fields(PlantParams))
-DAHL_KEYS = tuple(f.name for f in dataclasses.fields(DahlParams))
+#: The fields of the groups identify writes (their keys: ``plant.<field>``, ``dahl.<field>``).
+PLANT_KEYS = tuple(spec.attribute for spec in PlantParams.SPECS)
+DAHL_KEYS = tuple(spec.attribute for spec in DahlParams.SPECS)
 #: the section identify writes to (every node reads it)
 ALL_NODES = "/**"
 _EXAMPLE = "e.g. '/**:' with 'ros__parameters:' under it"

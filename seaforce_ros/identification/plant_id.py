@@ -35,17 +35,12 @@ from .spectral import BlackmanTukey, FrequencyResponse
 
 __all__ = ["PlantIdentification", "identify_plant", "PARAMETERS", "required_fields"]
 
-#: key -> (symbol, unit, plant letter)
-PARAMETERS = {
-    "motor_inertia": ("m", "N m s^2/rad", "A"),
-    "motor_damping": ("b", "N m s/rad", "A"),
-    "motor_stiffness": ("k", "N m/rad", "A"),
-    "endpoint_inertia": ("m_e", "N m s^2/rad", "B"),
-    "endpoint_damping": ("b_e", "N m s/rad", "B"),
-    "endpoint_stiffness": ("k_e", "N m/rad", "B"),
-    "hose_damping": ("b_s", "N m s/rad", "C"),
-    "hose_stiffness": ("k_s", "N m/rad", "C"),
-}
+#: The Fig. 4 plant each parameter is identified from: A the motor (X/F_p), B the endpoint
+#: (X_e/(F_e - F_p)), C the hose (F_p/(X_e - X)).
+_PLANT_OF = {"motor": "A", "endpoint": "B", "hose": "C"}
+#: key -> (symbol, unit, plant letter), from the schema's rows of PlantParams.
+PARAMETERS = {spec.attribute: (spec.symbol, spec.unit, _PLANT_OF[spec.attribute.split("_")[0]])
+              for spec in PlantParams.SPECS}
 
 #: prewhitening (backward differences) of position signals per band, see spectral.py
 POSITION_ORDERS = ((0, 5.0), (1, 60.0), (2, math.inf))

@@ -56,7 +56,8 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSPro
 
 from ..bags import BagError, BagWriter, BagWriteError, QosProfile, check_output_directory
 from ..bags.typestore import has_header, header_stamp_ns, knows, type_hash
-from .ros_common import (RECORD_QOS, ParamSpec, StartupError, declare, diagnostic_status,
+from ..core.schema import RECORDER
+from .ros_common import (RECORD_QOS, StartupError, declare, diagnostic_status,
                          diagnostics_publisher, publish_diagnostics, run)
 from . import param_specs as ps
 
@@ -66,7 +67,6 @@ KNOWN_TYPES = {
     'actuator_command': 'seaforce_msgs/msg/ActuatorCommand',
     'controller_status': 'seaforce_msgs/msg/ControllerStatus',
 }
-DEFAULT_TOPICS = ('actuator_state', 'actuator_command', 'controller_status')
 #: the writer thread wakes up this often [s] when the queue is empty
 WRITE_PERIOD = 0.01
 #: after a write failure the node lives this long [s] before it ends, publishing its
@@ -76,28 +76,8 @@ FAILURE_GRACE = 3.0
 
 
 def node_specs():
-    return [
-        ParamSpec('topics', list(DEFAULT_TOPICS), 'topics to record (relative names resolve in '
-                  'the node namespace)', read_only=True),
-        ParamSpec('output', '', 'bag directory (created; must be new or empty); default '
-                  'bag_recorder_<date>_<time> in the working directory', read_only=True),
-        ParamSpec('storage', 'mcap', 'rosbag2 storage plugin', choices=('mcap', 'sqlite3'),
-                  read_only=True),
-        ParamSpec('split_duration', 10.0, 'seconds of receive time per storage file; '
-                  'metadata.yaml is rewritten as each one closes', low=0.1, high=86400.0,
-                  read_only=True),
-        ParamSpec('chunk_period', 0.5, 'mcap: a chunk is written at least this often [s] '
-                  '(a SIGKILL loses about this much of the open file)', low=0.01, high=60.0,
-                  read_only=True),
-        ParamSpec('queue_limit', 64.0, 'messages waiting for the writer beyond this many MB '
-                  'are dropped and counted', low=1.0, high=65536.0, read_only=True),
-        ParamSpec('reliability', 'reliable', 'QoS reliability of the subscriptions (must be '
-                  'compatible with the publishers: best_effort also matches reliable ones)',
-                  choices=('reliable', 'best_effort'), read_only=True),
-        ParamSpec('report_period', 5.0, 'period of the count log line and /diagnostics [s]',
-                  low=0.1, high=3600.0, read_only=True),
-        ps.executor_spec('events'),
-    ]
+    """bag_recorder's parameters."""
+    return ps.node_specs(RECORDER)
 
 
 def check_output(path: pathlib.Path) -> None:

@@ -61,7 +61,7 @@ from seaforce_msgs.msg import ActuatorCommand, ActuatorState, ControllerStatus
 from std_srvs.srv import Trigger
 
 from . import param_specs as ps
-from ..core.control_cycle import DEFAULT_LATCHED, FAULT_KINDS, ControlCycle, StateChecks
+from ..core.control_cycle import ControlCycle, StateChecks
 from ..core.controller import ChannelController
 from ..core.episodes import Episode, EventLog
 from ..core.errors import SeaforceError
@@ -69,12 +69,12 @@ from ..core.friction_calibration import (CalibrationGoal, FrictionCalibration,
                                        InvalidCalibrationError, check_calibration_goal)
 from ..core.grasp import Grasp, GraspGoal, InvalidGoalError, check_goal
 from ..core.params import ControllerConfig, guard_carries
-from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
-                         GRAPH_PERIOD, declare, diagnostic_status, diagnostics_publisher,
-                         log_events, node_label, publish_diagnostics, run, shutdown_safe)
+from ..core.schema import BRINGUP, CONTROLLER
+from .ros_common import (GRAPH_PERIOD, STATUS_QOS, StartupError, control_qos, declare,
+                         diagnostic_status, diagnostics_publisher, log_events, node_label,
+                         publish_diagnostics, run, shutdown_safe)
 from .timing import LoopStats
 
-LOOPS = ('topics', 'direct')
 GRASP_FEEDBACK_RATE = 50.0     # Hz
 GRASP_START_TIMEOUT = 1.0      # s a goal waits for the cycle to take its grasp over
 #: s without a state the cycle ran on after which the node (not the cycle, which does not
@@ -87,41 +87,13 @@ STALL_TIME = 0.5
 _FRICTION_KEYS = ('plant.endpoint_damping', 'plant.endpoint_stiffness', 'dahl.coulomb_force',
                   'dahl.sigma')
 
-_CHECK_PARAMS = {'state_timeout': 'state_timeout', 'state_limits.position': 'position_limit',
-                 'state_limits.velocity': 'velocity_limit', 'state_limits.force': 'force_limit',
-                 'latched_faults': 'latched'}
+#: ROS key -> StateChecks attribute.
+_CHECK_PARAMS = {spec.name: spec.attribute for spec in StateChecks.SPECS}
 
 
 def node_specs():
-    defaults = StateChecks()
-    return [
-        ps.channels_spec(),
-        ps.executor_spec('events'),
-        control_qos_spec(),
-        ParamSpec('rate', 2000.0, 'control rate the sample period is derived from [Hz]; '
-                  'must equal the rate of the state source', low=1.0, high=20000.0,
-                  read_only=True),
-        ParamSpec('state_timeout', defaults.state_timeout,
-                  'a state older than this (header stamp vs now), or no state for this long, '
-                  'zeroes the torque until states flow again; a stamp this far in the future '
-                  'is a fault [s]', low=1e-4, high=10.0),
-        ParamSpec('state_limits.position', defaults.position_limit,
-                  'plausible |motor_position| [rad]; beyond it the state is a fault',
-                  low=1e-6),
-        ParamSpec('state_limits.velocity', defaults.velocity_limit,
-                  'plausible |motor_velocity| [rad/s]; beyond it the state is a fault',
-                  low=1e-6),
-        ParamSpec('state_limits.force', defaults.force_limit,
-                  'plausible |pressure_force| and |motor_effort| [N m]; beyond it the state '
-                  'is a fault', low=1e-6),
-        ParamSpec('latched_faults', list(DEFAULT_LATCHED),
-                  'conditions that latch until ~/reset; the others re-arm by themselves: '
-                  + ', '.join(FAULT_KINDS), choices=FAULT_KINDS),
-        ParamSpec('status_rate', 100.0, 'controller_status rate [Hz], 0 = off', low=0.0,
-                  high=20000.0),
-        ParamSpec('diagnostics_period', 1.0, '/diagnostics period [s]', low=0.05, high=60.0,
-                  read_only=True),
-    ]
+    """controller_node's own parameters (its state checks among them)."""
+    return ps.node_specs(CONTROLLER)
 
 
 def _checks_from(values):
@@ -145,10 +117,7 @@ class ControllerNode(Node):
         super().__init__('controller', **kwargs)
         specs = node_specs()
         if composed:
-            specs.append(ParamSpec('loop', 'topics',
-                                   'topics: states and commands through DDS; direct: the '
-                                   "plant's cycle thread calls the controller (both still "
-                                   'published)', choices=LOOPS, read_only=True))
+            specs += ps.node_specs(BRINGUP)
         values = declare(self, specs)
         self._specs = {s.name: s for s in specs}
         self.channels = ps.channels_from(values)
@@ -199,7 +168,7 @@ class ControllerNode(Node):
                      cancel_callback=lambda handle: CancelResponse.ACCEPT,
                      callback_group=ReentrantCallbackGroup())
         self.create_timer(1.0 / GRASP_FEEDBACK_RATE, self._grasp_tick)
-        # friction calibration (issue 13)
+        # friction calibration
         self._calibrations = {}          # channel index -> (calibration, handle, Future, start)
         ActionServer(self, CalibrateFrictionAction, '~/calibrate_friction',
                      execute_callback=self._execute_calibration,
@@ -230,7 +199,7 @@ class ControllerNode(Node):
         for p in params:
             spec = self._specs.get(p.name)
             if spec is not None:
-                reason = spec.check(p.value)
+                reason = spec.reason(p.value)
                 if reason:
                     raise SeaforceError(reason)
             changed[p.name] = p.value
@@ -494,7 +463,7 @@ class ControllerNode(Node):
         result.grip_force = grasp.grip_force if grasp is not None else nan
         return result
 
-    # --- friction calibration (issue 13) -------------------------------------------------
+    # --- friction calibration ------------------------------------------------------------
     def _calibration_for(self, goal):
         """(channel index, FrictionCalibration) for a goal, or InvalidCalibrationError."""
         index = self._channel_for(goal.channel, InvalidCalibrationError)

@@ -21,6 +21,7 @@ log line; plus:
 """
 from __future__ import annotations
 
+import dataclasses
 import pathlib
 import sys
 import time
@@ -30,7 +31,8 @@ from ..ethercat.cia402 import CW_DISABLE_VOLTAGE, MODE_CST, DriveSequencer
 from ..ethercat.errors import BusConfigError, BusError
 from ..ethercat.master import EthercatBus
 from .plant_node import PlantNode, plant_specs, prepare_process
-from .ros_common import ParamSpec, StartupError, run
+from ..core.schema import HARDWARE
+from .ros_common import StartupError, run
 
 
 def _default_bus_config() -> str:
@@ -43,20 +45,10 @@ def _default_bus_config() -> str:
 
 
 def node_specs():
-    return plant_specs(torque_limit=5.0) + [
-        ParamSpec('interface', '', 'network interface of the EtherCAT bus (required; `ip link` '
-                  'lists them; a dedicated NIC)', read_only=True),
-        ParamSpec('bus_config', _default_bus_config(),
-                  'bus YAML: slaves in bus order with identities, PDO entries, scaling',
-                  read_only=True),
-        ParamSpec('wkc_error_limit', 10, 'consecutive working-counter errors that latch a '
-                  'bus fault (safe state)', low=1, high=100000),
-        ParamSpec('drive_watchdog', 0.1, 'process-data watchdog programmed into every drive: '
-                  'it drops torque on its own when the master stops for this long [s]',
-                  low=0.001, high=6.0, read_only=True),
-        ParamSpec('receive_timeout', 4e-4, 'wait for the process-data frame [s]',
-                  low=1e-5, high=0.1, read_only=True),
-    ]
+    """hardware_node's own parameters (the plant's common ones among them); ``bus_config``
+    defaults to the installed config/ethercat_bus.yaml."""
+    return [dataclasses.replace(spec, default=_default_bus_config())
+            if spec.name == 'bus_config' else spec for spec in plant_specs(HARDWARE)]
 
 
 class _Channel:

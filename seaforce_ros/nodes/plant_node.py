@@ -30,9 +30,9 @@ from std_srvs.srv import Trigger
 
 from . import param_specs as ps
 from ..core.plant_cycle import PlantCycle, PlantLimits
-from .ros_common import (STATUS_QOS, ParamSpec, StartupError, control_qos, control_qos_spec,
-                         GRAPH_PERIOD, declare, diagnostic_status, diagnostics_publisher,
-                         log_events, node_label, publish_diagnostics, shutdown_safe)
+from .ros_common import (GRAPH_PERIOD, STATUS_QOS, StartupError, control_qos, declare,
+                         diagnostic_status, diagnostics_publisher, log_events, node_label,
+                         publish_diagnostics, shutdown_safe)
 from .timing import BusyTime, CommandTiming, Deadline, LoopStats
 
 NAN = float('nan')
@@ -46,31 +46,14 @@ def prepare_process():
     sys.setswitchinterval(GIL_SWITCH_INTERVAL)
 
 
-def plant_specs(torque_limit=5.0):
-    """Parameters every plant node declares (the PlantCycle limits among them)."""
-    return [
-        ps.channels_spec(),
-        ParamSpec('rate', 2000.0, 'cycle rate [Hz]', low=1.0, high=20000.0, read_only=True),
-        ParamSpec('command_timeout', 0.01,
-                  'a channel that no fresh actuator_command names for this long gets zero '
-                  'torque and STATUS_COMMAND_TIMEOUT [s]; a command is fresh when it answers a '
-                  'state at most this old', low=1e-4, high=10.0),
-        ParamSpec('torque_limit', torque_limit,
-                  'commands are clamped to +-torque_limit (STATUS_LIMIT) [N m]',
-                  low=1e-6, high=1e3),
-        ParamSpec('max_velocity', 30.0,
-                  'motor speed |V| beyond which the channel\'s torque is removed and a fault '
-                  'latched [rad/s]; 0 disables the trip', low=0.0, high=1e4),
-        ParamSpec('joint_state_rate', 100.0, 'sensor_msgs/JointState rate [Hz], 0 = off',
-                  low=0.0, high=20000.0),
-        ParamSpec('diagnostics_period', 1.0, '/diagnostics period [s]', low=0.05, high=60.0,
-                  read_only=True),
-        ps.executor_spec('events'),
-        control_qos_spec(),
-    ]
+def plant_specs(node):
+    """Parameters a plant node (``sim`` or ``hardware``) declares: the common ones, its
+    :class:`~seaforce_ros.core.plant_cycle.PlantLimits` and its own, with its defaults."""
+    return ps.node_specs(node)
 
 
-_LIMIT_PARAMS = ('command_timeout', 'torque_limit', 'max_velocity', 'wkc_error_limit')
+#: ROS key -> PlantLimits attribute.
+_LIMIT_PARAMS = {spec.name: spec.attribute for spec in PlantLimits.SPECS}
 
 
 def _raise_thread_priority(logger):
@@ -130,8 +113,8 @@ class PlantNode(Node):
             raise StartupError(str(exc)) from exc
 
     def _limits_from(self, values):
-        kwargs = {k: values[k] for k in _LIMIT_PARAMS if k in values}
-        return PlantLimits(**kwargs)
+        return PlantLimits(**{field: values[name] for name, field in _LIMIT_PARAMS.items()
+                              if name in values})
 
     def _start_plant(self):
         """Publishers, subscription, services and timers."""

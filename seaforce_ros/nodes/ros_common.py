@@ -5,14 +5,12 @@ Only conversion and wiring lives here; the algorithms are in :mod:`seaforce_ros.
 from __future__ import annotations
 
 import functools
-import math
 import os
 import signal
 import sys
 import threading
 import time
-from dataclasses import dataclass
-from typing import Any, Callable, Dict, Iterable, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, Iterable, Optional, Sequence
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -25,6 +23,8 @@ from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
 from ..core.episodes import ERROR, WARNING
+from ..core.schema import Spec
+from ..core.settings import EXECUTORS
 
 #: Control-rate topics (actuator_state, actuator_command), publisher side: reliable (lockstep
 #: simulation advances one sample per command and must never lose a step), and a history of
@@ -56,139 +56,63 @@ def control_qos(reliability: str = 'reliable', subscriber: bool = False) -> QoSP
                       reliability=QOS_RELIABILITY[reliability], durability=base.durability)
 
 
-def control_qos_spec():
-    return ParamSpec('control_qos', 'reliable',
-                     'reliability of actuator_state/actuator_command: reliable (required by '
-                     'lockstep) or best_effort', choices=tuple(QOS_RELIABILITY), read_only=True)
-
-
 #: Monitoring topics (controller_status, joint_states): a few samples of slack.
 STATUS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
 
-EXECUTORS = ('events', 'single_threaded')
-
 _TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
-          float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}
+          float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING,
+          list: ParameterType.PARAMETER_STRING_ARRAY}
 
 
-@dataclass(frozen=True)
-class ParamSpec:
-    """One ROS parameter: name, default (its Python type is the parameter type), description
-    with units, optional numeric range [low, high], allowed string values, read-only flag.
-    The descriptor (:meth:`descriptor`) and every check (:meth:`check`) derive from it."""
-
-    name: str
-    default: Any
-    description: str
-    low: Optional[float] = None
-    high: Optional[float] = None
-    choices: Tuple[str, ...] = ()
-    read_only: bool = False
-    #: appended to a rejection of a value outside ``choices`` (e.g. a renamed value)
-    choice_hint: str = ''
-
-    def descriptor(self) -> ParameterDescriptor:
-        d = ParameterDescriptor(name=self.name, description=self.description,
-                                read_only=self.read_only)
-        if isinstance(self.default, (list, tuple)):
-            d.type = ParameterType.PARAMETER_STRING_ARRAY
-        else:
-            d.type = _TYPES[type(self.default)]
-        if self.choices:
-            d.additional_constraints = 'one of: ' + ', '.join(self.choices)
-        if self.low is not None or self.high is not None:
-            low = -sys.float_info.max if self.low is None else self.low
-            high = sys.float_info.max if self.high is None else self.high
-            if isinstance(self.default, float):
-                d.floating_point_range = [FloatingPointRange(from_value=float(low),
-                                                             to_value=float(high), step=0.0)]
-            elif isinstance(self.default, int) and not isinstance(self.default, bool):
-                d.integer_range = [IntegerRange(from_value=int(max(low, -2**63)),
-                                                to_value=int(min(high, 2**63 - 1)), step=1)]
-        return d
-
-    def kind(self) -> str:
-        """The parameter type in words, as a message names it."""
-        if isinstance(self.default, (list, tuple)):
-            return 'a list of strings'
-        return {bool: 'a boolean (true/false)', int: 'an integer', float: 'a number',
-                str: 'a string'}[type(self.default)]
-
-    def coerce(self, value):
-        """``value`` as this parameter's type where that loses nothing: an integer for a float
-        parameter (a user writes ``max_torque: 20``, not 20.0); anything else unchanged."""
-        if isinstance(self.default, float) and type(value) is int:
-            return float(value)
-        return value
-
-    def check(self, value) -> Optional[str]:
-        """Reason to reject ``value`` (already :meth:`coerce`-d), or None: the type, finiteness,
-        the range [low, high] and the allowed strings. The same check runs at declaration and on
-        every later set, so a value a node starts with obeys what a later set would."""
-        default = self.default
-        if isinstance(default, (list, tuple)):
-            ok = isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value)
-        elif isinstance(default, bool):
-            ok = isinstance(value, bool)
-        elif isinstance(default, (int, float)):
-            ok = isinstance(value, type(default)) and not isinstance(value, bool)
-        else:
-            ok = isinstance(value, str)
-        if not ok:
-            hint = ''
-            if isinstance(value, bool) and isinstance(default, str):
-                hint = (' (YAML 1.1 reads an unquoted yes/no/on/off/true/false as a boolean: '
-                        'quote the string)')
-            return f'{self.name} must be {self.kind()}, got {value!r}{hint}'
-        if isinstance(value, float) and not math.isfinite(value):
-            return f'{self.name} must be finite, got {value}'
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            if (self.low is not None and value < self.low) or \
-                    (self.high is not None and value > self.high):
-                low = '-inf' if self.low is None else f'{self.low:g}'
-                high = 'inf' if self.high is None else f'{self.high:g}'
-                return f'{self.name} must be within [{low}, {high}], got {value!r}'
-        if self.choices:
-            if isinstance(value, (list, tuple)):
-                bad = [item for item in value if item not in self.choices]
-                if bad:
-                    return (f'{self.name}: every entry must be one of '
-                            f'{", ".join(self.choices)}; got {bad!r}')
-            elif value not in self.choices:
-                return (f'{self.name} must be one of {", ".join(self.choices)}; got {value!r}'
-                        + (f' ({self.choice_hint})' if self.choice_hint else ''))
-        return None
+def descriptor(spec: Spec) -> ParameterDescriptor:
+    """The ROS descriptor of a schema row: its description with the unit, type, read-only
+    flag, range (rclpy enforces the closed range; a strict bound is the row's own check) and
+    allowed strings."""
+    d = ParameterDescriptor(name=spec.name, description=spec.text(), read_only=spec.read_only,
+                            type=_TYPES[spec.type])
+    if spec.choices:
+        d.additional_constraints = 'one of: ' + ', '.join(spec.choices)
+    if spec.low is not None or spec.high is not None:
+        low = -sys.float_info.max if spec.low is None else spec.low
+        high = sys.float_info.max if spec.high is None else spec.high
+        if spec.type is float:
+            d.floating_point_range = [FloatingPointRange(from_value=float(low),
+                                                         to_value=float(high), step=0.0)]
+        elif spec.type is int:
+            d.integer_range = [IntegerRange(from_value=int(max(low, -2**63)),
+                                            to_value=int(min(high, 2**63 - 1)), step=1)]
+    return d
 
 
-def declare(node, specs: Iterable[ParamSpec]) -> Dict[str, Any]:
-    """Declare every spec on ``node`` and return name -> value.
+def declare(node, specs: Iterable[Spec]) -> Dict[str, Any]:
+    """Declare every row on ``node`` and return name -> value.
 
     The value is the one given by ``--params-file`` / ``-p`` (an integer given for a float
     parameter is converted), else the default. Every value is checked by
-    :meth:`ParamSpec.check` *before* it is declared; a bad one raises :class:`StartupError`
-    naming the parameter (``run`` prints it and exits 2): a node never starts on a value it
-    would refuse on a later set.
+    :meth:`~seaforce_ros.core.schema.Spec.reason` *before* it is declared; a bad one raises
+    :class:`StartupError` naming the parameter (``run`` prints it and exits 2): a node never
+    starts on a value it would refuse on a later set.
     """
     # rclpy keeps the command line's and params files' values in Node._parameter_overrides
     # (public only as a constructor argument); reading it is how an int can become a float.
     overrides = getattr(node, '_parameter_overrides', {})
     values = {}
     for spec in specs:
-        value = list(spec.default) if isinstance(spec.default, tuple) else spec.default
+        value = list(spec.default) if spec.type is list else spec.default
         given = overrides.get(spec.name)
         if given is not None:
             if given.type_ == given.Type.NOT_SET:
                 raise StartupError(f'{spec.name} has no value (an empty list [] or ~ in the '
                                    f'params file?); it must be {spec.kind()}, like '
-                                   f'{spec.default!r}')
+                                   f'{value!r}')
             value = spec.coerce(given.value)
-        reason = spec.check(value)
+        reason = spec.reason(value)
         if reason:
             raise StartupError(reason)
         try:
-            node.declare_parameter(spec.name, value, spec.descriptor(), ignore_override=True)
+            node.declare_parameter(spec.name, value, descriptor(spec), ignore_override=True)
         except (ParameterException, ValueError, TypeError) as exc:
             raise StartupError(f'{spec.name}: {exc}') from None
         values[spec.name] = node.get_parameter(spec.name).value

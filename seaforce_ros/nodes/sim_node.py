@@ -29,26 +29,23 @@ import time
 from rcl_interfaces.msg import SetParametersResult
 
 from . import param_specs as ps
-from ..core.environment import environment_from_dict
+from ..core.environment import Environment, environment_from_dict
 from ..core.errors import SeaforceError
 from ..core.params import DahlParams, PlantParams
 from ..core.plant_cycle import STATUS_COMMAND_TIMEOUT, STATUS_LIMIT
+from ..core.schema import SIM
 from ..core.sensors import SensorParams
+from ..core.settings import SIM_PREFIX, SimulatorParams
 from ..core.simulator import ChannelSimulator
 from .plant_node import PlantNode, plant_specs, prepare_process
-from .ros_common import ParamSpec, StartupError, declare, log_events, run, shutdown_safe
+from .ros_common import StartupError, declare, log_events, run, shutdown_safe
 
 LOCKSTEP_REPUBLISH = 0.1     # s without progress after which lockstep re-publishes its state
 
 
 def node_specs():
-    return plant_specs(torque_limit=20.0) + [
-        ParamSpec('clock_mode', 'realtime',
-                  'realtime: own cycle at `rate`; lockstep: one sample per received command',
-                  choices=('realtime', 'lockstep'), read_only=True),
-        ParamSpec('seed', 0, 'seed of the sensor noise generators (channel i uses seed + i)',
-                  low=0, high=2**31 - 1, read_only=True),
-    ]
+    """sim_node's own parameters (the plant's common ones among them)."""
+    return plant_specs(SIM)
 
 
 class SimNode(PlantNode):
@@ -101,27 +98,20 @@ class SimNode(PlantNode):
     @staticmethod
     def _true_plant(values, channel):
         """(PlantParams, DahlParams or None) of ``<channel>.sim.plant.*`` / ``sim.dahl.*``."""
-        plant = PlantParams(**{k.split('.', 1)[1]: values[f'{channel}.sim.{k}']
-                               for k in ps.PLANT_KEYS})
-        dahl = DahlParams(**{k.split('.', 1)[1]: values[f'{channel}.sim.{k}']
-                             for k in ps.DAHL_KEYS})
+        plant, dahl = (group.from_values({
+            spec.name: values[f'{channel}.{SIM_PREFIX}{spec.name}'] for spec in group.SPECS})
+            for group in (PlantParams, DahlParams))
         return plant, (dahl if dahl.sigma > 0 else None)
 
     def _make_sim(self, values, channel, seed):
         plant, dahl = self._true_plant(values, channel)
-        sensors = SensorParams(
-            pressure_range=values[f'{channel}.sensors.pressure_range'],
-            pressure_noise=values[f'{channel}.sensors.pressure_noise'],
-            motor_counts_per_rev=values[f'{channel}.sensors.motor_counts_per_rev'],
-            endpoint_counts_per_rev=values[f'{channel}.sensors.endpoint_counts_per_rev'])
+        sensors, physics = (group.from_values({
+            spec.name: values[f'{channel}.{spec.name}'] for spec in group.SPECS
+            if f'{channel}.{spec.name}' in values}) for group in (SensorParams, SimulatorParams))
         env = environment_from_dict(ps.channel_values(values, channel, 'environment.'))
         return ChannelSimulator(
-            plant, dahl=dahl, dt=self.dt, seed=seed,
-            environment=env, sensors=sensors,
-            motor_coulomb=values[f'{channel}.sim.motor_coulomb'],
-            endpoint_coulomb=values[f'{channel}.sim.endpoint_coulomb'],
-            backlash=values[f'{channel}.sim.backlash'],
-            torque_saturation=values[f'{channel}.sim.torque_saturation'])
+            plant, dahl=dahl, dt=self.dt, seed=seed, environment=env, sensors=sensors,
+            **{spec.attribute: getattr(physics, spec.attribute) for spec in physics.SPECS})
 
     # --- parameters ----------------------------------------------------------------------
     def _validate_parameters(self, params):
@@ -129,7 +119,7 @@ class SimNode(PlantNode):
         for name, value in changed.items():
             spec = self._specs.get(name)
             if spec is not None:
-                reason = spec.check(value)
+                reason = spec.reason(value)
                 if reason:
                     return SetParametersResult(successful=False, reason=reason)
         for channel in self.channels:
@@ -145,16 +135,16 @@ class SimNode(PlantNode):
 
     def _plant_with(self, channel, changed):
         current = {}
-        for key in ps.PLANT_KEYS + ps.DAHL_KEYS:
-            name = f'{channel}.sim.{key}'
+        for key in ps.MODEL_KEYS:
+            name = f'{channel}.{SIM_PREFIX}{key}'
             current[name] = changed.get(name, self.get_parameter(name).value)
         return self._true_plant(current, channel)
 
     def _environment_with(self, channel, changed):
         current = {}
-        for key, *_ in ps.ENVIRONMENT_SPECS:
-            name = f'{channel}.{key}'
-            current[key] = changed.get(name, self.get_parameter(name).value)
+        for spec in Environment.SPECS:
+            name = f'{channel}.{spec.name}'
+            current[spec.name] = changed.get(name, self.get_parameter(name).value)
         return environment_from_dict(current)
 
     def _apply_parameters(self, params):

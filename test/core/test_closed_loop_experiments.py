@@ -1,4 +1,4 @@
-"""Closed-loop simulated experiments (issue 3, done-when 2 and 3)."""
+"""Closed-loop simulated experiments: the DOB against eq. 25, the friction feed-forward and the Z-width."""
 
 import math
 import os

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from seaforce_ros.core import ChannelController, ControllerConfig, MODES
+from seaforce_ros.core import ChannelController, ChirpParams, ControllerConfig, MODES
 from seaforce_ros.core.control_cycle import (DEFAULT_LATCHED, FAULT_KINDS, ControlCycle,
                                              StateChecks)
 from seaforce_ros.core.errors import InvalidParameterError
@@ -334,7 +334,7 @@ def test_checks_are_validated():
         StateChecks(latched=('stale', 'oops'))
     with pytest.raises(InvalidParameterError, match='state_timeout'):
         StateChecks(state_timeout=0.0)
-    with pytest.raises(InvalidParameterError, match='force_limit'):
+    with pytest.raises(InvalidParameterError, match='state_limits.force'):  # the ROS key
         StateChecks(force_limit=math.nan)
     with pytest.raises(TypeError):
         ControlCycle(CH, [object(), object()])
@@ -395,7 +395,7 @@ def test_properties_over_arbitrary_states(ops, modes):
     """
     max_torque = 3.0
     ctrls = [ChannelController(ControllerConfig(mode=m, max_torque=max_torque,
-                                                chirp_amplitude=0.2), dt=DT) for m in modes]
+                                                chirp=ChirpParams(amplitude=0.2)), dt=DT) for m in modes]
     cc = ControlCycle(CH, ctrls)
     feed = Feed(cc)
     was_latched = [False, False]

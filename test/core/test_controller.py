@@ -9,7 +9,8 @@ from seaforce_ros.core import (ChannelController, ChannelSimulator, ControllerCo
                                DahlParams, MODES, NonFiniteInputError, PlantParams,
                                SensorParams, position_sine, run_closed_loop, torque_sine)
 from seaforce_ros.core.analysis import hold_margins, impedance_from_position
-from seaforce_ros.core.params import DEFAULT_HOLD_DAMPING, DEFAULT_HOLD_STIFFNESS
+from seaforce_ros.core.params import (DEFAULT_HOLD_DAMPING, DEFAULT_HOLD_STIFFNESS, ChirpParams,
+                                      ForceFeedbackParams, TargetParams)
 
 TABLE_I = PlantParams.table_i()
 DT = 5e-4
@@ -60,7 +61,8 @@ def test_off_is_immediate_zero_torque():
 def test_configure_takes_effect_at_next_update():
     ctl = ChannelController(ControllerConfig(mode="passive"))
     ctl.update(0.0, 0.0, 0.1)
-    ctl.configure(ControllerConfig(mode="force_feedback", force_feedback_gain=0.5))
+    ctl.configure(ControllerConfig(mode="force_feedback",
+                                   force_feedback=ForceFeedbackParams(gain=0.5)))
     assert ctl.mode == "passive" and ctl.config.mode == "passive"
     u = ctl.update(0.0, 0.0, 0.1)
     assert ctl.mode == "force_feedback"
@@ -90,8 +92,8 @@ def test_non_finite_input_raises_and_changes_nothing(bad):
 def test_reset_and_reenter_start_from_the_applied_torque(mode):
     """After reset(applied) or reenter(applied) the next output equals the applied torque,
     in every active mode and whatever the controller did before (no step)."""
-    ctl = ChannelController(ControllerConfig(mode=mode, chirp_amplitude=0.2,
-                                             force_feedback_gain=0.5))
+    ctl = ChannelController(ControllerConfig(
+        mode=mode, chirp=ChirpParams(amplitude=0.2), force_feedback=ForceFeedbackParams(gain=0.5)))
     rng = np.random.default_rng(3)
     for k in range(400):
         ctl.update(0.01 * math.sin(0.01 * k), 0.1 * math.cos(0.01 * k), 0.3)
@@ -208,8 +210,8 @@ def test_default_hold_gains_have_margin_and_are_near_maximal():
 def test_impedance_mode_renders_target():
     kt, bt, w = 2.0, 0.05, 1.0
     sim = ChannelSimulator(TABLE_I, DahlParams(), environment=position_sine(0.2, w))
-    ctl = ChannelController(ControllerConfig(mode="impedance", target_stiffness=kt,
-                                             target_damping=bt))
+    ctl = ChannelController(ControllerConfig(mode="impedance",
+                                             target=TargetParams(stiffness=kt, damping=bt)))
     rec = run_closed_loop(sim, ctl, int((3.0 + 2 * 2 * math.pi / w) / DT))
     z = impedance_from_position(rec["f_e"], rec["x_e"], w, DT, 3.0)
     target = kt / (1j * w) + bt
@@ -217,8 +219,8 @@ def test_impedance_mode_renders_target():
 
 
 def test_chirp_mode_output():
-    cfg = ControllerConfig(mode="chirp", chirp_amplitude=0.2, chirp_start_frequency=1.0,
-                           chirp_end_frequency=100.0, chirp_duration=2.0)
+    cfg = ControllerConfig(mode="chirp", chirp=ChirpParams(
+        amplitude=0.2, start_frequency=1.0, end_frequency=100.0, duration=2.0))
     ctl = ChannelController(cfg)
     u = np.array([ctl.update(0.0, 0.0, 0.0) for _ in range(4400)])
     assert u[0] == 0.0 and np.max(np.abs(u)) <= 0.2 + 1e-12
@@ -231,8 +233,8 @@ def test_chirp_mode_output():
 
 def test_impedance_mode_at_its_limits_is_stable_with_free_endpoint():
     from seaforce_ros.core import free
-    cfg = ControllerConfig(mode="impedance", target_stiffness=TABLE_I.hose_stiffness,
-                           target_damping=10 * TABLE_I.hose_damping, max_torque=100.0)
+    cfg = ControllerConfig(mode="impedance", target=TargetParams(
+        stiffness=TABLE_I.hose_stiffness, damping=10 * TABLE_I.hose_damping), max_torque=100.0)
     sim = ChannelSimulator(TABLE_I, DahlParams(), environment=free())
     rec = run_closed_loop(sim, ChannelController(cfg), 12000)
     assert np.max(np.abs(rec["u"][-4000:])) < 0.1       # noise-level, not diverging
@@ -271,8 +273,8 @@ def test_updates_every_nth_sample_integrate_the_real_elapsed_time(every):
 def test_chirp_plays_once_per_selection_never_again_by_itself():
     """An identification chirp that ended (or was interrupted) must not replay after a
     plant-side stop or a reset: an open-loop torque nobody asked for again."""
-    cfg = ControllerConfig(mode="chirp", chirp_amplitude=0.3, chirp_duration=0.2,
-                           chirp_start_frequency=5.0, chirp_end_frequency=50.0)
+    cfg = ControllerConfig(mode="chirp", chirp=ChirpParams(
+        amplitude=0.3, duration=0.2, start_frequency=5.0, end_frequency=50.0))
     ctl = ChannelController(cfg)
     played = [ctl.update(0.0, 0.0, 0.0) for _ in range(600)]     # 0.3 s: the whole chirp
     assert max(map(abs, played)) > 0.2 and played[-1] == 0.0

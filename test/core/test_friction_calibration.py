@@ -1,4 +1,4 @@
-"""Friction calibration and adaptation (issue 13, part 2): the fit against an analytic free
+"""Friction calibration and adaptation: the fit against an analytic free
 endpoint (no simulator), the calibration's branches, recovery after a random drift of the
 simulated plant (parameters and |Z| of dob_full_ff at 1 rad/s), and properties over arbitrary
 input sequences: the torque never beyond its limit, a non-finite input aborts with zero torque,

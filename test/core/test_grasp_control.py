@@ -15,6 +15,7 @@ from seaforce_ros.core.control_cycle import ControlCycle
 from seaforce_ros.core.environment import contact_object, free
 from seaforce_ros.core.estimator import FLOOR_FRACTION, SPREAD_TIME
 from seaforce_ros.core.grasp import Grasp, GraspGoal, check_goal
+from seaforce_ros.core.params import TargetParams
 from seaforce_ros.core.plant_cycle import STATUS_COMMAND_TIMEOUT, STATUS_FAULT
 
 DT = 5e-4
@@ -110,7 +111,7 @@ def test_force_mode_presses_with_the_reference():
     sim = ChannelSimulator(TABLE_I, DahlParams(), environment=position_sine(0.0, 0.0, 0.5))
     ctl = ChannelController(ControllerConfig(mode='dob'))
     rec = run_closed_loop(sim, ctl, 8000, on_switch={
-        2000: lambda s, c: c.configure(c.config.replace(mode='force', target_force=0.4))})
+        2000: lambda s, c: c.configure(c.config.replace(mode='force', target=TargetParams(force=0.4)))})
     assert abs(rec['u'][2000] - rec['u'][1999]) < 1e-3
     assert np.mean(rec['f_p'][-500:]) == pytest.approx(-0.4, abs=2e-3)
 

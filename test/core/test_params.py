@@ -4,9 +4,9 @@ import math
 
 import pytest
 
-from seaforce_ros.core import (ControllerConfig, DahlParams, DobParams, InvalidParameterError,
-                               MODES, NonPassiveError, PARAMETERS, PlantParams,
-                               SeaforceError)
+from seaforce_ros.core import (ControllerConfig, DahlParams, DobParams, ForceFeedbackParams,
+                               GraspParams, InvalidParameterError, MODES, NonPassiveError,
+                               PARAMETERS, PlantParams, SeaforceError, TargetParams)
 
 TABLE_I = PlantParams.table_i()
 
@@ -28,7 +28,7 @@ def test_non_positive_inertia_rejected(field, value):
         PlantParams(**{**TABLE_I.__dict__, field: value})
     err = info.value
     assert err.name == "plant." + field and err.value == value
-    assert err.bound == "> 0 and finite"
+    assert err.bound == "> 0 and <= 10"
     assert f"plant.{field}" in str(err) and "> 0" in str(err)
 
 
@@ -90,11 +90,12 @@ def test_non_passive_nominal_stiffness_rejected():
 
 def test_force_feedback_gain_passive_range():
     for gain in (-1.0, 0.0, 1.0):
-        assert ControllerConfig(force_feedback_gain=gain).force_feedback_gain == gain
+        gains = ForceFeedbackParams(gain=gain)
+        assert ControllerConfig(force_feedback=gains).force_feedback.gain == gain
     for gain in (-1.01, 1.5):
         with pytest.raises(NonPassiveError, match="force_feedback.gain"):
-            ControllerConfig(force_feedback_gain=gain)
-    assert ControllerConfig(force_feedback_gain=1.5, allow_non_passive=True)
+            ControllerConfig(force_feedback=ForceFeedbackParams(gain=gain))
+    assert ControllerConfig(force_feedback=ForceFeedbackParams(gain=1.5), allow_non_passive=True)
 
 
 def test_controller_config_other_checks():
@@ -103,7 +104,7 @@ def test_controller_config_other_checks():
     with pytest.raises(InvalidParameterError, match="max_torque"):
         ControllerConfig(max_torque=0.0)
     with pytest.raises(InvalidParameterError, match="target.stiffness"):
-        ControllerConfig(target_stiffness=-1.0)
+        ControllerConfig(target=TargetParams(stiffness=-1.0))
     with pytest.raises(InvalidParameterError, match="plant.hose_damping"):
         # the hose inversion of the feed-forward needs b_s > 0
         ControllerConfig(plant=PlantParams(**{**TABLE_I.__dict__, "hose_damping": 0.0}))
@@ -112,7 +113,7 @@ def test_controller_config_other_checks():
 
 
 def test_flat_dict_round_trip():
-    cfg = ControllerConfig(mode="dob_full_ff", target_stiffness=0.5,
+    cfg = ControllerConfig(mode="dob_full_ff", target=TargetParams(stiffness=0.5),
                            dob=DobParams(cutoff=20.0, nominal_inertia=5e-4))
     flat = cfg.to_dict()
     assert list(flat) == list(PARAMETERS)
@@ -128,7 +129,7 @@ def test_from_dict_overrides_base_and_strips_channel_prefix():
                                       "plant.motor_damping": 0.05, "target.damping": 0.01})
     assert cfg.mode == "dob" and cfg.dob.cutoff == 20.0
     assert isinstance(cfg.dob.cutoff, float)
-    assert cfg.plant.motor_damping == 0.05 and cfg.target_damping == 0.01
+    assert cfg.plant.motor_damping == 0.05 and cfg.target.damping == 0.01
     assert cfg.plant.motor_inertia == TABLE_I.motor_inertia
     with pytest.raises(InvalidParameterError, match="no_such_key"):
         ControllerConfig.from_dict({"no_such_key": 1.0})
@@ -138,37 +139,54 @@ def test_from_dict_overrides_base_and_strips_channel_prefix():
         ControllerConfig.from_dict({"plant.motor_inertia": math.nan})
 
 
-def test_every_key_has_a_description_with_range_or_units():
-    for key, info in PARAMETERS.items():
-        text = info.description
-        assert text and ("[" in text or "one of" in text or "bool" in text), key
+def test_every_key_has_a_description_and_a_unit_or_choices():
+    for key, spec in PARAMETERS.items():
+        assert spec.description, key
+        assert spec.unit or spec.choices or spec.type is bool, key
 
 
 def test_the_table_names_real_fields_and_sane_ranges():
-    """Every PARAMETERS entry maps to a ControllerConfig field; the advertised range holds the
-    Table I default; numeric parameters have a range, mode and the bool have none."""
+    """Every PARAMETERS row maps to a ControllerConfig field; its range holds the Table I
+    default; numeric parameters have a range, mode and the bools have none."""
     config = ControllerConfig(plant=TABLE_I)
     flat = config.to_dict()
-    for key, info in PARAMETERS.items():
-        group, _, name = info.field.rpartition(".")
+    for key, spec in PARAMETERS.items():
+        group = key.rpartition(".")[0] if key != "passivity_guard" else "passivity"
         owner = getattr(config, group) if group else config
-        assert hasattr(owner, name), key
+        assert hasattr(owner, spec.attribute), key
         value = flat[key]
         if isinstance(value, (bool, str)):
-            assert info.low is None and info.high is None, key
+            assert spec.low is None and spec.high is None, key
         else:
-            assert info.low is not None and info.high is not None and info.low < info.high, key
-            assert info.low <= value <= info.high, (key, value)
+            assert spec.low is not None and spec.high is not None and spec.low < spec.high, key
+            assert spec.problem(value) is None, (key, value)
+
+
+def test_the_core_and_a_node_accept_the_same_values():
+    """One range per parameter: a value the core's dataclass accepts is one a node accepts,
+    and the other way round (grasp.give_way_travel = 200 was accepted by the core and
+    refused by the node)."""
+    with pytest.raises(InvalidParameterError, match="grasp.give_way_travel"):
+        GraspParams(give_way_travel=200.0)
+    spec = PARAMETERS["grasp.give_way_travel"]
+    assert "within (0, 100]" in spec.reason(200.0)
+    for key, spec in PARAMETERS.items():
+        if spec.type is not float:
+            continue
+        for value in (spec.low, spec.high, -1e9, 1e9, 0.0, 1e-7, float("nan")):
+            if value is None:
+                continue
+            assert (spec.problem(value) is None) == (spec.reason(value) is None), (key, value)
 
 
 def test_impedance_target_limits():
     ks, bs = TABLE_I.hose_stiffness, TABLE_I.hose_damping
-    assert ControllerConfig(mode="impedance", target_stiffness=ks, target_damping=10 * bs)
+    assert ControllerConfig(mode="impedance", target=TargetParams(stiffness=ks, damping=10 * bs))
     with pytest.raises(InvalidParameterError) as info:
-        ControllerConfig(mode="impedance", target_stiffness=1.5 * ks)
+        ControllerConfig(mode="impedance", target=TargetParams(stiffness=1.5 * ks))
     assert info.value.name == "target.stiffness" and "13.0782" in info.value.bound
     assert "allow_non_passive" in str(info.value)
     with pytest.raises(InvalidParameterError, match="target.damping"):
-        ControllerConfig(mode="impedance", target_damping=11 * bs)
-    assert ControllerConfig(mode="impedance", target_stiffness=1.5 * ks,
-                            allow_non_passive=True).target_stiffness == 1.5 * ks
+        ControllerConfig(mode="impedance", target=TargetParams(damping=11 * bs))
+    assert ControllerConfig(mode="impedance", target=TargetParams(stiffness=1.5 * ks),
+                            allow_non_passive=True).target.stiffness == 1.5 * ks

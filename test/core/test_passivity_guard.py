@@ -1,4 +1,4 @@
-"""Time-domain passivity guard (issue 13, done-when 1): the class branch by branch, its
+"""Time-domain passivity guard: the class branch by branch, its
 invariants over arbitrary input sequences, and the closed loop with the simulator.
 
 Stability, as the closed-loop tests define it ("energy bounded, no growing oscillation"):
@@ -26,7 +26,8 @@ from seaforce_ros.core import (ChannelController, ChannelSimulator, ControllerCo
                                PlantParams, free, position_sine)
 from seaforce_ros.core.analysis import impedance_from_position
 from seaforce_ros.core.environment import contact_object
-from seaforce_ros.core.params import GuardParams, PARAMETERS
+from seaforce_ros.core.params import (ForceFeedbackParams, GuardParams, PARAMETERS,
+                                      TargetParams)
 from seaforce_ros.core.passivity import guard_carries
 from seaforce_ros.core.passivity_guard import PassivityGuard
 from seaforce_ros.core.simulator import run_closed_loop
@@ -310,7 +311,8 @@ def test_an_active_guard_carries_a_non_passive_dob_with_a_warning():
     assert guard_carries(cfg.replace(allow_non_passive=True)) == ""
     # the other passivity rules still hold
     with pytest.raises(NonPassiveError, match="force_feedback.gain"):
-        ControllerConfig(mode="force_feedback", force_feedback_gain=2.0, passivity=ACTIVE)
+        ControllerConfig(mode="force_feedback", force_feedback=ForceFeedbackParams(gain=2.0),
+                         passivity=ACTIVE)
 
 
 def test_guard_parameters_in_the_table():
@@ -322,7 +324,7 @@ def test_guard_parameters_in_the_table():
     assert PARAMETERS["passivity_guard"].choices == ("disabled", "monitor", "active")
     for key in ("passivity.reserve", "passivity.max_damping", "passivity.velocity_deadband",
                 "passivity.release_time"):
-        assert "[" in PARAMETERS[key].description, key
+        assert "[" in PARAMETERS[key].text(), key        # the descriptor names its unit
     with pytest.raises(InvalidParameterError, match="passivity_guard.*disabled, monitor, active"):
         ControllerConfig.from_dict({"passivity_guard": "on"})
     with pytest.raises(InvalidParameterError, match="passivity.reserve"):
@@ -593,7 +595,7 @@ def test_a_parameter_change_keeps_the_ledger_a_mode_entry_restarts_it():
             break
     else:
         pytest.fail("the guard never acted: no state to carry over")
-    changed = cfg.replace(target_stiffness=0.5, passivity=GuardParams(
+    changed = cfg.replace(target=TargetParams(stiffness=0.5), passivity=GuardParams(
         mode="active", release_time=2.0))
     for config in (changed, cfg):
         energy, damping = g.energy, g.damping

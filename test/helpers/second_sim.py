@@ -5,7 +5,7 @@ sensors): it is the oracle the identification is measured against, so that an er
 project's own simulator and ``identify`` share (an alignment convention, a discretisation, a
 Dahl timing) shows up.
 
-The continuous-time model (paper Section II-C, DESIGN.md; motor passive, F_a = 0)::
+The continuous-time model (paper Section II-C; motor passive, F_a = 0)::
 
     m X'' + b X' + k X          = F_p
     m_e X_e'' + b_e X_e' + k_e X_e = F_e - F_p - F_d

@@ -30,7 +30,7 @@ LENGTH_MASK = 0x07FF
 MORE_FOLLOWS = 0x8000
 
 # Source MAC of a reply: SOEM sends 01:01:01:01:01:01; a real ESC sets bit 1 of the first
-# byte on the way back (pysoem issue #176 shows 03:01:01:01:01:01).
+# byte on the way back (replies captured from real ESCs come from 03:01:01:01:01:01).
 REPLY_SOURCE_MAC = bytes((0x03, 0x01, 0x01, 0x01, 0x01, 0x01))
 
 
