@@ -1,6 +1,6 @@
 """Endpoint friction recalibration after a drift of the simulated plant.
 
-The sim's true endpoint drifts (default: b_e and F_c +50 %, k_e -30 %, the issue's case)
+The sim's true endpoint drifts (default: b_e and F_c +50 %, k_e -30 %: a worn finger)
 while the controller keeps the Table I model. Printed:
 
 * the drift table: each friction parameter's truth, the model before recalibration, the
@@ -111,7 +111,7 @@ def one_case(base, factors, amplitude, speed):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--random", type=int, default=2, help="random drifts after the issue's")
+    ap.add_argument("--random", type=int, default=2, help="random drifts after the default one")
     ap.add_argument("--duration", type=float, default=12.0, help="calibration length [s]")
     ap.add_argument("--amplitude", type=float, default=0.5)
     ap.add_argument("--speed", type=float, default=1.0)

@@ -2,9 +2,9 @@
 
 * Objects drawn at random by the test (stiffness, damping, where, closing speed, grip; the sim's
   plant 15 % off the controller's model, its endpoint friction recalibrated first with
-  ``~/calibrate_friction``, as README says to), one after the other in one lockstep run: the
-  goals of the issue asserted from what the sim reports (true contact force) and what the controller
-  publishes (controller_status at every cycle, feedback, result); then the plant dies
+  ``~/calibrate_friction``, as docs/grasping.md says to), one after the other in one lockstep
+  run: the grasp's goals asserted from what the sim reports (true contact force) and what the
+  controller publishes (controller_status at every cycle, feedback, result); then the plant dies
   mid-grasp (its process killed): the goal aborted with the reason, the next one refused.
 * The direct layout (bringup, real time): bad goals rejected with a reason, a second goal on a
   held channel, a goal on a faulted channel, a cancel that releases into the mode before the

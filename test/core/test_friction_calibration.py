@@ -154,7 +154,7 @@ DRIFTS = [(1.5, 0.7, 1.5, 1.0)] + [tuple(np.round(r, 3)) for r in np.random.defa
 
 @pytest.mark.parametrize("drift", DRIFTS)
 def test_calibration_after_drift_recovers_parameters_and_impedance(drift):
-    """The issue's drift (b_e, F_c +50 %, k_e -30 %) and random ones within physical ranges."""
+    """A worn finger's drift (b_e, F_c +50 %, k_e -30 %) and random ones within physical ranges."""
     fb, fk, ff, fs = drift
     true_plant = PLANT.scaled(endpoint_damping=fb, endpoint_stiffness=fk)
     true_dahl = DahlParams(sigma=DAHL.sigma * fs, coulomb_force=DAHL.coulomb_force * ff)

@@ -511,7 +511,7 @@ def draw_objects(seed, n):
 
 @pytest.mark.parametrize('k, b, position, v, grip', OBJECTS + draw_objects(12, 4))
 def test_grasp_goals_with_the_model_15_percent_off(k, b, position, v, grip):
-    """The issue's goals, on the simulated gripper whose plant is 15 % off the controller's
+    """The grasp's goals, on the simulated gripper whose plant is 15 % off the controller's
     model (every parameter, random signs):
 
     * stiffness within 10 % up to 5 N m/rad, 25 % up to 15 (30 % at the top of the range: the
