@@ -163,7 +163,7 @@ def test_grasp_random_objects_over_ros(processes, tmp_path, probe):
                 'pinch.friction.calibration_duration': 6.0})
     probe.wait_messages('controller_status', 5, timeout=60)       # the loop runs
     # with no object in reach: without it the model's b_e and Dahl F_c errors alone put the
-    # object damping 30-60 % off at 3-5 N m/rad (README, Grasping)
+    # object damping 30-60 % off at 3-5 N m/rad (docs/grasping.md)
     calibration = CalibrationClient(probe)
     handle, _ = calibration.send(amplitude=0.1, speed=0.5)
     answer = calibration.result(handle, timeout=240.0)

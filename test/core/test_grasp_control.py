@@ -523,8 +523,8 @@ def test_grasp_goals_with_the_model_15_percent_off(k, b, position, v, grip):
       sigma says so);
     * contact detected within 10 ms at 0.15-0.3 rad/s (slower, the force b_o v that stands out
       of the noise first is smaller, and the finger slows as it meets the object: within 30 ms
-      down to 0.05 rad/s; README: the bound), peak contact force before the squeeze below 0.05 N m
-      (objects up to 5 N m/rad);
+      down to 0.05 rad/s; docs/grasping.md: the bound), peak contact force before the squeeze
+      below 0.05 N m (objects up to 5 N m/rad);
     * grip within 5 % in a settled hold (softer than 0.3 N m/rad: the finger's own k_e, 15 %
       off, is a fifth of the object's stiffness: within 8 %); max_force never exceeded.
     """
