@@ -246,7 +246,12 @@ def _markdown_exists(reference: str, source: pathlib.Path, names: Set[str]) -> b
     if '/' not in reference:
         return reference in names
     bases = [source.parent] + [b for b in source.parent.parents if ROOT in b.parents or b == ROOT]
-    return any((base / reference).exists() for base in bases)
+    # a path that leaves the repository (../shared/...) is outside it even where it exists
+    for base in bases:
+        target = (base / reference).resolve()
+        if target.exists() and (target == ROOT or ROOT in target.parents):
+            return True
+    return False
 
 
 def test_no_reference_outside_the_repository():
