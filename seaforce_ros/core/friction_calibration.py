@@ -277,17 +277,19 @@ class FrictionFit:
         costs = [s[1] if s is not None else math.inf for s in solutions]
         best = int(np.argmin(costs))
         nan = math.nan
-        if not math.isfinite(costs[best]) or n < 8.0:
+        solution = solutions[best]
+        if solution is None or not math.isfinite(costs[best]) or n < 8.0:
             return FrictionEstimate(nan, nan, nan, nan, nan, nan, nan, nan, 0.0, 0.0, 0.0, n,
                                     "too few samples, or a term that never varied", "")
-        theta, rss, inv = solutions[best]
+        theta, rss, inv = solution
         reason = sigma_reason = ""
         logs = [math.log(r) for r in self.ratios]
         log_a = logs[best]
         var_log_a = nan
         variance = self._kappa * rss / max(n - 4.0, 1.0)
-        if 0 < best < len(self.ratios) - 1 and all(
-                solutions[i] is not None for i in (best - 1, best + 1)):
+        lower, upper = ((solutions[best - 1], solutions[best + 1])
+                        if 0 < best < len(self.ratios) - 1 else (None, None))
+        if lower is not None and upper is not None:
             c0, c1, c2 = costs[best - 1], costs[best], costs[best + 1]
             step = logs[best + 1] - logs[best]
             # rss(l) = c1 + B (l - l_best) + curv (l - l_best)^2 through the three points
@@ -297,7 +299,7 @@ class FrictionFit:
                 log_a += shift
                 var_log_a = variance / curv
                 # the linear parameters at the interpolated ratio (quadratic in log a)
-                t0, t2 = solutions[best - 1][0], solutions[best + 1][0]
+                t0, t2 = lower[0], upper[0]
                 u = shift / step
                 theta = theta + 0.5 * u * (t2 - t0) + 0.5 * u * u * (t2 - 2.0 * theta + t0)
             else:
@@ -457,14 +459,14 @@ class FrictionCalibration(Job):
         self.outcome = None
         self.message = "waiting for the control cycle"
         self.progress = 0.0
-        self.new = None
+        self.new: FrictionEstimate | None = None
         self.applied = False
         self._t = 0.0
-        self._x0 = None
+        self._x0: float | None = None
         self._bias = 0.0
-        self._solutions = []
+        self._solutions: list[Solution] = []
         self._hold = False
-        self._cancel = None
+        self._cancel: str | None = None
 
     # --- requests (the rest is the job's: :class:`~.jobs.Job`) -----------------------------
     def request_cancel(self, reason: str = "canceled") -> None:
@@ -489,7 +491,7 @@ class FrictionCalibration(Job):
     def final_config(self, config: ControllerConfig) -> ControllerConfig | None:
         """``config`` with the new values when the calibration succeeded and the goal asks to
         apply them (then :attr:`applied`), else None."""
-        if self.outcome != "succeeded" or not self.goal.apply:
+        if self.outcome != "succeeded" or not self.goal.apply or self.new is None:
             return None
         applied = with_friction(config, self.new)
         self.applied = True

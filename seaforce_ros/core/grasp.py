@@ -261,7 +261,7 @@ class Grasp(Job):
         self.contact = False
         self.contact_time = math.nan
         self.grip_force = math.nan
-        self.estimate = None
+        self.estimate: ObjectEstimate | None = None
         self._t = 0.0              # time in the phase [s] (approach: since the start)
         self._armed = False
         self._steady = 0.0         # time within 15 % of the approach speed, or still [s]
@@ -269,14 +269,15 @@ class Grasp(Job):
         self._integral = 0.0       # the approach servo's integral action [N m]
         self._at_cap = False       # ... and its output at approach_force towards the object
         self._closed = False       # the finger has moved towards the object at v_cmd/2
-        self._start = None         # filtered endpoint position at the start
+        self._start: float | None = None    # filtered endpoint position at the start
         self._contact_at = math.nan    # ... and at the contact's detection
         self._slip = 0.0           # time the hold's contact force has been below the slip level
         self._release_from = 0.0     # F_g and the commanded contact force when the release began
         self._release_contact = 0.0
-        self._pending_outcome = None
-        self._release_request = None
-        self._estimator = None     # the channel's estimator, from the contact on
+        self._pending_outcome: str | None = None
+        self._release_request: str | None = None
+        self._relax: float | None = None    # (release) how long the object may take
+        self._estimator: ContactEstimator | None = None   # the channel's, from the contact on
         self._hold_alpha = -math.expm1(-self.dt / _HOLD_AVERAGE)
 
     # --- requests (the rest is the job's: :class:`~.jobs.Job`) -----------------------------
