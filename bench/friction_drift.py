@@ -48,7 +48,7 @@ def calibrate(config, plant, dahl, amplitude, speed, seed=2):
     cal = FrictionCalibration(CalibrationGoal("pinch", amplitude, speed, True), config, DT)
     n0 = 400
     n = n0 + int((config.friction.calibration_duration + 0.2) / DT)
-    run_closed_loop(sim, ctl, n, on_switch={n0: lambda s, c: c.request_calibration(cal)})
+    run_closed_loop(sim, ctl, n, on_switch={n0: lambda s, c: c.request_job(cal)})
     return cal, ctl.config
 
 
@@ -59,7 +59,7 @@ def per_sample_cost(config, calibrate_too, n=6000):
     sim = ChannelSimulator(config.plant, config.dahl, dt=DT, seed=3, environment=env)
     ctl = ChannelController(config, DT)
     if calibrate_too:
-        ctl.request_calibration(FrictionCalibration(CalibrationGoal("pinch", 0.5, 1.0, True),
+        ctl.request_job(FrictionCalibration(CalibrationGoal("pinch", 0.5, 1.0, True),
                                                     config, DT))
     m = sim.measurement()
     times = []
