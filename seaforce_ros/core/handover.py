@@ -11,39 +11,43 @@ withdrawn by the thread that made it.
 
 import threading
 from collections import deque
+from typing import Deque, Generic, Optional, TypeVar
 
 __all__ = ["Mailbox", "Claim"]
 
+_T = TypeVar("_T")
 
-class Mailbox:
-    """One slot: :meth:`put` replaces what is waiting, :meth:`take` empties it."""
 
-    def __init__(self):
-        self._slot = deque(maxlen=1)
+class Mailbox(Generic[_T]):
+    """One slot: :meth:`put` replaces what is waiting, :meth:`take` empties it (of values of
+    one type, ``Mailbox[ControllerConfig]``)."""
 
-    def put(self, value):
+    def __init__(self) -> None:
+        self._slot: Deque[_T] = deque(maxlen=1)
+
+    def put(self, value: _T) -> None:
         self._slot.append(value)
 
-    def take(self):
+    def take(self) -> Optional[_T]:
         """The newest value put since the last take, or None."""
         try:
             return self._slot.popleft()
         except IndexError:
             return None
 
-    def __bool__(self):
+    def __bool__(self) -> bool:
         return bool(self._slot)
 
 
 class Claim:
     """Either the cycle claims a request or another thread withdraws it first, never both."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._lock = threading.Lock()
         self._claimed = False
         self._withdrawn = False
 
-    def claim(self):
+    def claim(self) -> bool:
         """(cycle thread) True if the request is now the cycle's, False if it was withdrawn."""
         with self._lock:
             if self._withdrawn:
@@ -51,7 +55,7 @@ class Claim:
             self._claimed = True
             return True
 
-    def withdraw(self):
+    def withdraw(self) -> bool:
         """(any thread) True if withdrawn (it will never start), False if the cycle has it."""
         with self._lock:
             if self._claimed:
@@ -60,5 +64,6 @@ class Claim:
             return True
 
     @property
-    def claimed(self):
+    def claimed(self) -> bool:
+        """True once the cycle has claimed the request."""
         return self._claimed

@@ -30,7 +30,7 @@ import importlib
 import math
 from dataclasses import dataclass, field
 from typing import (TYPE_CHECKING, Any, Callable, ClassVar, Dict, Iterator, List, Mapping, Optional, Tuple,
-                    Type, TypeVar, dataclass_transform)
+                    Self, Type, TypeVar, dataclass_transform)
 
 from .errors import InvalidParameterError
 
@@ -344,7 +344,7 @@ class ParameterGroup:
         raise KeyError(attribute)
 
     @classmethod
-    def from_values(cls, values: Mapping[str, Any], base: Any = None) -> Any:
+    def from_values(cls, values: Mapping[str, Any], base: Optional[Self] = None) -> Self:
         """A validated group from ``{key: value}`` (keys of :attr:`SPECS`; others are an
         error), the rest from ``base`` (default: the defaults)."""
         by_key = {spec.name: spec for spec in cls.SPECS}
