@@ -18,8 +18,10 @@ The update is therefore exact for any step size (unconditionally stable),
 """
 
 import math
+from typing import TYPE_CHECKING
 
-from .params import DahlParams
+if TYPE_CHECKING:
+    from .params import DahlParams
 
 __all__ = ["DahlState", "dahl_step"]
 
@@ -85,7 +87,7 @@ class DahlState:
 
     __slots__ = ("sigma", "coulomb_force", "exponent", "force", "position")
 
-    def __init__(self, params: DahlParams, position: float = 0.0) -> None:
+    def __init__(self, params: "DahlParams", position: float = 0.0) -> None:
         self.sigma = float(params.sigma)
         self.coulomb_force = float(params.coulomb_force)
         self.exponent = float(params.exponent)
@@ -98,7 +100,7 @@ class DahlState:
         fc = self.coulomb_force
         self.force = min(fc, max(-fc, float(force)))
 
-    def set_params(self, params: DahlParams) -> None:
+    def set_params(self, params: "DahlParams") -> None:
         """Change sigma, F_c, n keeping the state (force clipped to the new F_c)."""
         self.sigma = float(params.sigma)
         self.coulomb_force = float(params.coulomb_force)
