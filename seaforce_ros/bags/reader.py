@@ -340,9 +340,10 @@ def _decode(raws: List[bytes], channel: str) -> Tuple[Dict[str, npt.NDArray[Any]
         good &= np.all(rows[:, a:b] == layout.template[a:b], axis=1)
     slow = sorted(set(np.flatnonzero(~same).tolist()) | set(idx_fast[~good].tolist()))
     rows = rows[good]
-    out: Dict[str, npt.NDArray[Any]] = {"cycle": layout.column(rows, layout.cycle, "<u8").astype(np.int64),
-           "stamp": (layout.column(rows, layout.sec, "<i4").astype(float)
-                     + 1e-9 * layout.column(rows, layout.nanosec, "<u4"))}
+    out: Dict[str, npt.NDArray[Any]] = {
+        "cycle": layout.column(rows, layout.cycle, "<u8").astype(np.int64),
+        "stamp": (layout.column(rows, layout.sec, "<i4").astype(float)
+                  + 1e-9 * layout.column(rows, layout.nanosec, "<u4"))}
     for msg_field, short in STATE_FIELDS:
         out[short] = layout.column(rows, layout.arrays[msg_field] + 8 * j, "<f8")
     out["status"] = rows[:, layout.status + j].copy()

@@ -29,8 +29,8 @@ import dataclasses
 import importlib
 import math
 from dataclasses import dataclass, field
-from typing import (TYPE_CHECKING, Any, Callable, ClassVar, Dict, Iterator, List, Mapping, Optional, Tuple,
-                    Self, Type, TypeVar, dataclass_transform)
+from typing import (TYPE_CHECKING, Any, Callable, ClassVar, Dict, Iterator, List, Mapping,
+                    Optional, Self, Tuple, Type, TypeVar, dataclass_transform)
 
 from .errors import InvalidParameterError
 

@@ -143,8 +143,9 @@ def fit_dahl_loop(series: Series, plant: PlantParams, settle: Optional[float] = 
             best = (c, p0)
     lower = [-10, -15] + ([0.05] if fit_exponent else [])
     upper = [15, 5] + ([5.0] if fit_exponent else [])
-    res = scipy.optimize.least_squares(resid, best[1],  # type: ignore[index]  # 6 starts bounds=(lower, upper), x_scale=1.0,
-                                       diff_step=1e-4)
+    # best is set: the loop above has six starts
+    res = scipy.optimize.least_squares(resid, best[1],  # type: ignore[index]
+                                       bounds=(lower, upper), x_scale=1.0, diff_step=1e-4)
     p = res.x
     r = res.fun
     dof = max(1, r.size - len(p) - 1)

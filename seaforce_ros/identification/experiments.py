@@ -16,7 +16,7 @@ The result is a dict of arrays with the ``ActuatorState`` field names of one cha
 from __future__ import annotations
 
 import math
-from typing import Any, Dict, Mapping, Optional, Union
+from typing import TYPE_CHECKING, Any, Dict, Mapping, Optional, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -24,12 +24,16 @@ import numpy.typing as npt
 from ..core.controller import ChannelController
 from ..core.environment import position_sine, torque_chirp
 from ..core.params import ChirpParams, ControllerConfig, DahlParams, PlantParams
-from ..core.sensors import SensorParams
 from ..core.simulator import ChannelSimulator, run_closed_loop
+
+if TYPE_CHECKING:
+    from ..core.sensors import SensorParams
 
 __all__ = ["chirp_experiment", "work_loop_experiment", "ZeroTorque"]
 
 _Record = Dict[str, npt.NDArray[np.float64]]
+#: A work loop's record: the arrays and ``settle`` [s].
+_WorkLoop = Dict[str, Union[npt.NDArray[np.float64], float]]
 
 
 class ZeroTorque:
@@ -98,7 +102,7 @@ def work_loop_experiment(plant: Optional[PlantParams] = None, dahl: Optional[Dah
                          frequency: float = 1.0, cycles: float = 3.0, mode: str = "passive",
                          config: Optional[ControllerConfig] = None, seed: int = 0,
                          dt: float = 5e-4,
-                         settle_cycles: float = 1.0) -> Dict[str, Union[npt.NDArray[np.float64], float]]:
+                         settle_cycles: float = 1.0) -> _WorkLoop:
     """Backdrive the endpoint with the stiff position drive in controller ``mode``.
 
     Parameters
@@ -138,7 +142,6 @@ def work_loop_experiment(plant: Optional[PlantParams] = None, dahl: Optional[Dah
         else:
             config = config.replace(mode=mode)
         ctl = ChannelController(config, dt)
-    rec: Dict[str, Union[npt.NDArray[np.float64], float]] = {
-        **_fields(run_closed_loop(sim, ctl, n))}
+    rec: _WorkLoop = {**_fields(run_closed_loop(sim, ctl, n))}
     rec["settle"] = settle_cycles * period
     return rec

@@ -23,14 +23,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Dict, List, Optional, Sequence, Tuple, Union
+from typing import TYPE_CHECKING, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
 import scipy.optimize
 
 from .dahl_model import DahlPath
-from .spectral import BlackmanTukey, FrequencyResponse
+
+if TYPE_CHECKING:
+    from .spectral import BlackmanTukey, FrequencyResponse
 
 __all__ = ["SIGMA_FLOOR", "ParameterFit", "fit_mass_spring_damper", "fit_hose",
            "fit_endpoint_with_dahl", "HysteresisEstimate", "RationalFit", "fit_rational",
