@@ -3,11 +3,15 @@
 A node's executor thread sets parameters and serves ``~/reset`` while the plant's cycle thread
 runs the cycle (the direct layout). ``x = self._pending; self._pending = None`` in the cycle
 would lose a value the other thread stores between the two statements; :class:`Mailbox`
-uses a one-slot deque, whose ``append`` and ``popleft`` are single atomic operations: the
-newest value put is the one taken, and none is taken twice. :class:`Claim` decides, once,
-whether a request handed to the cycle (a grasp, a friction calibration) starts there or is
-withdrawn by the thread that made it.
+uses a deque, whose ``append`` and ``popleft`` are single atomic operations: with one slot
+(a new configuration) the newest value put is the one taken; without a bound (the jobs a
+channel is asked to run) every value put is taken once, in order, so that a request is never
+lost by another arriving in the same sample. :class:`Claim` decides, once, whether a request
+handed to the cycle (a job: :mod:`.jobs`) starts there or is withdrawn by the thread that made
+it.
 """
+
+from __future__ import annotations
 
 import threading
 from collections import deque
@@ -19,17 +23,26 @@ _T = TypeVar("_T")
 
 
 class Mailbox(Generic[_T]):
-    """One slot: :meth:`put` replaces what is waiting, :meth:`take` empties it (of values of
-    one type, ``Mailbox[ControllerConfig]``)."""
+    """A hand-over: :meth:`put` (any thread), :meth:`take` (the one thread that takes), of
+    values of one type (``Mailbox[ControllerConfig]``).
 
-    def __init__(self) -> None:
-        self._slot: Deque[_T] = deque(maxlen=1)
+    Parameters
+    ----------
+    size : int or None
+        How many values wait at most: 1 (the default) keeps only the newest put; None keeps
+        every one, taken oldest first.
+    """
+
+    def __init__(self, size: Optional[int] = 1) -> None:
+        self._slot: Deque[_T] = deque(maxlen=size)
 
     def put(self, value: _T) -> None:
+        """Hand ``value`` over (with one slot: replacing what waits)."""
         self._slot.append(value)
 
     def take(self) -> Optional[_T]:
-        """The newest value put since the last take, or None."""
+        """The oldest value waiting (with one slot: the newest put since the last take), or
+        None."""
         try:
             return self._slot.popleft()
         except IndexError:
