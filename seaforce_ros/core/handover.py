@@ -15,13 +15,16 @@ from __future__ import annotations
 
 import threading
 from collections import deque
-from typing import Any
+from typing import Deque, Generic, Optional, TypeVar
 
 __all__ = ["Mailbox", "Claim"]
 
+_T = TypeVar("_T")
 
-class Mailbox:
-    """A hand-over: :meth:`put` (any thread), :meth:`take` (the one thread that takes).
+
+class Mailbox(Generic[_T]):
+    """A hand-over: :meth:`put` (any thread), :meth:`take` (the one thread that takes), of
+    values of one type (``Mailbox[ControllerConfig]``).
 
     Parameters
     ----------
@@ -30,13 +33,14 @@ class Mailbox:
         every one, taken oldest first.
     """
 
-    def __init__(self, size: int | None = 1) -> None:
-        self._slot: deque[Any] = deque(maxlen=size)
+    def __init__(self, size: Optional[int] = 1) -> None:
+        self._slot: Deque[_T] = deque(maxlen=size)
 
-    def put(self, value: Any) -> None:
+    def put(self, value: _T) -> None:
+        """Hand ``value`` over (with one slot: replacing what waits)."""
         self._slot.append(value)
 
-    def take(self) -> Any:
+    def take(self) -> Optional[_T]:
         """The oldest value waiting (with one slot: the newest put since the last take), or
         None."""
         try:
@@ -74,4 +78,5 @@ class Claim:
 
     @property
     def claimed(self) -> bool:
+        """True once the cycle has claimed the request."""
         return self._claimed
