@@ -1,7 +1,8 @@
 """bag_recorder as a real process next to sim_node and controller_node (realtime, 2 kHz).
 
 * A 21 s soak of the three topics in 3 s splits: published = received = written, and the bag
-  directory is one rosbag2 bag whose metadata.yaml and mcap records carry Jazzy's fields (checked one by one).
+  directory is one rosbag2 bag whose metadata.yaml and mcap records carry Jazzy's fields
+  (checked one by one).
 * SIGKILL (mcap and sqlite3): the directory still opens as one bag (rosbags, the mcap
   library's reader) of every closed file; the open file loses about chunk_period (mcap) or a
   batch (sqlite3); the package's reader recovers it and says so; bag_reindex makes it whole.
