@@ -11,28 +11,34 @@ withdrawn by the thread that made it.
 
 import threading
 from collections import deque
+from typing import Any
 
 __all__ = ["Mailbox", "Claim"]
 
 
-class Mailbox:
-    """One slot: :meth:`put` replaces what is waiting, :meth:`take` empties it."""
+class Mailbox(deque):
+    """One slot: :meth:`put` replaces what is waiting, :meth:`take` empties it; true while a
+    value waits.
 
-    def __init__(self):
-        self._slot = deque(maxlen=1)
+    A one-slot deque itself (not a wrapper): the cycle asks every sample whether something
+    waits, and a deque answers that, and an empty :meth:`take`, without a Python call or an
+    exception.
+    """
 
-    def put(self, value):
-        self._slot.append(value)
+    def __init__(self) -> None:
+        super().__init__(maxlen=1)
 
-    def take(self):
+    #: Put ``value`` (any thread), replacing one that waits.
+    put = deque.append
+
+    def take(self) -> Any:
         """The newest value put since the last take, or None."""
-        try:
-            return self._slot.popleft()
-        except IndexError:
+        if not self:
             return None
-
-    def __bool__(self):
-        return bool(self._slot)
+        try:
+            return self.popleft()
+        except IndexError:      # another thread took it in between
+            return None
 
 
 class Claim:
