@@ -45,10 +45,10 @@ ratchet otherwise: a loaded finger would give way a little at every blip).
 While a channel is faulted its estimators keep running on valid samples, so
 ``controller_status`` shows live values.
 
-A grasp (:mod:`.grasp`) ends, aborted with the reason, whenever its channel's torque is zeroed
-here (a latched fault, a re-arming condition, a stall of the state stream): nothing it commanded
-comes back when the channel re-arms, which it does in the channel's mode. So does a friction
-calibration (:mod:`.friction_calibration`): nothing is applied.
+A job (:mod:`.jobs`: a grasp, a friction calibration) ends, aborted with the reason, whenever
+its channel's torque is zeroed here (a latched fault, a re-arming condition, a stall of the
+state stream): nothing it commanded comes back when the channel re-arms, which it does in the
+channel's mode (a calibration applies nothing).
 """
 
 import math
@@ -545,12 +545,8 @@ class ControlCycle:
                               f_p: float, f_a: float, sample: _Sample) -> None:
         """A channel with zero torque: its job ends, its estimators follow the plant (no
         windup), the torque it would give is dropped."""
-        if ctrl.grasp is not None or ctrl.calibration is not None:
-            why = f"fault latched: {ch.latched}" if ch.latched else sample.reason
-            if ctrl.grasp is not None:
-                ctrl.abort_grasp(why)
-            if ctrl.calibration is not None:
-                ctrl.abort_calibration(why)
+        if ctrl.job is not None:
+            ctrl.abort_job(f"fault latched: {ch.latched}" if ch.latched else sample.reason)
         ctrl.reenter(f_a)
         try:
             ctrl.update(x, v, f_p, sample.steps)
@@ -608,8 +604,7 @@ class ControlCycle:
             self._latch(i, reason)
             return
         ch = self._ch[i]
-        self.controllers[i].abort_grasp(reason)
-        self.controllers[i].abort_calibration(reason)
+        self.controllers[i].abort_job(reason)
         ch.needs_reset = True
         ch.rearming = reason
         ch.episode.begin(now, f"{self.channels[i]}: {reason}: zero torque until a clean "
@@ -626,8 +621,7 @@ class ControlCycle:
         ch = self._ch[i]
         if ch.latched:
             return
-        self.controllers[i].abort_grasp(f"fault latched: {reason}")
-        self.controllers[i].abort_calibration(f"fault latched: {reason}")
+        self.controllers[i].abort_job(f"fault latched: {reason}")
         ch.latched = reason
         ch.needs_reset = True
         self.faults_latched += 1

@@ -3,11 +3,15 @@
 A node's executor thread sets parameters and serves ``~/reset`` while the plant's cycle thread
 runs the cycle (the direct layout). ``x = self._pending; self._pending = None`` in the cycle
 would lose a value the other thread stores between the two statements; :class:`Mailbox`
-uses a one-slot deque, whose ``append`` and ``popleft`` are single atomic operations: the
-newest value put is the one taken, and none is taken twice. :class:`Claim` decides, once,
-whether a request handed to the cycle (a grasp, a friction calibration) starts there or is
-withdrawn by the thread that made it.
+uses a deque, whose ``append`` and ``popleft`` are single atomic operations: with one slot
+(a new configuration) the newest value put is the one taken; without a bound (the jobs a
+channel is asked to run) every value put is taken once, in order, so that a request is never
+lost by another arriving in the same sample. :class:`Claim` decides, once, whether a request
+handed to the cycle (a job: :mod:`.jobs`) starts there or is withdrawn by the thread that made
+it.
 """
+
+from __future__ import annotations
 
 import threading
 from collections import deque
@@ -16,23 +20,33 @@ from typing import Any
 __all__ = ["Mailbox", "Claim"]
 
 
-class Mailbox(deque):
-    """One slot: :meth:`put` replaces what is waiting, :meth:`take` empties it; true while a
-    value waits.
+class Mailbox(deque[Any]):
+    """A hand-over: :meth:`put` (any thread), :meth:`take` (the one thread that takes); true
+    while a value waits.
 
-    A one-slot deque itself (not a wrapper): the cycle asks every sample whether something
-    waits, and a deque answers that, and an empty :meth:`take`, without a Python call or an
+    Parameters
+    ----------
+    size : int or None
+        How many values wait at most: 1 (the default) keeps only the newest put; None keeps
+        every one, taken oldest first.
+
+    Notes
+    -----
+    A deque itself, not a wrapper: the cycle asks every sample whether something waits, and a
+    deque answers that, and an empty :meth:`take`, without a Python call or a caught
     exception.
     """
 
-    def __init__(self) -> None:
-        super().__init__(maxlen=1)
+    def __init__(self, size: int | None = 1) -> None:
+        super().__init__(maxlen=size)
 
-    #: Put ``value`` (any thread), replacing one that waits.
-    put = deque.append
+    def put(self, value: Any) -> None:
+        """Hand ``value`` over (any thread); with one slot it replaces a value waiting."""
+        self.append(value)
 
     def take(self) -> Any:
-        """The newest value put since the last take, or None."""
+        """The oldest value waiting (with one slot: the newest put since the last take), or
+        None."""
         if not self:
             return None
         try:
@@ -44,12 +58,12 @@ class Mailbox(deque):
 class Claim:
     """Either the cycle claims a request or another thread withdraws it first, never both."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._lock = threading.Lock()
         self._claimed = False
         self._withdrawn = False
 
-    def claim(self):
+    def claim(self) -> bool:
         """(cycle thread) True if the request is now the cycle's, False if it was withdrawn."""
         with self._lock:
             if self._withdrawn:
@@ -57,7 +71,7 @@ class Claim:
             self._claimed = True
             return True
 
-    def withdraw(self):
+    def withdraw(self) -> bool:
         """(any thread) True if withdrawn (it will never start), False if the cycle has it."""
         with self._lock:
             if self._claimed:
@@ -66,5 +80,5 @@ class Claim:
             return True
 
     @property
-    def claimed(self):
+    def claimed(self) -> bool:
         return self._claimed

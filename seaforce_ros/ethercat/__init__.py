@@ -3,3 +3,12 @@
 ``bus_config`` and ``cia402`` import neither ROS nor pysoem; ``master`` imports pysoem only
 when a bus is opened.
 """
+from .errors import BusConfigError, BusError, EthercatError, IdentityError
+from .bus_config import (Affine, BusConfig, ChannelConfig, PdoEntry, PdoLayout, Scaling,
+                         SignalConfig, SlaveConfig, Source)
+from .cia402 import DriveSequencer, DriveState, state_of
+from .master import EthercatBus
+
+__all__ = ["EthercatError", "BusConfigError", "BusError", "IdentityError", "BusConfig",
+           "SlaveConfig", "PdoEntry", "PdoLayout", "ChannelConfig", "SignalConfig", "Source",
+           "Scaling", "Affine", "DriveState", "DriveSequencer", "state_of", "EthercatBus"]

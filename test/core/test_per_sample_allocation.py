@@ -50,7 +50,7 @@ def test_the_estimator_in_contact_keeps_no_memory():
     sim = ChannelSimulator(PLANT, DahlParams(), environment=contact_object(0.1, 2.0, 0.06))
     cfg = ControllerConfig(mode="passive")
     ctrl = ChannelController(cfg)
-    ctrl.request_grasp(Grasp(GraspGoal("pinch", 0.3, 0.4, 0.8, True), cfg))
+    ctrl.request_job(Grasp(GraspGoal("pinch", 0.3, 0.4, 0.8, True), cfg))
     inputs = []
     m = sim.measurement()
     while len(inputs) < 2 * N or not ctrl.estimator.contact:
