@@ -121,14 +121,15 @@ class ControlOutput:
     answered : bool
         False when the state was dropped (no channel could be mapped, or start-up backlog):
         send no command.
-    cycle : int
-        The state's cycle (the command answers it).
+    cycle : int or None
+        The state's cycle (the command answers it); -1 before the first answer, None when
+        every channel was zeroed before any state was admitted.
     """
 
     def __init__(self, n: int) -> None:
         self.effort: list[float] = [0.0] * n
         self.answered: bool = False
-        self.cycle: int = -1
+        self.cycle: int | None = -1
 
 
 class _StreamState:

@@ -263,8 +263,10 @@ class ContactEstimator:
         self._clear_fit()
 
     def _clear_fit(self) -> None:
-        self._stats = None           # (S 6x6, p0, bias) published at each fold: read atomically
-        self._cache = None           # (stats, contacts, ObjectEstimate) of the last estimate()
+        # (S 6x6, p0, bias) published at each fold: read atomically
+        self._stats: tuple[np.ndarray, float, float] | None = None
+        # (stats, contacts, ObjectEstimate) of the last estimate()
+        self._cache: tuple[tuple | None, int, ObjectEstimate] | None = None
         self._S = np.zeros((6, 6))
         # x - p0, q, a, 1, z, F_d of each sample since the last fold: the first _filled values
         self._block = [0.0] * _BLOCK_VALUES
