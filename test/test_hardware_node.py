@@ -56,9 +56,10 @@ def start_hardware(processes, tmp_path, harness, overrides=None, bus=BUS, wait=T
     # a loaded test host (and the emulator serving its side channel) can delay frames: the
     # tests tolerate 100 ms of working-counter errors (the cable-pull test uses the default
     # 10 cycles) and program a 0.5 s drive watchdog instead of 0.1 s
+    # autostart active: these tests are about the running loop (the lifecycle has its own)
     values = {'interface': harness.master_interface, 'bus_config': str(bus),
               'torque_limit': 5.0, 'wkc_error_limit': 200, 'drive_watchdog': 0.5,
-              **(overrides or {})}
+              'autostart': 'active', **(overrides or {})}
     # real-time priority, as on a real rig (README): a starved cycle thread lets the drives'
     # watchdogs expire on this shared 2-core host
     return start_node(processes, 'hardware_node', 'hardware', tmp_path,
@@ -74,7 +75,7 @@ def start_bringup(processes, tmp_path, harness, overrides=None):
     """hardware_bringup loop:=direct at SCHED_FIFO 40 (hardware + controller, one process)."""
     values = {'interface': harness.master_interface, 'bus_config': str(BUS), 'rate': RATE,
               'torque_limit': 5.0, 'wkc_error_limit': 200, 'drive_watchdog': 0.5,
-              'loop': 'direct', **RELAXED, **(overrides or {})}
+              'loop': 'direct', 'autostart': 'active', **RELAXED, **(overrides or {})}
     path = tmp_path / 'bringup.yaml'
     path.write_text(yaml.safe_dump({'/**': {'ros__parameters': values}}))
     proc = processes.start(['chrt', '-f', '40', str(executable('hardware_bringup')),
