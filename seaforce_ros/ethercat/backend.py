@@ -189,13 +189,17 @@ class EthercatBackend(PlantBackend):
         if bus.master is None:
             self.state = 'closed'
             return ''
+        done = ''
         try:
             if self.state == 'active':
                 for c in self.ch:
                     c.sequencer.enable = False
-                self._disable_drives()
+                powered = self._disable_drives()
+                done = (f'drive(s) still powered ({", ".join(powered)}), ' if powered
+                        else 'drives disabled, ')
             ok = bus.to_init()
-            return 'drives disabled, bus ' + ('in INIT' if ok else 'INIT requested')
+            return done + ('bus in INIT' if ok else 'bus INIT requested (not all slaves '
+                           'reported it)')
         except Exception as exc:   # never raise here: this is the way down from every error
             return f'bus closed after an error on the way to INIT: {exc}'
         finally:

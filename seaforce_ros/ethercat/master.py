@@ -1,8 +1,10 @@
 """The EtherCAT master of the hardware node: pysoem (SOEM) driven from a :class:`BusConfig`.
 
-No ROS here. :class:`EthercatBus` brings the bus up (identity check before anything is
-written to a drive), exchanges process data once per cycle, packs/unpacks the configured PDO
-entries, and takes the bus back to INIT. The per-cycle path does no allocation beyond the
+No ROS here. :class:`EthercatBus` opens the interface (:meth:`~EthercatBus.open`), brings
+the bus to SAFE-OP with every identity checked before anything is written to a drive
+(:meth:`~EthercatBus.configure`), to OP and back (:meth:`~EthercatBus.request_op`,
+:meth:`~EthercatBus.request_safe_op`), exchanges process data once per cycle, packs/unpacks
+the configured PDO entries, and takes the bus back to INIT. The per-cycle path does no allocation beyond the
 bytes objects pysoem itself returns.
 """
 from __future__ import annotations

@@ -51,6 +51,7 @@ import time
 from typing import Any, Callable, Dict, List, Optional, Sequence
 
 from diagnostic_msgs.msg import DiagnosticStatus
+from lifecycle_msgs.srv import ChangeState
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from sensor_msgs.msg import JointState
 from seaforce_msgs.msg import ActuatorCommand, ActuatorState
@@ -136,6 +137,12 @@ class PlantNode(LifecycleNode):
                  **kwargs: Any) -> None:
         super().__init__(name, **kwargs)
         self._name = name
+        # rclpy answers a transition that does not exist from the current state (``activate``
+        # while unconfigured, by id) with an exception out of the service callback, which ends
+        # the process: refuse it here instead, as rclcpp does
+        service = self._service_change_state
+        self._rclpy_change_state = service.callback
+        service.callback = self._on_change_state
         values = declare(self, specs)
         self.values: Dict[str, Any] = values
         self.channels = ps.channels_from(values)
@@ -219,6 +226,21 @@ class PlantNode(LifecycleNode):
     def lifecycle_state(self) -> str:
         """The managed node's state label (``unconfigured``, ``inactive``, ``active``, ...)."""
         return self._state_machine.current_state[1]
+
+    def _on_change_state(self, request: ChangeState.Request,
+                         response: ChangeState.Response) -> ChangeState.Response:
+        """``~/change_state``: a transition not available from the current state gets
+        ``success: false`` and a warning naming the available ones; the others run."""
+        wanted = request.transition
+        available = {t[0]: t[1] for t in self._state_machine.available_transitions}
+        if (wanted.label not in available.values()) if wanted.label else \
+                (wanted.id not in available):
+            self.get_logger().warning(
+                f'transition {wanted.label or wanted.id} refused: not available from '
+                f'{self.lifecycle_state()} (available: {", ".join(available.values())})')
+            response.success = False
+            return response
+        return self._rclpy_change_state(request, response)
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         return self._transition('configure', self._configure, self._close_backend)
