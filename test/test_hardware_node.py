@@ -446,3 +446,32 @@ def test_wrong_identity_fails_configure_with_the_reason(ecat_emulator, processes
     assert_no_torque(harness.client)
     assert not any(e['value'] & 0x0F == OP for e in harness.client.al_history())
     assert set(_slaves(harness.client, 'al_state').values()) == {1}
+
+
+def test_failed_activate_returns_to_inactive_with_zero_torque(ecat_emulator, processes,
+                                                              tmp_path, probe):
+    """hardware_node with the default autostart (inactive: bus checked, drives disabled). A
+    slave that refuses OP (an AL error it was not acknowledged) fails activate: the node
+    reports why, stays inactive with no torque and the bus in SAFE-OP; cleanup + configure
+    acknowledge the error and activate then works."""
+    harness = ecat_emulator(emulator_config())
+    client = harness.client
+    hardware = start_hardware(processes, tmp_path, harness, {'autostart': 'inactive'})
+    lifecycle = Lifecycle(probe)
+    assert lifecycle.state() == 'inactive'
+    assert set(_slaves(client, 'al_state').values()) == {4}
+    assert_no_torque(client)
+    client.al_error('pinch_drive')
+    ok, state = lifecycle.set(Transition.TRANSITION_ACTIVATE)
+    assert not ok and state == 'inactive', (ok, state, hardware.output()[-3000:])
+    assert hardware.wait_for_output('activate failed: slaves did not reach OP', timeout=10)
+    assert_no_torque(client)
+    assert set(_slaves(client, 'al_state').values()) == {4}
+    for transition, goal in ((Transition.TRANSITION_CLEANUP, 'unconfigured'),
+                             (Transition.TRANSITION_CONFIGURE, 'inactive'),
+                             (Transition.TRANSITION_ACTIVATE, 'active')):
+        ok, state = lifecycle.set(transition)
+        assert state == goal, (transition, ok, state, hardware.output()[-3000:])
+    probe.wait_for(lambda: {client.cia402_state(d) for d in DRIVES} == {'operation_enabled'},
+                   timeout=10, what='drives enabled after the second activate')
+    assert 'Traceback' not in hardware.output()

@@ -128,6 +128,7 @@ class EthercatBackend(PlantBackend):
         self._reports: List[Tuple[bool, bool]] = [(False, False)] * len(self.ch)
         self._applied = [0.0] * len(self.ch)     # torque written last cycle [N m]
         self._in_flight = False                  # a frame was sent and not yet received
+        self._expected = 0                       # working counter of a complete frame
         self._complete = LINK_NOTHING
 
     def describe(self) -> str:
@@ -155,6 +156,9 @@ class EthercatBackend(PlantBackend):
 
     def activate(self) -> str:
         bus = self.bus
+        expected = bus.expected_wkc
+        if expected is None:
+            raise BusError('activate needs a configured bus (configure first)')
         for c in self.ch:
             c.sequencer = DriveSequencer()
             c.sequencer.enable = True
@@ -163,7 +167,8 @@ class EthercatBackend(PlantBackend):
         self._zero_outputs()
         self._in_flight = False
         self.wkc_errors_total = 0
-        self._complete = LinkStatus(True, bus.expected_wkc, bus.expected_wkc)
+        self._expected = expected
+        self._complete = LinkStatus(True, expected, expected)
         # OP last, and the cycle right after it: once in OP the slaves' process-data
         # watchdogs expect a frame every cycle
         self.state = 'active'
@@ -243,9 +248,9 @@ class EthercatBackend(PlantBackend):
         self._in_flight = False
         bus = self.bus
         wkc = bus.receive()
-        if wkc != bus.expected_wkc:
+        if wkc != self._expected:
             self.wkc_errors_total += 1
-            return LinkStatus(True, wkc, bus.expected_wkc)
+            return LinkStatus(True, wkc, self._expected)
         x, v, fp, fa = sample.position, sample.velocity, sample.pressure_force, sample.effort
         xe, fe = sample.endpoint_position, sample.external_force
         applied = self._applied

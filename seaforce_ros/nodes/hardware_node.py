@@ -35,7 +35,7 @@ from __future__ import annotations
 import dataclasses
 import pathlib
 import sys
-from typing import Any, List
+from typing import Any, List, Optional
 
 from ..core.schema import HARDWARE, Spec
 from ..ethercat.backend import EthercatBackend
@@ -87,7 +87,7 @@ class HardwareNode(PlantNode):
         self.attach(backend, description=backend.describe())
 
 
-def main(args=None) -> None:
+def main(args: Optional[List[str]] = None) -> None:
     prepare_process()
     sys.exit(run(HardwareNode, args=args, name='hardware_node'))
 

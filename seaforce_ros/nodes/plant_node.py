@@ -225,6 +225,7 @@ class PlantNode(LifecycleNode):
     # --- lifecycle ------------------------------------------------------------------------------
     def lifecycle_state(self) -> str:
         """The managed node's state label (``unconfigured``, ``inactive``, ``active``, ...)."""
+        # rclpy's LifecycleNodeMixin has no public getter; its state machine is the truth
         return self._state_machine.current_state[1]
 
     def _on_change_state(self, request: ChangeState.Request,

@@ -160,7 +160,7 @@ class SimNode(PlantNode):
                 self.get_logger().info(f'{channel}: simulated plant changed')
 
 
-def main(args=None) -> None:
+def main(args: Optional[List[str]] = None) -> None:
     prepare_process()
     sys.exit(run(SimNode, args=args, name='sim_node'))
 
