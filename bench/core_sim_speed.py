@@ -199,7 +199,7 @@ def record_grasp():
     cfg = ControllerConfig(mode="passive")
     ctl = ChannelController(cfg)
     grasp = Grasp(GraspGoal("pinch", 0.3, 0.4, 0.8, True), cfg)
-    ctl.request_grasp(grasp)
+    ctl.request_job(grasp)
     rows = []
     m = sim.measurement()
     while len(rows) < int(2.5 / DT):
@@ -232,7 +232,7 @@ def grasp_rows():
         g_update(est, ve[i])
     t_both = timed_calls(both, lambda i: (i,), n)
     full = ChannelController(ControllerConfig(mode="passive"))
-    full.request_grasp(Grasp(GraspGoal("pinch", 0.3, 0.4, 0.8, True), cfg))
+    full.request_job(Grasp(GraspGoal("pinch", 0.3, 0.4, 0.8, True), cfg))
     t_full = timed_calls(full.update, lambda i: (x[i], v[i], fp[i]), n)
     contact = np.array([p != "approach" for p in phase])
     print(f"\ncontact estimator + grasp logic per cycle, over a recorded {n * DT:.1f} s grasp "

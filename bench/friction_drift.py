@@ -1,6 +1,6 @@
 """Endpoint friction recalibration after a drift of the simulated plant.
 
-The sim's true endpoint drifts (default: b_e and F_c +50 %, k_e -30 %, the issue's case)
+The sim's true endpoint drifts (default: b_e and F_c +50 %, k_e -30 %: a worn finger)
 while the controller keeps the Table I model. Printed:
 
 * the drift table: each friction parameter's truth, the model before recalibration, the
@@ -48,7 +48,7 @@ def calibrate(config, plant, dahl, amplitude, speed, seed=2):
     cal = FrictionCalibration(CalibrationGoal("pinch", amplitude, speed, True), config, DT)
     n0 = 400
     n = n0 + int((config.friction.calibration_duration + 0.2) / DT)
-    run_closed_loop(sim, ctl, n, on_switch={n0: lambda s, c: c.request_calibration(cal)})
+    run_closed_loop(sim, ctl, n, on_switch={n0: lambda s, c: c.request_job(cal)})
     return cal, ctl.config
 
 
@@ -59,7 +59,7 @@ def per_sample_cost(config, calibrate_too, n=6000):
     sim = ChannelSimulator(config.plant, config.dahl, dt=DT, seed=3, environment=env)
     ctl = ChannelController(config, DT)
     if calibrate_too:
-        ctl.request_calibration(FrictionCalibration(CalibrationGoal("pinch", 0.5, 1.0, True),
+        ctl.request_job(FrictionCalibration(CalibrationGoal("pinch", 0.5, 1.0, True),
                                                     config, DT))
     m = sim.measurement()
     times = []
@@ -111,7 +111,7 @@ def one_case(base, factors, amplitude, speed):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--random", type=int, default=2, help="random drifts after the issue's")
+    ap.add_argument("--random", type=int, default=2, help="random drifts after the default one")
     ap.add_argument("--duration", type=float, default=12.0, help="calibration length [s]")
     ap.add_argument("--amplitude", type=float, default=0.5)
     ap.add_argument("--speed", type=float, default=1.0)

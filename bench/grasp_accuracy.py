@@ -60,7 +60,7 @@ def controller_on(sim):
     m = sim.measurement()
     if CALIBRATE:
         cal = FrictionCalibration(CalibrationGoal('pinch', 0.1, 0.5, True), config, DT)
-        ctl.request_calibration(cal)
+        ctl.request_job(cal)
         for _ in range(int((config.friction.calibration_duration + 1.0) / DT)):
             m = sim.step(ctl.update(m.x, m.v, m.f_p))
             if cal.outcome is not None:
@@ -93,7 +93,7 @@ def ideal_delay(config, plant, dahl, k, b, position, v):
         sim = ChannelSimulator(plant, dahl, seed=0, environment=env,
                                sensors=SensorParams.ideal())
         ctl = ChannelController(config, dt=DT)
-        ctl.request_grasp(Grasp(GraspGoal('pinch', v, 0.3, 0.6, True), config, DT))
+        ctl.request_job(Grasp(GraspGoal('pinch', v, 0.3, 0.6, True), config, DT))
         m = sim.measurement()
         fp, touched = [], None
         while len(fp) < samples and (touched is None or len(fp) < touched + int(0.05 / DT)):
@@ -120,7 +120,7 @@ def grasp(k, b, position, v, grip, rng, error, hold=True, ideal=False):
     ctl, config, m = controller_on(sim)
     max_force = 2.0 * grip
     g = Grasp(GraspGoal('pinch', v, grip, max_force, True), config, DT)
-    ctl.request_grasp(g)
+    ctl.request_job(g)
     t = 0.0
     touched = estimate = None
     forces, phases = [], []
@@ -198,7 +198,7 @@ def free_motion(v, rng, error, travel=0.5):
     sim = ChannelSimulator(plant, dahl, seed=int(rng.integers(1 << 30)), environment=free())
     ctl, config, m = controller_on(sim)
     g = Grasp(GraspGoal('pinch', v, 0.3, 0.6, True), config, DT)
-    ctl.request_grasp(g)
+    ctl.request_job(g)
     est = ctl.estimator
     start = None
     low, high, worst = math.inf, 0.0, 0.0

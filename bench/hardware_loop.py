@@ -13,8 +13,8 @@ Columns: cycle rate, period p50/p99, working-counter errors, round trip state ->
 "fresh": cycles whose torque came from the command answering the state just before (the one
 modelled frame), CPU per process. Needs root (veth, namespaces, raw sockets). `--rt PRIO` runs
 the plant processes and the emulator (at PRIO + 10) under SCHED_FIFO, as a real rig would
-(README); the separate controller then runs at PRIO - 10. `--hog` adds a CPU-burning process
-per core at normal priority for the whole run.
+(docs/ethercat-hardware.md); the separate controller then runs at PRIO - 10. `--hog` adds a
+CPU-burning process per core at normal priority for the whole run.
 
 Usage: source scripts/setup.sh; python bench/hardware_loop.py [--seconds 60] [--rt 40] [--hog]
 """

@@ -79,8 +79,8 @@ FILE_OPTIONS = [
     ("zwidth", "--true-params", ["--simulate", "--channel", "pinch"]),
     ("zwidth", "--reference-params", ["--simulate", "--channel", "pinch"]),
 ]
-#: every kind of bad file for the three options of the issue, a few for the other two (the
-#: same reader)
+#: every kind of bad file for the three options that read a channel's parameters, a few for
+#: the other two (the same reader)
 FILE_CASES = [(*option, kind) for option in FILE_OPTIONS for kind in (
     FILE_KINDS if option[1] in ("--plant-params", "--truth", "--params")
     else ("list", "invalid_yaml", "missing"))]

@@ -1,5 +1,5 @@
 """Faults of the real-time loop, through ROS processes and topics: each test reproduces a
-defect measured on the loop (issue "The real-time cycle") and checks the behaviour now.
+defect once measured on the loop and checks the behaviour now.
 
 The plant side is the sim here (hardware_node shares PlantCycle with it; its own loop faults
 are in test_hardware_node.py); the controller side is controller_node fed by the test's own

@@ -2,9 +2,9 @@
 
 * Objects drawn at random by the test (stiffness, damping, where, closing speed, grip; the sim's
   plant 15 % off the controller's model, its endpoint friction recalibrated first with
-  ``~/calibrate_friction``, as README says to), one after the other in one lockstep run: the
-  goals of the issue asserted from what the sim reports (true contact force) and what the controller
-  publishes (controller_status at every cycle, feedback, result); then the plant dies
+  ``~/calibrate_friction``, as docs/grasping.md says to), one after the other in one lockstep
+  run: the grasp's goals asserted from what the sim reports (true contact force) and what the
+  controller publishes (controller_status at every cycle, feedback, result); then the plant dies
   mid-grasp (its process killed): the goal aborted with the reason, the next one refused.
 * The direct layout (bringup, real time): bad goals rejected with a reason, a second goal on a
   held channel, a goal on a faulted channel, a cancel that releases into the mode before the
@@ -163,7 +163,7 @@ def test_grasp_random_objects_over_ros(processes, tmp_path, probe):
                 'pinch.friction.calibration_duration': 6.0})
     probe.wait_messages('controller_status', 5, timeout=60)       # the loop runs
     # with no object in reach: without it the model's b_e and Dahl F_c errors alone put the
-    # object damping 30-60 % off at 3-5 N m/rad (README, Grasping)
+    # object damping 30-60 % off at 3-5 N m/rad (docs/grasping.md)
     calibration = CalibrationClient(probe)
     handle, _ = calibration.send(amplitude=0.1, speed=0.5)
     answer = calibration.result(handle, timeout=240.0)

@@ -27,8 +27,8 @@ BUS = pathlib.Path(__file__).resolve().parent / 'data' / 'bus_emulated.yaml'
 RELAXED = {'state_timeout': 0.5}
 # The EtherCAT loop at the real rate, with a CPU-burning process per core beside every test of
 # this module (the cpu_hog fixture). The emulator (SCHED_FIFO 50, test/ethercat/fixtures.py)
-# and the plant (40) run at real-time priority, as on a rig (README). Most tests run
-# hardware_bringup loop:=direct, the layout for a 2 kHz rig: a separate 2 kHz controller
+# and the plant (40) run at real-time priority, as on a rig (docs/ethercat-hardware.md). Most
+# tests run hardware_bringup loop:=direct, the layout for a 2 kHz rig: a separate 2 kHz controller
 # process costs about half a core more, and a 2-core host busy with the emulator and the
 # hogs does not have it. The tests about the controller process itself (killed, replaced)
 # run it separately, at normal priority: how late its commands come does not matter there.
@@ -62,8 +62,8 @@ def start_hardware(processes, tmp_path, harness, overrides=None, bus=BUS, wait=T
     values = {'interface': harness.master_interface, 'bus_config': str(bus),
               'torque_limit': 5.0, 'wkc_error_limit': 200, 'drive_watchdog': 0.5,
               'autostart': 'active', **(overrides or {})}
-    # real-time priority, as on a real rig (README): a starved cycle thread lets the drives'
-    # watchdogs expire on this shared 2-core host
+    # real-time priority, as on a real rig (docs/ethercat-hardware.md): a starved cycle thread
+    # lets the drives' watchdogs expire on this shared 2-core host
     return start_node(processes, 'hardware_node', 'hardware', tmp_path,
                       {'rate': RATE, **values}, wait=wait, prefix=('chrt', '-f', '40'))
 

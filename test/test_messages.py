@@ -14,7 +14,7 @@ TYPES = {'actuator_state': 'ActuatorState', 'actuator_command': 'ActuatorCommand
 
 
 def test_message_fields_match_design():
-    """The generated types carry exactly the fields, types and constants of the design."""
+    """The generated types carry exactly the fields, types and constants the nodes rely on."""
     from seaforce_msgs.msg import ActuatorCommand, ActuatorState, ControllerStatus
 
     assert ActuatorState.get_fields_and_field_types() == {
@@ -46,7 +46,7 @@ def test_message_fields_match_design():
 
 def test_grasp_action_interface():
     """The action's goal and result are a fixed interface (other tools depend on them), the feedback the
-    issue's; rosbags knows the feedback topic's message with rosidl's own type hash."""
+    grasp's progress; rosbags knows the feedback topic's message with rosidl's own type hash."""
     from ament_index_python.packages import get_package_share_directory
     from seaforce_msgs.action import Grasp
 
@@ -70,8 +70,8 @@ def test_grasp_action_interface():
 
 
 def test_calibrate_friction_action_interface():
-    """Issue 13's goal (channel, amplitude, speed, apply), result (old/new values, 1-sigma,
-    change, message) and feedback; rosbags hashes them as rosidl does."""
+    """The calibration's goal (channel, amplitude, speed, apply), result (old/new values,
+    1-sigma, change, message) and feedback; rosbags hashes them as rosidl does."""
     from ament_index_python.packages import get_package_share_directory
     from seaforce_msgs.action import CalibrateFriction
 

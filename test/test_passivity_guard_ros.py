@@ -24,7 +24,7 @@ def test_guard_carries_a_light_finger_against_the_stiff_drive(processes, tmp_pat
                             {'state_timeout': 0.5})
     probe.record(ControllerStatus, 'controller_status')
     probe.record(DiagnosticArray, '/diagnostics')
-    # the off/on are YAML booleans: the values are disabled / monitor / active
+    # off/on would be YAML booleans: the values are disabled / monitor / active
     ok, reason = probe.set_parameters('/controller', {'pinch.passivity_guard': 'on'})
     assert not ok and 'disabled, monitor, active' in reason and 'YAML' in reason, reason
     # without the guard the light setting is rejected; with it, accepted with a warning

@@ -9,7 +9,6 @@ and starts a new controller; rejections name the whole parameter (``pinch.dob...
 The processes are started as a user starts them: the installed executables with
 ``--ros-args``.
 """
-import itertools
 import subprocess
 from concurrent.futures import ThreadPoolExecutor
 
@@ -239,7 +238,8 @@ def test_no_string_value_is_a_yaml_boolean():
         assert yaml.safe_load(f'key: {word}') == {'key': word}, word
 
 
-MODE_PAIRS = list(itertools.zip_longest(MODES[0::2], MODES[1::2], fillvalue=MODES[0]))
+#: One channel per mode, named after it: one controller holds every mode word at once.
+MODE_CHANNELS = {f'm_{mode}': mode for mode in MODES}
 
 
 def _dump(probe, node):
@@ -259,21 +259,23 @@ def _dump(probe, node):
     return yaml.dump({node: {'ros__parameters': tree}}, default_flow_style=False)
 
 
-@pytest.mark.parametrize('wrist_mode,pinch_mode', MODE_PAIRS)
-def test_unquoted_modes_load_and_dump_load_round_trip(processes, tmp_path, probe,
-                                                      wrist_mode, pinch_mode):
+def test_unquoted_modes_load_and_dump_load_round_trip(processes, tmp_path, probe):
+    """Every mode word, unquoted in a params file, loads as that string; `ros2 param dump`
+    writes it unquoted and `ros2 param load` / a restart from the dump read it back (one
+    controller with a channel per mode: every word in one start)."""
     unquoted = tmp_path / 'modes.yaml'
     unquoted.write_text('controller:\n  ros__parameters:\n'
-                        f'    wrist:\n      mode: {wrist_mode}\n'
-                        f'    pinch:\n      mode: {pinch_mode}\n')
+                        f'    channels: [{", ".join(MODE_CHANNELS)}]\n'
+                        + ''.join(f'    {channel}:\n      mode: {mode}\n'
+                                  for channel, mode in MODE_CHANNELS.items()))
     proc = start_node(processes, 'controller_node', 'controller', tmp_path,
                       ros_args=('--params-file', str(unquoted)))
-    modes = ['wrist.mode', 'pinch.mode']
-    assert probe.get_parameters('/controller', modes) == {'wrist.mode': wrist_mode,
-                                                          'pinch.mode': pinch_mode}
+    modes = {f'{channel}.mode': mode for channel, mode in MODE_CHANNELS.items()}
+    assert probe.get_parameters('/controller', list(modes)) == modes
     dumped = tmp_path / 'dump.yaml'
     dumped.write_text(_dump(probe, '/controller'))
-    assert f'mode: {pinch_mode}\n' in dumped.read_text()      # written unquoted
+    for mode in MODES:
+        assert f'mode: {mode}\n' in dumped.read_text(), mode      # written unquoted
 
     # `ros2 param load /controller dump.yaml`: every parameter that may change at run time
     # is set from the file; the read-only ones are refused as read-only, nothing else
@@ -281,16 +283,15 @@ def test_unquoted_modes_load_and_dump_load_round_trip(processes, tmp_path, probe
     results = probe._request(lambda: client.load_parameter_file(str(dumped)), 10,
                              'load').results
     loaded = yaml.safe_load(dumped.read_text())
-    assert len(results) > 50
+    assert len(results) > 50 * len(MODES)
     for result in results:
         assert result.successful or 'read-only' in result.reason, result.reason
-    assert sum(r.successful for r in results) > 40
+    assert sum(r.successful for r in results) > 40 * len(MODES)
 
     # and a new controller starts from the dump with the same modes
     proc.stop()
     start_node(processes, 'controller_node', 'controller', tmp_path,
                ros_args=('--params-file', str(dumped)))
-    assert probe.get_parameters('/controller', modes) == {'wrist.mode': wrist_mode,
-                                                          'pinch.mode': pinch_mode}
-    assert loaded['/controller']['ros__parameters']['pinch']['mode'] == pinch_mode
-
+    assert probe.get_parameters('/controller', list(modes)) == modes
+    for channel, mode in MODE_CHANNELS.items():
+        assert loaded['/controller']['ros__parameters'][channel]['mode'] == mode

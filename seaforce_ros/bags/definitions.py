@@ -14,7 +14,11 @@ No rclpy import here: offline tools (identification, Z-width) use it without ROS
 from __future__ import annotations
 
 import pathlib
-from typing import Dict, Optional
+from typing import TYPE_CHECKING, Dict, List, Optional
+
+if TYPE_CHECKING:
+    from rosbags.interfaces.typing import Typesdict
+    from rosbags.typesys.store import Typestore
 
 MSG_PACKAGE = 'seaforce_msgs'
 MESSAGE_NAMES = ('ActuatorState', 'ActuatorCommand', 'ControllerStatus')
@@ -32,7 +36,7 @@ def msg_directory() -> pathlib.Path:
     Looks in the installed package share (``share/seaforce_msgs/msg`` via ament_index) first,
     then in ``msg_defs/msg`` beside this package in a source checkout.
     """
-    candidates = []
+    candidates: List[pathlib.Path] = []
     try:
         from ament_index_python.packages import get_package_share_directory, PackageNotFoundError
         try:
@@ -65,7 +69,7 @@ def action_definitions(directory: Optional[pathlib.Path] = None) -> Dict[str, st
     message text: the three sections of ``<Name>.action`` (split at ``---``, as rosidl does)
     and the feedback topic's message, ``goal_id`` + ``feedback``."""
     directory = (directory or msg_directory()).parent / 'action'
-    out = {}
+    out: Dict[str, str] = {}
     for name in ACTION_NAMES:
         text = (directory / f'{name}.action').read_text()
         sections = text.split('\n---\n')
@@ -80,12 +84,12 @@ def action_definitions(directory: Optional[pathlib.Path] = None) -> Dict[str, st
     return out
 
 
-def make_typestore(directory: Optional[pathlib.Path] = None):
+def make_typestore(directory: Optional[pathlib.Path] = None) -> Typestore:
     """A rosbags typestore with the ROS 2 Jazzy standard types plus ``seaforce_msgs``."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
-    types = {}
+    types: Typesdict = {}
     definitions = {**message_definitions(directory), **action_definitions(directory)}
     for name, text in definitions.items():
         try:

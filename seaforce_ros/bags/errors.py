@@ -14,6 +14,7 @@ it as one line (no traceback). The subclasses tell a caller where the problem li
 * :class:`BagWriteError` -- writing failed (disk full, file-size limit, permissions). What was
   written before stays readable; the message says what was kept.
 """
+from typing import Mapping, Optional
 
 __all__ = ["BagError", "NotABagError", "BagReadError", "BagContentError", "BagUsageError",
            "BagWriteError"]
@@ -50,6 +51,6 @@ class BagWriteError(BagError):
         transaction).
     """
 
-    def __init__(self, message, lost=None):
+    def __init__(self, message: str, lost: Optional[Mapping[str, int]] = None) -> None:
         super().__init__(message)
         self.lost = dict(lost or {})

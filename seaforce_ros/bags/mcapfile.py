@@ -27,7 +27,8 @@ import struct
 import zlib
 from array import array
 from dataclasses import dataclass, field
-from typing import Callable, Dict, List, Optional, Tuple
+from typing import (Callable, Dict, Iterable, Iterator, List, Literal, Mapping, Optional,
+                    Tuple, Union)
 
 from .errors import BagReadError
 
@@ -49,19 +50,26 @@ _MSG_BODY = struct.Struct("<HIQQ")
 _U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
 _CHUNK_HEAD = struct.Struct("<QQQI")             # start, end, uncompressed size, crc
 
+#: What records are read from: a file's bytes (mapped or read) or a chunk's.
+Buffer = Union[bytes, mmap.mmap]
+#: One message as read: ``(channel_id, log_time, publish_time, data)``.
+Message = Tuple[int, int, int, bytes]
+#: Metadata records to write: ``(name, {key: value})``.
+MetadataRecords = Iterable[Tuple[str, Mapping[str, str]]]
+
 
 # --- encoding helpers ---------------------------------------------------------------------
-def _string(s):
+def _string(s: Union[str, bytes]) -> bytes:
     b = s.encode() if isinstance(s, str) else bytes(s)
     return _U32.pack(len(b)) + b
 
 
-def _map(d):
+def _map(d: Mapping[str, str]) -> bytes:
     body = b"".join(_string(k) + _string(v) for k, v in d.items())
     return _U32.pack(len(body)) + body
 
 
-def _record(op, body):
+def _record(op: int, body: bytes) -> bytes:
     return _REC.pack(op, len(body)) + body
 
 
@@ -70,35 +78,35 @@ class _Cursor:
 
     __slots__ = ("buf", "pos")
 
-    def __init__(self, buf, pos=0):
+    def __init__(self, buf: Buffer, pos: int = 0) -> None:
         self.buf, self.pos = buf, pos
 
-    def u16(self):
+    def u16(self) -> int:
         v = _U16.unpack_from(self.buf, self.pos)[0]
         self.pos += 2
         return v
 
-    def u32(self):
+    def u32(self) -> int:
         v = _U32.unpack_from(self.buf, self.pos)[0]
         self.pos += 4
         return v
 
-    def u64(self):
+    def u64(self) -> int:
         v = _U64.unpack_from(self.buf, self.pos)[0]
         self.pos += 8
         return v
 
-    def raw(self, n):
+    def raw(self, n: int) -> bytes:
         if self.pos + n > len(self.buf):
             raise struct.error("record shorter than its fields")
         v = bytes(self.buf[self.pos:self.pos + n])
         self.pos += n
         return v
 
-    def string(self):
+    def string(self) -> str:
         return self.raw(self.u32()).decode()
 
-    def map(self):
+    def map(self) -> Dict[str, str]:
         end = self.pos + self.u32()
         out = {}
         while self.pos < end:
@@ -107,11 +115,12 @@ class _Cursor:
         return out
 
 
-def _schema_body(sid, name, encoding, data):
+def _schema_body(sid: int, name: str, encoding: str, data: bytes) -> bytes:
     return _U16.pack(sid) + _string(name) + _string(encoding) + _U32.pack(len(data)) + data
 
 
-def _channel_body(cid, sid, topic, encoding, metadata):
+def _channel_body(cid: int, sid: int, topic: str, encoding: str,
+                  metadata: Mapping[str, str]) -> bytes:
     return _U16.pack(cid) + _U16.pack(sid) + _string(topic) + _string(encoding) + _map(metadata)
 
 
@@ -130,7 +139,8 @@ class ChunkIndex:
     message_index_length: int = 0
     counts: Dict[int, int] = field(default_factory=dict)
 
-    def body(self):
+    def body(self) -> bytes:
+        """The ChunkIndex record's body."""
         offsets = b"".join(_U16.pack(c) + _U64.pack(o)
                            for c, o in sorted(self.message_index_offsets.items()))
         return (_U64.pack(self.start_time) + _U64.pack(self.end_time) + _U64.pack(self.offset)
@@ -155,24 +165,26 @@ class McapIndex:
     start_time: Optional[int] = None
     end_time: Optional[int] = None
 
-    def channel_counts(self):
+    def channel_counts(self) -> Dict[int, int]:
+        """Messages per channel id, chunked and not."""
         out = dict(self.unchunked)
         for c in self.chunks:
             for cid, n in c.counts.items():
                 out[cid] = out.get(cid, 0) + n
         return out
 
-    def note_times(self, start, end):
+    def note_times(self, start: int, end: int) -> None:
+        """Widen the time range [ns] to hold ``start``..``end``."""
         self.start_time = start if self.start_time is None else min(self.start_time, start)
         self.end_time = end if self.end_time is None else max(self.end_time, end)
 
-    def tail(self, offset):
+    def tail(self, offset: int) -> bytes:
         """DataEnd, summary section and footer for a data section that ends at ``offset``."""
         out = bytearray(_record(OP_DATA_END, _U32.pack(0)))
         summary_start = offset + len(out)
-        groups = []
+        groups: List[Tuple[int, int, int]] = []
 
-        def group(op, records):
+        def group(op: int, records: List[bytes]) -> None:
             if records:
                 start = offset + len(out)
                 for body in records:
@@ -202,7 +214,8 @@ class McapIndex:
         return bytes(out)
 
 
-def metadata_record(name, values):
+def metadata_record(name: str, values: Mapping[str, str]) -> bytes:
+    """A Metadata record ``name`` with ``{key: value}``."""
     return _record(OP_METADATA, _string(name) + _map(values))
 
 
@@ -223,47 +236,51 @@ class McapWriter:
     file back to its last complete record, so what was written stays readable.
     """
 
-    def __init__(self, path, library, chunk_size=DEFAULT_CHUNK_SIZE):
+    def __init__(self, path: Union[str, "os.PathLike[str]"], library: str,
+                 chunk_size: int = DEFAULT_CHUNK_SIZE) -> None:
         self.path = os.fspath(path)
         self.chunk_size = int(chunk_size)
-        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        self._fd: Optional[int] = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
         self._size = 0                     # bytes completely written
         self.index = McapIndex()
         self._new_chunk()
         self._write(MAGIC + _record(OP_HEADER, _string("ros2") + _string(library)))
 
-    def _new_chunk(self):
+    def _new_chunk(self) -> None:
         self._buf = bytearray()
         self._msg_index: Dict[int, array] = {}
         self._counts: Dict[int, int] = {}
-        self._start = None
-        self._end = None
+        self._start: Optional[int] = None
+        self._end: Optional[int] = None
 
-    def _write(self, data):
+    def _write(self, data: Union[bytes, bytearray]) -> None:
         view = memoryview(data)
         while view:
-            n = os.write(self._fd, view)
+            n = os.write(self._fd, view)  # type: ignore[arg-type]  # open until close()
             view = view[n:]
         self._size += len(data)
 
     @property
-    def size(self):
+    def size(self) -> int:
         """Bytes in the file (complete records) plus the open chunk."""
         return self._size + len(self._buf)
 
     @property
-    def chunk_start_time(self):
+    def chunk_start_time(self) -> Optional[int]:
         """log_time of the open chunk's first message [ns], None when it is empty."""
         return self._start
 
-    def add_schema(self, name, encoding, data):
+    def add_schema(self, name: str, encoding: str, data: Union[str, bytes]) -> int:
+        """Write a Schema record; returns its id."""
         sid = len(self.index.schemas) + 1
         data = data.encode() if isinstance(data, str) else bytes(data)
         self._write(_record(OP_SCHEMA, _schema_body(sid, name, encoding, data)))
         self.index.schemas[sid] = (name, encoding, data)
         return sid
 
-    def add_channel(self, topic, schema_id, encoding, metadata):
+    def add_channel(self, topic: str, schema_id: int, encoding: str,
+                    metadata: Mapping[str, str]) -> int:
+        """Write a Channel record; returns its id."""
         cid = len(self.index.channels) + 1
         metadata = dict(metadata)
         self._write(_record(OP_CHANNEL, _channel_body(cid, schema_id, topic, encoding,
@@ -271,7 +288,8 @@ class McapWriter:
         self.index.channels[cid] = (schema_id, topic, encoding, metadata)
         return cid
 
-    def write(self, channel_id, log_time, publish_time, data):
+    def write(self, channel_id: int, log_time: int, publish_time: int,
+              data: bytes) -> Dict[int, int]:
         """Add a message to the open chunk; the chunk is written when it is full.
 
         Returns the per-channel counts of the chunk written now ({} if none was)."""
@@ -289,13 +307,13 @@ class McapWriter:
             self._start = self._end = log_time
         elif log_time < self._start:
             self._start = log_time
-        elif log_time > self._end:
+        elif log_time > self._end:  # type: ignore[operator]  # set with _start
             self._end = log_time
         if len(buf) >= self.chunk_size:
             return self.flush()
         return {}
 
-    def flush(self):
+    def flush(self) -> Dict[int, int]:
         """Write the open chunk (if any) with its message indexes, in one write.
 
         Returns the per-channel message counts now on disk ({} for an empty chunk)."""
@@ -307,21 +325,23 @@ class McapWriter:
         chunk = _record(OP_CHUNK, head + records)
         offset = self._size
         out = bytearray(chunk)
-        offsets = {}
+        offsets: Dict[int, int] = {}
         for cid, idx in self._msg_index.items():
             offsets[cid] = offset + len(out)
             entries = idx.tobytes()   # (log_time, offset) pairs, little-endian u64
             out += _record(OP_MESSAGE_INDEX, _U16.pack(cid) + _U32.pack(len(entries)) + entries)
         counts = dict(self._counts)
-        ci = ChunkIndex(self._start, self._end, offset, len(chunk), len(records), len(records),
+        # a chunk with messages has their time range (set with its first message)
+        ci = ChunkIndex(self._start, self._end,  # type: ignore[arg-type]
+                        offset, len(chunk), len(records), len(records),
                         "", offsets, len(out) - len(chunk), counts)
         self._write(out)
         self.index.chunks.append(ci)
-        self.index.note_times(self._start, self._end)
+        self.index.note_times(self._start, self._end)  # type: ignore[arg-type]
         self._new_chunk()
         return counts
 
-    def close(self, metadata=()):
+    def close(self, metadata: MetadataRecords = ()) -> Dict[int, int]:
         """Write the open chunk, the Metadata records ``(name, {key: value})``, DataEnd,
         summary and footer; close the file. Returns the counts of the last chunk."""
         counts = self.flush()
@@ -332,11 +352,11 @@ class McapWriter:
             out += rec
         out += self.index.tail(self._size + len(out))
         self._write(out)
-        os.close(self._fd)
+        os.close(self._fd)  # type: ignore[arg-type]  # open until here
         self._fd = None
         return counts
 
-    def abandon(self):
+    def abandon(self) -> Dict[int, int]:
         """After a failed write: cut the file back to its last complete record and close it
         (the open chunk is dropped). Returns its per-channel counts (messages lost)."""
         lost = dict(self._counts)
@@ -380,9 +400,9 @@ class McapScan:
     ``ros2`` profile.
     """
 
-    def __init__(self, path):
+    def __init__(self, path: Union[str, "os.PathLike[str]"]) -> None:
         self.path = os.fspath(path)
-        self._data = b""
+        self._data: Union[bytes, mmap.mmap] = b""
         try:
             with open(self.path, "rb") as fh:
                 size = os.fstat(fh.fileno()).st_size
@@ -399,7 +419,7 @@ class McapScan:
             raise BagReadError(f"{self.path}: not an MCAP file (bad magic)")
         self.index = McapIndex()
         self.report = ScanReport(self.path, size=len(data))
-        self.header = None
+        self.header: Optional[Tuple[str, str]] = None
         try:
             op, length = _REC.unpack_from(data, 8)
             if op != OP_HEADER:
@@ -416,31 +436,33 @@ class McapScan:
         self.report.data_end = self._pos
         self.metadata: Dict[str, Dict[str, str]] = {}
 
-    def close(self):
+    def close(self) -> None:
         """Release the file (the report and index stay)."""
         if isinstance(self._data, mmap.mmap):
             self._data.close()
         self._data = b""
 
-    def __enter__(self):
+    def __enter__(self) -> "McapScan":
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> Literal[False]:
         self.close()
         return False
 
-    def topic_of(self, channel_id):
+    def topic_of(self, channel_id: int) -> Optional[str]:
+        """The topic of a channel, None for an unknown id."""
         ch = self.index.channels.get(channel_id)
         return None if ch is None else ch[1]
 
-    def type_of(self, channel_id):
+    def type_of(self, channel_id: int) -> Optional[str]:
+        """The message type (schema name) of a channel, None when unknown."""
         ch = self.index.channels.get(channel_id)
         if ch is None:
             return None
         schema = self.index.schemas.get(ch[0])
         return None if schema is None else schema[0]
 
-    def messages(self, want: Optional[Callable[[int], bool]] = None):
+    def messages(self, want: Optional[Callable[[int], bool]] = None) -> Iterator[Message]:
         """Yield ``(channel_id, log_time, publish_time, data)`` of every message in file
         order (chunk by chunk) for which ``want(channel_id)`` is true (all when None).
 
@@ -451,9 +473,9 @@ class McapScan:
         pos = self._pos
         report = self.report
         index = self.index
-        cache = {}
+        cache: Dict[int, bool] = {}
 
-        def wanted(cid):
+        def wanted(cid: int) -> bool:
             w = cache.get(cid)
             if w is None:
                 w = cache[cid] = want is None or bool(want(cid))
@@ -517,13 +539,13 @@ class McapScan:
             last_chunk.message_index_length = 0
             report.data_end = last_chunk.offset + last_chunk.length
 
-    def _count(self, log_time):
+    def _count(self, log_time: int) -> None:
         r = self.report
         r.messages += 1
         r.first_time = log_time if r.first_time is None else min(r.first_time, log_time)
         r.last_time = log_time if r.last_time is None else max(r.last_time, log_time)
 
-    def _other(self, op, data, start, end, pos):
+    def _other(self, op: int, data: Buffer, start: int, end: int, pos: int) -> None:
         body = data[start:end]
         if op == OP_SCHEMA:
             cur = _Cursor(body)
@@ -540,7 +562,8 @@ class McapScan:
             self.metadata[name] = cur.map()
             self.index.metadata.append((name, pos, end - pos))
 
-    def _chunk(self, data, start, end, pos, wanted):
+    def _chunk(self, data: Buffer, start: int, end: int, pos: int,
+               wanted: Callable[[int], bool]) -> Tuple[ChunkIndex, List[Message]]:
         cur = _Cursor(data, start)
         t0, t1, usize, crc = _CHUNK_HEAD.unpack_from(data, start)
         cur.pos += _CHUNK_HEAD.size
@@ -567,7 +590,7 @@ class McapScan:
         if crc and zlib.crc32(records) != crc:
             raise _Damaged("chunk CRC mismatch")
         counts: Dict[int, int] = {}
-        out = []
+        out: List[Message] = []
         p = 0
         m = len(records)
         schemas_before = dict(self.index.schemas)
@@ -603,7 +626,7 @@ class McapScan:
             r.last_time = t1 if r.last_time is None else max(r.last_time, t1)
         return ci, out
 
-    def _footer_ok(self):
+    def _footer_ok(self) -> bool:
         data = self._data
         if len(data) < 8 + 29 or data[-8:] != MAGIC:
             return False
@@ -615,7 +638,7 @@ class _Damaged(ValueError):
     pass
 
 
-def reindex(path, metadata=()):
+def reindex(path: Union[str, "os.PathLike[str]"], metadata: MetadataRecords = ()) -> ScanReport:
     """Give an MCAP file cut short a summary: keep every complete chunk, cut the rest, append
     the Metadata records ``(name, {key: value})``, DataEnd, summary and footer.
 
@@ -649,7 +672,7 @@ def reindex(path, metadata=()):
     return report
 
 
-def _rebuild_message_indexes(data, chunk, offset):
+def _rebuild_message_indexes(data: Buffer, chunk: ChunkIndex, offset: int) -> bytes:
     """MessageIndex records for ``chunk`` (which must be the last chunk before ``offset``)."""
     start = chunk.offset + 9 + _CHUNK_HEAD.size
     clen = _U32.unpack_from(data, start)[0]

@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 import pathlib
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Tuple
+from typing import Any, Dict, Iterable, List, Mapping, Optional, Tuple, Union
 
 import yaml
 
@@ -31,6 +31,9 @@ ROS_DISTRO = "jazzy"
 METADATA_FILE = "metadata.yaml"
 #: RMW_DURATION_INFINITE as rmw_time_t (what the graph reports for "no deadline")
 INFINITE = (9223372036, 854775807)
+
+#: A path as the functions here take it.
+PathLike = Union[str, "os.PathLike[str]"]
 
 
 @dataclass(frozen=True)
@@ -52,8 +55,9 @@ class QosProfile:
     liveliness_lease_duration: Tuple[int, int] = INFINITE
     avoid_ros_namespace_conventions: bool = False
 
-    def to_dict(self):
-        def t(v):
+    def to_dict(self) -> Dict[str, Any]:
+        """The stored mapping (version 9 names)."""
+        def t(v: Tuple[int, int]) -> Dict[str, int]:
             return {"sec": int(v[0]), "nsec": int(v[1])}
         return {"history": self.history, "depth": int(self.depth),
                 "reliability": self.reliability, "durability": self.durability,
@@ -73,16 +77,16 @@ _POLICIES = {
 }
 
 
-def qos_from_dict(d):
+def qos_from_dict(d: Mapping[str, Any]) -> QosProfile:
     """A QosProfile from a stored mapping (version 9 names or version 8 numbers)."""
-    def policy(key):
+    def policy(key: str) -> str:
         v = d.get(key, "unknown")
         if isinstance(v, int):
             names = _POLICIES[key]
             return names[v] if 0 <= v < len(names) else "unknown"
         return str(v)
 
-    def t(key):
+    def t(key: str) -> Tuple[int, int]:
         v = d.get(key) or {}
         return (int(v.get("sec", INFINITE[0])), int(v.get("nsec", INFINITE[1])))
 
@@ -92,7 +96,7 @@ def qos_from_dict(d):
                       bool(d.get("avoid_ros_namespace_conventions", False)))
 
 
-def qos_list_from_yaml(text):
+def qos_list_from_yaml(text: Optional[str]) -> List[QosProfile]:
     """Offered QoS profiles from their stored YAML text (empty or unreadable: [])."""
     if not text:
         return []
@@ -104,7 +108,7 @@ def qos_list_from_yaml(text):
         data, list) else []
 
 
-def qos_list_yaml(profiles):
+def qos_list_yaml(profiles: Iterable[QosProfile]) -> str:
     """The offered QoS profiles as one YAML text (what rosbag2 puts into the mcap channel's
     ``offered_qos_profiles`` entry and the sqlite3 ``topics`` table); ``[]`` for none."""
     return _dump([p.to_dict() for p in profiles]).strip()
@@ -121,7 +125,8 @@ class TopicInfo:
     serialization_format: str = "cdr"
     message_count: int = 0
 
-    def to_dict(self):
+    def to_dict(self) -> Dict[str, Any]:
+        """The ``topics_with_message_count`` entry."""
         return {"topic_metadata": {
                     "name": self.name, "type": self.type,
                     "serialization_format": self.serialization_format,
@@ -140,7 +145,8 @@ class FileInfo:
     duration: int
     message_count: int
 
-    def to_dict(self):
+    def to_dict(self) -> Dict[str, Any]:
+        """The ``files`` entry."""
         return {"path": self.path,
                 "starting_time": {"nanoseconds_since_epoch": int(self.starting_time)},
                 "duration": {"nanoseconds": int(self.duration)},
@@ -163,20 +169,23 @@ class BagMetadata:
     version: int = VERSION
 
     @property
-    def message_count(self):
+    def message_count(self) -> int:
+        """Messages in all files."""
         return sum(f.message_count for f in self.files)
 
     @property
-    def starting_time(self):
+    def starting_time(self) -> int:
+        """First message of any file [ns since epoch] (0 without messages)."""
         starts = [f.starting_time for f in self.files if f.message_count]
         return min(starts) if starts else 0
 
     @property
-    def duration(self):
+    def duration(self) -> int:
+        """First to last message over all files [ns] (0 without messages)."""
         ends = [f.starting_time + f.duration for f in self.files if f.message_count]
         return max(ends) - self.starting_time if ends else 0
 
-    def to_dict(self):
+    def to_dict(self) -> Dict[str, Any]:
         """The ``rosbag2_bagfile_information`` mapping, in Jazzy's key order."""
         return {"version": self.version,
                 "storage_identifier": self.storage_identifier,
@@ -191,20 +200,20 @@ class BagMetadata:
                 "custom_data": dict(self.custom_data) or None,
                 "ros_distro": self.ros_distro}
 
-    def dump(self):
+    def dump(self) -> str:
         """The bag-level YAML (what rosbag2 stores inside each storage file too)."""
         return _dump(self.to_dict())
 
-    def text(self):
+    def text(self) -> str:
         """The whole ``metadata.yaml`` text."""
         return _dump({"rosbag2_bagfile_information": self.to_dict()})
 
 
-def _dump(data):
+def _dump(data: Any) -> str:
     return yaml.safe_dump(data, sort_keys=False, default_flow_style=False, allow_unicode=True)
 
 
-def write_metadata(directory, metadata):
+def write_metadata(directory: PathLike, metadata: BagMetadata) -> None:
     """Replace ``<directory>/metadata.yaml`` atomically with ``metadata`` (BagMetadata).
 
     Raises OSError when the file cannot be written; the previous file is then unchanged."""
@@ -225,7 +234,7 @@ def write_metadata(directory, metadata):
         raise
 
 
-def read_metadata(directory):
+def read_metadata(directory: PathLike) -> Dict[str, Any]:
     """The ``rosbag2_bagfile_information`` mapping of ``<directory>/metadata.yaml``.
 
     Raises
@@ -252,7 +261,7 @@ def read_metadata(directory):
     return info
 
 
-def storage_of(filename) -> Optional[str]:
+def storage_of(filename: PathLike) -> Optional[str]:
     """``'mcap'`` or ``'sqlite3'`` from a storage file name, else None."""
     suffix = pathlib.PurePath(str(filename)).suffix
     return {".mcap": "mcap", ".db3": "sqlite3"}.get(suffix)

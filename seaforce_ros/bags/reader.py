@@ -22,12 +22,14 @@ with the fixed layout of :mod:`~seaforce_ros.bags.states`.
 from __future__ import annotations
 
 import math
+import os
 import pathlib
 import re
 from dataclasses import dataclass, field
-from typing import Callable, Iterator, List, Optional, Tuple
+from typing import Any, Callable, Dict, Iterator, List, Optional, Tuple, Union, cast
 
 import numpy as np
+import numpy.typing as npt
 
 from .errors import BagContentError, BagReadError, NotABagError
 from .mcapfile import McapScan
@@ -38,7 +40,13 @@ from .typestore import typestore
 
 __all__ = ["Bag", "FileReport", "ChannelRecord", "read_channel", "topic_matches"]
 
-Select = Callable[[str, str], bool]
+#: Which messages to read: ``select(topic, msgtype)`` (msgtype None: a channel without schema).
+Select = Callable[[str, Optional[str]], bool]
+#: Progress report: a message and the fraction done.
+Progress = Callable[[str, float], object]
+#: One message as :meth:`Bag.messages` yields it: ``(topic, msgtype, log_time, data)``
+#: (msgtype None: an mcap channel without schema).
+BagMessage = Tuple[str, Optional[str], int, bytes]
 
 
 @dataclass
@@ -61,12 +69,12 @@ class FileReport:
     last: Optional[int] = None
     problem: Optional[str] = None
 
-    def note(self, bag):
+    def note(self, bag: Union[str, pathlib.Path]) -> Optional[str]:
         """One line for the user, or None for a complete file."""
         where = f"{self.path}"
         if self.state == "recovered":
             span = ""
-            if self.first is not None:
+            if self.first is not None and self.last is not None:
                 span = (f", log time {self.first * 1e-9:.3f}-{self.last * 1e-9:.3f} s "
                         f"({(self.last - self.first) * 1e-9:.1f} s)")
             what = (f"{self.chunks} complete chunks" if self.storage == "mcap"
@@ -85,7 +93,7 @@ class FileReport:
         return None
 
 
-def topic_matches(name, topic):
+def topic_matches(name: str, topic: str) -> bool:
     """Whether bag topic ``name`` is ``topic``; a relative one-level ``topic``
     (``actuator_state``) also matches a namespaced name (``/ns/actuator_state``)."""
     topic = topic if topic.startswith("/") else "/" + topic
@@ -93,13 +101,14 @@ def topic_matches(name, topic):
     return name == topic or (not topic[1:].count("/") and name.endswith(topic))
 
 
-def _split_key(path):
+def _split_key(path: pathlib.Path) -> Tuple[int, str, int, str]:
     """Sort key: ``<name>_<n>.<ext>`` by n, others by name."""
     m = re.match(r"^(.*)_(\d+)$", path.stem)
     return (0, m.group(1), int(m.group(2)), path.name) if m else (1, path.stem, 0, path.name)
 
 
-def _storage_files(directory):
+def _storage_files(directory: pathlib.Path) -> List[pathlib.Path]:
+    """The storage files in ``directory``, in split order."""
     return sorted((p for p in directory.iterdir()
                    if p.is_file() and storage_of(p.name) is not None), key=_split_key)
 
@@ -113,10 +122,10 @@ class Bag:
         No such path, or nothing in it that is a bag.
     """
 
-    def __init__(self, path):
+    def __init__(self, path: Union[str, "os.PathLike[str]"]) -> None:
         self.path = pathlib.Path(path)
         self.notes: List[str] = []
-        self.topics = {}
+        self.topics: Dict[str, Optional[str]] = {}
         self.missing_metadata = False
         p = self.path
         if not p.exists():
@@ -136,7 +145,7 @@ class Bag:
             self._add_bag_dir(p)
         elif _storage_files(p):
             for f in _storage_files(p):
-                self.reports.append(FileReport(f, storage_of(f.name), listed=False))
+                self.reports.append(FileReport(f, _storage(f), listed=False))
             self.missing_metadata = True
         else:
             subs = sorted(d for d in p.iterdir() if d.is_dir() and (
@@ -146,12 +155,12 @@ class Bag:
                     self._add_bag_dir(d)
                 else:
                     for f in _storage_files(d):
-                        self.reports.append(FileReport(f, storage_of(f.name), listed=False))
+                        self.reports.append(FileReport(f, _storage(f), listed=False))
             if not self.reports:
                 raise NotABagError(f"{p}: not a bag: no {METADATA_FILE} and no .mcap/.db3 "
                                    "files in it")
 
-    def _add_bag_dir(self, d):
+    def _add_bag_dir(self, d: pathlib.Path) -> None:
         info = read_metadata(d)
         listed = []
         for name in info.get("relative_file_paths") or []:
@@ -161,11 +170,11 @@ class Bag:
             self.reports.append(FileReport(f, storage, listed=True))
         for f in _storage_files(d):
             if f not in listed:
-                self.reports.append(FileReport(f, storage_of(f.name), listed=False))
+                self.reports.append(FileReport(f, _storage(f), listed=False))
 
     # --- reading ------------------------------------------------------------------------------
-    def messages(self, select: Optional[Select] = None, progress=None) -> Iterator[
-            Tuple[str, str, int, bytes]]:
+    def messages(self, select: Optional[Select] = None,
+                 progress: Optional[Progress] = None) -> Iterator[BagMessage]:
         """Yield ``(topic, msgtype, log_time, data)`` of every message whose
         ``select(topic, msgtype)`` is true (all when None), file by file.
 
@@ -179,11 +188,11 @@ class Bag:
         for i, rep in enumerate(self.reports):
             if not rep.path.exists():
                 rep.state, rep.problem = "unreadable", "listed in metadata.yaml but missing"
-                self.notes.append(rep.note(self.bag_dir))
+                self.notes.append(rep.note(self.bag_dir))  # type: ignore[arg-type]  # a line
                 continue
             if rep.path.stat().st_size == 0:
                 rep.state, rep.problem = "empty", "empty file (nothing was written to it)"
-                self.notes.append(rep.note(self.bag_dir))
+                self.notes.append(rep.note(self.bag_dir))  # type: ignore[arg-type]  # a line
                 continue
             try:
                 if rep.storage == "mcap":
@@ -209,20 +218,20 @@ class Bag:
             self.notes.append(f"{self.bag_dir}: no metadata.yaml (a recorder killed before "
                               f"writing it?); write it with: bag_reindex {self.bag_dir}")
 
-    def _mcap(self, rep, select):
+    def _mcap(self, rep: FileReport, select: Optional[Select]) -> Iterator[BagMessage]:
         with McapScan(rep.path) as scan:
-            cache = {}
+            cache: Dict[int, Tuple[Optional[str], Optional[str]]] = {}
 
-            def want(cid):
+            def want(cid: int) -> bool:
                 topic, msgtype = scan.topic_of(cid), scan.type_of(cid)
                 cache[cid] = (topic, msgtype)
                 return topic is not None and (select is None or select(topic, msgtype))
 
             for cid, log_time, _pub, data in scan.messages(want):
                 topic, msgtype = cache[cid]
-                yield topic, msgtype, log_time, data
+                yield topic, msgtype, log_time, data  # type: ignore[misc]  # want() had a topic
             for cid in scan.index.channels:
-                t, m = scan.topic_of(cid), scan.type_of(cid)
+                t, m = scan.index.channels[cid][1], scan.type_of(cid)
                 self.topics.setdefault(t, m)
             r = scan.report
             rep.messages, rep.chunks, rep.first, rep.last = r.messages, r.chunks, \
@@ -235,7 +244,7 @@ class Bag:
                                        "that: nothing to recover")
                 rep.state, rep.problem = "recovered", r.problem
 
-    def _sqlite(self, rep, select):
+    def _sqlite(self, rep: FileReport, select: Optional[Select]) -> Iterator[BagMessage]:
         left_open = needs_recovery(rep.path)
         with open_for_reading(rep.path) as conn:
             topics = {tid: (name, msgtype) for tid, name, msgtype in
@@ -270,39 +279,46 @@ class ChannelRecord:
 
     channel: str
     channels: List[str]
-    cycle: np.ndarray
-    stamp: np.ndarray
-    x: np.ndarray
-    v: np.ndarray
-    f_p: np.ndarray
-    f_a: np.ndarray
-    x_e: np.ndarray
-    f_e: np.ndarray
-    status: np.ndarray
+    cycle: npt.NDArray[np.int64]
+    stamp: npt.NDArray[np.float64]
+    x: npt.NDArray[np.float64]
+    v: npt.NDArray[np.float64]
+    f_p: npt.NDArray[np.float64]
+    f_a: npt.NDArray[np.float64]
+    x_e: npt.NDArray[np.float64]
+    f_e: npt.NDArray[np.float64]
+    status: npt.NDArray[np.uint8]
     sources: List[str] = field(default_factory=list)
     notes: List[str] = field(default_factory=list)
     duplicates: int = 0
 
-    def __len__(self):
+    def __len__(self) -> int:
         return int(self.cycle.size)
 
 
-def _names(data):
+def _storage(path: pathlib.Path) -> str:
+    """The storage of a file :func:`_storage_files` found (so it has one)."""
+    return cast(str, storage_of(path.name))
+
+
+def _names(data: bytes) -> List[str]:
     try:
         return StateLayout(data).names
     except ValueError:
-        return list(typestore().deserialize_cdr(data, ACTUATOR_STATE).name)
+        msg: Any = typestore().deserialize_cdr(data, ACTUATOR_STATE)  # a generated class
+        return list(msg.name)
 
 
-def _unknown_channel(channel, names):
+def _unknown_channel(channel: str, names: List[str]) -> BagContentError:
     return BagContentError(
         f"unknown channel {channel!r}: the bag's actuator_state has channels "
         f"{', '.join(names) or '(none)'}; pass one of them with --channel")
 
 
-def _decode(raws, channel):
+def _decode(raws: List[bytes], channel: str) -> Tuple[Dict[str, npt.NDArray[Any]], List[str]]:
     """Decode raw ActuatorState messages for one channel -> dict of arrays + names."""
     store = typestore()
+    layout: Optional[StateLayout]
     try:
         layout = StateLayout(raws[0])
     except ValueError:   # unexpected layout: decode every message generically
@@ -324,16 +340,17 @@ def _decode(raws, channel):
         good &= np.all(rows[:, a:b] == layout.template[a:b], axis=1)
     slow = sorted(set(np.flatnonzero(~same).tolist()) | set(idx_fast[~good].tolist()))
     rows = rows[good]
-    out = {"cycle": layout.column(rows, layout.cycle, "<u8").astype(np.int64),
-           "stamp": (layout.column(rows, layout.sec, "<i4").astype(float)
-                     + 1e-9 * layout.column(rows, layout.nanosec, "<u4"))}
+    out: Dict[str, npt.NDArray[Any]] = {
+        "cycle": layout.column(rows, layout.cycle, "<u8").astype(np.int64),
+        "stamp": (layout.column(rows, layout.sec, "<i4").astype(float)
+                  + 1e-9 * layout.column(rows, layout.nanosec, "<u4"))}
     for msg_field, short in STATE_FIELDS:
         out[short] = layout.column(rows, layout.arrays[msg_field] + 8 * j, "<f8")
     out["status"] = rows[:, layout.status + j].copy()
     if slow:
-        extra = {k: [] for k in out}
+        extra: Dict[str, List[float]] = {k: [] for k in out}
         for i in slow:
-            msg = store.deserialize_cdr(raws[i], ACTUATOR_STATE)
+            msg: Any = store.deserialize_cdr(raws[i], ACTUATOR_STATE)  # a generated class
             if channel not in list(msg.name):
                 continue
             k = list(msg.name).index(channel)
@@ -348,7 +365,8 @@ def _decode(raws, channel):
     return out, names
 
 
-def read_channel(path, channel, topic="actuator_state", progress=None):
+def read_channel(path: Union[str, "os.PathLike[str]"], channel: str, topic: str = "actuator_state",
+                 progress: Optional[Progress] = None) -> ChannelRecord:
     """Load ``channel`` of ``topic`` (``seaforce_msgs/ActuatorState``) from a bag.
 
     Parameters
@@ -371,10 +389,10 @@ def read_channel(path, channel, topic="actuator_state", progress=None):
     """
     bag = Bag(path)
 
-    def select(name, msgtype):
+    def select(name: str, msgtype: Optional[str]) -> bool:
         return msgtype == ACTUATOR_STATE and topic_matches(name, topic)
 
-    raws = []
+    raws: List[bytes] = []
     for _t, _m, _ts, data in bag.messages(select, progress):
         if not raws:
             names = _names(data)

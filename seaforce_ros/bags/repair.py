@@ -20,7 +20,8 @@ from __future__ import annotations
 
 import pathlib
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional
+import os
+from typing import Dict, List, Mapping, Optional, Tuple, Union
 
 from . import mcapfile
 from .errors import BagError, BagReadError, NotABagError
@@ -53,8 +54,9 @@ class RepairReport:
     skipped: Dict[str, str] = field(default_factory=dict)
 
 
-def _files(directory):
-    listed = []
+def _files(directory: pathlib.Path) -> Tuple[List[pathlib.Path], Optional[str]]:
+    """The bag's files (those metadata.yaml lists first) and the storage it names."""
+    listed: List[pathlib.Path] = []
     storage = None
     if (directory / METADATA_FILE).is_file():
         try:
@@ -69,7 +71,7 @@ def _files(directory):
     return out, storage
 
 
-def _scan_mcap(path):
+def _scan_mcap(path: pathlib.Path) -> _FileScan:
     fs = _FileScan(path, "mcap")
     with mcapfile.McapScan(path) as scan:
         for _ in scan.messages(want=lambda cid: False):
@@ -90,11 +92,13 @@ def _scan_mcap(path):
             t.message_count += counts.get(cid, 0)
         n = sum(counts.values())
         start = index.start_time or 0
-        fs.info = FileInfo(path.name, start, (index.end_time - start) if n else 0, n)
+        # a file with messages has their time range
+        fs.info = FileInfo(path.name, start,
+                           (index.end_time - start) if n else 0, n)  # type: ignore[operator]
     return fs
 
 
-def _scan_sqlite(path):
+def _scan_sqlite(path: pathlib.Path) -> _FileScan:
     fs = _FileScan(path, "sqlite3")
     if needs_recovery(path):
         fs.incomplete = "was not closed (WAL or journal left beside it)"
@@ -115,7 +119,8 @@ def _scan_sqlite(path):
     return fs
 
 
-def reindex_bag(path, custom_data=None):
+def reindex_bag(path: Union[str, "os.PathLike[str]"],
+                custom_data: Optional[Mapping[str, str]] = None) -> RepairReport:
     """Repair the bag directory ``path`` in place (see the module docstring).
 
     Raises
@@ -139,7 +144,8 @@ def reindex_bag(path, custom_data=None):
                        "format (move one kind elsewhere)")
     storage = kinds.pop()
     scans: List[_FileScan] = []
-    report = RepairReport(BagMetadata(storage))
+    # (a file of no storage is not readable: the loop below skips it, and raises if none is)
+    report = RepairReport(BagMetadata(storage))  # type: ignore[arg-type]
     for p in files:
         if p.stat().st_size == 0:
             report.skipped[str(p)] = "empty file (a split that never got a message)"
@@ -159,13 +165,14 @@ def reindex_bag(path, custom_data=None):
                 topics[name].message_count += t.message_count
             else:
                 topics[name] = TopicInfo(**{**t.__dict__})
-    old_custom = {}
+    old_custom: Dict[str, str] = {}
     try:
         old_custom = read_metadata(directory).get("custom_data") or {}
     except NotABagError:
         pass
-    meta = BagMetadata(storage, [fs.info for fs in scans], list(topics.values()),
-                       dict(custom_data or old_custom))
+    meta = BagMetadata(storage,  # type: ignore[arg-type]  # (see above)
+                       [fs.info for fs in scans],  # type: ignore[misc]  # every scan sets it
+                       list(topics.values()), dict(custom_data or old_custom))
     serialized = meta.dump()
     for fs in scans:
         if fs.incomplete is None:
@@ -178,7 +185,7 @@ def reindex_bag(path, custom_data=None):
     write_metadata(directory, meta)
     report.metadata = meta
     for fs in scans:
-        i = fs.info
+        i: FileInfo = fs.info  # type: ignore[assignment]  # every scan sets it
         span = f", {i.duration * 1e-9:.2f} s" if i.message_count else ""
         if fs.incomplete:
             what = ("summary written" if storage == "mcap" else "committed batches recovered")
@@ -186,8 +193,8 @@ def reindex_bag(path, custom_data=None):
                                 f"messages{span}; {what}")
         else:
             report.lines.append(f"{fs.path.name}: complete, {i.message_count} messages{span}")
-    for p, why in report.skipped.items():
-        report.lines.append(f"{pathlib.Path(p).name}: left out: {why}")
+    for skipped, why in report.skipped.items():
+        report.lines.append(f"{pathlib.Path(skipped).name}: left out: {why}")
     report.lines.append(f"{directory / METADATA_FILE}: {len(meta.files)} files, "
                         f"{meta.message_count} messages, {meta.duration * 1e-9:.2f} s, "
                         f"topics " + ", ".join(f"{t.name} ({t.message_count})"

@@ -21,6 +21,7 @@ import shutil
 import sqlite3
 import tempfile
 from contextlib import contextmanager
+from typing import Dict, Iterator, List, Optional, Set, Tuple, Union
 
 from .errors import BagReadError
 
@@ -28,6 +29,8 @@ __all__ = ["Sqlite3Writer", "open_for_reading", "needs_recovery", "finish_in_pla
            "SCHEMA_VERSION"]
 
 SCHEMA_VERSION = 4
+
+_Path = Union[str, "os.PathLike[str]"]
 
 _TABLES = """
 CREATE TABLE schema(schema_version INTEGER PRIMARY KEY, ros_distro TEXT NOT NULL);
@@ -53,7 +56,7 @@ class Sqlite3Writer:
     :meth:`abandon` then rolls the open batch back (committed batches stay) and closes.
     """
 
-    def __init__(self, path, ros_distro):
+    def __init__(self, path: _Path, ros_distro: str) -> None:
         self.path = os.fspath(path)
         if os.path.exists(self.path):
             raise FileExistsError(self.path)
@@ -67,14 +70,14 @@ class Sqlite3Writer:
         self._conn.execute("INSERT INTO schema(schema_version, ros_distro) VALUES (?, ?)",
                            (SCHEMA_VERSION, ros_distro))
         self._conn.execute("COMMIT")
-        self._rows = []
-        self._counts = {}
-        self._types = set()
-        self.start_time = None
-        self.end_time = None
+        self._rows: List[Tuple[int, int, bytes]] = []
+        self._counts: Dict[int, int] = {}
+        self._types: Set[str] = set()
+        self.start_time: Optional[int] = None
+        self.end_time: Optional[int] = None
 
-    def add_topic(self, name, msgtype, serialization_format, qos_yaml, type_hash, encoding,
-                  definition):
+    def add_topic(self, name: str, msgtype: str, serialization_format: str, qos_yaml: str,
+                  type_hash: str, encoding: str, definition: str) -> int:
         """Add a topic (and its type's definition once); returns its id."""
         conn = self._conn
         conn.execute("BEGIN")
@@ -93,18 +96,19 @@ class Sqlite3Writer:
             self._rollback()
             raise
         self._types.add(msgtype)
-        return cur.lastrowid
+        return cur.lastrowid  # type: ignore[return-value]  # an INSERT sets it
 
-    def write(self, topic_id, log_time, data):
+    def write(self, topic_id: int, log_time: int, data: bytes) -> None:
         """Queue a message for the next :meth:`flush` (the batch's transaction)."""
         self._rows.append((topic_id, log_time, data))
         self._counts[topic_id] = self._counts.get(topic_id, 0) + 1
 
     @property
-    def pending(self):
+    def pending(self) -> int:
+        """Messages queued for the next :meth:`flush`."""
         return len(self._rows)
 
-    def flush(self):
+    def flush(self) -> Dict[int, int]:
         """Commit the queued messages in one transaction; returns per-topic-id counts."""
         if not self._rows:
             return {}
@@ -124,7 +128,7 @@ class Sqlite3Writer:
         counts, self._rows, self._counts = self._counts, [], {}
         return counts
 
-    def close(self, metadata_version, metadata_yaml):
+    def close(self, metadata_version: int, metadata_yaml: str) -> Dict[int, int]:
         """Commit, store the bag metadata, checkpoint and leave one ``.db3`` file."""
         counts = self.flush()
         conn = self._conn
@@ -135,16 +139,16 @@ class Sqlite3Writer:
         if mode.lower() != "delete":
             raise sqlite3.OperationalError(f"cannot leave WAL mode ({mode})")
         conn.close()
-        self._conn = None
+        self._conn = None  # type: ignore[assignment]  # closed: only abandon() looks again
         return counts
 
-    def _rollback(self):
+    def _rollback(self) -> None:
         try:
             self._conn.execute("ROLLBACK")
         except sqlite3.Error:
             pass
 
-    def abandon(self):
+    def abandon(self) -> Dict[int, int]:
         """After a failure: drop the uncommitted batch and close (committed ones stay, in the
         file or its WAL). Returns per-topic-id counts of the dropped batch."""
         lost, self._rows, self._counts = self._counts, [], {}
@@ -154,11 +158,11 @@ class Sqlite3Writer:
                 self._conn.close()
             except sqlite3.Error:
                 pass
-            self._conn = None
+            self._conn = None  # type: ignore[assignment]  # closed (see close)
         return lost
 
 
-def needs_recovery(path):
+def needs_recovery(path: _Path) -> bool:
     """Whether ``path`` has a WAL or a rollback journal beside it (a writer that did not
     close it: its committed transactions are only visible to a SQLite that recovers them)."""
     return any(os.path.exists(os.fspath(path) + s) and os.path.getsize(os.fspath(path) + s) > 0
@@ -166,7 +170,7 @@ def needs_recovery(path):
 
 
 @contextmanager
-def open_for_reading(path):
+def open_for_reading(path: _Path) -> Iterator[sqlite3.Connection]:
     """A read-only ``sqlite3`` connection to a rosbag2 sqlite3 file.
 
     A file with a WAL or journal beside it is copied (with them) to a temporary directory and
@@ -174,7 +178,7 @@ def open_for_reading(path):
     the original. Raises :class:`BagReadError` for a file that is not a rosbag2 sqlite3 bag.
     """
     path = os.fspath(path)
-    tmpdir = None
+    tmpdir: Optional[str] = None
     try:
         if needs_recovery(path):
             tmpdir = tempfile.mkdtemp(prefix="seaforce_bag_")
@@ -207,7 +211,7 @@ def open_for_reading(path):
             shutil.rmtree(tmpdir, ignore_errors=True)
 
 
-def finish_in_place(path, metadata_version, metadata_yaml):
+def finish_in_place(path: _Path, metadata_version: int, metadata_yaml: str) -> None:
     """Recover a sqlite3 file left open by a killed writer, in place: SQLite replays its WAL
     (or rolls back its journal), the bag metadata row is added, and the file is left as one
     ``.db3`` in rollback-journal mode."""

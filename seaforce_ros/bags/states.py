@@ -10,8 +10,10 @@ data.
 from __future__ import annotations
 
 import struct
+from typing import Any, Dict, List, Mapping, Sequence, Tuple, Union
 
 import numpy as np
+import numpy.typing as npt
 
 from .typestore import typestore
 
@@ -25,6 +27,10 @@ STATE_FIELDS = (("motor_position", "x"), ("motor_velocity", "v"), ("pressure_for
                 ("external_force", "f_e"))
 
 
+#: Samples of one signal: a sequence or an array.
+Samples = Union[Sequence[float], npt.NDArray[Any]]
+
+
 class StateLayout:
     """Byte offsets of one ``ActuatorState`` serialisation (CDR, little endian).
 
@@ -35,17 +41,17 @@ class StateLayout:
         the ranges ``fixed`` (frame_id and channel names) has the same layout.
     """
 
-    def __init__(self, data):
+    def __init__(self, data: Union[bytes, bytearray, memoryview]) -> None:
         data = bytes(data)
         if len(data) < 8 or data[1] != 1:
             raise ValueError("not a little-endian CDR message")
         self.length = len(data)
         pos = 4
 
-        def align(p, n):
+        def align(p: int, n: int) -> int:
             return 4 + (-(-(p - 4) // n)) * n
 
-        def u32(p):
+        def u32(p: int) -> int:
             return struct.unpack_from("<I", data, p)[0]
 
         self.sec = pos
@@ -53,7 +59,7 @@ class StateLayout:
         pos += 8
         flen = u32(pos)
         #: byte ranges that must match for the layout to apply (frame_id, channel names)
-        self.fixed = [(pos, pos + 4 + flen)]
+        self.fixed: List[Tuple[int, int]] = [(pos, pos + 4 + flen)]
         pos += 4 + flen
         pos = align(pos, 8)
         self.cycle = pos
@@ -62,7 +68,7 @@ class StateLayout:
         names_start = pos
         count = u32(pos)
         pos += 4
-        names = []
+        names: List[str] = []
         for _ in range(count):
             pos = align(pos, 4)
             slen = u32(pos)
@@ -70,7 +76,7 @@ class StateLayout:
             pos += 4 + slen
         self.fixed.append((names_start, pos))
         self.names = names
-        self.arrays = {}
+        self.arrays: Dict[str, int] = {}
         for msg_field, _short in STATE_FIELDS:
             pos = align(pos, 4)
             n = u32(pos)
@@ -91,17 +97,20 @@ class StateLayout:
             raise ValueError("unexpected trailing bytes")
         self.template = np.frombuffer(data, dtype=np.uint8).copy()
 
-    def column(self, rows, offset, dtype):
+    def column(self, rows: npt.NDArray[np.uint8], offset: int,
+               dtype: npt.DTypeLike) -> npt.NDArray[Any]:
         """Values of one scalar at ``offset`` from a (n, length) uint8 array."""
         size = np.dtype(dtype).itemsize
         return np.ascontiguousarray(rows[:, offset:offset + size]).view(dtype).ravel()
 
-    def put(self, rows, offset, values, dtype):
+    def put(self, rows: npt.NDArray[np.uint8], offset: int, values: npt.ArrayLike,
+            dtype: npt.DTypeLike) -> None:
+        """Write one scalar per row at ``offset`` of a (n, length) uint8 array."""
         size = np.dtype(dtype).itemsize
         rows[:, offset:offset + size] = np.asarray(values, dtype).reshape(-1, 1).view(np.uint8)
 
 
-def state_template(channels, frame_id=""):
+def state_template(channels: Sequence[str], frame_id: str = "") -> StateLayout:
     """:class:`StateLayout` of an all-zero message with these channel names."""
     store = typestore()
     M = store.types[ACTUATOR_STATE]
@@ -116,7 +125,9 @@ def state_template(channels, frame_id=""):
     return StateLayout(store.serialize_cdr(msg, ACTUATOR_STATE))
 
 
-def serialize_states(channels, data, cycle0=0, dt=5e-4, t0=0.0):
+def serialize_states(channels: Sequence[str], data: Mapping[str, Mapping[str, Samples]],
+                     cycle0: int = 0, dt: float = 5e-4,
+                     t0: float = 0.0) -> Tuple[npt.NDArray[np.uint8], npt.NDArray[np.int64]]:
     """Serialise samples as ``ActuatorState`` messages (numpy, fixed layout).
 
     Parameters

@@ -9,14 +9,18 @@ from __future__ import annotations
 
 import struct
 from functools import lru_cache
+from typing import TYPE_CHECKING, Optional, Tuple
+
+if TYPE_CHECKING:
+    from rosbags.typesys.store import Typestore
 
 __all__ = ["typestore", "message_definition", "type_hash", "has_header"]
 
 HEADER = "std_msgs/msg/Header"
-_STORE = None
+_STORE: Optional[Typestore] = None
 
 
-def typestore():
+def typestore() -> Typestore:
     """The shared rosbags typestore (ROS 2 Jazzy + ``seaforce_msgs``)."""
     global _STORE
     if _STORE is None:
@@ -25,13 +29,13 @@ def typestore():
     return _STORE
 
 
-def knows(msgtype):
+def knows(msgtype: str) -> bool:
     """Whether the typestore has ``msgtype`` (``pkg/msg/Type``)."""
     return msgtype in typestore().fielddefs
 
 
 @lru_cache(maxsize=None)
-def message_definition(msgtype):
+def message_definition(msgtype: str) -> Tuple[str, str]:
     """``(encoding, text)`` of ``msgtype`` as rosbag2 stores it: ``ros2msg`` and the type's
     ``.msg`` text followed by the definitions it depends on (``MSG: pkg/msg/Type`` sections)."""
     text, _digest = typestore().generate_msgdef(msgtype, ros_version=2)
@@ -39,13 +43,13 @@ def message_definition(msgtype):
 
 
 @lru_cache(maxsize=None)
-def type_hash(msgtype):
+def type_hash(msgtype: str) -> str:
     """``RIHS01_<64 hex>`` type description hash of ``msgtype``."""
     return typestore().hash_rihs01(msgtype)
 
 
 @lru_cache(maxsize=None)
-def has_header(msgtype):
+def has_header(msgtype: str) -> bool:
     """Whether the first field of ``msgtype`` is a ``std_msgs/Header`` (so the first 8 bytes
     after the CDR encapsulation are its stamp)."""
     if not knows(msgtype):
@@ -60,7 +64,7 @@ def has_header(msgtype):
 _STAMP = struct.Struct("<iI")
 
 
-def header_stamp_ns(data):
+def header_stamp_ns(data: bytes) -> Optional[int]:
     """Header stamp [ns] of a serialised (little-endian CDR) message whose type starts with a
     Header, or None when the bytes are too short or not little-endian CDR."""
     if len(data) < 12 or data[1] != 1:

@@ -20,17 +20,19 @@ committed batches. The writer then refuses further writes.
 from __future__ import annotations
 
 import errno
+import os
 import pathlib
 import sqlite3
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional
+from typing import (Any, Callable, Dict, Iterable, List, Mapping, Optional, Sequence, TypeVar,
+                    Union)
 
 from . import mcapfile
 from .errors import BagUsageError, BagWriteError
-from .metadata import (ROS_DISTRO, VERSION, BagMetadata, FileInfo, TopicInfo, qos_list_yaml,
-                       write_metadata)
+from .metadata import (ROS_DISTRO, VERSION, BagMetadata, FileInfo, QosProfile, TopicInfo,
+                       qos_list_yaml, write_metadata)
 from .sqlitefile import Sqlite3Writer
-from .states import ACTUATOR_STATE, serialize_states
+from .states import ACTUATOR_STATE, Samples, serialize_states
 from .typestore import message_definition, type_hash
 
 __all__ = ["BagWriter", "STORAGES", "write_state_bag", "check_output_directory"]
@@ -40,8 +42,11 @@ STORAGES = {"mcap": ".mcap", "sqlite3": ".db3"}
 #: default longest time a message waits in the open mcap chunk [s]
 CHUNK_PERIOD = 0.5
 
+_Path = Union[str, "os.PathLike[str]"]
+_T = TypeVar("_T")
 
-def _library():
+
+def _library() -> str:
     try:
         from importlib.metadata import version
         return f"seaforce_ros {version('seaforce_ros')}"
@@ -49,7 +54,7 @@ def _library():
         return "seaforce_ros"
 
 
-def check_output_directory(directory):
+def check_output_directory(directory: _Path) -> None:
     """A bag directory must be new or empty, and creatable: :class:`BagUsageError` naming the
     path otherwise."""
     path = pathlib.Path(directory)
@@ -74,7 +79,9 @@ class _Topic:
 @dataclass
 class _OpenFile:
     path: pathlib.Path
-    storage: object
+    # McapWriter or Sqlite3Writer, as BagWriter.storage says (the methods differ: the writer
+    # calls them by its storage name, not by type, on the per-message path)
+    storage: Any
     ids: Dict[str, int] = field(default_factory=dict)    # topic -> channel / topic id
     topics: Dict[int, str] = field(default_factory=dict)
     counts: Dict[str, int] = field(default_factory=dict)  # committed in this file
@@ -108,8 +115,10 @@ class BagWriter:
         Closed files.
     """
 
-    def __init__(self, directory, storage="mcap", split_duration=None, chunk_size=None,
-                 chunk_period=CHUNK_PERIOD, custom_data=None):
+    def __init__(self, directory: _Path, storage: str = "mcap",
+                 split_duration: Optional[float] = None, chunk_size: Optional[int] = None,
+                 chunk_period: float = CHUNK_PERIOD,
+                 custom_data: Optional[Mapping[str, str]] = None) -> None:
         if storage not in STORAGES:
             raise BagUsageError(f"storage must be mcap or sqlite3, not {storage!r}")
         if split_duration is not None and not split_duration > 0:
@@ -142,26 +151,30 @@ class BagWriter:
 
     # --- bookkeeping ------------------------------------------------------------------------
     @property
-    def written(self):
+    def written(self) -> Dict[str, int]:
+        """Messages on disk per topic, over all files."""
         return {t: v.written for t, v in self._topics.items()}
 
     @property
-    def current(self):
+    def current(self) -> Optional[pathlib.Path]:
         """Path of the open file (None between files)."""
         return None if self._open is None else self._open.path
 
-    def metadata(self, extra: Optional[FileInfo] = None, extra_counts=None):
+    def metadata(self, extra: Optional[FileInfo] = None,
+                 extra_counts: Optional[Dict[str, int]] = None) -> BagMetadata:
         """BagMetadata of the closed files (plus ``extra``, a file being closed)."""
         files = list(self.files) + ([extra] if extra is not None else [])
-        per = list(self._per_file_topics) + ([extra_counts] if extra is not None else [])
-        topics = []
+        per: List[Dict[str, int]] = list(self._per_file_topics) + (
+            [extra_counts] if extra is not None else [])  # type: ignore[list-item]  # with extra
+        topics: List[TopicInfo] = []
         for name, t in self._topics.items():
             info = TopicInfo(**{**t.info.__dict__})
             info.message_count = sum(c.get(name, 0) for c in per)
             topics.append(info)
         return BagMetadata(self.storage, files, topics, self.custom_data)
 
-    def add_topic(self, topic, msgtype, offered_qos=(), type_description_hash=None):
+    def add_topic(self, topic: str, msgtype: str, offered_qos: Iterable[QosProfile] = (),
+                  type_description_hash: Optional[str] = None) -> None:
         """Register a topic (in the open file too). ``type_description_hash`` defaults to the
         RIHS01 hash of the type's definition; ``offered_qos`` is a list of QosProfile."""
         if topic in self._topics:
@@ -170,10 +183,10 @@ class BagWriter:
                          list(offered_qos))
         self._topics[topic] = _Topic(info)
         if self._open is not None:
-            self._guard(lambda: self._register(self._open, info))
+            self._guard(lambda: self._register(self._open, info))  # type: ignore[arg-type]
 
     # --- files --------------------------------------------------------------------------------
-    def _register(self, f, info):
+    def _register(self, f: _OpenFile, info: TopicInfo) -> None:
         encoding, text = message_definition(info.type)
         qos = qos_list_yaml(info.offered_qos_profiles)
         if self.storage == "mcap":
@@ -190,8 +203,9 @@ class BagWriter:
         f.ids[info.name] = cid
         f.topics[cid] = info.name
 
-    def _open_file(self):
+    def _open_file(self) -> None:
         path = self.directory / f"{self.name}_{len(self.files)}{STORAGES[self.storage]}"
+        storage: Union[mcapfile.McapWriter, Sqlite3Writer]
         if self.storage == "mcap":
             storage = mcapfile.McapWriter(path, _library(), self.chunk_size)
         else:
@@ -201,13 +215,13 @@ class BagWriter:
         for t in self._topics.values():
             self._register(f, t.info)
 
-    def _commit(self, f, counts):
+    def _commit(self, f: _OpenFile, counts: Mapping[int, int]) -> None:
         for cid, n in counts.items():
             topic = f.topics[cid]
             f.counts[topic] = f.counts.get(topic, 0) + n
             self._topics[topic].written += n
 
-    def _file_info(self, f):
+    def _file_info(self, f: _OpenFile) -> FileInfo:
         st = f.storage
         if self.storage == "mcap":
             start, end = st.index.start_time, st.index.end_time
@@ -216,8 +230,8 @@ class BagWriter:
         n = sum(f.counts.values())
         return FileInfo(f.path.name, start or 0, (end - start) if n else 0, n)
 
-    def _close_file(self):
-        f = self._open
+    def _close_file(self) -> None:
+        f: _OpenFile = self._open  # type: ignore[assignment]  # called with a file open
         if self.storage == "mcap":
             self._commit(f, f.storage.flush())
         else:
@@ -234,16 +248,18 @@ class BagWriter:
         write_metadata(self.directory, self.metadata())
 
     # --- writing --------------------------------------------------------------------------------
-    def write(self, topic, log_time, data, publish_time=None):
+    def write(self, topic: str, log_time: int, data: bytes,
+              publish_time: Optional[int] = None) -> None:
         """Write one serialised message (``log_time``, ``publish_time`` in ns since epoch;
         ``publish_time`` defaults to ``log_time``)."""
         if self.failed is not None:
             raise self.failed
-        f = self._open
+        # None until the first message: _roll opens a file then (or raises)
+        f: _OpenFile = self._open  # type: ignore[assignment]
         if f is None or (self.split_ns is not None and f.first is not None
                          and log_time - f.first >= self.split_ns):
             self._guard(self._roll)
-            f = self._open
+            f = self._open  # type: ignore[assignment]
         if f.first is None:
             f.first = log_time
         cid = f.ids[topic]
@@ -255,12 +271,12 @@ class BagWriter:
         else:
             f.storage.write(cid, log_time, data)
 
-    def _roll(self):
+    def _roll(self) -> None:
         if self._open is not None:
             self._close_file()
         self._open_file()
 
-    def flush(self, now=None):
+    def flush(self, now: Optional[int] = None) -> None:
         """End of a write batch: sqlite3 commits it; mcap writes the open chunk when its first
         message is ``chunk_period`` older than ``now`` [ns] (always when ``now`` is None)."""
         if self.failed is not None:
@@ -275,7 +291,7 @@ class BagWriter:
                 return
         self._commit(f, self._guard(st.flush))
 
-    def close(self):
+    def close(self) -> BagMetadata:
         """Write everything, close the open file, write ``metadata.yaml``. Idempotent.
         Returns the final BagMetadata."""
         if self.failed is not None:
@@ -287,13 +303,13 @@ class BagWriter:
         return self.metadata()
 
     # --- failures --------------------------------------------------------------------------------
-    def _guard(self, action):
+    def _guard(self, action: Callable[[], _T]) -> _T:
         try:
             return action()
         except (OSError, sqlite3.Error) as exc:
             raise self._fail(exc) from None
 
-    def _fail(self, exc):
+    def _fail(self, exc: BaseException) -> BagWriteError:
         """Save what can be saved after a failed write; returns the BagWriteError to raise."""
         f = self._open
         lost: Dict[str, int] = {}
@@ -325,7 +341,7 @@ class BagWriter:
             kept += "; metadata.yaml could not be rewritten (it lists the files closed before)"
         reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
         if getattr(exc, "sqlite_errorname", None):
-            reason += f" ({exc.sqlite_errorname})"
+            reason += f" ({exc.sqlite_errorname})"  # type: ignore[attr-defined]
         code = errno.errorcode.get(getattr(exc, "errno", None) or -1, "")
         n_closed = len(self.files)
         msg = (f"writing the bag {self.directory} failed: {reason}"
@@ -337,8 +353,11 @@ class BagWriter:
         return self.failed
 
 
-def write_state_bag(path, channels, data, dt=5e-4, storage="mcap", split_duration=None,
-                    topic="/actuator_state", cycle0=0, t0=0.0):
+def write_state_bag(path: _Path, channels: Sequence[str],
+                    data: Mapping[str, Mapping[str, Samples]], dt: float = 5e-4,
+                    storage: str = "mcap", split_duration: Optional[float] = None,
+                    topic: str = "/actuator_state", cycle0: int = 0,
+                    t0: float = 0.0) -> BagMetadata:
     """Write sampled channel data as ``actuator_state`` messages into one bag directory.
 
     Parameters as :func:`~seaforce_ros.bags.states.serialize_states`; ``split_duration`` [s]

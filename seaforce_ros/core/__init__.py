@@ -16,6 +16,7 @@ dahl                 Dahl hysteresis (eq. 14-15), exact per-sample update
 signals              log chirps and their fades
 controller           ChannelController: the 2 kHz update of one channel, all modes
 estimator            contact detection and object impedance from motor state and pressure
+jobs                 what overrides a channel's mode for a while: the job protocol
 grasp                a grasp: approach, squeeze, probe, hold, release
 friction_calibration endpoint friction calibration and online adaptation
 handover             hand-over of values between threads at a safe point

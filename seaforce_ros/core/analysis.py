@@ -3,12 +3,17 @@
 """
 
 import math
-from collections import namedtuple
+from typing import TYPE_CHECKING, Any, Callable, Dict, Iterable, NamedTuple, Optional, Tuple
 
 import numpy as np
+import numpy.typing as npt
 
+from .params import PlantParams
 from .passivity import numerical_passivity
 from .plant import PlantModel
+
+if TYPE_CHECKING:                       # imported where used (slow to import)
+    import control
 
 __all__ = [
     "magnitude_db", "zwidth_db", "frequency_response", "max_passive_external_gain",
@@ -20,18 +25,23 @@ __all__ = [
 ]
 
 
-def magnitude_db(z):
+#: A loop transfer function: frequencies [rad/s] -> complex L(e^{j omega dt}).
+LoopGain = Callable[[npt.ArrayLike], npt.NDArray[np.complex128]]
+
+
+def magnitude_db(z: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """20 log10 |z| (dB re 1 N m s/rad for impedances)."""
     return 20.0 * np.log10(np.abs(z))
 
 
-def zwidth_db(z_low, z_high):
+def zwidth_db(z_low: npt.ArrayLike, z_high: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """Z-width [dB] between a low- and a high-impedance curve:
     ``20 log10(|z_high| / |z_low|)`` elementwise."""
     return 20.0 * np.log10(np.abs(z_high) / np.abs(z_low))
 
 
-def frequency_response(tf, omega):
+def frequency_response(tf: "control.TransferFunction",
+                       omega: npt.ArrayLike) -> npt.NDArray[np.complex128]:
     """Complex ``tf(j omega)`` of a SISO :class:`control.TransferFunction`."""
     num = np.asarray(tf.num[0][0], float)
     den = np.asarray(tf.den[0][0], float)
@@ -39,12 +49,13 @@ def frequency_response(tf, omega):
     return np.polyval(num, s) / np.polyval(den, s)
 
 
-def _admittance_passive(tf):
+def _admittance_passive(tf: "control.TransferFunction") -> bool:
     """Numerical passivity of the admittance 1/Z for an impedance tf."""
     return numerical_passivity(tf.den[0][0], tf.num[0][0]).passive
 
 
-def max_passive_external_gain(plant, upper=100.0, tol=1e-6):
+def max_passive_external_gain(plant: PlantParams, upper: float = 100.0,
+                              tol: float = 1e-6) -> float:
     """Largest K_f for which external force feedback ``F_a = K_f F_e`` keeps
     the endpoint port passive (bisection on :func:`numerical_passivity`).
 
@@ -66,7 +77,8 @@ def max_passive_external_gain(plant, upper=100.0, tol=1e-6):
     return lo
 
 
-def force_feedback_comparison(plant, omega, internal_gain=1.0):
+def force_feedback_comparison(plant: PlantParams, omega: npt.ArrayLike,
+                              internal_gain: float = 1.0) -> Dict[str, Any]:
     """Endpoint |Z| curves of Fig. 7 for one parameter set.
 
     Returns
@@ -89,14 +101,14 @@ def force_feedback_comparison(plant, omega, internal_gain=1.0):
     }
 
 
-def low_frequency_stiffness_passive(plant):
+def low_frequency_stiffness_passive(plant: PlantParams) -> float:
     """``lim_{s->0} s Z(s)`` unpowered: ``k_e + k k_s/(k + k_s)`` [N m/rad]."""
     p = plant
     k, ks, ke = p.motor_stiffness, p.hose_stiffness, p.endpoint_stiffness
     return ke + k * ks / (k + ks)
 
 
-def low_frequency_stiffness_internal(plant, gain=1.0):
+def low_frequency_stiffness_internal(plant: PlantParams, gain: float = 1.0) -> float:
     """``lim s Z`` with internal force feedback ``F_a = K_f F_p``:
     ``k_e + k k_s/(k + (1+K_f) k_s)`` (eq. 22 for K_f = 1)."""
     p = plant
@@ -104,7 +116,7 @@ def low_frequency_stiffness_internal(plant, gain=1.0):
     return ke + k * ks / (k + (1.0 + gain) * ks)
 
 
-def low_frequency_stiffness_external(plant, gain):
+def low_frequency_stiffness_external(plant: PlantParams, gain: float) -> float:
     """``lim s Z`` with external force feedback ``F_a = K_f F_e``:
     ``(k_e (k + k_s) + k k_s)/(k + (1+K_f) k_s)``."""
     p = plant
@@ -112,25 +124,26 @@ def low_frequency_stiffness_external(plant, gain):
     return (ke * (k + ks) + k * ks) / (k + (1.0 + gain) * ks)
 
 
-def eq22_stiffness(plant):
+def eq22_stiffness(plant: PlantParams) -> float:
     """Eq. 22: ``((k + 2 k_e) k_s + k k_e)/(2 k_s + k)`` [N m/rad]."""
     p = plant
     k, ks, ke = p.motor_stiffness, p.hose_stiffness, p.endpoint_stiffness
     return ((k + 2.0 * ke) * ks + k * ke) / (2.0 * ks + k)
 
 
-def eq23_stiffness(plant):
+def eq23_stiffness(plant: PlantParams) -> float:
     """Eq. 23 (non-backdrivable actuator, k >> k_s, k_e): ``k_s + k_e``."""
     return plant.hose_stiffness + plant.endpoint_stiffness
 
 
-def eq24_stiffness(plant):
+def eq24_stiffness(plant: PlantParams) -> float:
     """Eq. 24 (backdrivable, k_s >> k, k_e): ``k/2 + k_e``."""
     return 0.5 * plant.motor_stiffness + plant.endpoint_stiffness
 
 
 # --- impedance from time series ------------------------------------------------
-def fourier_coefficient(y, omega, dt, settle_time=0.0):
+def fourier_coefficient(y: npt.ArrayLike, omega: float, dt: float,
+                        settle_time: float = 0.0) -> complex:
     """Single-frequency Fourier projection of a sampled signal.
 
     Uses the largest whole number of periods of ``omega`` that fits after
@@ -165,21 +178,24 @@ def fourier_coefficient(y, omega, dt, settle_time=0.0):
     return 2.0 / n * np.sum(y[k0:] * np.exp(-1j * omega * t))
 
 
-def impedance_from_series(f_e, v_e, omega, dt, settle_time=0.0):
+def impedance_from_series(f_e: npt.ArrayLike, v_e: npt.ArrayLike, omega: float, dt: float,
+                          settle_time: float = 0.0) -> complex:
     """Complex Z(j omega) = F_e/V_e from time series of F_e [N m] and V_e [rad/s]."""
     return (fourier_coefficient(f_e, omega, dt, settle_time)
             / fourier_coefficient(v_e, omega, dt, settle_time))
 
 
-def impedance_from_position(f_e, x_e, omega, dt, settle_time=0.0):
+def impedance_from_position(f_e: npt.ArrayLike, x_e: npt.ArrayLike, omega: float, dt: float,
+                            settle_time: float = 0.0) -> complex:
     """Complex Z(j omega) = F_e/(j omega X_e) from F_e [N m] and X_e [rad]."""
     return (fourier_coefficient(f_e, omega, dt, settle_time)
             / (1j * omega * fourier_coefficient(x_e, omega, dt, settle_time)))
 
 
 # --- hold (maximum impedance) gain design ---------------------------------------
-def hold_loop(plant, stiffness, damping, dt=5e-4, delay=1, endpoint="free",
-              clamp_stiffness=1e4):
+def hold_loop(plant: PlantParams, stiffness: float, damping: float, dt: float = 5e-4,
+              delay: int = 1, endpoint: str = "free",
+              clamp_stiffness: float = 1e4) -> Tuple[npt.NDArray[np.float64], LoopGain]:
     """Discrete loop of the ``hold`` PD on the motor (ZOH plant, exact).
 
     ``u_k = -K_p x_k - K_d (x_k - x_{k-1})/dt`` (drive velocity), applied
@@ -217,7 +233,7 @@ def hold_loop(plant, stiffness, damping, dt=5e-4, delay=1, endpoint="free",
         A[5, :] += ck
     A[4, 0] = 1.0                      # x_{k-1} <- x_k
 
-    def loop_gain(omega):
+    def loop_gain(omega: npt.ArrayLike) -> npt.NDArray[np.complex128]:
         z = np.exp(1j * np.asarray(omega, float) * dt)
         out = np.empty(z.shape, complex)
         eye = np.eye(4)
@@ -230,12 +246,19 @@ def hold_loop(plant, stiffness, damping, dt=5e-4, delay=1, endpoint="free",
     return A, loop_gain
 
 
-HoldMargins = namedtuple("HoldMargins", "stable modulus_margin gain_margin_db "
-                         "phase_margin_deg spectral_radius")
+class HoldMargins(NamedTuple):
+    """Stability margins of the discrete hold loop (:func:`hold_margins`)."""
+
+    stable: bool
+    modulus_margin: float
+    gain_margin_db: float
+    phase_margin_deg: float
+    spectral_radius: float
 
 
-def hold_margins(plant, stiffness, damping, dt=5e-4, delay=1, endpoint="free",
-                 omega=None):
+def hold_margins(plant: PlantParams, stiffness: float, damping: float, dt: float = 5e-4,
+                 delay: int = 1, endpoint: str = "free",
+                 omega: Optional[npt.NDArray[np.float64]] = None) -> HoldMargins:
     """Stability margins of the discrete hold loop (:func:`hold_loop`).
 
     Returns
@@ -266,8 +289,10 @@ def hold_margins(plant, stiffness, damping, dt=5e-4, delay=1, endpoint="free",
     return HoldMargins(rho < 1.0, mm, gm, pm, rho)
 
 
-def design_hold_gains(plant, dt=5e-4, delay=1, modulus_margin=0.5,
-                      stiffness_grid=None, damping_grid=None):
+def design_hold_gains(plant: PlantParams, dt: float = 5e-4, delay: int = 1,
+                      modulus_margin: float = 0.5,
+                      stiffness_grid: Optional[Iterable[float]] = None,
+                      damping_grid: Optional[Iterable[float]] = None) -> Tuple[float, float]:
     """Largest hold stiffness K_p (and its K_d) with a margin.
 
     Searches a log grid of (K_p, K_d); keeps the pairs whose discrete loop is

@@ -45,10 +45,10 @@ ratchet otherwise: a loaded finger would give way a little at every blip).
 While a channel is faulted its estimators keep running on valid samples, so
 ``controller_status`` shows live values.
 
-A grasp (:mod:`.grasp`) ends, aborted with the reason, whenever its channel's torque is zeroed
-here (a latched fault, a re-arming condition, a stall of the state stream): nothing it commanded
-comes back when the channel re-arms, which it does in the channel's mode. So does a friction
-calibration (:mod:`.friction_calibration`): nothing is applied.
+A job (:mod:`.jobs`: a grasp, a friction calibration) ends, aborted with the reason, whenever
+its channel's torque is zeroed here (a latched fault, a re-arming condition, a stall of the
+state stream): nothing it commanded comes back when the channel re-arms, which it does in the
+channel's mode (a calibration applies nothing).
 """
 
 import math
@@ -362,12 +362,9 @@ class ControlCycle:
                 effort[i] = 0.0
                 continue
             if self._latched[i] or stream_kind is not None:
-                if ctrl.grasp is not None:
-                    ctrl.abort_grasp(f"fault latched: {self._latched[i]}" if self._latched[i]
-                                     else stream)
-                if ctrl.calibration is not None:
-                    ctrl.abort_calibration(f"fault latched: {self._latched[i]}"
-                                           if self._latched[i] else stream)
+                if ctrl.job is not None:
+                    ctrl.abort_job(f"fault latched: {self._latched[i]}" if self._latched[i]
+                                   else stream)
                 ctrl.reenter(fai)          # estimators stay live; no windup meanwhile
                 try:
                     ctrl.update(xi, vi, fpi, steps)
@@ -439,8 +436,7 @@ class ControlCycle:
         if kind in self._checks.latched:
             self._latch(i, reason)
             return
-        self.controllers[i].abort_grasp(reason)
-        self.controllers[i].abort_calibration(reason)
+        self.controllers[i].abort_job(reason)
         self._needs_reset[i] = True
         self._rearming[i] = reason
         self._channel_ep[i].begin(now, f"{self.channels[i]}: {reason}: zero torque until a "
@@ -456,8 +452,7 @@ class ControlCycle:
     def _latch(self, i, reason):
         if self._latched[i]:
             return
-        self.controllers[i].abort_grasp(f"fault latched: {reason}")
-        self.controllers[i].abort_calibration(f"fault latched: {reason}")
+        self.controllers[i].abort_job(f"fault latched: {reason}")
         self._latched[i] = reason
         self._needs_reset[i] = True
         self.faults_latched += 1

@@ -34,17 +34,19 @@ Discretisation (sample period T = ``dt``):
   stiffness/damping (plus the endpoint inertia).
 * force: the DOB with ``F_ref = target.force`` (eq. 19 with a reference): at rest
   the hose pushes the motor with ``F_p = -F_ref``.
-* a grasp (:mod:`.grasp`, requested with :meth:`ChannelController.request_grasp`)
-  overrides the mode while it runs: the DOB with ``F_ref = F_cmp + F_d + F_g``
-  (minimum impedance plus the grasp's endpoint force). When it is done the
-  channel enters its mode again, bumplessly from the torque then (the release
-  has ramped F_g to zero: the grip is not carried over into ``hold``).
-  Selecting ``passive`` ends a grasp at once; selecting another mode releases
+* a job (:mod:`.jobs`, requested with :meth:`ChannelController.request_job`; one at a time
+  per channel, a second one is refused as busy) overrides the mode while it runs. A
+  :data:`~.jobs.ENDPOINT_FORCE` job runs the DOB with ``F_ref = F_cmp + F_d + F_j`` (minimum
+  impedance plus the job's endpoint force); a :data:`~.jobs.TORQUE` job commands F_a itself.
+  When it is done the channel enters its mode again, bumplessly from the torque then, with
+  the configuration the job leaves. Selecting ``passive`` ends a job at once; selecting
+  another mode ends it too, gently where the job can (:meth:`~.jobs.Job.wind_down`).
+* a grasp (:mod:`.grasp`) is an endpoint-force job, ``F_j = F_g``; when it is done the release
+  has ramped F_g to zero (the grip is not carried over into ``hold``); another mode releases
   it first.
 * the contact estimator (:mod:`.estimator`) runs in every mode on X_e_hat, F_p
   and F_d.
-* a friction calibration (:mod:`.friction_calibration`, requested with
-  :meth:`ChannelController.request_calibration`) overrides the mode while it runs: a position
+* a friction calibration (:mod:`.friction_calibration`) is a torque job: a position
   servo moves the free finger and fits b_e, k_e, F_c, sigma; when it ends the mode resumes
   bumplessly from the torque then, with the new values if it applied them. Any mode change
   aborts it. With ``friction.adaptation`` the feed-forward's values follow the same fit slowly
@@ -77,13 +79,16 @@ The hot path uses Python floats only (no numpy, no allocation beyond
 float boxing, no logging).
 """
 
+from __future__ import annotations
+
 import math
 
 from .dahl import DahlState
 from .estimator import ContactEstimator
-from .friction_calibration import FrictionAdaptation, FrictionCalibration, with_friction
+from .friction_calibration import FrictionAdaptation
 from .grasp import Grasp
 from .handover import Mailbox
+from .jobs import TORQUE, Job, JobSample, busy_reason
 from .passivity_guard import PassivityGuard
 from .errors import NonFiniteInputError
 from .params import ControllerConfig, DahlParams, DOB_MODES
@@ -124,8 +129,8 @@ class ChannelController:
         F_d [N m].
     estimator : ContactEstimator
         Contact and object estimates (updated in every mode).
-    grasp : Grasp or None
-        The grasp that overrides the mode, while it runs.
+    job : Job or None
+        The job that overrides the mode (a grasp, a friction calibration), while it runs.
     passivity_guard : PassivityGuard or None
         The time-domain passivity guard of the DOB's motor port (None when disabled); it runs
         while the DOB does (the DOB modes and a grasp) and restarts at every mode entry.
@@ -140,17 +145,15 @@ class ChannelController:
             raise ValueError(f"dt = {dt!r} must be > 0 and finite")
         self.dt = float(dt)
         self._pending = Mailbox()
-        self._grasp_box = Mailbox()
-        self.grasp = None
+        self._jobs = Mailbox(size=None)     # every job requested, in order
+        self.job: Job | None = None
         self.estimator = ContactEstimator(config.estimator, config.plant, self.dt,
                                           config.feedforward.rest_position)
         self._chirp_played = False
         self._t_mode = 0.0
         self.mode = config.mode
         self._dahl = DahlState(config.dahl)
-        # friction calibration and adaptation
-        self._calibration_box = Mailbox()
-        self.calibration = None
+        self._job_sample = JobSample(self.estimator)
         self.adaptation = FrictionAdaptation(config, self.dt)
         self._apply_config(config)
         self.reset()
@@ -170,15 +173,12 @@ class ChannelController:
         return self._config
 
     def _apply_config(self, c):
-        grasp = getattr(self, "grasp", None)
-        if grasp is not None and c.mode != self.mode:
-            if c.mode == "passive":
-                self._end_grasp(f"mode set to {c.mode}")
-            else:
-                grasp.release(f"mode set to {c.mode}", "aborted")
-        calibration = getattr(self, "calibration", None)
-        if calibration is not None and c.mode != self.mode:
-            self._end_calibration(f"mode set to {c.mode}")
+        job = self.job
+        if job is not None and c.mode != self.mode:
+            # passive: off at once; another mode: a job that can end gently does
+            reason = f"mode set to {c.mode}"
+            if c.mode == "passive" or not job.wind_down(reason):
+                self._end_job(reason)
         self.adaptation.configure(c)
         self._config = c
         dt = self.dt
@@ -235,9 +235,8 @@ class ChannelController:
         """Clear all state (filters, integrator, estimates); the next :meth:`update` starts
         afresh from that sample and enters the mode bumplessly from ``applied_torque``
         [N m], the torque the plant reports it applies (its first output equals it). A
-        grasp or a friction calibration ends (aborted, with ``reason``)."""
-        self._end_grasp(reason)
-        self._end_calibration(reason)
+        running job ends (aborted, with ``reason``)."""
+        self._end_job(reason)
         pending = self._pending.take()
         if pending is not None:
             self._apply_config(pending)
@@ -274,43 +273,85 @@ class ChannelController:
         equilibrium within ~1/lambda; ``hold`` returns to its target through a transfer
         offset that decays in 50 ms: no step, and a finger under load is not pushed away a
         little more at every blip. After a longer interruption use :meth:`reset`, which
-        re-captures the targets where the finger is. A friction calibration's reference waits
-        for that sample."""
+        re-captures the targets where the finger is. A running job is told
+        (:meth:`~.jobs.Job.reenter`: a friction calibration's reference waits for that
+        sample)."""
         self._interrupt_chirp()
         self.estimator.disturb()        # a torque its model did not see
         self.torque = float(applied_torque)
         if self._enter != _ENTER:
             self._enter = _REENTER
-        if self.calibration is not None:
-            self.calibration.hold_reference()
+        if self.job is not None:
+            self.job.reenter()
 
-    # --- grasps ----------------------------------------------------------------------------
-    def request_grasp(self, grasp):
-        """Start ``grasp`` (:class:`~.grasp.Grasp`, goal already checked) at the start of the
-        next :meth:`update` (any thread) unless it has been withdrawn by then; it enters
-        bumplessly from the torque then. Release it with ``grasp.request_release``."""
-        if not isinstance(grasp, Grasp):
-            raise TypeError("grasp must be a Grasp")
-        self._grasp_box.put(grasp)
+    # --- jobs (a grasp, a friction calibration: :mod:`.jobs`) -------------------------------
+    def request_job(self, job: Job) -> None:
+        """Start ``job`` (its goal already checked) at the start of the next :meth:`update`
+        (any thread) unless it has been withdrawn by then; it enters bumplessly from the
+        torque then. A job that arrives while another runs is refused: it ends aborted,
+        "the channel is busy with ...". Cancel it with ``job.request_cancel``."""
+        if not isinstance(job, Job):
+            raise TypeError("job must be a Job (a Grasp, a FrictionCalibration)")
+        self._jobs.put(job)
 
-    def abort_grasp(self, reason):
-        """End the running grasp now, commanding nothing more (the caller zeroes the torque:
-        a fault, a stall). Same thread as :meth:`update`."""
-        self._end_grasp(reason)
+    def abort_job(self, reason: str) -> None:
+        """End the running job now, commanding nothing more (the caller zeroes the torque: a
+        fault, a stall). Same thread as :meth:`update`."""
+        self._end_job(reason)
 
-    def _end_grasp(self, reason):
-        grasp = self.grasp
-        if grasp is not None:
-            # the object as far as it was measured: the estimator is reset after this
-            grasp.abort_now(reason, self.estimator.estimate() if grasp.contact else None)
-            self.grasp = None
+    def _end_job(self, reason: str) -> None:
+        job = self.job
+        if job is not None:
+            job.abort_now(reason)   # (a grasp keeps the object it measured: reset after this)
+            self.job = None
             self._enter = _ENTER
 
+    def _take_jobs(self) -> None:
+        """Start the first job requested that was not withdrawn, if the channel is free;
+        refuse the others."""
+        while self._jobs:
+            job = self._jobs.take()
+            if not job.claim():
+                continue                    # withdrawn before it started
+            if self.job is not None:
+                job.abort_now(busy_reason(job, self.job))
+                continue
+            self._interrupt_chirp()
+            self.job = job
+            self._enter = _ENTER
+
+    def _run_job(self, job: Job, x: float, v: float, f_p: float, xd: float,
+                 steps: int) -> float:
+        """One sample of the running ``job`` (X, V, F_p, the Dahl input, steps): its output,
+        which is the channel's torque for a :data:`~.jobs.TORQUE` job. A job that ends hands
+        the channel back to its mode, from this torque, with the configuration it leaves
+        (:meth:`~.jobs.Job.final_config`: a calibration's new friction)."""
+        sample = self._job_sample          # filled in place: no allocation per sample
+        sample.x = x
+        sample.v = v
+        sample.f_p = f_p
+        sample.dahl_input = xd
+        sample.endpoint_position = self.endpoint_position_estimate
+        sample.endpoint_velocity = self.endpoint_velocity_estimate
+        sample.torque = self.torque
+        sample.steps = steps
+        out = job.step(sample)
+        if not job.active:
+            self.job = None
+            config = job.final_config(self._config)
+            if config is not None:
+                self._apply_config(config)
+            self._enter = _ENTER            # back to the mode, from this torque
+        if job.output == TORQUE:
+            self.disturbance = math.nan
+            self.torque = out
+        return out
+
     @property
-    def grasp_phase(self):
-        """The running grasp's phase, or ''."""
-        grasp = self.grasp
-        return grasp.phase if grasp is not None else ""
+    def grasp_phase(self) -> str:
+        """The running grasp's phase, or '' (``controller_status.grasp_phase``)."""
+        job = self.job
+        return job.phase if isinstance(job, Grasp) else ""
 
     def _interrupt_chirp(self):
         """A chirp under way when the plant interrupts it is over: it never replays by itself
@@ -318,54 +359,13 @@ class ChannelController:
         if self.mode == "chirp" and self._t_mode > 0.0:
             self._chirp_played = True
 
-    # --- friction calibration -----------------------------------------------------------
-    def request_calibration(self, calibration):
-        """Start ``calibration`` (:class:`~.friction_calibration.FrictionCalibration`, goal
-        already checked) at the start of the next :meth:`update` (any thread) unless withdrawn
-        by then; cancel it with ``calibration.request_cancel``."""
-        if not isinstance(calibration, FrictionCalibration):
-            raise TypeError("calibration must be a FrictionCalibration")
-        self._calibration_box.put(calibration)
-
-    def abort_calibration(self, reason):
-        """End the running calibration now, commanding nothing more (the caller zeroes the
-        torque). Same thread as :meth:`update`."""
-        self._end_calibration(reason)
-
-    def _end_calibration(self, reason):
-        calibration = self.calibration
-        if calibration is not None:
-            calibration.abort_now(reason)
-            self.calibration = None
-            self._enter = _ENTER
-
-    def _start_calibration(self, calibration):
-        if not calibration.claim():
-            return
-        if self.calibration is not None or self.grasp is not None:
-            calibration.abort_now("the channel is busy with another calibration or a grasp")
-            return
-        self._interrupt_chirp()
-        self.calibration = calibration
-
-    def _run_calibration(self, calibration, x, v, xe_hat, xd, f_p, steps):
-        u = calibration.update(x, v, xe_hat, xd, f_p, self.torque, steps)
-        if not calibration.active:
-            self.calibration = None
-            if calibration.outcome == "succeeded" and calibration.goal.apply:
-                self._apply_config(with_friction(self._config, calibration.new))
-                calibration.applied = True
-            self._enter = _ENTER         # back to the mode, from this torque
-        self.disturbance = math.nan
-        self.torque = u
-        return u
-
+    # --- friction adaptation ------------------------------------------------------------
     def _adapt(self, xe_hat, xd, f_p, fd, steps):
         adaptation = self.adaptation
-        grasp = self.grasp
+        job = self.job
         estimator = self.estimator
         free = not (estimator.contact or estimator.quiet) and (
-            grasp is None or grasp.phase == "approach")
+            job is None or job.free_motion)
         if adaptation.update(xe_hat, xd, f_p, free, fd, steps):
             be, ke, fc, sigma = adaptation.values
             self._be, self._ke = be, ke
@@ -399,12 +399,9 @@ class ChannelController:
             self._apply_config(pending)
             self._chirp_played = False
             self._enter = _ENTER
-        if self._grasp_box:
+        if self._jobs:
             keep_ledger = False
-            self._start_grasp(self._grasp_box.take())
-        if self._calibration_box:
-            keep_ledger = False
-            self._start_calibration(self._calibration_box.take())
+            self._take_jobs()
 
         # hose inversion: delta = F_p/(b_s s + k_s), exact FOH
         if self._first:
@@ -436,9 +433,10 @@ class ChannelController:
         self.dahl_force = fd
         self.feedforward = fcmp + fd
         self.estimator.update(xe_hat, f_p, fd, steps)
-        if self.calibration is not None:
-            return self._run_calibration(self.calibration, x, v, xe_hat, xd, f_p, steps)
-        if self._config.friction.adaptation and (self._use_ff or self.grasp is not None):
+        job = self.job
+        if job is not None and job.output == TORQUE:
+            return self._run_job(job, x, v, f_p, xd, steps)
+        if self._config.friction.adaptation and (self._use_ff or job is not None):
             self._adapt(xe_hat, xd, f_p, fd, steps)
 
         mode = self.mode
@@ -449,13 +447,9 @@ class ChannelController:
         guard = self.passivity_guard
         if guard is not None and enter and not keep_ledger:
             guard.reset()           # a new port: the full reserve, no damping (bumpless)
-        grasp = self.grasp
-        if grasp is not None or self._dob_mode:
-            if grasp is not None:
-                f_ref = fcmp + fd + grasp.update(self.estimator, ve_hat, steps)
-                if not grasp.active:
-                    self.grasp = None
-                    self._enter = _ENTER     # back to the mode, from this torque
+        if job is not None or self._dob_mode:
+            if job is not None:     # the job's endpoint force on minimum impedance
+                f_ref = fcmp + fd + self._run_job(job, x, v, f_p, xd, steps)
             elif mode == "dob":
                 f_ref = 0.0
             elif mode == "dob_linear_ff":
@@ -516,19 +510,6 @@ class ChannelController:
             u = self._bias + self._chirp(self._t_mode)
         self.torque = u
         return u
-
-    def _start_grasp(self, grasp):
-        if not grasp.claim():
-            return                          # withdrawn before it started
-        if self.grasp is not None:
-            grasp.abort_now("another grasp holds the channel")
-            return
-        if self.calibration is not None:
-            grasp.abort_now("a friction calibration holds the channel")
-            return
-        self._interrupt_chirp()
-        self.grasp = grasp
-        self._enter = _ENTER
 
     def _chirp(self, t):
         c = self._config.chirp

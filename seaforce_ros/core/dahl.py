@@ -18,11 +18,16 @@ The update is therefore exact for any step size (unconditionally stable),
 """
 
 import math
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from .params import DahlParams
 
 __all__ = ["DahlState", "dahl_step"]
 
 
-def dahl_step(force, dx, sigma, coulomb_force, exponent):
+def dahl_step(force: float, dx: float, sigma: float, coulomb_force: float,
+              exponent: float) -> float:
     """Dahl force after a monotone position increment (eq. 14, exact).
 
     Parameters
@@ -82,27 +87,27 @@ class DahlState:
 
     __slots__ = ("sigma", "coulomb_force", "exponent", "force", "position")
 
-    def __init__(self, params, position=0.0):
+    def __init__(self, params: "DahlParams", position: float = 0.0) -> None:
         self.sigma = float(params.sigma)
         self.coulomb_force = float(params.coulomb_force)
         self.exponent = float(params.exponent)
         self.force = 0.0
         self.position = float(position)
 
-    def reset(self, position=0.0, force=0.0):
+    def reset(self, position: float = 0.0, force: float = 0.0) -> None:
         """Set the position and force (clipped to ``[-F_c, F_c]``)."""
         self.position = float(position)
         fc = self.coulomb_force
         self.force = min(fc, max(-fc, float(force)))
 
-    def set_params(self, params):
+    def set_params(self, params: "DahlParams") -> None:
         """Change sigma, F_c, n keeping the state (force clipped to the new F_c)."""
         self.sigma = float(params.sigma)
         self.coulomb_force = float(params.coulomb_force)
         self.exponent = float(params.exponent)
         self.reset(self.position, self.force)
 
-    def update(self, position):
+    def update(self, position: float) -> float:
         """Advance to ``position`` [rad]; return the new F_d [N m]."""
         dx = position - self.position
         self.position = position

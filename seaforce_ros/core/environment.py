@@ -26,6 +26,7 @@ Sine frequencies are in rad/s, chirp frequencies in Hz (as the sim's parameters 
 """
 
 import math
+from typing import Any, Mapping
 
 from .schema import SIM, ParameterGroup, group, param
 from .signals import log_chirp_phase
@@ -64,14 +65,16 @@ class Environment(ParameterGroup):
                             "pushes", ge=-100.0, le=100.0)
 
     @property
-    def is_position_drive(self):
+    def is_position_drive(self) -> bool:
+        """The endpoint is driven (``position_sine``)."""
         return self.mode == "position_sine"
 
     @property
-    def is_object(self):
+    def is_object(self) -> bool:
+        """An object to grasp is at the endpoint (``object``)."""
         return self.mode == "object"
 
-    def torque(self, t):
+    def torque(self, t: float) -> float:
         """External torque F_e [N m] at time ``t`` [s] (torque modes; else 0)."""
         if self.mode == "torque_sine":
             return self.amplitude * math.sin(self.frequency * t)
@@ -81,31 +84,32 @@ class Environment(ParameterGroup):
             return self.amplitude * math.sin(self.chirp_phase(t))
         return 0.0
 
-    def chirp_phase(self, t):
+    def chirp_phase(self, t: float) -> float:
         """Log-chirp phase [rad] at ``t`` [s]."""
         return log_chirp_phase(t, self.start_frequency, self.end_frequency, self.duration)
 
 
-def free():
+def free() -> Environment:
     """Nothing attached to the endpoint (F_e = 0)."""
     return Environment("free")
 
 
-def torque_sine(amplitude, frequency):
+def torque_sine(amplitude: float, frequency: float) -> Environment:
     """External torque sine, ``amplitude`` [N m], ``frequency`` [rad/s]."""
     return Environment("torque_sine", amplitude=amplitude, frequency=frequency)
 
 
-def torque_chirp(amplitude=0.3, start_frequency=0.01, end_frequency=1000.0,
-                 duration=60.0):
+def torque_chirp(amplitude: float = 0.3, start_frequency: float = 0.01,
+                 end_frequency: float = 1000.0, duration: float = 60.0) -> Environment:
     """External torque log chirp (frequencies in Hz, duration in s)."""
     return Environment("torque_chirp", amplitude=amplitude,
                        start_frequency=start_frequency, end_frequency=end_frequency,
                        duration=duration)
 
 
-def position_sine(amplitude=0.5, frequency=1.0, stiffness=DRIVE_STIFFNESS,
-                  damping=DRIVE_DAMPING, offset=0.0):
+def position_sine(amplitude: float = 0.5, frequency: float = 1.0,
+                  stiffness: float = DRIVE_STIFFNESS, damping: float = DRIVE_DAMPING,
+                  offset: float = 0.0) -> Environment:
     """Stiff position drive of the endpoint, ``amplitude`` [rad] at
     ``frequency`` [rad/s] through ``stiffness`` [N m/rad] and ``damping``
     [N m s/rad]."""
@@ -113,13 +117,13 @@ def position_sine(amplitude=0.5, frequency=1.0, stiffness=DRIVE_STIFFNESS,
                        stiffness=stiffness, damping=damping, offset=offset)
 
 
-def contact_object(position, stiffness, damping):
+def contact_object(position: float, stiffness: float, damping: float) -> Environment:
     """An object whose surface is at ``position`` [rad] (contact at X_e > position), with
     stiffness k_o = ``stiffness`` [N m/rad] and damping b_o = ``damping`` [N m s/rad]."""
     return Environment("object", stiffness=stiffness, damping=damping, position=position)
 
 
-def environment_from_dict(values):
+def environment_from_dict(values: Mapping[str, Any]) -> Environment:
     """An environment from flat keys ``mode, amplitude, frequency, start_frequency,
     end_frequency, duration, stiffness, damping, offset, position``, optionally prefixed by
     ``environment.`` or ``<channel>.environment.``; an unknown key or a bad value raises

@@ -11,6 +11,7 @@ passes to the ROS logger; the pure cycle classes never log themselves.
 """
 
 from collections import deque
+from typing import Deque, List, Optional, Tuple
 
 __all__ = ["Episode", "EventLog", "ERROR", "WARNING", "INFO"]
 
@@ -20,18 +21,18 @@ ERROR, WARNING, INFO = "error", "warning", "info"
 class EventLog:
     """Reports waiting to be logged: ``(severity, text)`` pairs, oldest first (bounded)."""
 
-    def __init__(self, capacity=256):
-        self._events = deque(maxlen=capacity)
+    def __init__(self, capacity: int = 256) -> None:
+        self._events: Deque[Tuple[str, str]] = deque(maxlen=capacity)
 
-    def add(self, severity, text):
+    def add(self, severity: str, text: str) -> None:
         self._events.append((severity, text))
 
-    def __bool__(self):
+    def __bool__(self) -> bool:
         return bool(self._events)
 
-    def drain(self):
+    def drain(self) -> List[Tuple[str, str]]:
         """Remove and return every waiting report."""
-        out = []
+        out: List[Tuple[str, str]] = []
         events = self._events
         while events:
             out.append(events.popleft())
@@ -60,7 +61,8 @@ class Episode:
         Longest finished episode [s].
     """
 
-    def __init__(self, log, quiet_period=10.0, severity=WARNING):
+    def __init__(self, log: EventLog, quiet_period: float = 10.0,
+                 severity: str = WARNING) -> None:
         self._log = log
         self.quiet_period = float(quiet_period)
         self.severity = severity
@@ -68,11 +70,11 @@ class Episode:
         self.count = 0
         self.longest = 0.0
         self._since = 0.0
-        self._last_report = None
+        self._last_report: Optional[float] = None
         self._unreported = 0
         self._reported = False
 
-    def begin(self, now, text):
+    def begin(self, now: float, text: str) -> bool:
         """The condition holds at ``now``; report ``text`` unless throttled. Idempotent while
         active. Returns True when this call began an episode."""
         if self.active:
@@ -93,7 +95,7 @@ class Episode:
             self._reported = False
         return True
 
-    def end(self, now, text=None):
+    def end(self, now: float, text: Optional[str] = None) -> Optional[float]:
         """The condition no longer holds; ``text`` is reported (INFO) only if the episode's
         beginning was. Returns the episode's duration [s], or None if none was active."""
         if not self.active:

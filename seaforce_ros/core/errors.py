@@ -4,6 +4,7 @@ Every error raised for bad input is a :class:`SeaforceError`, so that a caller
 (the ROS node layer) can catch one type, report the message as the reason for
 rejecting a parameter, and keep running.
 """
+from typing import Any, Self
 
 __all__ = ["SeaforceError", "InvalidParameterError", "NonPassiveError",
            "NonFiniteInputError"]
@@ -36,7 +37,8 @@ class InvalidParameterError(SeaforceError, ValueError):
     name, value, bound, hint, override : as given.
     """
 
-    def __init__(self, name, value, bound, hint="", override=""):
+    def __init__(self, name: str, value: Any, bound: str, hint: str = "",
+                 override: str = "") -> None:
         self.name = name
         self.value = value
         self.bound = bound
@@ -44,7 +46,7 @@ class InvalidParameterError(SeaforceError, ValueError):
         self.override = override
         super().__init__(self._message())
 
-    def _message(self):
+    def _message(self) -> str:
         message = f"invalid parameter {self.name} = {self.value!r}: must be {self.bound}"
         if self.hint:
             message += f"; {self.hint}"
@@ -52,7 +54,7 @@ class InvalidParameterError(SeaforceError, ValueError):
             message += f"; set {self.override} to true to override"
         return message
 
-    def in_channel(self, channel):
+    def in_channel(self, channel: str) -> Self:
         """The same error with every parameter it names qualified by ``channel``
         (``dob.nominal_inertia`` -> ``pinch.dob.nominal_inertia``), as a ROS user sets it."""
         qualified = Exception.__new__(type(self))
@@ -73,7 +75,7 @@ class NonPassiveError(InvalidParameterError):
     ``allow_non_passive``.
     """
 
-    def __init__(self, name, value, bound):
+    def __init__(self, name: str, value: Any, bound: str) -> None:
         super().__init__(
             name, value, bound,
             hint=("the closed loop would not be passive (coupled stability with "
@@ -90,7 +92,7 @@ class NonFiniteInputError(SeaforceError, ValueError):
     ``step`` for a non-finite torque.
     """
 
-    def __init__(self, name, value):
+    def __init__(self, name: str, value: Any) -> None:
         self.name = name
         self.value = value
         super().__init__(f"non-finite input {name} = {value!r}")

@@ -26,8 +26,9 @@ gives sigma = a F_c.
 inverse normal matrix for b_e, k_e, F_c; for log ``a`` the profiled misfit's curvature
 (``var = s^2 / c`` for ``rss(l) = rss_min + c (l - l*)^2``); sigma's adds F_c's.
 
-:class:`FrictionCalibration` (action ``~/calibrate_friction``): overrides the channel's mode
-while it runs, like a grasp. A position servo on the motor (the ``hold`` gains) tracks ``X_ref
+:class:`FrictionCalibration` (action ``~/calibrate_friction``): a :class:`~.jobs.Job` whose
+output is the motor torque (:data:`~.jobs.TORQUE`): it overrides the channel's mode while it
+runs, like a grasp. A position servo on the motor (the ``hold`` gains) tracks ``X_ref
 = x_0 + A e(t) sin(w t)``, ``w = speed/A``, ``e`` a raised-cosine fade over one period at both
 ends, for ``friction.calibration_duration``; its torque never exceeds
 ``min(friction.torque_limit, max_torque)``; while the plant applies something else (a command
@@ -51,22 +52,32 @@ b_e explains above ``min_velocity_excitation``, the motion only k_e explains abo
 :data:`MIN_DAHL_EXCITATION` (reversals). Below that it stops (``adapting`` False, ``reason``
 says why).
 
-Threads: the cycle thread runs ``update``, ``claim`` and ``abort_now``; the action server may
-call :meth:`FrictionCalibration.request_cancel`, :meth:`FrictionCalibration.withdraw` and
-read the attributes.
+Threads (those of every :class:`~.jobs.Job`): the cycle thread runs ``update`` (through
+``step``), ``claim`` and ``abort_now``; the action server may call
+:meth:`FrictionCalibration.request_cancel`, ``request_abort``, ``withdraw`` and read the
+attributes.
 """
+
+from __future__ import annotations
 
 import dataclasses
 import math
 from collections import namedtuple
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
 
 from .dahl import dahl_step
-from .errors import SeaforceError
 from .estimator import BLOCK, svf_coefficients
-from .handover import Claim
-from .params import FrictionParams
+from .jobs import TORQUE, InvalidJobGoalError, Job, JobSample
+from .params import ControllerConfig, FrictionParams, PlantParams
+
+if TYPE_CHECKING:
+    from .estimator import ContactEstimator
+
+#: One candidate's solution: (theta, rss, inverse normal matrix), or None (singular).
+Solution: TypeAlias = "tuple[np.ndarray, float, np.ndarray] | None"
 
 __all__ = ["FrictionFit", "FrictionEstimate", "FrictionCalibration", "CalibrationGoal",
            "InvalidCalibrationError", "check_calibration_goal", "FrictionAdaptation",
@@ -109,7 +120,7 @@ sigma_reason : '' when sigma is identified too, else why not (the best ratio on 
 """
 
 
-class InvalidCalibrationError(SeaforceError, ValueError):
+class InvalidCalibrationError(InvalidJobGoalError):
     """A calibration goal that cannot be executed; the message says why."""
 
 
@@ -132,7 +143,8 @@ class FrictionFit:
         Memory while the finger moves [s] (None: none).
     """
 
-    def __init__(self, plant, exponent, ratios, dt, filter_cutoff, forgetting_time=None):
+    def __init__(self, plant: PlantParams, exponent: float, ratios: Sequence[float], dt: float,
+                 filter_cutoff: float, forgetting_time: float | None = None) -> None:
         self.dt = float(dt)
         self.ratios = [float(r) for r in ratios]
         self.exponent = float(exponent)
@@ -144,7 +156,7 @@ class FrictionFit:
         self._width = 4 + len(self.ratios)
         self.reset()
 
-    def reset(self, force=0.0):
+    def reset(self, force: float = 0.0) -> None:
         """Forget everything; the Dahl states start from the normalised force ``force``."""
         self._first = True
         self._f = [max(-1.0, min(1.0, float(force)))] * len(self.ratios)
@@ -155,7 +167,8 @@ class FrictionFit:
         self._block = []
         self.folds = 0
 
-    def update(self, xe, xd, fp, record=True, steps=1):
+    def update(self, xe: float, xd: float, fp: float, record: bool = True,
+               steps: int = 1) -> None:
         """One sample: X_e_hat [rad], the Dahl input [rad], F_p [N m]; the filters and Dahl
         states always run, the sample is fitted only if ``record``."""
         if self._first:
@@ -203,16 +216,16 @@ class FrictionFit:
             hk[0], hk[1] = a11 * u + a12 * w + b1 * f[k], a21 * u + a22 * w + b2 * f[k]
 
     @property
-    def started(self):
+    def started(self) -> bool:
         """The filters hold a sample."""
         return not self._first
 
     @property
-    def dahl_states(self):
+    def dahl_states(self) -> tuple[float, ...]:
         """The candidates' normalised Dahl forces F_d/F_c."""
         return tuple(self._f)
 
-    def fold(self):
+    def fold(self) -> None:
         """Add the samples since the last fold to the normal matrix (forgetting the old ones
         when the finger moved)."""
         block = self._block
@@ -229,11 +242,11 @@ class FrictionFit:
             self.S = self.S + prod
 
     @property
-    def samples(self):
+    def samples(self) -> float:
         """Samples in the normal matrix (after forgetting)."""
         return float(self.S[2, 2])
 
-    def solve_candidate(self, k):
+    def solve_candidate(self, k: int) -> Solution:
         """``(theta, rss, inverse)`` of candidate ``k``: theta = (b_e, k_e, offset, F_c),
         or None when the normal matrix is singular (a regressor that never varied)."""
         idx = [0, 1, 2, 4 + k]
@@ -255,7 +268,7 @@ class FrictionFit:
         rss = max(float(S[3, 3] - theta @ h), 0.0)
         return theta, rss, inv
 
-    def estimate(self, solutions):
+    def estimate(self, solutions: Sequence[Solution]) -> FrictionEstimate:
         """The :class:`FrictionEstimate` from ``solutions`` (one :meth:`solve_candidate`
         result per ratio)."""
         if len(solutions) != len(self.ratios):
@@ -264,17 +277,19 @@ class FrictionFit:
         costs = [s[1] if s is not None else math.inf for s in solutions]
         best = int(np.argmin(costs))
         nan = math.nan
-        if not math.isfinite(costs[best]) or n < 8.0:
+        solution = solutions[best]
+        if solution is None or not math.isfinite(costs[best]) or n < 8.0:
             return FrictionEstimate(nan, nan, nan, nan, nan, nan, nan, nan, 0.0, 0.0, 0.0, n,
                                     "too few samples, or a term that never varied", "")
-        theta, rss, inv = solutions[best]
+        theta, rss, inv = solution
         reason = sigma_reason = ""
         logs = [math.log(r) for r in self.ratios]
         log_a = logs[best]
         var_log_a = nan
         variance = self._kappa * rss / max(n - 4.0, 1.0)
-        if 0 < best < len(self.ratios) - 1 and all(
-                solutions[i] is not None for i in (best - 1, best + 1)):
+        lower, upper = ((solutions[best - 1], solutions[best + 1])
+                        if 0 < best < len(self.ratios) - 1 else (None, None))
+        if lower is not None and upper is not None:
             c0, c1, c2 = costs[best - 1], costs[best], costs[best + 1]
             step = logs[best + 1] - logs[best]
             # rss(l) = c1 + B (l - l_best) + curv (l - l_best)^2 through the three points
@@ -284,7 +299,7 @@ class FrictionFit:
                 log_a += shift
                 var_log_a = variance / curv
                 # the linear parameters at the interpolated ratio (quadratic in log a)
-                t0, t2 = solutions[best - 1][0], solutions[best + 1][0]
+                t0, t2 = lower[0], upper[0]
                 u = shift / step
                 theta = theta + 0.5 * u * (t2 - t0) + 0.5 * u * u * (t2 - 2.0 * theta + t0)
             else:
@@ -309,7 +324,8 @@ class FrictionFit:
                                 sigma_sd, exc[0], exc[1], exc[2], n, reason, sigma_reason)
 
 
-def ratio_grid(center, span=RATIO_SPAN, per_decade=RATIOS_PER_DECADE):
+def ratio_grid(center: float, span: float = RATIO_SPAN,
+               per_decade: int = RATIOS_PER_DECADE) -> list[float]:
     """Log-spaced sigma/F_c candidates [1/rad] from ``center/span`` to ``center*span``."""
     half = int(round(per_decade * math.log10(span)))
     return [center * 10.0 ** (i / per_decade) for i in range(-half, half + 1)]
@@ -332,18 +348,19 @@ class CalibrationGoal:
 
     __slots__ = ("channel", "amplitude", "speed", "apply")
 
-    def __init__(self, channel, amplitude, speed, apply=True):
+    def __init__(self, channel: str, amplitude: float, speed: float, apply: bool = True) -> None:
         self.channel = channel
         self.amplitude = amplitude
         self.speed = speed
         self.apply = apply
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         return (f"CalibrationGoal(channel={self.channel!r}, amplitude={self.amplitude!r}, "
                 f"speed={self.speed!r}, apply={self.apply!r})")
 
 
-def check_calibration_goal(goal, params, position=None):
+def check_calibration_goal(goal: CalibrationGoal, params: FrictionParams,
+                           position: float | None = None) -> None:
     """Raise :class:`InvalidCalibrationError` naming the field and bound if ``goal`` cannot run
     with these :class:`FrictionParams` from the endpoint ``position`` [rad] (None: not
     known yet; the calibration re-checks it when it starts)."""
@@ -384,8 +401,9 @@ def _check_range(amplitude, position, params):
             f"{params.position_max:g} rad")
 
 
-class FrictionCalibration:
-    """One calibration goal on one channel (see module docstring).
+class FrictionCalibration(Job):
+    """One calibration goal on one channel (see module docstring): a job whose output is the
+    motor torque F_a [N m].
 
     Parameters
     ----------
@@ -413,7 +431,12 @@ class FrictionCalibration:
         The controller applied ``new``.
     """
 
-    def __init__(self, goal, config, dt=5e-4):
+    kind = "friction calibration"
+    output = TORQUE
+
+    def __init__(self, goal: CalibrationGoal, config: ControllerConfig,
+                 dt: float = 5e-4) -> None:
+        super().__init__()
         self.goal = goal
         self.config = config
         self.dt = float(dt)
@@ -436,64 +459,50 @@ class FrictionCalibration:
         self.outcome = None
         self.message = "waiting for the control cycle"
         self.progress = 0.0
-        self.new = None
+        self.new: FrictionEstimate | None = None
         self.applied = False
         self._t = 0.0
-        self._x0 = None
+        self._x0: float | None = None
         self._bias = 0.0
-        self._solutions = []
+        self._solutions: list[Solution] = []
         self._hold = False
-        self._cancel = None
-        self._claim = Claim()
+        self._cancel: str | None = None
 
-    # --- requests (thread rules in the module docstring) -----------------------------------
-    def claim(self):
-        """(cycle thread) Take the calibration over: False if it was withdrawn first."""
-        return self._claim.claim()
+    # --- requests (the rest is the job's: :class:`~.jobs.Job`) -----------------------------
+    def request_cancel(self, reason: str = "canceled") -> None:
+        """(any thread) End at the next sample, canceled; nothing is applied. (A
+        ``request_abort`` ends it aborted the same way.)"""
+        self._cancel = reason
 
-    def withdraw(self, reason, outcome="aborted"):
-        """(any thread) End a calibration the cycle has not claimed: True if ended."""
-        if not self._claim.withdraw():
-            return False
-        self._finish(outcome, reason)
-        return True
-
-    def request_cancel(self, reason="canceled"):
-        """(any thread) End at the next sample, canceled; nothing is applied."""
-        self._cancel = ("canceled", reason)
-
-    def request_abort(self, reason):
-        """(any thread) End at the next sample, aborted (a goal the node has already ended
-        because the cycle stopped running); nothing is applied."""
-        self._cancel = ("aborted", reason)
-
-    def hold_reference(self):
+    def hold_reference(self) -> None:
         """(cycle thread) The plant applies something else than our torque this sample (a
         command timeout): the reference does not advance at the next update, so that the
         finger the plant let coast is not left behind by a moving reference."""
         self._hold = True
 
-    def abort_now(self, reason):
+    #: The plant applied another torque (a command timeout): the reference waits.
+    reenter = hold_reference
+
+    def abort_now(self, reason: str) -> None:
         """End at once, commanding nothing more (the cycle zeroed the torque)."""
         if self.phase != "done":
             self._finish("aborted", reason)
 
-    @property
-    def active(self):
-        return self.phase != "done"
+    def final_config(self, config: ControllerConfig) -> ControllerConfig | None:
+        """``config`` with the new values when the calibration succeeded and the goal asks to
+        apply them (then :attr:`applied`), else None."""
+        if self.outcome != "succeeded" or not self.goal.apply or self.new is None:
+            return None
+        applied = with_friction(config, self.new)
+        self.applied = True
+        return applied
 
-    @property
-    def started(self):
-        """The cycle has claimed it (it runs, or ran)."""
-        return self._claim.claimed
-
-    def _finish(self, outcome, message):
-        self.outcome = outcome
-        self.message = message
-        self.phase = "done"
+    def feedback(self, estimator: ContactEstimator) -> dict[str, float | str]:
+        """``phase`` and ``progress`` (0..1)."""
+        return {"phase": self.phase, "progress": self.progress}
 
     # --- per sample --------------------------------------------------------------------------
-    def reference(self, t):
+    def reference(self, t: float) -> tuple[float, float]:
         """(X_ref - x_0 [rad], dX_ref/dt [rad/s]) at ``t`` [s] since the start."""
         w, amp, fade, end = self._w, self._amp, self._fade, self._duration
         if t <= 0.0 or t >= end:
@@ -509,7 +518,13 @@ class FrictionCalibration:
         s, c = math.sin(w * t), math.cos(w * t)
         return amp * e * s, amp * (de * s + e * w * c)
 
-    def update(self, x, v, xe, xd, fp, u_prev, steps=1):
+    def step(self, sample: JobSample) -> float:
+        """(cycle thread) :meth:`update` on the channel's sample: F_a [N m]."""
+        return self.update(sample.x, sample.v, sample.endpoint_position, sample.dahl_input,
+                           sample.f_p, sample.torque, sample.steps)
+
+    def update(self, x: float, v: float, xe: float, xd: float, fp: float, u_prev: float,
+               steps: int = 1) -> float:
         """One sample: motor X [rad], V [rad/s], X_e_hat [rad], the Dahl input [rad], F_p [N m],
         the last torque [N m]; returns F_a [N m], ``|F_a| <= min(friction.torque_limit,
         max_torque)`` (0.0 once done)."""
@@ -546,9 +561,11 @@ class FrictionCalibration:
             return 0.0
         u = self._bias + kp * error + kd * (rd - v)
         u = max(-self._limit, min(self._limit, u))
+        if self._abort_request is not None:
+            self._finish("aborted", self._abort_request + ", nothing applied")
+            return u
         if self._cancel is not None:
-            outcome, reason = self._cancel
-            self._finish(outcome, reason + ", nothing applied")
+            self._finish("canceled", self._cancel + ", nothing applied")
             return u
         if self.phase == "move":
             self.fit.update(xe, xd, fp, record=t >= self._fade, steps=steps)
@@ -581,7 +598,8 @@ class FrictionCalibration:
                                                       " (not applied: apply is false)"))
 
 
-def with_friction(config, values):
+def with_friction(config: ControllerConfig,
+                  values: FrictionEstimate | Sequence[float]) -> ControllerConfig:
     """``config`` with b_e, k_e, F_c, sigma replaced by ``values`` (a
     :class:`FrictionEstimate` or a ``(b_e, k_e, F_c, sigma)`` tuple), validated."""
     be, ke, fc, sigma = tuple(values)[:4]
@@ -615,11 +633,11 @@ class FrictionAdaptation:
         Blocks that moved the values.
     """
 
-    def __init__(self, config, dt=5e-4):
+    def __init__(self, config: ControllerConfig, dt: float = 5e-4) -> None:
         self.dt = float(dt)
         self.configure(config)
 
-    def configure(self, config):
+    def configure(self, config: ControllerConfig) -> None:
         """New configured values and settings: the adaptation restarts from them."""
         fp = config.friction
         self.params = fp
@@ -646,7 +664,8 @@ class FrictionAdaptation:
         self._settle = 0
         self._solving = None         # the candidates solved since the last fold
 
-    def update(self, xe, xd, fp, free, dahl_force, steps=1):
+    def update(self, xe: float, xd: float, fp: float, free: bool, dahl_force: float,
+               steps: int = 1) -> bool:
         """One sample (X_e_hat, the Dahl input, F_p; ``free``: the contact estimator sees no
         contact; ``dahl_force``: the feed-forward's F_d). Returns True when the values moved."""
         fit = self.fit

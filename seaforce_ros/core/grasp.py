@@ -74,19 +74,27 @@ push never exceeds ``approach_force``). :meth:`Grasp.abort_now` ends a grasp at 
 cycle has already zeroed the torque: a fault or a re-initialisation); nothing is commanded
 after it.
 
-Threads: the cycle thread runs :meth:`Grasp.update`, :meth:`Grasp.claim` (when it takes the
-grasp over) and :meth:`Grasp.abort_now`; another thread (the action server) may call
-:meth:`Grasp.request_release` and :meth:`Grasp.request_abort` (taken at the next sample) and
-:meth:`Grasp.withdraw` (effective only if the cycle has not claimed it yet: a grasp whose goal
-gave up waiting never starts later) and reads the attributes.
+A grasp is a :class:`~.jobs.Job` (an :data:`~.jobs.ENDPOINT_FORCE` one: ``F_g``), which
+gives it its threads: the cycle thread runs :meth:`Grasp.update` (through
+:meth:`Grasp.step`), :meth:`~.jobs.Job.claim` (when it takes the grasp over) and
+:meth:`Grasp.abort_now`; another thread (the action server) may call
+:meth:`Grasp.request_release` (its :meth:`~.jobs.Job.request_cancel`) and
+:meth:`~.jobs.Job.request_abort` (taken at the next sample) and :meth:`~.jobs.Job.withdraw`
+(effective only if the cycle has not claimed it yet: a grasp whose goal gave up waiting never
+starts later) and reads the attributes.
 """
 
-import math
+from __future__ import annotations
 
-from .errors import SeaforceError
-from .handover import Claim
-from .params import MIN_CLOSING_VELOCITY, EstimatorParams, GraspParams
+import math
+from typing import TYPE_CHECKING
+
+from .jobs import ENDPOINT_FORCE, InvalidJobGoalError, Job, JobSample
+from .params import MIN_CLOSING_VELOCITY, ControllerConfig, EstimatorParams, GraspParams
 from .signals import faded_log_chirp
+
+if TYPE_CHECKING:
+    from .estimator import ContactEstimator, ObjectEstimate
 
 __all__ = ["GraspGoal", "Grasp", "InvalidGoalError", "check_goal", "PHASES", "ARM_TIME",
            "STEADY_SPEED", "ARM_DAHL", "ARM_TIME_MAX", "CONTACT_TIME", "APPROACH_INTEGRAL",
@@ -112,7 +120,7 @@ SLIP_TIME = 0.01       # s ... for this long: the object gave way (slipped out, 
 _HOLD_AVERAGE = 0.1    # s, time constant of the grip force average in hold
 
 
-class InvalidGoalError(SeaforceError, ValueError):
+class InvalidGoalError(InvalidJobGoalError):
     """A grasp goal that cannot be executed; the message says why."""
 
 
@@ -134,20 +142,22 @@ class GraspGoal:
 
     __slots__ = ("channel", "closing_velocity", "grip_force", "max_force", "probe")
 
-    def __init__(self, channel, closing_velocity, grip_force, max_force, probe=True):
+    def __init__(self, channel: str, closing_velocity: float, grip_force: float,
+                 max_force: float, probe: bool = True) -> None:
         self.channel = channel
         self.closing_velocity = closing_velocity
         self.grip_force = grip_force
         self.max_force = max_force
         self.probe = probe
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         return (f"GraspGoal(channel={self.channel!r}, closing_velocity="
                 f"{self.closing_velocity!r}, grip_force={self.grip_force!r}, "
                 f"max_force={self.max_force!r}, probe={self.probe!r})")
 
 
-def check_goal(goal, params, estimator, max_torque):
+def check_goal(goal: GraspGoal, params: GraspParams, estimator: EstimatorParams,
+               max_torque: float) -> None:
     """Raise :class:`InvalidGoalError` naming the field and the bound if ``goal`` cannot be
     executed on a channel with these :class:`GraspParams`, :class:`EstimatorParams` and
     ``max_torque`` [N m]."""
@@ -183,8 +193,9 @@ def check_goal(goal, params, estimator, max_torque):
                                f"max_torque = {max_torque:g} N m")
 
 
-class Grasp:
-    """One grasp goal on one channel (see module docstring).
+class Grasp(Job):
+    """One grasp goal on one channel (see module docstring): a job whose output is the
+    endpoint force ``F_g`` [N m].
 
     Parameters
     ----------
@@ -218,7 +229,11 @@ class Grasp:
         found a contact ends, by its release or an abort; None otherwise).
     """
 
-    def __init__(self, goal, config, dt=5e-4):
+    kind = "grasp"
+    output = ENDPOINT_FORCE
+
+    def __init__(self, goal: GraspGoal, config: ControllerConfig, dt: float = 5e-4) -> None:
+        super().__init__()
         self.goal = goal
         self.params = params = config.grasp
         dahl = config.dahl
@@ -246,7 +261,7 @@ class Grasp:
         self.contact = False
         self.contact_time = math.nan
         self.grip_force = math.nan
-        self.estimate = None
+        self.estimate: ObjectEstimate | None = None
         self._t = 0.0              # time in the phase [s] (approach: since the start)
         self._armed = False
         self._steady = 0.0         # time within 15 % of the approach speed, or still [s]
@@ -254,42 +269,27 @@ class Grasp:
         self._integral = 0.0       # the approach servo's integral action [N m]
         self._at_cap = False       # ... and its output at approach_force towards the object
         self._closed = False       # the finger has moved towards the object at v_cmd/2
-        self._start = None         # filtered endpoint position at the start
+        self._start: float | None = None    # filtered endpoint position at the start
         self._contact_at = math.nan    # ... and at the contact's detection
         self._slip = 0.0           # time the hold's contact force has been below the slip level
         self._release_from = 0.0     # F_g and the commanded contact force when the release began
         self._release_contact = 0.0
-        self._pending_outcome = None
-        self._release_request = None
-        self._abort_request = None
-        self._claim = Claim()
+        self._pending_outcome: str | None = None
+        self._release_request: str | None = None
+        self._relax: float | None = None    # (release) how long the object may take
+        self._estimator: ContactEstimator | None = None   # the channel's, from the contact on
         self._hold_alpha = -math.expm1(-self.dt / _HOLD_AVERAGE)
 
-    # --- requests ---------------------------------------------------------------------
-    def claim(self):
-        """(cycle thread) Take the grasp over: False if it was withdrawn first."""
-        return self._claim.claim()
-
-    def withdraw(self, reason, outcome="aborted"):
-        """(any thread) End a grasp the cycle has not claimed yet: True if it is ended (it
-        will never start), False if it runs (then :meth:`request_release` it)."""
-        if not self._claim.withdraw():
-            return False
-        self.outcome = outcome
-        self.message = reason
-        self._enter("done")
-        return True
-
-    def request_release(self, reason="released"):
+    # --- requests (the rest is the job's: :class:`~.jobs.Job`) -----------------------------
+    def request_release(self, reason: str = "released") -> None:
         """(any thread) Release at the next sample: ramp down, then ``canceled``."""
         self._release_request = reason
 
-    def request_abort(self, reason):
-        """(any thread) :meth:`abort_now` at the next sample, in the cycle's thread: a goal
-        the node has already ended because the cycle stopped running (no states)."""
-        self._abort_request = reason
+    #: A grasp's cancel is its release.
+    request_cancel = request_release
 
-    def release(self, reason="released", outcome="canceled", drop=False):
+    def release(self, reason: str = "released", outcome: str = "canceled",
+                drop: bool = False) -> None:
         """Ramp the force to zero (``drop``: at once -- nothing holds the finger back any more),
         then end with ``outcome`` and ``reason`` (no effect once releasing or done)."""
         if self.phase in ("release", "done"):
@@ -302,41 +302,59 @@ class Grasp:
         self._relax = None          # how long the object may take (at the ramp's end)
         self._enter("release")
 
-    def abort_now(self, reason, estimate=None):
+    def abort_now(self, reason: str, estimate: ObjectEstimate | None = None) -> None:
         """(cycle thread) End at once, commanding nothing more (the cycle zeroes the torque,
-        or re-initialises the controller, right after); ``estimate``: the object as the
-        estimator has it now (kept if a contact was found: the estimator is reset after
-        this)."""
+        or re-initialises the controller, right after). A grasp that found a contact keeps
+        the object as ``estimate`` has it, or else as the estimator it measured the object
+        with has it now (the cycle resets the estimator after this)."""
         if self.phase == "done":
             return
         self.outcome = "aborted"
         self.message = reason
-        if self.contact and estimate is not None:
-            self.estimate = estimate
+        if self.contact:
+            if estimate is None and self._estimator is not None:
+                estimate = self._estimator.estimate()
+            if estimate is not None:
+                self.estimate = estimate
         self.force_command = self._output = self._pushed = 0.0
         self._enter("done")
 
-    @property
-    def active(self):
-        """True until ``done``."""
-        return self.phase != "done"
+    def wind_down(self, reason: str) -> bool:
+        """(cycle thread) The mode changed: release (ramp down, aborted with ``reason``)."""
+        self.release(reason, "aborted")
+        return True
 
     @property
-    def armed(self):
+    def free_motion(self) -> bool:
+        """The approach: the finger moves free (the friction adaptation may fit it)."""
+        return self.phase == "approach"
+
+    @property
+    def armed(self) -> bool:
         """The approach's contact detection is armed (the finger moves steadily)."""
         return self._armed
 
-    @property
-    def started(self):
-        """The cycle has claimed it (it runs, or ran)."""
-        return self._claim.claimed
+    def feedback(self, estimator: ContactEstimator) -> dict[str, float | str]:
+        """``phase``, ``endpoint_position`` [rad], ``force`` (the contact force estimate, > 0
+        pushing back) [N m], ``object_stiffness`` [N m/rad] and ``object_damping``
+        [N m s/rad] (NaN before this grasp's contact: the estimator still has the last
+        object's fit)."""
+        estimate = estimator.estimate()
+        return {"phase": self.phase, "endpoint_position": estimator.position,
+                "force": -self._sign * estimator.force,
+                "object_stiffness": estimate.stiffness if self.contact else math.nan,
+                "object_damping": estimate.damping if self.contact else math.nan}
 
     def _enter(self, phase):
         self.phase = phase
         self._t = 0.0
 
     # --- per sample -------------------------------------------------------------------
-    def update(self, est, ve, steps=1):
+    def step(self, sample: JobSample) -> float:
+        """(cycle thread) :meth:`update` on the channel's sample: ``F_g`` [N m]."""
+        return self.update(sample.estimator, sample.endpoint_velocity, sample.steps)
+
+    def update(self, est: ContactEstimator, ve: float, steps: int = 1) -> float:
         """Advance ``steps`` samples; returns ``F_g`` [N m]. ``est`` is the channel's
         :class:`~.estimator.ContactEstimator`, already updated with this sample, ``ve`` the
         controller's endpoint velocity estimate V_e_hat [rad/s] (undelayed)."""
@@ -519,6 +537,7 @@ class Grasp:
                 self.release("pushed from the side away from the object: no grasp", "aborted")
                 return 0.0
             self.contact = True
+            self._estimator = est
             self.contact_time = self._t
             self._contact_at = est.position
             self.message = "contact"

@@ -3,47 +3,64 @@
 A node's executor thread sets parameters and serves ``~/reset`` while the plant's cycle thread
 runs the cycle (the direct layout). ``x = self._pending; self._pending = None`` in the cycle
 would lose a value the other thread stores between the two statements; :class:`Mailbox`
-uses a one-slot deque, whose ``append`` and ``popleft`` are single atomic operations: the
-newest value put is the one taken, and none is taken twice. :class:`Claim` decides, once,
-whether a request handed to the cycle (a grasp, a friction calibration) starts there or is
-withdrawn by the thread that made it.
+uses a deque, whose ``append`` and ``popleft`` are single atomic operations: with one slot
+(a new configuration) the newest value put is the one taken; without a bound (the jobs a
+channel is asked to run) every value put is taken once, in order, so that a request is never
+lost by another arriving in the same sample. :class:`Claim` decides, once, whether a request
+handed to the cycle (a job: :mod:`.jobs`) starts there or is withdrawn by the thread that made
+it.
 """
+
+from __future__ import annotations
 
 import threading
 from collections import deque
+from typing import Deque, Generic, Optional, TypeVar
 
 __all__ = ["Mailbox", "Claim"]
 
+_T = TypeVar("_T")
 
-class Mailbox:
-    """One slot: :meth:`put` replaces what is waiting, :meth:`take` empties it."""
 
-    def __init__(self):
-        self._slot = deque(maxlen=1)
+class Mailbox(Generic[_T]):
+    """A hand-over: :meth:`put` (any thread), :meth:`take` (the one thread that takes), of
+    values of one type (``Mailbox[ControllerConfig]``).
 
-    def put(self, value):
+    Parameters
+    ----------
+    size : int or None
+        How many values wait at most: 1 (the default) keeps only the newest put; None keeps
+        every one, taken oldest first.
+    """
+
+    def __init__(self, size: Optional[int] = 1) -> None:
+        self._slot: Deque[_T] = deque(maxlen=size)
+
+    def put(self, value: _T) -> None:
+        """Hand ``value`` over (with one slot: replacing what waits)."""
         self._slot.append(value)
 
-    def take(self):
-        """The newest value put since the last take, or None."""
+    def take(self) -> Optional[_T]:
+        """The oldest value waiting (with one slot: the newest put since the last take), or
+        None."""
         try:
             return self._slot.popleft()
         except IndexError:
             return None
 
-    def __bool__(self):
+    def __bool__(self) -> bool:
         return bool(self._slot)
 
 
 class Claim:
     """Either the cycle claims a request or another thread withdraws it first, never both."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._lock = threading.Lock()
         self._claimed = False
         self._withdrawn = False
 
-    def claim(self):
+    def claim(self) -> bool:
         """(cycle thread) True if the request is now the cycle's, False if it was withdrawn."""
         with self._lock:
             if self._withdrawn:
@@ -51,7 +68,7 @@ class Claim:
             self._claimed = True
             return True
 
-    def withdraw(self):
+    def withdraw(self) -> bool:
         """(any thread) True if withdrawn (it will never start), False if the cycle has it."""
         with self._lock:
             if self._claimed:
@@ -60,5 +77,6 @@ class Claim:
             return True
 
     @property
-    def claimed(self):
+    def claimed(self) -> bool:
+        """True once the cycle has claimed the request."""
         return self._claimed

@@ -356,7 +356,8 @@ def guard_carries(config: "ControllerConfig") -> str:
                 "accepted because passivity_guard is active, which adds damping when the "
                 "motor port has given back its reserve")
         p, dob = config.plant, config.dob
-        deficit = dob.cutoff * (p.motor_inertia - dob.nominal_inertia) - p.motor_damping
+        m_n = p.motor_inertia if dob.nominal_inertia is None else dob.nominal_inertia
+        deficit = dob.cutoff * (p.motor_inertia - m_n) - p.motor_damping
         if deficit > 0.0:
             alpha = config.passivity.max_damping
             text += (f"; passivity.max_damping = {alpha:g} N m s/rad "
@@ -492,7 +493,7 @@ _OWN = {spec.attribute: spec for spec in ControllerConfig.SPECS}
 _OWNED = tuple(
     pair for f in dataclasses.fields(ControllerConfig)
     for pair in ((("", _OWN[f.name]),) if f.name in _OWN else
-                 tuple((f.name, spec) for spec in type(f.default_factory()).SPECS)))
+                 tuple((f.name, spec) for spec in dict(_NESTED)[f.name].SPECS)))
 _ROWS = tuple(spec for _, spec in _OWNED)
 _BY_KEY = {spec.name: (owner, spec) for owner, spec in _OWNED}
 

@@ -10,12 +10,17 @@ real positive residues, (iii) Re Y(jw) >= 0 for all w (Colgate & Hogan).
 Y, and is used to cross-check the closed form.
 """
 
-from collections import namedtuple
+from typing import TYPE_CHECKING, NamedTuple, Optional, Sequence, Tuple, Union
 
 import numpy as np
+import numpy.typing as npt
 
+from .params import DobParams, PlantParams
 from .params import guard_carries  # noqa: F401 (re-exported)
 from .plant import poly_tf
+
+if TYPE_CHECKING:                       # imported where used (slow to import)
+    import control
 
 __all__ = [
     "dob_admittance_coefficients", "dob_admittance", "dob_admittance_at",
@@ -24,16 +29,22 @@ __all__ = [
 ]
 
 
-def _mbk(plant):
+_Coefficients = npt.NDArray[np.float64]
+#: Frequencies [rad/s]: a sequence or an array (indexed, so not any array_like).
+_Grid = Union[Sequence[float], npt.NDArray[np.float64]]
+
+
+def _mbk(plant: PlantParams) -> Tuple[float, float, float]:
     return plant.motor_inertia, plant.motor_damping, plant.motor_stiffness
 
 
-def _nominal(plant, dob):
+def _nominal(plant: PlantParams, dob: DobParams) -> Tuple[float, float, float, float]:
     m_n = plant.motor_inertia if dob.nominal_inertia is None else dob.nominal_inertia
     return dob.cutoff, m_n, dob.nominal_damping, dob.nominal_stiffness
 
 
-def dob_admittance_coefficients(m, b, k, lam, m_n, b_n, k_n):
+def dob_admittance_coefficients(m: float, b: float, k: float, lam: float, m_n: float, b_n: float,
+                                k_n: float) -> Tuple[_Coefficients, _Coefficients]:
     """Numerator and denominator coefficients (highest power first) of eq. 25::
 
         Y(s) = V/F_p = s (s + lam) / (m s^3 + (lam m_n + b) s^2
@@ -44,14 +55,15 @@ def dob_admittance_coefficients(m, b, k, lam, m_n, b_n, k_n):
     return num, den
 
 
-def dob_admittance(plant, dob):
+def dob_admittance(plant: PlantParams, dob: DobParams) -> "control.TransferFunction":
     """Eq. 25 as a :class:`control.TransferFunction` (V/F_p, rad/(s N m))."""
     lam, m_n, b_n, k_n = _nominal(plant, dob)
     num, den = dob_admittance_coefficients(*_mbk(plant), lam, m_n, b_n, k_n)
     return poly_tf(num, den)
 
 
-def dob_admittance_at(plant, dob, omega):
+def dob_admittance_at(plant: PlantParams, dob: DobParams,
+                      omega: npt.ArrayLike) -> npt.NDArray[np.complex128]:
     """Complex Y(j omega) of eq. 25 for an array of frequencies [rad/s]."""
     lam, m_n, b_n, k_n = _nominal(plant, dob)
     num, den = dob_admittance_coefficients(*_mbk(plant), lam, m_n, b_n, k_n)
@@ -59,9 +71,8 @@ def dob_admittance_at(plant, dob, omega):
     return np.polyval(num, s) / np.polyval(den, s)
 
 
-DobBounds = namedtuple("DobBounds", "min_nominal_inertia min_nominal_stiffness "
-                       "max_nominal_stiffness min_nominal_damping")
-DobBounds.__doc__ = """Closed-form passivity bounds of eq. 28.
+class DobBounds(NamedTuple):
+    """Closed-form passivity bounds of eq. 28.
 
 min_nominal_inertia : m - b/lambda [N m s^2/rad]
 min_nominal_stiffness : 0 [N m/rad]
@@ -69,8 +80,14 @@ max_nominal_stiffness : k + lambda b_n [N m/rad]
 min_nominal_damping : -k/lambda [N m s/rad] (needed for k_n >= 0 to be feasible)
 """
 
+    min_nominal_inertia: float
+    min_nominal_stiffness: float
+    max_nominal_stiffness: float
+    min_nominal_damping: float
 
-def dob_passivity_bounds(plant, cutoff, nominal_damping=0.0):
+
+def dob_passivity_bounds(plant: PlantParams, cutoff: float,
+                         nominal_damping: float = 0.0) -> DobBounds:
     """Eq. 28 bounds for a plant and a cut-off lambda [rad/s].
 
     >>> round(dob_passivity_bounds(PlantParams.table_i(), 2*math.pi*20).min_nominal_inertia, 10)
@@ -83,7 +100,8 @@ def dob_passivity_bounds(plant, cutoff, nominal_damping=0.0):
     return DobBounds(m - b / lam, 0.0, k + lam * nominal_damping, -k / lam)
 
 
-def dob_passivity_closed_form(m, b, k, lam, m_n, b_n, k_n):
+def dob_passivity_closed_form(m: float, b: float, k: float, lam: float, m_n: float, b_n: float,
+                              k_n: float) -> bool:
     """Closed-form passivity verdict of the DOB motor port (Section III-C).
 
     Passive iff (Routh-Hurwitz, criterion i) ``m_n > -b/lam``,
@@ -104,9 +122,8 @@ def dob_passivity_closed_form(m, b, k, lam, m_n, b_n, k_n):
     return bool(routh and realpart)
 
 
-PassivityVerdict = namedtuple(
-    "PassivityVerdict", "passive reason poles min_real_part min_real_frequency")
-PassivityVerdict.__doc__ = """Result of :func:`numerical_passivity`.
+class PassivityVerdict(NamedTuple):
+    """Result of :func:`numerical_passivity`.
 
 passive : bool
 reason : str, "" when passive, else which criterion fails
@@ -115,8 +132,15 @@ min_real_part : float, min Re Y(jw) on the grid
 min_real_frequency : float, where it occurs [rad/s]
 """
 
+    passive: bool
+    reason: str
+    poles: npt.NDArray[np.inexact]
+    min_real_part: float
+    min_real_frequency: float
 
-def _cancel_origin(num, den):
+
+def _cancel_origin(num: npt.ArrayLike,
+                   den: npt.ArrayLike) -> Tuple[_Coefficients, _Coefficients]:
     num = np.trim_zeros(np.asarray(num, float), "f")
     den = np.trim_zeros(np.asarray(den, float), "f")
     while num.size > 1 and den.size > 1 and num[-1] == 0.0 and den[-1] == 0.0:
@@ -124,7 +148,7 @@ def _cancel_origin(num, den):
     return num, den
 
 
-def _even_odd(coeffs):
+def _even_odd(coeffs: npt.ArrayLike) -> Tuple[np.poly1d, np.poly1d]:
     """Real and imaginary parts of p(jw) as polynomials in w (highest first)."""
     c = np.asarray(coeffs, float)[::-1]          # ascending powers of s
     re = np.zeros(c.size)
@@ -143,7 +167,9 @@ def _even_odd(coeffs):
     return np.poly1d(re[::-1]), np.poly1d(im[::-1])
 
 
-def numerical_passivity(num, den, omega=None, tol=1e-9):
+def numerical_passivity(num: npt.ArrayLike, den: npt.ArrayLike,
+                        omega: Optional[_Grid] = None,
+                        tol: float = 1e-9) -> PassivityVerdict:
     """Numerical passivity verdict of a rational admittance ``Y = num/den``.
 
     Checks (i) poles (roots of ``den``) in the closed left half plane, (ii)
@@ -176,7 +202,7 @@ def numerical_passivity(num, den, omega=None, tol=1e-9):
     i_min = int(np.argmin(y.real))
     min_re, w_min = float(y.real[i_min]), float(omega[i_min])
 
-    def verdict(ok, reason):
+    def verdict(ok: bool, reason: str) -> PassivityVerdict:
         return PassivityVerdict(ok, reason, poles, min_re, w_min)
 
     # (i) right-half-plane poles

@@ -128,6 +128,7 @@ as it was, but for an overflowing force; later finite samples are used again).
 """
 
 import math
+from typing import Optional
 
 from .params import GuardParams
 
@@ -179,7 +180,8 @@ class PassivityGuard:
         Why the last input was refused (non-finite), or ''.
     """
 
-    def __init__(self, params=None, dt=5e-4, inertia=0.0, max_force=math.inf):
+    def __init__(self, params: Optional[GuardParams] = None, dt: float = 5e-4,
+                 inertia: float = 0.0, max_force: float = math.inf) -> None:
         if params is None:
             params = GuardParams()
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
@@ -189,7 +191,8 @@ class PassivityGuard:
         self.configure(params, inertia, max_force)
         self.reset()
 
-    def configure(self, params, inertia=0.0, max_force=math.inf):
+    def configure(self, params: GuardParams, inertia: float = 0.0,
+                  max_force: float = math.inf) -> None:
         """New settings (validated :class:`GuardParams`); the state is kept, its damping and
         floor within the new ``max_damping`` (held damping is not released while a deficit
         lasts: a lowered maximum must bind at once)."""
@@ -212,7 +215,7 @@ class PassivityGuard:
         self.damping = min(self.damping, params.max_damping)
         self.floor = min(self.floor, self.damping)
 
-    def reset(self):
+    def reset(self) -> None:
         """Full reserve, no damping, no history."""
         self.energy = self._reserve
         self.dissipated = 0.0
@@ -231,7 +234,7 @@ class PassivityGuard:
         self._burst = False
         self._since_full = 0.0
 
-    def update(self, effort, x, v, steps=1):
+    def update(self, effort: float, x: float, v: float, steps: int = 1) -> float:
         """One sample: port effort ``F_p + F_ref`` [N m], motor position X [rad], velocity
         V [rad/s], ``steps`` sample periods since the previous one. Returns the force to add
         to F_ref [N m] (0.0 unless ``active``)."""
@@ -309,7 +312,7 @@ class PassivityGuard:
             return f
         return 0.0
 
-    def _refuse(self, effort, x, v, steps):
+    def _refuse(self, effort: float, x: float, v: float, steps: int) -> float:
         self.fault = (f"non-finite input, energy or force, or steps not >= 1 (effort "
                       f"{effort!r}, x {x!r}, v {v!r}, steps {steps!r}): no damping added")
         self.force = 0.0

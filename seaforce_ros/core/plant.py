@@ -19,16 +19,26 @@ from eq. 25. The endpoint impedance then is::
     Z(s) = F_e/V_e = [P_e (K_s + K_m) + K_s K_m] / [s (K_s + K_m)]
 """
 
+from typing import TYPE_CHECKING, Optional, Tuple
+
 import numpy as np
+import numpy.typing as npt
 
-from .params import PlantParams
+from .params import DobParams, PlantParams
 
-__all__ = ["PlantModel", "poly_tf"]
+if TYPE_CHECKING:                       # imported where used (slow to import)
+    import control
+
+__all__ = ["PlantModel", "poly_tf", "Ratio"]
+
+#: A ratio of polynomials in s, ``(numerator, denominator)``: a motor-port dynamic stiffness
+#: ``K_m = F_p/X`` or an improper transfer function.
+Ratio = Tuple[np.poly1d, np.poly1d]
 
 _S = np.poly1d([1.0, 0.0])
 
 
-def poly_tf(num, den):
+def poly_tf(num: npt.ArrayLike, den: npt.ArrayLike) -> "control.TransferFunction":
     """``control.tf`` from two ``numpy.poly1d`` (leading zeros trimmed)."""
     # imported here: python-control takes about a second to import, and every executable
     # that reaches this module (through core.analysis) would pay it before checking its
@@ -50,7 +60,7 @@ class PlantModel:
         m, b, k, m_e, b_e, k_e, b_s, k_s.
     """
 
-    def __init__(self, params):
+    def __init__(self, params: PlantParams) -> None:
         if not isinstance(params, PlantParams):
             raise TypeError("params must be a PlantParams")
         self.params = params
@@ -63,43 +73,44 @@ class PlantModel:
         self.Ks = np.poly1d([p.hose_damping, p.hose_stiffness])
 
     # --- the four plants of Fig. 4 ----------------------------------------
-    def motor_plant(self):
+    def motor_plant(self) -> "control.TransferFunction":
         """X/F_p with F_a = 0: ``1/(m s^2 + b s + k)`` (Fig. 4A)."""
         return poly_tf([1.0], self.Pm)
 
-    def endpoint_plant(self):
+    def endpoint_plant(self) -> "control.TransferFunction":
         """X_e/(F_e - F_p): ``1/(m_e s^2 + b_e s + k_e)`` (Fig. 4B)."""
         return poly_tf([1.0], self.Pe)
 
-    def hose_plant(self):
+    def hose_plant(self) -> Ratio:
         """F_p/(X_e - X): ``b_s s + k_s`` (Fig. 4C); improper, returned as
         numerator/denominator polynomials ``(b_s s + k_s, 1)``."""
         return self.Ks, np.poly1d([1.0])
 
-    def endpoint_system(self):
+    def endpoint_system(self) -> "control.TransferFunction":
         """X_e/F_e, motor unpowered (Fig. 4D): 2 zeros, 4 poles."""
         return poly_tf(self.Pm + self.Ks, self.Pe * (self.Pm + self.Ks) + self.Ks * self.Pm)
 
-    def endpoint_poles(self):
+    def endpoint_poles(self) -> npt.NDArray[np.complex128]:
         """Poles of X_e/F_e [rad/s], sorted by imaginary part then real part."""
         den = self.Pe * (self.Pm + self.Ks) + self.Ks * self.Pm
-        return np.sort_complex(np.roots(den.coeffs))
+        # numpy types sort_complex for complex input; np.roots returns real roots as floats
+        return np.sort_complex(np.roots(den.coeffs))  # type: ignore[arg-type]
 
     # --- motor-port dynamic stiffnesses K_m = F_p/X ------------------------
-    def port_passive(self):
+    def port_passive(self) -> Ratio:
         """Unpowered motor: ``K_m = P_m``."""
         return self.Pm, np.poly1d([1.0])
 
-    def port_internal_force_feedback(self, gain):
+    def port_internal_force_feedback(self, gain: float) -> Ratio:
         """``F_a = K_f F_p`` (eq. 20): ``K_m = P_m/(1 + K_f)``."""
         return self.Pm, np.poly1d([1.0 + gain])
 
-    def port_pd(self, stiffness, damping):
+    def port_pd(self, stiffness: float, damping: float) -> Ratio:
         """PD hold ``F_a = -K_p X - K_d V`` (continuous, no delay):
         ``K_m = P_m + K_d s + K_p``."""
         return self.Pm + np.poly1d([damping, stiffness]), np.poly1d([1.0])
 
-    def port_dob(self, dob, linear_ff=False):
+    def port_dob(self, dob: DobParams, linear_ff: bool = False) -> Ratio:
         """DOB (eq. 19, F_ref = 0 or the linear feed-forward of eq. 29).
 
         ``F_a = (s+lambda)/s F_ref + (lambda/s)(F_p - P_n^-1 V)`` with
@@ -132,7 +143,7 @@ class PlantModel:
         return num, den
 
     # --- impedances ----------------------------------------------------------
-    def endpoint_impedance(self, port=None):
+    def endpoint_impedance(self, port: Optional[Ratio] = None) -> "control.TransferFunction":
         """Endpoint impedance ``Z = F_e/V_e`` [N m s/rad] as a transfer function.
 
         Parameters
@@ -145,15 +156,15 @@ class PlantModel:
         den = _S * (self.Ks * kd + kn)
         return poly_tf(num, den)
 
-    def passive_impedance(self):
+    def passive_impedance(self) -> "control.TransferFunction":
         """Z with the motor unpowered."""
         return self.endpoint_impedance()
 
-    def internal_force_feedback_impedance(self, gain):
+    def internal_force_feedback_impedance(self, gain: float) -> "control.TransferFunction":
         """Z with ``F_a = K_f F_p`` (internal force feedback, eq. 20-22)."""
         return self.endpoint_impedance(self.port_internal_force_feedback(gain))
 
-    def external_force_feedback_impedance(self, gain):
+    def external_force_feedback_impedance(self, gain: float) -> "control.TransferFunction":
         """Z with ``F_a = K_f F_e`` (external force feedback)::
 
             Z = [P_e (P_m + K_s) + K_s P_m] / [s (P_m + (1 + K_f) K_s)]
@@ -162,15 +173,17 @@ class PlantModel:
         den = _S * (self.Pm + (1.0 + gain) * self.Ks)
         return poly_tf(num, den)
 
-    def dob_impedance(self, dob, linear_ff=False):
+    def dob_impedance(self, dob: DobParams,
+                      linear_ff: bool = False) -> "control.TransferFunction":
         """Z with the continuous DOB (optionally + linear feed-forward)."""
         return self.endpoint_impedance(self.port_dob(dob, linear_ff))
 
-    def hold_impedance(self, stiffness, damping):
+    def hold_impedance(self, stiffness: float, damping: float) -> "control.TransferFunction":
         """Z with a continuous PD hold on the motor position."""
         return self.endpoint_impedance(self.port_pd(stiffness, damping))
 
-    def motor_port_impedance(self, port=None):
+    def motor_port_impedance(self,
+                             port: Optional[Ratio] = None) -> "control.TransferFunction":
         """Motor-port impedance ``F_p/V = K_m/s`` (the "MaxZ motor only" curve
         for a rigid hose when ``port`` is the PD hold)."""
         kn, kd = self.port_passive() if port is None else port

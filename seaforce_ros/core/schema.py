@@ -29,7 +29,8 @@ import dataclasses
 import importlib
 import math
 from dataclasses import dataclass, field
-from typing import Any, Callable, ClassVar, Dict, Iterator, List, Mapping, Optional, Tuple
+from typing import (TYPE_CHECKING, Any, Callable, ClassVar, Dict, Iterator, List, Mapping,
+                    Optional, Self, Tuple, Type, TypeVar, dataclass_transform)
 
 from .errors import InvalidParameterError
 
@@ -252,7 +253,7 @@ class _Row:
     __slots__ = ("unit", "description", "symbol", "low", "high", "low_open", "high_open", "choices",
                  "read_only", "nodes", "key", "hint", "default_note", "type", "node_defaults")
 
-    def __init__(self, **kw):
+    def __init__(self, **kw: Any) -> None:
         for name in self.__slots__:
             setattr(self, name, kw[name])
 
@@ -263,7 +264,7 @@ def param(default: Any, unit: str, description: str, *, symbol: str = "",
           choices: Tuple[str, ...] = (), read_only: bool = False,
           nodes: Optional[Tuple[str, ...]] = None, key: Optional[str] = None, hint: str = "",
           default_note: str = "", type: Optional[type] = None,
-          node_defaults: Mapping[str, Any] = ()) -> Any:
+          node_defaults: Optional[Mapping[str, Any]] = None) -> Any:
     """A parameter row: a dataclass field with its schema (see the module docstring).
 
     ``gt``/``ge`` and ``lt``/``le`` give the strict or closed bounds; ``nodes`` overrides the
@@ -278,7 +279,7 @@ def param(default: Any, unit: str, description: str, *, symbol: str = "",
                high=lt if lt is not None else le, low_open=gt is not None,
                high_open=lt is not None, choices=tuple(choices), read_only=read_only,
                nodes=nodes, key=key, hint=hint, default_note=default_note, type=kind,
-               node_defaults=tuple(dict(node_defaults).items()))
+               node_defaults=tuple(dict(node_defaults or {}).items()))
     if isinstance(default, list):
         default = tuple(default)
     return field(default=default, metadata={_ROW: row})
@@ -296,7 +297,7 @@ def builtins_type(value: Any) -> type:
 _GROUP_MODULES = ("params", "environment", "sensors", "plant_cycle", "control_cycle",
                   "settings")
 #: Every group made by :func:`group`, in definition order.
-_GROUPS: List[type] = []
+_GROUPS: List[Type[ParameterGroup]] = []
 
 
 class ParameterGroup:
@@ -305,6 +306,8 @@ class ParameterGroup:
 
     PREFIX: ClassVar[str] = ""
     SPECS: ClassVar[Tuple[Spec, ...]] = ()
+    if TYPE_CHECKING:                       # every group is a dataclass (made by group())
+        __dataclass_fields__: ClassVar[Dict[str, dataclasses.Field[Any]]]
 
     def __post_init__(self) -> None:
         self.validate()
@@ -341,7 +344,7 @@ class ParameterGroup:
         raise KeyError(attribute)
 
     @classmethod
-    def from_values(cls, values: Mapping[str, Any], base: Any = None) -> Any:
+    def from_values(cls, values: Mapping[str, Any], base: Optional[Self] = None) -> Self:
         """A validated group from ``{key: value}`` (keys of :attr:`SPECS`; others are an
         error), the rest from ``base`` (default: the defaults)."""
         by_key = {spec.name: spec for spec in cls.SPECS}
@@ -356,11 +359,17 @@ class ParameterGroup:
         return dataclasses.replace(base, **changes)
 
 
+_Group = TypeVar("_Group", bound="ParameterGroup")
+
+
+# A type checker sees the decorated class as the frozen dataclass it is. A param() field is a
+# field with a default to it (param is no field specifier: its default is positional).
+@dataclass_transform(frozen_default=True, field_specifiers=(field,))
 def group(prefix: str, *, nodes: Tuple[str, ...] = (CONTROLLER,),
-          per_channel: bool = True) -> Callable[[type], type]:
+          per_channel: bool = True) -> Callable[[Type[_Group]], Type[_Group]]:
     """Make ``cls`` a frozen dataclass whose :func:`param` fields are rows under ``prefix``
     (see the module docstring); its docstring gets the generated ``Parameters`` section."""
-    def make(cls: type) -> type:
+    def make(cls: Type[_Group]) -> Type[_Group]:
         cls = dataclass(frozen=True)(cls)
         specs = []
         for f in dataclasses.fields(cls):
@@ -387,7 +396,7 @@ def group(prefix: str, *, nodes: Tuple[str, ...] = (CONTROLLER,),
     return make
 
 
-def groups() -> Tuple[type, ...]:
+def groups() -> Tuple[Type[ParameterGroup], ...]:
     """Every parameter group: by module (the order of ``_GROUP_MODULES``), then in definition
     order -- whatever imported them first."""
     for module in _GROUP_MODULES:           # importing a module registers its groups

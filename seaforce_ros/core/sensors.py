@@ -39,37 +39,37 @@ class SensorParams(ParameterGroup):
                                          ge=0, le=2 ** 40, read_only=True)
 
     @classmethod
-    def ideal(cls):
+    def ideal(cls) -> "SensorParams":
         """No noise, no quantisation (ADC range still clips at 1e9 N m)."""
         return cls(pressure_range=1e9, pressure_bits=0, pressure_noise=0.0,
                    motor_counts_per_rev=0, endpoint_counts_per_rev=0)
 
     @property
-    def pressure_quantum(self):
+    def pressure_quantum(self) -> float:
         """ADC step [N m] (0 when not quantised)."""
         if self.pressure_bits == 0:
             return 0.0
         return 2.0 * self.pressure_range / (2 ** self.pressure_bits)
 
     @property
-    def motor_quantum(self):
+    def motor_quantum(self) -> float:
         """Motor encoder step [rad] (0 when not quantised)."""
         return TWO_PI / self.motor_counts_per_rev if self.motor_counts_per_rev else 0.0
 
     @property
-    def endpoint_quantum(self):
+    def endpoint_quantum(self) -> float:
         """Endpoint encoder step [rad] (0 when not quantised)."""
         return TWO_PI / self.endpoint_counts_per_rev if self.endpoint_counts_per_rev else 0.0
 
 
-def quantise(value, quantum):
+def quantise(value: float, quantum: float) -> float:
     """Round ``value`` to the nearest multiple of ``quantum`` (0: unchanged)."""
     if quantum == 0.0:
         return value
     return quantum * round(value / quantum)
 
 
-def adc(value, quantum, full_scale):
+def adc(value: float, quantum: float, full_scale: float) -> float:
     """Quantise and clip to ``[-full_scale, full_scale - quantum]``."""
     if value > full_scale:
         value = full_scale

@@ -36,9 +36,11 @@ wall time.
 """
 
 import math
-from collections import namedtuple
+from typing import (Callable, Dict, List, NamedTuple, Optional, Protocol,
+                    Sequence, Tuple, TypeVar, Union)
 
 import numpy as np
+import numpy.typing as npt
 import scipy.linalg
 
 from .dahl import DahlState
@@ -48,10 +50,11 @@ from .params import PlantParams, DahlParams
 from .sensors import SensorParams
 
 __all__ = ["Measurement", "ChannelSimulator", "run_closed_loop", "discretise",
-           "continuous_matrices"]
+           "continuous_matrices", "SampleController"]
 
-Measurement = namedtuple("Measurement", "x v f_p f_a x_e f_e")
-Measurement.__doc__ = """One sample as the sensors report it.
+
+class Measurement(NamedTuple):
+    """One sample as the sensors report it.
 
 x : motor position [rad] (quantised)
 v : motor velocity [rad/s] (drive's backward difference)
@@ -61,10 +64,31 @@ x_e : endpoint position [rad] (40,000 counts/rev encoder)
 f_e : external force [N m] (environment)
 """
 
+    x: float
+    v: float
+    f_p: float
+    f_a: float
+    x_e: float
+    f_e: float
+
+
+class SampleController(Protocol):
+    """What :func:`run_closed_loop` drives: a controller with a per-sample update."""
+
+    def update(self, x: float, v: float, f_p: float) -> float:
+        """The torque command [N m] for motor position ``x`` [rad], velocity ``v`` [rad/s]
+        and pressure force ``f_p`` [N m]."""
+        ...
+
+
+_Controller = TypeVar("_Controller", bound=SampleController)
+_Matrix = npt.NDArray[np.float64]
+
 _NOISE_BLOCK = 4096
 
 
-def continuous_matrices(plant, env_stiffness=0.0, env_damping=0.0, frequency=0.0):
+def continuous_matrices(plant: PlantParams, env_stiffness: float = 0.0, env_damping: float = 0.0,
+                        frequency: float = 0.0) -> Tuple[_Matrix, _Matrix]:
     """Continuous A (6x6) and B (6x2) of the channel with the position drive.
 
     States ``(X, V, X_e, V_e, x_d, y_d)`` with ``x_d' = w y_d``,
@@ -89,7 +113,8 @@ def continuous_matrices(plant, env_stiffness=0.0, env_damping=0.0, frequency=0.0
     return A, B
 
 
-def discretise(plant, dt, env_stiffness=0.0, env_damping=0.0, frequency=0.0):
+def discretise(plant: PlantParams, dt: float, env_stiffness: float = 0.0,
+               env_damping: float = 0.0, frequency: float = 0.0) -> Tuple[_Matrix, _Matrix]:
     """Exact zero-order-hold discretisation ``(Phi, Gamma)`` of
     :func:`continuous_matrices` with step ``dt`` [s]."""
     A, B = continuous_matrices(plant, env_stiffness, env_damping, frequency)
@@ -100,7 +125,7 @@ def discretise(plant, dt, env_stiffness=0.0, env_damping=0.0, frequency=0.0):
     return E[:6, :6], E[:6, 6:]
 
 
-def _flatten(phi, gam):
+def _flatten(phi: _Matrix, gam: _Matrix) -> Tuple[float, ...]:
     return tuple(float(v) for v in np.hstack([phi, gam]).ravel())
 
 
@@ -134,9 +159,11 @@ class ChannelSimulator:
         Samples between a command and its application (default 1).
     """
 
-    def __init__(self, plant, dahl=None, dt=5e-4, seed=0, environment=None,
-                 sensors=None, motor_coulomb=0.0, endpoint_coulomb=0.0, backlash=0.0,
-                 torque_saturation=math.inf, command_delay=1):
+    def __init__(self, plant: PlantParams, dahl: Optional[DahlParams] = None, dt: float = 5e-4,
+                 seed: int = 0, environment: Optional[Environment] = None,
+                 sensors: Optional[SensorParams] = None, motor_coulomb: float = 0.0,
+                 endpoint_coulomb: float = 0.0, backlash: float = 0.0,
+                 torque_saturation: float = math.inf, command_delay: int = 1) -> None:
         if not isinstance(plant, PlantParams):
             raise TypeError("plant must be a PlantParams")
         if dahl is not None and not isinstance(dahl, DahlParams):
@@ -169,15 +196,17 @@ class ChannelSimulator:
         self._prange = float(self.sensors.pressure_range)
         self._noise_std = float(self.sensors.pressure_noise)
         self._dahl = DahlState(dahl if dahl is not None else DahlParams(sigma=0.0))
-        self._env = None
+        # None only until reset() below installs one
+        self._env: Environment = None  # type: ignore[assignment]
         self.reset(environment=environment)
 
     # --- state management ---------------------------------------------------
-    def reset(self, state=(0.0, 0.0, 0.0, 0.0), environment=None):
+    def reset(self, state: Sequence[float] = (0.0, 0.0, 0.0, 0.0),
+              environment: Optional[Environment] = None) -> None:
         """Restart at ``t = 0`` with ``state = (X, V, X_e, V_e)`` and a fresh
         noise generator (same seed)."""
         self._rng = np.random.Generator(np.random.PCG64(self.seed))
-        self._noise = []
+        self._noise: List[float] = []
         self._noise_i = 0
         self.t = 0.0
         self.step_count = 0
@@ -194,7 +223,7 @@ class ChannelSimulator:
         self.set_environment(environment)
         self._measurement = self._measure()
 
-    def set_environment(self, environment):
+    def set_environment(self, environment: Environment) -> None:
         """Install an environment now (its time origin is the current time)."""
         if not isinstance(environment, Environment):
             raise TypeError("environment must be an Environment")
@@ -215,7 +244,7 @@ class ChannelSimulator:
             # the new environment changes only the reported F_e (no noise draw)
             self._measurement = self._measurement._replace(f_e=self.external_force())
 
-    def set_plant(self, plant, dahl=None):
+    def set_plant(self, plant: PlantParams, dahl: Optional[DahlParams] = None) -> None:
         """Replace the true plant and Dahl hysteresis now, keeping the state (a drifting
         plant); ``dahl`` None: no hysteresis."""
         if not isinstance(plant, PlantParams):
@@ -228,7 +257,7 @@ class ChannelSimulator:
         self._dahl.set_params(dahl if dahl is not None else DahlParams(sigma=0.0))
         self._discretise()
 
-    def _discretise(self):
+    def _discretise(self) -> None:
         env = self._env
         w = env.frequency if env.is_position_drive else 0.0
         ken = env.stiffness if self._drive else 0.0
@@ -240,33 +269,34 @@ class ChannelSimulator:
         self._coef_off = _flatten(phi0, gam0)
 
     @property
-    def environment(self):
+    def environment(self) -> Environment:
+        """The installed environment."""
         return self._env
 
     @property
-    def state(self):
+    def state(self) -> Tuple[float, float, float, float]:
         """True ``(X, V, X_e, V_e)`` [rad, rad/s]."""
         z = self._z
         return (z[0], z[1], z[2], z[3])
 
     @property
-    def pressure_force(self):
+    def pressure_force(self) -> float:
         """True F_p = k_s (X_e - X) + b_s (V_e - V) [N m]."""
         z = self._z
         ks, bs = self._hose
         return ks * (z[2] - z[0]) + bs * (z[3] - z[1])
 
     @property
-    def dahl_force(self):
+    def dahl_force(self) -> float:
         """True Dahl force F_d [N m]."""
         return self._dahl.force
 
     @property
-    def drive_position(self):
+    def drive_position(self) -> float:
         """Position drive set-point x_d [rad] (0 when not driving)."""
         return self._env.offset + self._z[4] if self._env.is_position_drive else 0.0
 
-    def _engagement(self):
+    def _engagement(self) -> Tuple[bool, float]:
         """(engaged, side offset c) of the drive or object coupling at the current state."""
         if not self._drive:
             return False, 0.0
@@ -285,7 +315,7 @@ class ChannelSimulator:
             return True, -half
         return False, 0.0
 
-    def external_force(self):
+    def external_force(self) -> float:
         """True F_e at the current time [N m]."""
         if self._drive:
             engaged, c = self._engagement()
@@ -297,10 +327,10 @@ class ChannelSimulator:
         return self._env.torque(self.t - self._env_t0)
 
     @staticmethod
-    def _quantise(value, quantum):
+    def _quantise(value: float, quantum: float) -> float:
         return quantum * round(value / quantum) if quantum else value
 
-    def _next_noise(self):
+    def _next_noise(self) -> float:
         i = self._noise_i
         if i >= len(self._noise):
             self._noise = self._rng.standard_normal(_NOISE_BLOCK).tolist()
@@ -308,7 +338,7 @@ class ChannelSimulator:
         self._noise_i = i + 1
         return self._noise[i]
 
-    def _measure(self):
+    def _measure(self) -> Measurement:
         z = self._z
         ks, bs = self._hose
         fp = ks * (z[2] - z[0]) + bs * (z[3] - z[1])
@@ -329,12 +359,12 @@ class ChannelSimulator:
         xe = qe * round(z[2] / qe) if qe else z[2]
         return Measurement(xq, v, fp, self.applied_torque, xe, self.external_force())
 
-    def measurement(self):
+    def measurement(self) -> Measurement:
         """The current :class:`Measurement` (no side effects)."""
         return self._measurement
 
     # --- one sample -------------------------------------------------------------
-    def step(self, torque):
+    def step(self, torque: float) -> Measurement:
         """Advance one sample with ``torque`` [N m] held; return the new measurement.
 
         Raises
@@ -414,7 +444,11 @@ class ChannelSimulator:
         return m
 
 
-def run_closed_loop(sim, controller, n_steps, on_switch=None, max_torque=None):
+def run_closed_loop(
+        sim: ChannelSimulator, controller: _Controller, n_steps: int,
+        on_switch: Union[None, Callable[[int, ChannelSimulator, _Controller], object],
+                         Dict[int, Callable[[ChannelSimulator, _Controller], object]]] = None,
+        max_torque: Optional[float] = None) -> Dict[str, npt.NDArray[np.float64]]:
     """Run ``controller`` on ``sim`` for ``n_steps`` samples.
 
     Exactly::
@@ -458,13 +492,14 @@ def run_closed_loop(sim, controller, n_steps, on_switch=None, max_torque=None):
     status = ("disturbance", "feedforward", "endpoint_velocity_estimate",
               "dahl_force")
     has_status = all(hasattr(controller, s) for s in status)
-    rec = {n: [] for n in names + (status if has_status else ())}
+    rec: Dict[str, List[float]] = {n: [] for n in names + (status if has_status else ())}
     guard = getattr(controller, "passivity_guard", None)
     if guard is not None:
         r_energy = rec["passivity_energy"] = []
         r_damping = rec["passivity_damping"] = []
     limit = None if max_torque is None else float(max_torque)
     hooks = on_switch if isinstance(on_switch, dict) else None
+    each = None if isinstance(on_switch, dict) else on_switch
     update = controller.update
     ks, bs = sim.plant.hose_stiffness, sim.plant.hose_damping
     r_t, r_x, r_v, r_fp, r_fa, r_xe, r_fe, r_u = (rec[n] for n in names[:8])
@@ -475,8 +510,8 @@ def run_closed_loop(sim, controller, n_steps, on_switch=None, max_torque=None):
             action = hooks.get(i)
             if action is not None:
                 action(sim, controller)
-        elif on_switch is not None:
-            on_switch(i, sim, controller)
+        elif each is not None:
+            each(i, sim, controller)
         u = update(m.x, m.v, m.f_p)
         if limit is not None and not abs(u) <= limit:
             break

@@ -8,7 +8,7 @@ finger a ``seaforce_msgs/action/Grasp`` goal for each of three objects placed in
 sim's ``object`` environment (soft, medium, stiff). First, with no object in reach, the
 finger's endpoint friction is recalibrated (``~/calibrate_friction``, ``--calibration-time`` s
 in free air; ``--no-calibration`` grasps with the model as it is): the model's b_e and Dahl
-F_c, 10-20 % off, turn into object damping error (README, Grasping). Per object it holds until
+F_c, 10-20 % off, turn into object damping error (docs/grasping.md). Per object it holds until
 the grip has settled, cancels (the release), and prints the true vs. estimated stiffness and
 damping with their 1-sigma, the contact detection delay, the peak contact force before the
 squeeze, and the held grip vs. ``grip_force``; it writes a force-position plot per object. The controller sees

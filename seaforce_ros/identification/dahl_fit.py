@@ -14,13 +14,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
+import numpy.typing as npt
 import scipy.optimize
 import scipy.signal
 
 from .dahl_model import dahl_force
 from .errors import IdentificationError
+
+if TYPE_CHECKING:
+    from ..core.params import PlantParams
+    from .timeseries import Series
 
 __all__ = ["DahlFit", "fit_dahl_loop", "linear_endpoint_force"]
 
@@ -40,21 +46,22 @@ class DahlFit:
     exponent_1s: float
     rms: float
     rms_linear_only: float
-    x_e: np.ndarray
-    residual_force: np.ndarray
-    model_force: np.ndarray
+    x_e: npt.NDArray[np.float64]
+    residual_force: npt.NDArray[np.float64]
+    model_force: npt.NDArray[np.float64]
     offset: float
     sigma_reason: str = ""
     coulomb_force_reason: str = ""
     exponent_reason: str = ""
 
     @property
-    def identified(self):
+    def identified(self) -> bool:
         """Every fitted value is identified (no ``*_reason``)."""
         return not (self.sigma_reason or self.coulomb_force_reason or self.exponent_reason)
 
 
-def linear_endpoint_force(x_e, dt, plant, cutoff=30.0):
+def linear_endpoint_force(x_e: npt.ArrayLike, dt: float, plant: PlantParams,
+                          cutoff: float = 30.0) -> npt.NDArray[np.float64]:
     """``m_e A_e + b_e V_e + k_e X_e`` from encoder samples (zero-phase low-pass for the
     derivatives, ``cutoff`` rad/s)."""
     x = np.asarray(x_e, float)
@@ -70,8 +77,9 @@ def linear_endpoint_force(x_e, dt, plant, cutoff=30.0):
             + plant.endpoint_stiffness * x)
 
 
-def fit_dahl_loop(series, plant, settle=None, fit_exponent=False, exponent=1.0,
-                  external_force_delay=0.0):
+def fit_dahl_loop(series: Series, plant: PlantParams, settle: Optional[float] = None,
+                  fit_exponent: bool = False, exponent: float = 1.0,
+                  external_force_delay: float = 0.0) -> DahlFit:
     """Fit the Dahl model to the external work loop of ``series``.
 
     Parameters
@@ -114,12 +122,12 @@ def fit_dahl_loop(series, plant, settle=None, fit_exponent=False, exponent=1.0,
     resid_force = resid_force[:k1]
     target = resid_force[k0:]
 
-    def model(p):
+    def model(p: Sequence[float]) -> npt.NDArray[np.float64]:
         sig, fc = math.exp(p[0]), math.exp(p[1])
         n = p[2] if fit_exponent else exponent
         return dahl_force(x_e, sig, fc, n)[k0:]
 
-    def resid(p):
+    def resid(p: Sequence[float]) -> npt.NDArray[np.float64]:
         fd = model(p)
         offset = float(np.mean(target - fd))
         return target - fd - offset
@@ -127,7 +135,7 @@ def fit_dahl_loop(series, plant, settle=None, fit_exponent=False, exponent=1.0,
     # start: F_c from the loop's half-height, sigma from a grid
     half = 0.5 * (np.percentile(target, 95) - np.percentile(target, 5))
     fc0 = max(half, 1e-4)
-    best = None
+    best: Optional[Tuple[float, List[float]]] = None
     for sig0 in (1.0, 3.0, 10.0, 30.0, 100.0, 300.0):
         p0 = [math.log(sig0), math.log(fc0)] + ([exponent] if fit_exponent else [])
         c = float(np.sum(resid(p0) ** 2))
@@ -135,14 +143,15 @@ def fit_dahl_loop(series, plant, settle=None, fit_exponent=False, exponent=1.0,
             best = (c, p0)
     lower = [-10, -15] + ([0.05] if fit_exponent else [])
     upper = [15, 5] + ([5.0] if fit_exponent else [])
-    res = scipy.optimize.least_squares(resid, best[1], bounds=(lower, upper), x_scale=1.0,
-                                       diff_step=1e-4)
+    # best is set: the loop above has six starts
+    res = scipy.optimize.least_squares(resid, best[1],  # type: ignore[index]
+                                       bounds=(lower, upper), x_scale=1.0, diff_step=1e-4)
     p = res.x
     r = res.fun
     dof = max(1, r.size - len(p) - 1)
     s2 = float(r @ r) / dof
     names = ["sigma", "coulomb_force"] + (["exponent"] if fit_exponent else [])
-    reasons = {}
+    reasons: Dict[str, str] = {}
     for i, name in enumerate(names):
         if res.active_mask[i] != 0 or min(p[i] - lower[i], upper[i] - p[i]) < 1e-6:
             side = "lower" if p[i] - lower[i] < upper[i] - p[i] else "upper"

@@ -10,13 +10,17 @@ run the closed form is evaluated with numpy. Used by the fits, which evaluate it
 from __future__ import annotations
 
 import math
+from typing import Callable, Union
 
 import numpy as np
+import numpy.typing as npt
 
 __all__ = ["dahl_force", "DahlPath"]
 
+_Array = npt.NDArray[np.float64]
 
-def _relax(u0, c, n):
+
+def _relax(u0: Union[_Array, float], c: _Array, n: float) -> _Array:
     """u after path ``c = sigma xi/F_c`` (array) from ``u0`` (array or scalar), exponent n."""
     if n == 1.0:
         return u0 * np.exp(-c)
@@ -30,18 +34,18 @@ def _relax(u0, c, n):
     return np.power(inv + p * c, -1.0 / p)
 
 
-def _relax_scalar(n):
+def _relax_scalar(n: float) -> Callable[[float, float], float]:
     """Scalar form of :func:`_relax` for the run recursion."""
     if n < 1.0:
         p = 1.0 - n
 
-        def relax(u0, c):
+        def relax(u0: float, c: float) -> float:
             base = u0 ** p - p * c
             return base ** (1.0 / p) if base > 0.0 else 0.0
     else:
         p = n - 1.0
 
-        def relax(u0, c):
+        def relax(u0: float, c: float) -> float:
             if u0 <= 0.0:
                 return 0.0
             return (u0 ** -p + p * c) ** (-1.0 / p)
@@ -65,7 +69,7 @@ class DahlPath:
         Position samples [rad] (motor frame).
     """
 
-    def __init__(self, x):
+    def __init__(self, x: npt.ArrayLike) -> None:
         x = np.asarray(x, float)
         self.n = x.size
         dx = np.diff(x) if x.size > 1 else np.zeros(0)
@@ -93,7 +97,7 @@ class DahlPath:
         self.resolution = float(np.min(np.abs(dx[moving])))
         self.span = float(np.ptp(x))
 
-    def normalized(self, ratio, exponent=1.0, initial=0.0):
+    def normalized(self, ratio: float, exponent: float = 1.0, initial: float = 0.0) -> _Array:
         """``f = F_d/F_c`` after each sample for ``ratio = sigma/F_c`` [1/rad] (``inf``: the
         Coulomb limit, ``f = sgn`` of the last move), starting from ``f = initial``."""
         out = np.full(self.n, float(initial))
@@ -123,7 +127,8 @@ class DahlPath:
         return values[self._fill]
 
 
-def dahl_force(x, sigma, coulomb_force, exponent=1.0, initial_force=0.0):
+def dahl_force(x: npt.ArrayLike, sigma: float, coulomb_force: float, exponent: float = 1.0,
+               initial_force: float = 0.0) -> _Array:
     """Dahl force F_d [N m] after each sample of the path ``x`` [rad].
 
     ``F_d[k]`` is the force once the position has reached ``x[k]`` (``F_d[0] =

@@ -16,32 +16,47 @@ The result is a dict of arrays with the ``ActuatorState`` field names of one cha
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING, Any, Dict, Mapping, Optional, Union
+
+import numpy as np
+import numpy.typing as npt
 
 from ..core.controller import ChannelController
 from ..core.environment import position_sine, torque_chirp
-from ..core.params import ChirpParams, ControllerConfig, PlantParams
+from ..core.params import ChirpParams, ControllerConfig, DahlParams, PlantParams
 from ..core.simulator import ChannelSimulator, run_closed_loop
 
+if TYPE_CHECKING:
+    from ..core.sensors import SensorParams
+
 __all__ = ["chirp_experiment", "work_loop_experiment", "ZeroTorque"]
+
+_Record = Dict[str, npt.NDArray[np.float64]]
+#: A work loop's record: the arrays and ``settle`` [s].
+_WorkLoop = Dict[str, Union[npt.NDArray[np.float64], float]]
 
 
 class ZeroTorque:
     """A 'controller' that commands nothing (motor unpowered)."""
 
-    def update(self, x, v, f_p):
+    def update(self, x: float, v: float, f_p: float) -> float:
+        """Zero torque [N m], whatever the state."""
         return 0.0
 
 
-def _fields(rec):
+def _fields(rec: Mapping[str, npt.NDArray[np.float64]]) -> _Record:
     out = {k: rec[k] for k in ("x", "v", "f_p", "f_a", "x_e", "f_e")}
     out.update({k: rec[k] for k in ("t", "x_true", "v_true", "x_e_true", "v_e_true",
                                      "f_p_true", "dahl_true")})
     return out
 
 
-def chirp_experiment(plant=None, dahl=None, sensors=None, amplitude=0.3, start_frequency=0.01,
-                     end_frequency=1000.0, duration=60.0, excitation="external", seed=0,
-                     dt=5e-4, tail=1.0, motor_coulomb=0.0):
+def chirp_experiment(plant: Optional[PlantParams] = None, dahl: Optional[DahlParams] = None,
+                     sensors: Optional[SensorParams] = None, amplitude: float = 0.3,
+                     start_frequency: float = 0.01, end_frequency: float = 1000.0,
+                     duration: float = 60.0, excitation: str = "external", seed: int = 0,
+                     dt: float = 5e-4, tail: float = 1.0,
+                     motor_coulomb: float = 0.0) -> _Record:
     """Run the identification chirp on one simulated channel.
 
     Parameters
@@ -82,9 +97,12 @@ def chirp_experiment(plant=None, dahl=None, sensors=None, amplitude=0.3, start_f
     return _fields(rec)
 
 
-def work_loop_experiment(plant=None, dahl=None, sensors=None, amplitude=0.5, frequency=1.0,
-                         cycles=3.0, mode="passive", config=None, seed=0, dt=5e-4,
-                         settle_cycles=1.0):
+def work_loop_experiment(plant: Optional[PlantParams] = None, dahl: Optional[DahlParams] = None,
+                         sensors: Optional[SensorParams] = None, amplitude: float = 0.5,
+                         frequency: float = 1.0, cycles: float = 3.0, mode: str = "passive",
+                         config: Optional[ControllerConfig] = None, seed: int = 0,
+                         dt: float = 5e-4,
+                         settle_cycles: float = 1.0) -> _WorkLoop:
     """Backdrive the endpoint with the stiff position drive in controller ``mode``.
 
     Parameters
@@ -112,17 +130,18 @@ def work_loop_experiment(plant=None, dahl=None, sensors=None, amplitude=0.5, fre
     n = int(round((cycles + settle_cycles) * period / dt))
     sim = ChannelSimulator(plant, dahl=dahl, dt=dt, seed=seed,
                            environment=position_sine(amplitude, frequency), sensors=sensors)
+    ctl: Union[ZeroTorque, ChannelController]
     if mode == "passive" and config is None:
         ctl = ZeroTorque()
     else:
         if config is None:
-            kwargs = {"plant": plant}
+            kwargs: Dict[str, Any] = {"plant": plant}
             if dahl is not None:
                 kwargs["dahl"] = dahl
             config = ControllerConfig(mode=mode, **kwargs)
         else:
             config = config.replace(mode=mode)
         ctl = ChannelController(config, dt)
-    rec = _fields(run_closed_loop(sim, ctl, n))
+    rec: _WorkLoop = {**_fields(run_closed_loop(sim, ctl, n))}
     rec["settle"] = settle_cycles * period
     return rec

@@ -23,12 +23,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional
+from typing import TYPE_CHECKING, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
+import numpy.typing as npt
 import scipy.optimize
 
 from .dahl_model import DahlPath
+
+if TYPE_CHECKING:
+    from .spectral import BlackmanTukey, FrequencyResponse
 
 __all__ = ["SIGMA_FLOOR", "ParameterFit", "fit_mass_spring_damper", "fit_hose",
            "fit_endpoint_with_dahl", "HysteresisEstimate", "RationalFit", "fit_rational",
@@ -36,6 +40,9 @@ __all__ = ["SIGMA_FLOOR", "ParameterFit", "fit_mass_spring_damper", "fit_hose",
 
 #: floor of the relative 1-sigma used as a weight
 SIGMA_FLOOR = 2e-3
+
+_Real = npt.NDArray[np.float64]
+_Complex = npt.NDArray[np.complex128]
 
 
 @dataclass
@@ -48,28 +55,30 @@ class ParameterFit:
     """
 
     names: List[str]
-    values: np.ndarray
-    sigma: np.ndarray
+    values: _Real
+    sigma: _Real
     fit_error: float
     chi2_dof: float
-    band: tuple
+    band: Tuple[float, float]
     extra: Dict[str, float] = field(default_factory=dict)
     hysteresis: Optional["HysteresisEstimate"] = None
 
-    def as_dict(self):
+    def as_dict(self) -> Dict[str, float]:
+        """``{name: value}``."""
         return dict(zip(self.names, self.values))
 
 
-def _weights(resp):
+def _weights(resp: FrequencyResponse) -> _Real:
     return 1.0 / (np.abs(resp.h) * np.maximum(resp.rel_sigma, SIGMA_FLOOR))
 
 
-def fit_error(h_model, h):
+def fit_error(h_model: _Complex, h: _Complex) -> float:
     """rms of |h_model - h|/|h|."""
     return float(np.sqrt(np.mean(np.abs(h_model - h) ** 2 / np.abs(h) ** 2)))
 
 
-def _wls(design, target, weight):
+def _wls(design: _Complex, target: npt.NDArray[np.inexact],
+         weight: _Real) -> Tuple[_Real, _Real, float]:
     """Weighted least squares, complex rows stacked as real/imag.
 
     design : (n, p) complex; target : (n,) complex; weight : (n,) real (1/sigma).
@@ -89,14 +98,16 @@ def _wls(design, target, weight):
     return theta, cov, chi2
 
 
-def _check_band(resp, lo, hi, what):
+def _check_band(resp: FrequencyResponse, lo: float, hi: float, what: str) -> FrequencyResponse:
     sel = resp.band(lo, hi)
     if sel.omega.size < 4:
         raise ValueError(f"{what}: fewer than 4 frequencies in {lo:g}-{hi:g} rad/s")
     return sel
 
 
-def fit_mass_spring_damper(resp, lo, hi, names=("inertia", "damping", "stiffness")):
+def fit_mass_spring_damper(resp: FrequencyResponse, lo: float, hi: float,
+                           names: Sequence[str] = ("inertia", "damping", "stiffness")
+                           ) -> ParameterFit:
     """Fit ``H = 1/(m s^2 + b s + k)`` to a response over ``lo..hi`` rad/s.
 
     The inverse ``1/H = k - m w^2 + j b w`` is linear in (m, b, k); its relative sigma equals
@@ -113,7 +124,8 @@ def fit_mass_spring_damper(resp, lo, hi, names=("inertia", "damping", "stiffness
                         chi2, (lo, hi))
 
 
-def fit_hose(resp, lo, hi, names=("hose_damping", "hose_stiffness")):
+def fit_hose(resp: FrequencyResponse, lo: float, hi: float,
+             names: Sequence[str] = ("hose_damping", "hose_stiffness")) -> ParameterFit:
     """Fit ``H = b_s s + k_s`` over ``lo..hi`` rad/s."""
     r = _check_band(resp, lo, hi, "hose fit")
     w = r.omega
@@ -156,14 +168,16 @@ class HysteresisEstimate:
     coulomb_force_reason: str = ""
     cost_linear: float = math.nan
     cost: float = math.nan
-    search: tuple = (math.nan, math.nan)
+    search: Tuple[float, float] = (math.nan, math.nan)
 
     @property
-    def sigma_identified(self):
+    def sigma_identified(self) -> bool:
+        """sigma is identified (no ``sigma_reason``)."""
         return not self.sigma_reason
 
     @property
-    def coulomb_force_identified(self):
+    def coulomb_force_identified(self) -> bool:
+        """F_c is identified (no ``coulomb_force_reason``)."""
         return not self.coulomb_force_reason
 
 
@@ -177,7 +191,7 @@ MIN_COULOMB_SNR = 3.0
 MAX_CONDITION = 1e10
 
 
-def _ratio_bounds(path):
+def _ratio_bounds(path: DahlPath) -> Tuple[float, float]:
     """Search bounds of ``a = sigma/F_c`` [1/rad] a record can tell apart.
 
     Lower: the pre-sliding displacement 1/a equals half the motion's span (below it the Dahl
@@ -190,8 +204,11 @@ def _ratio_bounds(path):
     return lo, max(hi, 10.0 * lo)
 
 
-def fit_endpoint_with_dahl(bt, s_xe, s_input, x_e, lo, hi, rel_sigma, dahl_delay=0.0,
-                           exponent=1.0, progress=None):
+def fit_endpoint_with_dahl(bt: BlackmanTukey, s_xe: _Complex, s_input: _Complex,
+                           x_e: Union[npt.ArrayLike, DahlPath], lo: float, hi: float,
+                           rel_sigma: _Real, dahl_delay: float = 0.0, exponent: float = 1.0,
+                           progress: Optional[Callable[[str, float], object]] = None
+                           ) -> ParameterFit:
     """Endpoint plant ``X_e/(F_e - F_p - F_d) = 1/(m_e s^2 + b_e s + k_e)`` with Dahl (eq. 14).
 
     Method (variable projection with one nonlinear parameter). The Dahl force is
@@ -254,16 +271,16 @@ def fit_endpoint_with_dahl(bt, s_xe, s_input, x_e, lo, hi, rel_sigma, dahl_delay
     weight = 1.0 / (np.abs(su) * np.maximum(rel_sigma[sel], SIGMA_FLOOR))
     design = np.stack([-(w ** 2) * sx, 1j * w * sx, sx], axis=1)
 
-    def stack(z):
+    def stack(z: _Complex) -> _Real:
         return np.concatenate([z.real * weight, z.imag * weight])
 
     a_lin = np.vstack([design.real * weight[:, None], design.imag * weight[:, None]])
     y = stack(su)
     scale3 = np.sqrt(np.sum(a_lin ** 2, axis=0))
-    cache = {}
+    cache: Dict[float, _Complex] = {}
     calls = [0]
 
-    def s_dahl(ratio):
+    def s_dahl(ratio: float) -> _Complex:
         key = float(ratio)
         if key not in cache:
             calls[0] += 1
@@ -273,7 +290,7 @@ def fit_endpoint_with_dahl(bt, s_xe, s_input, x_e, lo, hi, rel_sigma, dahl_delay
             cache[key] = bt.cross(f, delay=dahl_delay)[sel]
         return cache[key]
 
-    def solve(ratio):
+    def solve(ratio: float) -> Tuple[_Real, _Real, _Real]:
         """(theta, residual, A) of the 4-parameter linear fit for this ratio."""
         a = np.hstack([a_lin, stack(s_dahl(ratio))[:, None]])      # y = A theta + F_c S_rf
         sc = np.sqrt(np.sum(a ** 2, axis=0))
@@ -282,7 +299,7 @@ def fit_endpoint_with_dahl(bt, s_xe, s_input, x_e, lo, hi, rel_sigma, dahl_delay
         th = th / sc
         return th, y - a @ th, a
 
-    def cost_of(log_ratio):
+    def cost_of(log_ratio: float) -> float:
         r = solve(math.exp(log_ratio))[1]
         return float(r @ r)
 
@@ -300,7 +317,8 @@ def fit_endpoint_with_dahl(bt, s_xe, s_input, x_e, lo, hi, rel_sigma, dahl_delay
     i_best = int(np.argmin(costs))
     est = HysteresisEstimate("none", cost_linear=cost_linear, search=(r_lo, r_hi))
 
-    def finish(theta3, cost, hyst):
+    def finish(theta3: _Real, cost: float,
+               hyst: HysteresisEstimate) -> Tuple[_Real, float, HysteresisEstimate]:
         dof = max(1, y.size - (3 if hyst.model in ("none", "spring") else
                                (4 if hyst.model == "coulomb" else 5)))
         chi2 = cost / dof
@@ -391,14 +409,16 @@ def fit_endpoint_with_dahl(bt, s_xe, s_input, x_e, lo, hi, rel_sigma, dahl_delay
                             est)
 
 
-def _linear_sigma(a_lin, chi2):
+def _linear_sigma(a_lin: _Real, chi2: float) -> _Real:
     cs = np.sqrt(np.sum(a_lin ** 2, axis=0))
     cs[cs == 0] = 1.0
     cov = np.linalg.pinv((a_lin / cs).T @ (a_lin / cs)) / np.outer(cs, cs) * max(1.0, chi2)
     return np.sqrt(np.abs(np.diag(cov)))
 
 
-def _endpoint_result(theta, sig, chi2, w, sx, su, s_fd, lo, hi, est):
+def _endpoint_result(theta: _Real, sig: _Real, chi2: float, w: _Real, sx: _Complex,
+                     su: _Complex, s_fd: Optional[_Complex], lo: float, hi: float,
+                     est: HysteresisEstimate) -> ParameterFit:
     target = su if s_fd is None else su - s_fd
     h_meas = sx / target
     h_model = 1.0 / (-(w ** 2) * theta[0] + 1j * w * theta[1] + theta[2])
@@ -418,25 +438,29 @@ def _endpoint_result(theta, sig, chi2, w, sx, su, s_fd, lo, hi, est):
 class RationalFit:
     """``H(s) = num(s)/den(s)`` (den monic), numpy coefficient order (highest first)."""
 
-    num: np.ndarray
-    den: np.ndarray
+    num: _Real
+    den: _Real
     fit_error: float
-    band: tuple
+    band: Tuple[float, float]
 
     @property
-    def poles(self):
-        return np.sort_complex(np.roots(self.den))
+    def poles(self) -> _Complex:
+        """Roots of den, sorted (real part, then imaginary)."""
+        # numpy types sort_complex for complex input; np.roots returns real roots as floats
+        return np.sort_complex(np.roots(self.den))  # type: ignore[arg-type]
 
     @property
-    def zeros(self):
-        return np.sort_complex(np.roots(self.num))
+    def zeros(self) -> _Complex:
+        """Roots of num, sorted (real part, then imaginary)."""
+        return np.sort_complex(np.roots(self.num))  # type: ignore[arg-type]  # (as poles)
 
-    def __call__(self, omega):
+    def __call__(self, omega: npt.ArrayLike) -> _Complex:
         s = 1j * np.asarray(omega, float)
         return np.polyval(self.num, s) / np.polyval(self.den, s)
 
 
-def fit_rational(resp, lo, hi, n_zeros=2, n_poles=4, iterations=20):
+def fit_rational(resp: FrequencyResponse, lo: float, hi: float, n_zeros: int = 2,
+                 n_poles: int = 4, iterations: int = 20) -> RationalFit:
     """Fit ``num/den`` with ``n_zeros`` zeros and ``n_poles`` poles over ``lo..hi`` rad/s.
 
     Frequencies are scaled by the band's geometric centre for conditioning. SK iterations of
@@ -466,7 +490,7 @@ def fit_rational(resp, lo, hi, n_zeros=2, n_poles=4, iterations=20):
         d_prev = s ** n_poles + vd @ theta[n_zeros + 1:]
         d_prev = np.where(np.abs(d_prev) < 1e-12, 1e-12, d_prev)
 
-    def resid(th):
+    def resid(th: _Real) -> _Real:
         num = vn @ th[:n_zeros + 1]
         den = s ** n_poles + vd @ th[n_zeros + 1:]
         e = (num / den - h) * wt

@@ -9,20 +9,24 @@ import os
 import pathlib
 import sys
 import time
+from typing import (Any, Callable, Dict, Iterable, Mapping, Optional, Sequence, TextIO, Tuple,
+                    TypeVar)
 
 import yaml
 
 from ..core.params import DahlParams, PlantParams
 from .errors import IdentificationError
-from .params_file import (ALL_NODES, HEADER_MARK, channel_groups, load, plant_params, read_text,
-                          update_text, where)
+from .params_file import (ALL_NODES, HEADER_MARK, PathLike, channel_groups, load, plant_params,
+                          read_text, update_text, where)
 
 __all__ = ["check_output_file", "check_output_dir", "check_params_update", "write_params_file",
            "format_table", "Progress", "read_params_file", "read_plant", "positive_float",
            "run_cli"]
 
+_Args = TypeVar("_Args")
 
-def check_output_file(path):
+
+def check_output_file(path: PathLike) -> pathlib.Path:
     """Fail early (before long work) if ``path`` cannot be written."""
     p = pathlib.Path(path)
     if p.is_dir():
@@ -37,7 +41,7 @@ def check_output_file(path):
     return p
 
 
-def check_output_dir(path):
+def check_output_dir(path: PathLike) -> pathlib.Path:
     """Create ``path`` (parents too) or fail with a clear message."""
     p = pathlib.Path(path)
     try:
@@ -49,13 +53,14 @@ def check_output_dir(path):
     return p
 
 
-def _float(v):
+def _float(v: float) -> float:
     return float(f"{float(v):.6g}")
 
 
-def _values(channel, plant=None, dahl=None):
+def _values(channel: str, plant: Optional[PlantParams] = None,
+            dahl: Optional[Mapping[str, float]] = None) -> Dict[str, float]:
     """``{dotted parameter name: value}`` of the groups to write (6 significant digits)."""
-    values = {}
+    values: Dict[str, float] = {}
     if plant is not None:
         values.update({f"{channel}.{spec.name}": _float(getattr(plant, spec.attribute))
                        for spec in PlantParams.SPECS})
@@ -65,7 +70,7 @@ def _values(channel, plant=None, dahl=None):
     return values
 
 
-def _existing_text(p, option):
+def _existing_text(p: pathlib.Path, option: Optional[str]) -> Optional[str]:
     """The text of an existing, non-blank output file (None: write a new file)."""
     if not p.exists():
         return None
@@ -73,13 +78,14 @@ def _existing_text(p, option):
     return text if text.strip() else None
 
 
-def check_params_update(path, channel, plant=False, dahl=False, option=None):
+def check_params_update(path: PathLike, channel: str, plant: bool = False, dahl: bool = False,
+                        option: Optional[str] = None) -> pathlib.Path:
     """Fail early (before long work) if the params file ``path`` cannot be written, or exists
     with a layout :func:`write_params_file` cannot update in place."""
     p = check_output_file(path)
     text = _existing_text(p, option)
     if text is not None:
-        values = {}
+        values: Dict[str, float] = {}
         for wanted, group in ((plant, PlantParams), (dahl, DahlParams)):
             if wanted:
                 values.update({f"{channel}.{spec.name}": 1.0 for spec in group.SPECS})
@@ -87,8 +93,9 @@ def check_params_update(path, channel, plant=False, dahl=False, option=None):
     return p
 
 
-def write_params_file(path, channel, plant=None, dahl=None, comments=(), merge=True,
-                      option=None):
+def write_params_file(path: PathLike, channel: str, plant: Optional[PlantParams] = None,
+                      dahl: Optional[Mapping[str, float]] = None, comments: Iterable[str] = (),
+                      merge: bool = True, option: Optional[str] = None) -> pathlib.Path:
     """Write ``<channel>.plant.*`` (``plant``: a PlantParams) and ``<channel>.dahl.*``
     (``dahl``: a dict ``{sigma, coulomb_force, exponent}``) for ``--ros-args --params-file``.
 
@@ -106,7 +113,7 @@ def write_params_file(path, channel, plant=None, dahl=None, comments=(), merge=T
     header += [f"# {c}" for c in comments]
     text = _existing_text(p, option) if merge else None
     if text is None:
-        data = {}
+        data: Dict[str, Any] = {}
         for name, value in values.items():
             node = data.setdefault(ALL_NODES, {}).setdefault("ros__parameters", {})
             parts = name.split(".")
@@ -123,7 +130,8 @@ def write_params_file(path, channel, plant=None, dahl=None, comments=(), merge=T
     return p
 
 
-def read_params_file(path, channel, option=None):
+def read_params_file(path: PathLike, channel: str,
+                     option: Optional[str] = None) -> Tuple[Dict[str, Any], Dict[str, Any]]:
     """``(plant dict, dahl dict)`` of ``channel`` from a params file (every node section).
 
     Errors (ParamsFileError, naming ``option`` and the file): missing file, a directory, not
@@ -132,13 +140,14 @@ def read_params_file(path, channel, option=None):
     return channel_groups(load(path, option), channel, where(path, option))
 
 
-def read_plant(path, channel, option=None):
+def read_plant(path: PathLike, channel: str, option: Optional[str] = None) -> PlantParams:
     """PlantParams of ``channel`` in a params file (all eight of Table I)."""
     plant, _ = read_params_file(path, channel, option)
     return plant_params(plant, where(path, option), channel)
 
 
-def format_table(headers, rows, formats):
+def format_table(headers: Sequence[str], rows: Iterable[Sequence[Any]],
+                 formats: Sequence[Optional[str]]) -> str:
     """Plain-text table; ``formats`` per column (format spec or None for str)."""
     cells = [[(format(v, f) if f else str(v)) for v, f in zip(row, formats)] for row in rows]
     widths = [max(len(h), *(len(r[i]) for r in cells)) for i, h in enumerate(headers)]
@@ -152,14 +161,14 @@ def format_table(headers, rows, formats):
 class Progress:
     """Progress lines on stderr (``[tool] 42% message (3.1 s)``), at most every 0.5 s."""
 
-    def __init__(self, tool, stream=None, quiet=False):
+    def __init__(self, tool: str, stream: Optional[TextIO] = None, quiet: bool = False) -> None:
         self.tool = tool
         self.stream = stream or sys.stderr
         self.quiet = quiet
         self.t0 = time.monotonic()
         self._last = -1.0
 
-    def __call__(self, message, fraction=None):
+    def __call__(self, message: str, fraction: Optional[float] = None) -> None:
         if self.quiet:
             return
         now = time.monotonic()
@@ -170,16 +179,17 @@ class Progress:
         print(f"[{self.tool}] {pct}{message} ({now - self.t0:.1f} s)", file=self.stream,
               flush=True)
 
-    def stage(self, lo, hi):
+    def stage(self, lo: float, hi: float) -> Callable[[str, Optional[float]], None]:
         """A callback mapping a sub-task's 0..1 onto lo..hi."""
-        def cb(message, fraction=None):
+        def cb(message: str, fraction: Optional[float] = None) -> None:
             self(message, None if fraction is None else lo + (hi - lo) * fraction)
         return cb
 
 
-def positive_float(text):
+def positive_float(text: str) -> float:
     """argparse ``type``: a finite number > 0 (argparse then reports ``argument --x: ...``
     and exits 2)."""
+    value: Optional[float]
     try:
         value = float(text)
     except ValueError:
@@ -189,7 +199,7 @@ def positive_float(text):
     return value
 
 
-def run_cli(prog, run, args):
+def run_cli(prog: str, run: Callable[[_Args], int], args: _Args) -> int:
     """Run an offline tool's ``run(args)``: a bad input is one ``prog: error: ...`` line and exit
     code 2 (never a stack trace), Ctrl-C exit code 130."""
     from ..bags.errors import BagError

@@ -22,8 +22,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import pathlib
 import re
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Set, Tuple, Union
 
 import yaml
 
@@ -42,13 +44,20 @@ DAHL_KEYS = tuple(spec.attribute for spec in DahlParams.SPECS)
 ALL_NODES = "/**"
 _EXAMPLE = "e.g. '/**:' with 'ros__parameters:' under it"
 
+#: A path as the functions here take it.
+PathLike = Union[str, "os.PathLike[str]"]
+#: A parsed YAML mapping (keys and values as the file has them: dynamic).
+YamlMapping = Dict[Any, Any]
+#: A key path from the top of a YAML document.
+KeyPath = Tuple[Any, ...]
 
-def where(path, option=None):
+
+def where(path: PathLike, option: Optional[str] = None) -> str:
     """How a message names the file: ``--truth t.yaml`` or ``t.yaml``."""
     return f"{option} {path}" if option else str(path)
 
 
-def _kind(value):
+def _kind(value: Any) -> str:
     if value is None:
         return "empty"
     if isinstance(value, bool):
@@ -64,7 +73,7 @@ def _kind(value):
     return type(value).__name__
 
 
-def read_text(path, option=None):
+def read_text(path: PathLike, option: Optional[str] = None) -> str:
     """The text of a params file, or a ParamsFileError saying why not."""
     w = where(path, option)
     p = pathlib.Path(path)
@@ -80,7 +89,7 @@ def read_text(path, option=None):
         raise ParamsFileError(f"{w}: cannot read it ({exc.strerror})") from None
 
 
-def _yaml_reason(exc):
+def _yaml_reason(exc: yaml.YAMLError) -> str:
     mark = getattr(exc, "problem_mark", None)
     problem = getattr(exc, "problem", None)
     if mark is not None and problem:
@@ -88,14 +97,14 @@ def _yaml_reason(exc):
     return " ".join(str(exc).split())
 
 
-def _safe_load(text, w):
+def _safe_load(text: str, w: str) -> Any:
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ParamsFileError(f"{w}: not valid YAML ({_yaml_reason(exc)})") from None
 
 
-def parse(text, w):
+def parse(text: str, w: str) -> YamlMapping:
     """The parsed params file (a dict with at least one ``ros__parameters`` mapping)."""
     data = _safe_load(text, w)
     if data is None:
@@ -108,17 +117,17 @@ def parse(text, w):
     return data
 
 
-def load(path, option=None):
+def load(path: PathLike, option: Optional[str] = None) -> YamlMapping:
     """:func:`parse` of the file at ``path``; messages name ``option`` and ``path``."""
     return parse(read_text(path, option), where(path, option))
 
 
-def sections(data, w):
+def sections(data: Mapping[Any, Any], w: str) -> List[Tuple[KeyPath, YamlMapping]]:
     """``[(node path, ros__parameters mapping)]`` of a parsed params file, in file order
     (node sections may nest namespaces: ``ns: node: ros__parameters: ...``)."""
-    out = []
+    out: List[Tuple[KeyPath, YamlMapping]] = []
 
-    def walk(node, names):
+    def walk(node: Mapping[Any, Any], names: List[Any]) -> None:
         for key, value in node.items():
             if key == "ros__parameters":
                 if value is None:
@@ -138,10 +147,10 @@ def sections(data, w):
     return out
 
 
-def flatten(mapping, prefix=""):
+def flatten(mapping: Mapping[Any, Any], prefix: str = "") -> Dict[str, Any]:
     """``{dotted parameter name: value}`` of a ros__parameters mapping (nested keys and dotted
     keys give the same names, as ROS reads them)."""
-    out = {}
+    out: Dict[str, Any] = {}
     for key, value in mapping.items():
         name = f"{prefix}{key}"
         if isinstance(value, dict) and value:
@@ -151,11 +160,15 @@ def flatten(mapping, prefix=""):
     return out
 
 
-def channel_groups(data, channel, w):
+def channel_groups(data: Mapping[Any, Any], channel: str,
+                   w: str) -> Tuple[Dict[str, Any], Dict[str, Any]]:
     """``(plant, dahl)``: the ``<channel>.plant.*`` and ``<channel>.dahl.*`` values of a parsed
     params file (every node section; a later one overrides an earlier one). A channel with
     neither is an error that lists the channels the file has."""
-    plant, dahl, known, named = {}, {}, [], False
+    plant: Dict[str, Any] = {}
+    dahl: Dict[str, Any] = {}
+    known: List[str] = []
+    named = False
     for _names, params in sections(data, w):
         for name, value in flatten(params).items():
             parts = name.split(".")
@@ -185,7 +198,8 @@ def channel_groups(data, channel, w):
     return plant, dahl
 
 
-def _number(value, w, name):
+def _number(value: Any, w: str, name: str) -> float:
+    number: Optional[float]
     if isinstance(value, str):
         try:
             number = float(value)       # '1e-3': a string to PyYAML, a double to ROS
@@ -202,14 +216,14 @@ def _number(value, w, name):
     return number
 
 
-def _check_keys(values, keys, w, group):
+def _check_keys(values: Mapping[str, Any], keys: Sequence[str], w: str, group: str) -> None:
     unknown = [k for k in values if k not in keys]
     if unknown:
         raise ParamsFileError(f"{w}: unknown parameter {group}.{unknown[0]} (the parameters of "
                               f"{group} are {', '.join(keys)})")
 
 
-def plant_params(values, w, channel):
+def plant_params(values: Mapping[str, Any], w: str, channel: str) -> PlantParams:
     """PlantParams from a ``<channel>.plant`` group: all eight of Table I, numbers."""
     group = f"{channel}.plant"
     _check_keys(values, PLANT_KEYS, w, group)
@@ -224,7 +238,8 @@ def plant_params(values, w, channel):
         raise ParamsFileError(f"{w}: channel {channel}: {exc}") from None
 
 
-def dahl_params(values, w, channel, base=None):
+def dahl_params(values: Mapping[str, Any], w: str, channel: str,
+                base: Optional[DahlParams] = None) -> DahlParams:
     """DahlParams from a ``<channel>.dahl`` group; keys it does not give come from ``base``
     (default: DahlParams())."""
     group = f"{channel}.dahl"
@@ -236,7 +251,7 @@ def dahl_params(values, w, channel, base=None):
         raise ParamsFileError(f"{w}: channel {channel}: {exc}") from None
 
 
-def format_value(value):
+def format_value(value: float) -> str:
     """A float as YAML writes it (always read back as a float, by PyYAML as by ROS)."""
     return yaml.representer.SafeRepresenter().represent_float(float(value)).value
 
@@ -251,13 +266,13 @@ _KEY = re.compile(r"""(?P<indent>[ ]*)(?P<key>"(?:[^"\\]|\\.)*"|'(?:[^']|'')*'""
 class _KeyLine:
     index: int          # line number (0-based)
     indent: int
-    path: tuple         # keys from the top of the document
+    path: KeyPath       # keys from the top of the document
     value: str          # the value text on this line ('' for a block start)
     start: int          # column of the value (or of the end of the key for a block start)
     end: int            # column after the value
 
 
-def _key_value(text):
+def _key_value(text: str) -> Any:
     try:
         key = yaml.safe_load(text)
     except yaml.YAMLError:
@@ -265,7 +280,7 @@ def _key_value(text):
     return key if key is not None else text
 
 
-def _split_value(rest):
+def _split_value(rest: str) -> Optional[Tuple[str, int, int]]:
     """``(value, offset of its start, offset of its end)`` in the text after ``key:``; the
     value is '' for a block start. None when the line has more than one value (not ours)."""
     stripped = rest.lstrip(" \t")
@@ -296,14 +311,14 @@ def _split_value(rest):
     return stripped[:end], start, start + end
 
 
-def _scan(lines, w):
+def _scan(lines: Sequence[str], w: str) -> List[_KeyLine]:
     """The mapping lines of a block-style YAML document with their key paths. Lines that
     continue a value (sequences, block scalars, wrapped scalars, multi-line flow collections)
     are skipped; anchors, aliases, tags and merge keys make the layout one this does not
     follow."""
-    out = []
-    stack = []                  # (indent, key) of the open block mappings
-    skip_deeper = None          # lines indented deeper than this continue a value
+    out: List[_KeyLine] = []
+    stack: List[Tuple[int, Any]] = []   # (indent, key) of the open block mappings
+    skip_deeper: Optional[int] = None         # lines indented deeper than this continue a value
     for i, line in enumerate(lines):
         body = line.lstrip(" ")
         indent = len(line) - len(body)
@@ -344,7 +359,7 @@ def _scan(lines, w):
     return out
 
 
-def _param_name(path):
+def _param_name(path: KeyPath) -> Optional[Tuple[KeyPath, str]]:
     """``(section path, dotted parameter name)`` of a key path inside ros__parameters, or
     None."""
     if "ros__parameters" not in path:
@@ -355,12 +370,12 @@ def _param_name(path):
     return path[:k + 1], ".".join(str(p) for p in path[k + 1:])
 
 
-def _normal(data):
+def _normal(data: Any) -> Dict[Tuple[KeyPath, Any], Any]:
     """``{(section path, dotted name): value}`` for the parameters and ``{(path, key): value}``
     for anything else: the file's meaning, independent of nested vs dotted keys."""
-    out = {}
+    out: Dict[Tuple[KeyPath, Any], Any] = {}
 
-    def walk(node, path):
+    def walk(node: Mapping[Any, Any], path: KeyPath) -> None:
         for key, value in node.items():
             if key == "ros__parameters" and isinstance(value, dict):
                 for name, v in flatten(value).items():
@@ -374,13 +389,13 @@ def _normal(data):
     return out
 
 
-def _same(a, b):
+def _same(a: Any, b: Any) -> bool:
     if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
         return True
     return type(a) is type(b) and a == b
 
 
-def _replace_value(line, k, new):
+def _replace_value(line: str, k: _KeyLine, new: str) -> str:
     """``line`` with the value of key line ``k`` replaced, a trailing comment kept in its
     column where the new value leaves room."""
     head, old, tail = line[:k.start], line[k.start:k.end], line[k.end:]
@@ -392,8 +407,8 @@ def _replace_value(line, k, new):
     return head + new + tail
 
 
-def _render(tree, indent, step):
-    lines = []
+def _render(tree: Mapping[Any, Any], indent: int, step: int) -> List[str]:
+    lines: List[str] = []
     for key, value in tree.items():
         if isinstance(value, dict):
             lines.append(" " * indent + f"{key}:")
@@ -403,7 +418,7 @@ def _render(tree, indent, step):
     return lines
 
 
-def _block_end(lines, k):
+def _block_end(lines: Sequence[str], k: _KeyLine) -> int:
     """Index after the last line inside block key line ``k`` (its children, and comments
     indented under it)."""
     last = k.index
@@ -420,7 +435,7 @@ def _block_end(lines, k):
     return last + 1
 
 
-def _child_indent(lines, k):
+def _child_indent(lines: Sequence[str], k: _KeyLine) -> Optional[int]:
     for j in range(k.index + 1, len(lines)):
         body = lines[j].lstrip(" ")
         if not body.strip() or body.startswith("#"):
@@ -430,7 +445,8 @@ def _child_indent(lines, k):
     return None
 
 
-def update_text(text, values, w, header=None):
+def update_text(text: str, values: Mapping[str, float], w: str,
+                header: Optional[Sequence[str]] = None) -> str:
     """``text`` (a params file) with the parameters ``values`` (``{dotted name: float}``, e.g.
     ``pinch.plant.motor_inertia``) set, everything else as it was.
 
@@ -448,7 +464,8 @@ def update_text(text, values, w, header=None):
                               "new file (--out NEW.yaml) and copy them over by hand") from None
 
 
-def _update(text, values, w, header):
+def _update(text: str, values: Mapping[str, float], w: str,
+            header: Optional[Sequence[str]]) -> str:
     data = _safe_load(text, w)
     if data is None:
         data = {}
@@ -465,8 +482,8 @@ def _update(text, values, w, header):
         raise ParamsFileError(f"{exc}, which this tool does not update line by line") from None
     old = _normal(data)
     expected = dict(old)
-    found = set()
-    edits = {}
+    found: Set[str] = set()
+    edits: Dict[int, str] = {}
     for k in keys:
         where_name = _param_name(k.path)
         if where_name is None or where_name[1] not in values:
@@ -489,15 +506,15 @@ def _update(text, values, w, header):
 
     # parameters no section sets: into /** (the deepest block of their path that exists)
     missing = [n for n in values if n not in found]
-    inserts = {}            # line index -> lines to insert before it
+    inserts: Dict[int, List[str]] = {}     # line index -> lines to insert before it
     if missing:
-        blocks = {}
-        leaves = {}
+        blocks: Dict[KeyPath, _KeyLine] = {}
+        leaves: Dict[KeyPath, _KeyLine] = {}
         for k in keys:
             if k.path[:1] != (ALL_NODES,):
                 continue
             (leaves if k.value else blocks)[k.path] = k     # the last one wins, as in YAML
-        groups = {}
+        groups: Dict[KeyPath, List[Tuple[KeyPath, float]]] = {}
         for name in missing:
             full = (ALL_NODES, "ros__parameters") + tuple(name.split("."))
             depth = max((d for d in range(1, len(full)) if full[:d] in blocks), default=0)
@@ -511,6 +528,7 @@ def _update(text, values, w, header):
             expected[((ALL_NODES, "ros__parameters"), name)] = float(values[name])
             for d in range(1, len(full)):       # an empty block becomes a mapping
                 prefix = full[:d]
+                key: Tuple[KeyPath, Any]
                 if len(prefix) > 2:
                     key = ((ALL_NODES, "ros__parameters"), ".".join(map(str, prefix[2:])))
                 else:
@@ -520,7 +538,7 @@ def _update(text, values, w, header):
         # deeper groups first: an inner block that ends where its parent ends gets its lines
         # before the parent's new keys
         for prefix, items in sorted(groups.items(), key=lambda g: -len(g[0])):
-            tree = {}
+            tree: YamlMapping = {}
             for rest, value in items:
                 node = tree
                 for part in rest[:-1]:
@@ -536,8 +554,8 @@ def _update(text, values, w, header):
                 at = len(lines)
                 block = ([""] if lines and lines[-1].strip() else []) + _render(tree, 0, 2)
                 inserts.setdefault(at, []).extend(block)
-    result = []
-    for i, line in enumerate(out + [None]):
+    result: List[str] = []
+    for i, line in enumerate([*out, None]):
         result.extend(inserts.get(i, []))
         if line is not None:
             result.append(line)
@@ -562,7 +580,7 @@ def _update(text, values, w, header):
 HEADER_MARK = "# seaforce_ros parameters identified"
 
 
-def _update_header(lines, header):
+def _update_header(lines: List[str], header: Sequence[str]) -> List[str]:
     """Replace identify's own header lines (same ``# key:``) in the leading comment block of a
     file identify wrote; a user's comments are not touched."""
     if not lines or not lines[0].startswith(HEADER_MARK):

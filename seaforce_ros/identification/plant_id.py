@@ -20,9 +20,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional
+from typing import TYPE_CHECKING, Callable, Dict, List, Optional, Tuple, Union
 
 import numpy as np
+import numpy.typing as npt
 
 from ..core.params import PlantParams
 from ..core.plant import PlantModel
@@ -31,7 +32,10 @@ from .errors import IdentificationError
 from .fit import (HysteresisEstimate, ParameterFit, RationalFit, fit_endpoint_with_dahl,
                   fit_hose, fit_mass_spring_damper, fit_rational)
 from .dahl_model import DahlPath
-from .spectral import BlackmanTukey, FrequencyResponse
+from .spectral import BlackmanTukey, FrequencyResponse, Spectra
+
+if TYPE_CHECKING:
+    from .timeseries import Series
 
 __all__ = ["PlantIdentification", "identify_plant", "PARAMETERS", "required_fields"]
 
@@ -48,7 +52,8 @@ POSITION_ORDERS = ((0, 5.0), (1, 60.0), (2, math.inf))
 MIN_RELATIVE_POWER = 1e-3
 
 
-def required_fields(excitation):
+def required_fields(excitation: str) -> Tuple[str, ...]:
+    """The signals the ``external`` or ``motor`` chirp needs."""
     return ("x", "f_p", "x_e", "f_e") if excitation == "external" else ("x", "f_p", "x_e", "f_a")
 
 
@@ -63,13 +68,13 @@ class PlantIdentification:
     responses: Dict[str, FrequencyResponse]
     rational: Optional[RationalFit]
     excitation: str
-    band: tuple
+    band: Tuple[float, float]
     hysteresis: Optional[HysteresisEstimate]
-    omega: np.ndarray
-    excited_band: tuple
+    omega: npt.NDArray[np.float64]
+    excited_band: Tuple[float, float]
     notes: List[str] = field(default_factory=list)
 
-    def model_responses(self):
+    def model_responses(self) -> Dict[str, npt.NDArray[np.complexfloating]]:
         """Identified linear model on the grid, per plant letter (A-D)."""
         m = PlantModel(self.params)
         p = self.params
@@ -79,12 +84,12 @@ class PlantIdentification:
                 "C": p.hose_stiffness + 1j * w * p.hose_damping,
                 "D": frequency_response(m.endpoint_system(), w)}
 
-    def rows(self, truth=None):
+    def rows(self, truth: Optional[PlantParams] = None) -> List[Tuple[Union[str, float], ...]]:
         """Table rows: (key, symbol, unit, value, sigma, fit error, plant[, truth, error %])."""
         out = []
         for key, (sym, unit, plant) in PARAMETERS.items():
-            row = [key, sym, unit, getattr(self.params, key), self.sigma[key],
-                   self.fit_error[plant], plant]
+            row: List[Union[str, float]] = [key, sym, unit, getattr(self.params, key),
+                                            self.sigma[key], self.fit_error[plant], plant]
             if truth is not None:
                 t = getattr(truth, key)
                 row += [t, 100.0 * (row[3] / t - 1.0)]
@@ -92,7 +97,8 @@ class PlantIdentification:
         return out
 
 
-def excited_band(ref, dt, relative=MIN_RELATIVE_POWER):
+def excited_band(ref: npt.NDArray[np.float64], dt: float,
+                 relative: float = MIN_RELATIVE_POWER) -> Tuple[float, float]:
     """Band [rad/s] where ``omega P_rr`` (Welch, flat for a log chirp) is within ``relative``
     of its maximum: the frequencies the excitation reaches."""
     import scipy.signal
@@ -106,7 +112,7 @@ def excited_band(ref, dt, relative=MIN_RELATIVE_POWER):
     return float(ok.min()), float(ok.max())
 
 
-def _excitation(series, excitation):
+def _excitation(series: Series, excitation: str) -> str:
     s = series.signals
     if excitation == "auto":
         fe = np.std(s["f_e"]) if "f_e" in s else 0.0
@@ -123,9 +129,13 @@ def _excitation(series, excitation):
     return excitation
 
 
-def identify_plant(series, band=(0.5, 400.0), rational_band=(0.5, 400.0), excitation="auto",
-                   external_force_delay=0.5, motor_effort_delay=-0.5, periods=20.0,
-                   n_freq=80, dahl=True, dahl_delay=0.0, progress=None):
+def identify_plant(series: Series, band: Tuple[float, float] = (0.5, 400.0),
+                   rational_band: Tuple[float, float] = (0.5, 400.0), excitation: str = "auto",
+                   external_force_delay: float = 0.5, motor_effort_delay: float = -0.5,
+                   periods: float = 20.0, n_freq: int = 80, dahl: bool = True,
+                   dahl_delay: float = 0.0,
+                   progress: Optional[Callable[[str, float], object]] = None
+                   ) -> PlantIdentification:
     """Identify the eight linear parameters from a chirp :class:`~.timeseries.Series`.
 
     Parameters
@@ -151,7 +161,7 @@ def identify_plant(series, band=(0.5, 400.0), rational_band=(0.5, 400.0), excita
         holds it over each step (0.5), see :func:`.fit.fit_endpoint_with_dahl`.
     progress : callable(str, float), optional
     """
-    def report(msg, frac):
+    def report(msg: str, frac: float) -> None:
         if progress is not None:
             progress(msg, frac)
 
@@ -206,6 +216,8 @@ def identify_plant(series, band=(0.5, 400.0), rational_band=(0.5, 400.0), excita
     shose = bt.signal("hose", s["x_e"] - s["x"], orders=POSITION_ORDERS)
     report("frequency responses", 0.2)
     # A: X / (F_p + F_a)
+    motor_in: Spectra
+    end_in: Spectra
     if sfa is not None:
         motor_in = (sfp[0] + sfa[0], bt.auto(s["f_p"] + f_a))
     else:
@@ -222,8 +234,8 @@ def identify_plant(series, band=(0.5, 400.0), rational_band=(0.5, 400.0), excita
     }
     if sfe is not None:
         responses["D"] = bt.response(sxe, sfe, "X_e/F_e")
-    fits = {}
-    notes = []
+    fits: Dict[str, ParameterFit] = {}
+    notes: List[str] = []
     report("fitting the motor plant (A) and the hose (C)", 0.3)
     fits["A"] = fit_mass_spring_damper(responses["A"], lo, hi,
                                        ("motor_inertia", "motor_damping", "motor_stiffness"))
@@ -231,7 +243,7 @@ def identify_plant(series, band=(0.5, 400.0), rational_band=(0.5, 400.0), excita
     report("fitting the endpoint plant (B) with Dahl hysteresis", 0.35)
     hysteresis = None
     if dahl:
-        def sub(msg, frac):
+        def sub(msg: str, frac: float) -> None:
             report(msg, 0.35 + 0.5 * frac)
         path = DahlPath(s["x_e"])
         fb = fit_endpoint_with_dahl(bt, sxe[0], end_in[0], path, lo, hi,
@@ -252,8 +264,8 @@ def identify_plant(series, band=(0.5, 400.0), rational_band=(0.5, 400.0), excita
         if sfe is not None:
             responses["D_corrected"] = FrequencyResponse(
                 omega, sxe[0] / (sfe[0] - sfd), responses["D"].rel_sigma, "X_e/(F_e-F_d)")
-    values = {}
-    sigma = {}
+    values: Dict[str, float] = {}
+    sigma: Dict[str, float] = {}
     for letter in ("A", "B", "C"):
         f = fits[letter]
         for name, v, sg in zip(f.names, f.values, f.sigma):

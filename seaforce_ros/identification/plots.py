@@ -2,21 +2,34 @@
 
 from __future__ import annotations
 
+import os
 import pathlib
+from types import ModuleType
+from typing import TYPE_CHECKING, Dict, Mapping, Optional, Tuple, Union
 
 import numpy as np
+import numpy.typing as npt
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+    from .dahl_fit import DahlFit
+    from .plant_id import PlantIdentification
 
 __all__ = ["bode_fig4", "dahl_fig6", "zwidth_fig5c"]
 
+_Path = Union[str, "os.PathLike[str]"]
 
-def _plt():
+
+def _plt() -> ModuleType:
+    """matplotlib.pyplot on the Agg backend (imported here: slow to import)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     return plt
 
 
-def _save(plt, fig, path, title=""):
+def _save(plt: ModuleType, fig: Figure, path: _Path, title: str = "") -> pathlib.Path:
     """Title (a figure-wide one), layout, PNG at ``path``; the figure is closed. Returns the
     path."""
     if title:
@@ -28,11 +41,11 @@ def _save(plt, fig, path, title=""):
     return path
 
 
-def _db(h):
+def _db(h: npt.ArrayLike) -> npt.NDArray[np.float64]:
     return 20.0 * np.log10(np.abs(h))
 
 
-def bode_fig4(result, path, title=""):
+def bode_fig4(result: PlantIdentification, path: _Path, title: str = "") -> pathlib.Path:
     """Fig. 4-style Bode plots: measured (blue, shaded 1-sigma band), identified linear model
     (red); for B and D also the estimate with the fitted Dahl force removed (green)."""
     plt = _plt()
@@ -79,7 +92,7 @@ def bode_fig4(result, path, title=""):
     return _save(plt, fig, path, title)
 
 
-def dahl_fig6(fit, path, title=""):
+def dahl_fig6(fit: DahlFit, path: _Path, title: str = "") -> pathlib.Path:
     """Fig. 6-style: external hysteresis loop (linear endpoint terms removed) vs X_e with the
     fitted Dahl model, and a close-up of a turnaround."""
     plt = _plt()
@@ -103,12 +116,16 @@ def dahl_fig6(fit, path, title=""):
     return _save(plt, fig, path, title)
 
 
-def zwidth_fig5c(omega, curves, path, title="", markers=None):
+def zwidth_fig5c(omega: npt.ArrayLike, curves: Mapping[str, npt.NDArray[np.complex128]],
+                 path: _Path, title: str = "",
+                 markers: Optional[Mapping[str, Tuple[npt.ArrayLike,
+                                                      npt.NDArray[np.complex128]]]] = None
+                 ) -> pathlib.Path:
     """Fig. 5C-style |Z(jw)| per mode. ``curves``: label -> complex array on ``omega``;
     ``markers``: label -> (omega points, complex Z) measured points."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 4.8))
-    colors = {}
+    colors: Dict[str, str] = {}
     for label, z in curves.items():
         line, = ax.semilogx(omega, _db(z), label=label)
         colors[label] = line.get_color()

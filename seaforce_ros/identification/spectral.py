@@ -34,14 +34,23 @@ from __future__ import annotations
 
 import functools
 import math
+from typing import Dict, Optional, Sequence, Tuple, Union
 
 import numpy as np
+import numpy.typing as npt
 
-__all__ = ["BlackmanTukey", "FrequencyResponse", "hann_lag_window"]
+__all__ = ["BlackmanTukey", "FrequencyResponse", "hann_lag_window", "Spectra"]
+
+_Real = npt.NDArray[np.float64]
+_Complex = npt.NDArray[np.complex128]
+#: ``(S_ry, S_yy)`` of one signal: its cross-spectrum with the reference and its auto-spectrum.
+Spectra = Tuple[_Complex, _Real]
+#: Samples of a signal (indexed, so not any array_like).
+Samples = Union[Sequence[float], _Real]
 
 
 @functools.lru_cache(maxsize=64)
-def hann_lag_window(m):
+def hann_lag_window(m: int) -> _Real:
     """Hann lag window of half-length ``m`` at lags ``-m..m`` (``w(0) = 1``, ``w(+-m) = 0``)."""
     tau = np.arange(-m, m + 1)
     w = 0.5 * (1.0 + np.cos(np.pi * tau / m))
@@ -60,18 +69,19 @@ class FrequencyResponse:
     name : str
     """
 
-    def __init__(self, omega, h, rel_sigma, name=""):
+    def __init__(self, omega: npt.ArrayLike, h: npt.ArrayLike, rel_sigma: npt.ArrayLike,
+                 name: str = "") -> None:
         self.omega = np.asarray(omega, float)
         self.h = np.asarray(h, complex)
         self.rel_sigma = np.asarray(rel_sigma, float)
         self.name = name
 
     @property
-    def sigma(self):
+    def sigma(self) -> _Real:
         """Absolute 1-sigma [units of H]."""
         return np.abs(self.h) * self.rel_sigma
 
-    def band(self, lo, hi):
+    def band(self, lo: float, hi: float) -> "FrequencyResponse":
         """Copy restricted to ``lo <= omega <= hi``."""
         sel = (self.omega >= lo) & (self.omega <= hi)
         return FrequencyResponse(self.omega[sel], self.h[sel], self.rel_sigma[sel], self.name)
@@ -99,8 +109,9 @@ class BlackmanTukey:
         2.5x above the grid. Delays stay in samples of the original ``dt``.
     """
 
-    def __init__(self, reference, dt, omega, periods=10.0, reference_delay=0.0,
-                 decimate=1):
+    def __init__(self, reference: npt.ArrayLike, dt: float, omega: npt.ArrayLike,
+                 periods: float = 10.0, reference_delay: float = 0.0,
+                 decimate: Union[int, str] = 1) -> None:
         r = np.asarray(reference, float)
         if r.ndim != 1 or r.size < 16:
             raise ValueError("reference must be a 1-D array of at least 16 samples")
@@ -126,9 +137,9 @@ class BlackmanTukey:
         #: equivalent number of independent estimates nu(w) = N / sum w^2
         self.nu = self.n / (0.75 * self.lags + 0.5)
         self._auto_r = self._spectrum(self._fr, self._fr).real
-        self._cache = {}
+        self._cache: Dict[str, Spectra] = {}
 
-    def _spectrum(self, fa, fb):
+    def _spectrum(self, fa: _Complex, fb: _Complex) -> _Complex:
         """BT estimate of S_ab on the grid from the FFTs of a and b."""
         corr = np.fft.irfft(np.conj(fa) * fb, self.nfft) / self.n   # R_ab(tau), circular
         out = np.empty(self.omega.size, complex)
@@ -145,13 +156,13 @@ class BlackmanTukey:
                         + 1j * np.interp(self.omega[sel], grid, spec.imag))
         return out
 
-    def _decimate(self, y):
+    def _decimate(self, y: _Real) -> _Real:
         if self.q == 1:
             return y
         import scipy.signal
         return scipy.signal.decimate(y - y.mean(), self.q, ftype="fir", zero_phase=True)
 
-    def _fft(self, y, order=0):
+    def _fft(self, y: Samples, order: int = 0) -> _Complex:
         y = np.asarray(y, float)
         if y.shape != (self.n_full,):
             raise ValueError(f"signal must have {self.n_full} samples")
@@ -161,12 +172,12 @@ class BlackmanTukey:
             y = np.diff(y, prepend=y[0])
         return np.fft.rfft(y, self.nfft)
 
-    def _difference(self, order):
+    def _difference(self, order: int) -> _Complex:
         """Frequency response of ``order`` backward differences over T, on the grid."""
         z = 1.0 - np.exp(-1j * self.omega * self.dt)
-        return z ** order
+        return z ** order  # type: ignore[return-value]  # numpy's stubs: float - complex
 
-    def cross(self, y, delay=0.0, order=0):
+    def cross(self, y: Samples, delay: float = 0.0, order: int = 0) -> _Complex:
         """S_ry on the grid (``delay`` of y in samples, relative to the reference's).
 
         ``order`` backward differences prewhiten y before the estimate (positions fall by
@@ -182,7 +193,7 @@ class BlackmanTukey:
             s = s * np.exp(-1j * self.omega * shift)
         return s
 
-    def auto(self, y, order=0):
+    def auto(self, y: Samples, order: int = 0) -> _Real:
         """S_yy on the grid (real, clipped at a tiny positive value); ``order`` as in
         :meth:`cross`."""
         fy = self._fft(y, order)
@@ -191,7 +202,8 @@ class BlackmanTukey:
             s = s / np.abs(self._difference(order)) ** 2
         return s
 
-    def signal(self, name, y, delay=0.0, orders=None):
+    def signal(self, name: str, y: Samples, delay: float = 0.0,
+               orders: Optional[Sequence[Tuple[int, float]]] = None) -> Spectra:
         """Cross- and auto-spectrum of a named signal, cached: ``(S_ry, S_yy)``.
 
         ``orders``: prewhitening per band, a sequence of ``(order, upper_omega)`` (the first
@@ -213,12 +225,12 @@ class BlackmanTukey:
             self._cache[name] = (s_ry, s_yy)
         return self._cache[name]
 
-    def coherence(self, s_ry, s_yy):
+    def coherence(self, s_ry: _Complex, s_yy: _Real) -> _Real:
         """Squared coherence |S_ry|^2/(S_rr S_yy), clipped to (0, 1]."""
         g2 = np.abs(s_ry) ** 2 / (np.maximum(self._auto_r, 1e-300) * s_yy)
         return np.clip(g2, 1e-12, 1.0)
 
-    def response(self, output, inp, name=""):
+    def response(self, output: Spectra, inp: Spectra, name: str = "") -> FrequencyResponse:
         """H = y/u from two ``(S_r., S_..)`` pairs (see :meth:`signal`) with its band."""
         s_ry, s_yy = output
         s_ru, s_uu = inp

@@ -11,11 +11,15 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, Sequence
+from typing import TYPE_CHECKING, Dict, Iterable, List, Optional, Sequence
 
 import numpy as np
+import numpy.typing as npt
 
 from .errors import IdentificationError
+
+if TYPE_CHECKING:
+    from ..bags.reader import ChannelRecord
 
 __all__ = ["Series", "prepare", "sample_period"]
 
@@ -31,7 +35,7 @@ class Series:
 
     channel: str
     dt: float
-    signals: Dict[str, np.ndarray]
+    signals: Dict[str, npt.NDArray[np.float64]]
     cycle0: int
     nan_dropped: Dict[str, int] = field(default_factory=dict)
     missing: int = 0
@@ -41,14 +45,16 @@ class Series:
     longest_gap: int = 0
 
     @property
-    def n(self):
+    def n(self) -> int:
+        """Samples per signal."""
         return int(next(iter(self.signals.values())).size)
 
     @property
-    def duration(self):
+    def duration(self) -> float:
+        """n dt [s]."""
         return self.n * self.dt
 
-    def notes(self):
+    def notes(self) -> List[str]:
         """Human-readable lines about dropped / missing data."""
         out = []
         dropped = {k: v for k, v in self.nan_dropped.items() if v}
@@ -65,7 +71,7 @@ class Series:
         return out
 
 
-def sample_period(record, dt=None):
+def sample_period(record: ChannelRecord, dt: Optional[float] = None) -> float:
     """Sample period [s] of a record (see module docstring)."""
     if dt is not None:
         if not dt > 0:
@@ -86,7 +92,8 @@ def sample_period(record, dt=None):
     return est
 
 
-def prepare(record, fields, dt=None, max_gap_fraction=0.2, optional=()):
+def prepare(record: ChannelRecord, fields: Sequence[str], dt: Optional[float] = None,
+            max_gap_fraction: float = 0.2, optional: Iterable[str] = ()) -> Series:
     """Uniform, finite arrays of ``fields`` (+ ``optional`` ones when measured).
 
     Raises
@@ -97,7 +104,9 @@ def prepare(record, fields, dt=None, max_gap_fraction=0.2, optional=()):
     period = sample_period(record, dt)
     cycle = record.cycle.astype(np.int64)
     n_total = int(cycle[-1] - cycle[0] + 1)
-    signals, dropped, absent = {}, {}, []
+    signals: Dict[str, npt.NDArray[np.float64]] = {}
+    dropped: Dict[str, int] = {}
+    absent: List[str] = []
     grid = np.arange(n_total, dtype=float)
     pos = (cycle - cycle[0]).astype(float)
     filled_mask = np.ones(n_total, bool)

@@ -21,14 +21,21 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Dict, Optional
+from typing import (TYPE_CHECKING, Any, Callable, Dict, List, Mapping, Optional, Sequence,
+                    Tuple)
 
 import numpy as np
+import numpy.typing as npt
 
 from ..core.analysis import impedance_from_position
 from ..core.params import ControllerConfig
 from .errors import IdentificationError
 from .experiments import work_loop_experiment
+
+if TYPE_CHECKING:
+    from ..core.params import DahlParams, PlantParams
+    from ..core.sensors import SensorParams
+    from .timeseries import Series
 
 __all__ = ["DC_OMEGA", "DEFAULT_MODES", "simulate_impedance", "impedance_from_record",
            "zwidth", "ZWidthRow", "zwidth_rows", "drive_frequency", "config_from_params"]
@@ -37,8 +44,12 @@ DC_OMEGA = 0.1
 DEFAULT_MODES = ("passive", "hold", "dob", "dob_linear_ff", "dob_full_ff")
 
 
-def simulate_impedance(plant, dahl, config, modes=DEFAULT_MODES, omegas=(DC_OMEGA, 1, 3, 10),
-                       amplitude=0.2, cycles=2.0, sensors=None, seed=0, progress=None):
+def simulate_impedance(plant: PlantParams, dahl: Optional[DahlParams], config: ControllerConfig,
+                       modes: Sequence[str] = DEFAULT_MODES,
+                       omegas: Sequence[float] = (DC_OMEGA, 1, 3, 10), amplitude: float = 0.2,
+                       cycles: float = 2.0, sensors: Optional[SensorParams] = None,
+                       seed: int = 0, progress: Optional[Callable[[str, float], object]] = None
+                       ) -> Dict[str, npt.NDArray[np.complex128]]:
     """|Z| per mode and frequency from the offline backdrive experiment.
 
     Parameters
@@ -57,11 +68,11 @@ def simulate_impedance(plant, dahl, config, modes=DEFAULT_MODES, omegas=(DC_OMEG
     -------
     dict mode -> complex array of Z(j w) [N m s/rad] on ``omegas``.
     """
-    out = {}
+    out: Dict[str, npt.NDArray[np.complex128]] = {}
     total = len(modes) * len(omegas)
     k = 0
     for mode in modes:
-        zs = []
+        zs: List[complex] = []
         for w in omegas:
             if progress is not None:
                 progress(f"backdrive {mode} at {w:g} rad/s", k / total)
@@ -71,13 +82,14 @@ def simulate_impedance(plant, dahl, config, modes=DEFAULT_MODES, omegas=(DC_OMEG
                                        amplitude=amplitude, frequency=w,
                                        cycles=cycles if w >= 1.0 else 1.0, mode=mode,
                                        config=config, seed=seed, settle_cycles=settle)
-            dt = rec["t"][1] - rec["t"][0]
-            zs.append(impedance_from_position(rec["f_e"], rec["x_e"], w, dt, rec["settle"]))
+            dt: Any = rec["t"][1] - rec["t"][0]  # type: ignore[index]  # arrays but settle
+            zs.append(impedance_from_position(rec["f_e"], rec["x_e"], w, dt,
+                                              rec["settle"]))  # type: ignore[arg-type]
         out[mode] = np.asarray(zs)
     return out
 
 
-def drive_frequency(x, dt):
+def drive_frequency(x: npt.NDArray[np.floating], dt: float) -> float:
     """Frequency [rad/s] of the dominant sinusoid in ``x`` (FFT peak, refined by nonlinear
     least squares: the frequency whose sine/cosine (+ offset and trend) explain most of x)."""
     x = np.asarray(x, float) - np.mean(x)
@@ -95,7 +107,7 @@ def drive_frequency(x, dt):
     t = np.arange(n) * dt
     trend = t - t.mean()
 
-    def f(w):
+    def f(w: float) -> float:
         basis = np.stack([np.sin(w * t), np.cos(w * t), np.ones(n), trend], axis=1)
         coef, *_ = np.linalg.lstsq(basis, x, rcond=None)
         fitted = basis @ coef
@@ -111,7 +123,8 @@ def drive_frequency(x, dt):
     return 0.5 * (a + b)
 
 
-def impedance_from_record(series, omega=None, settle=None):
+def impedance_from_record(series: Series, omega: Optional[float] = None,
+                          settle: Optional[float] = None) -> Tuple[float, complex]:
     """Z(j w) of a backdrive record (Series with x_e, f_e); returns ``(omega, Z)``."""
     s = series.signals
     if "x_e" not in s or "f_e" not in s:
@@ -128,23 +141,28 @@ def impedance_from_record(series, omega=None, settle=None):
     return w, impedance_from_position(s["f_e"], s["x_e"], w, series.dt, settle)
 
 
-def zwidth(z_hold, z_min):
+def zwidth(z_hold: npt.ArrayLike, z_min: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """20 log10(|Z_hold|/|Z_min|) [dB]."""
     return 20.0 * np.log10(np.abs(z_hold) / np.abs(z_min))
 
 
 @dataclass
 class ZWidthRow:
+    """One frequency [rad/s]: |Z| [dB] per mode, the lowest-impedance mode and the Z-width
+    [dB] against the reference (None without one)."""
+
     omega: float
     z_db: Dict[str, float]
     min_mode: Optional[str]
     width_db: Optional[float]
 
 
-def zwidth_rows(omegas, z_by_mode, reference="hold", min_modes=None):
+def zwidth_rows(omegas: Sequence[float], z_by_mode: Mapping[str, npt.NDArray[np.complex128]],
+                reference: str = "hold",
+                min_modes: Optional[Sequence[str]] = None) -> List[ZWidthRow]:
     """Per frequency: |Z| [dB] per mode, the minimum-impedance mode (among ``min_modes``,
     default every mode but the reference) and the Z-width against ``reference``."""
-    rows = []
+    rows: List[ZWidthRow] = []
     for i, w in enumerate(omegas):
         z_db = {m: float(20 * np.log10(abs(z[i]))) for m, z in z_by_mode.items()
                 if i < len(z) and np.isfinite(z[i])}
@@ -155,7 +173,9 @@ def zwidth_rows(omegas, z_by_mode, reference="hold", min_modes=None):
     return rows
 
 
-def config_from_params(plant_dict, dahl_dict, base=None):
+def config_from_params(plant_dict: Optional[Mapping[str, Any]],
+                       dahl_dict: Optional[Mapping[str, Any]],
+                       base: Optional[ControllerConfig] = None) -> ControllerConfig:
     """ControllerConfig with the plant/dahl of a params file on top of ``base``."""
     from ..core.params import DahlParams, PlantParams
     base = base or ControllerConfig()

@@ -20,22 +20,23 @@ Faults: faults of the data (``latched_faults``) give the channel zero torque unt
 zeroes it until states flow again, then the channel re-arms from the plant's present state
 (its first torque is the torque the plant applies: no step).
 
-Grasping: the action ``~/grasp`` (``seaforce_msgs/action/Grasp``) hands a
-:class:`~seaforce_ros.core.grasp.Grasp` to the channel's controller (taken at the start of a
-cycle); feedback at ``GRASP_FEEDBACK_RATE``; the goal holds the object until it is canceled,
-which releases it (the channel returns to its mode). A goal that cannot be executed -- unknown
-channel, NaN or out-of-range fields, a faulted channel, a channel another goal holds, no states
-arriving -- ends at once ABORTED with ``rejected: <reason>`` in ``result.message`` (ROS 2's goal
-rejection carries no reason). Each channel's contact and object estimates are in
-``controller_status`` whatever the mode.
+Jobs: two actions hand a job (:mod:`seaforce_ros.core.jobs`) to a channel's controller, through
+one adapter (:mod:`.jobs`: one goal per channel, whatever its action; a goal that cannot be
+executed -- unknown channel, NaN or out-of-range fields, a faulted channel, a channel another
+goal holds, no states arriving -- ends at once ABORTED with ``rejected: <reason>`` in
+``result.message``; feedback at ``JOB_FEEDBACK_RATE``):
 
-Friction calibration: the action ``~/calibrate_friction`` (``seaforce_msgs/action/
-CalibrateFriction``) hands a :class:`~seaforce_ros.core.friction_calibration.FrictionCalibration`
-to the channel's controller the same way (one goal per channel, none while a grasp holds it;
-rejected with the reason like a grasp goal); when it applies the new values the node sets the
-channel's ``plant.endpoint_damping``, ``plant.endpoint_stiffness``, ``dahl.coulomb_force`` and
-``dahl.sigma`` to them. ``<channel>.friction.adaptation`` turns the online adaptation on; its
-state is in ``/diagnostics``.
+* Grasping: the action ``~/grasp`` (``seaforce_msgs/action/Grasp``) runs a
+  :class:`~seaforce_ros.core.grasp.Grasp`; the goal holds the object until it is canceled,
+  which releases it (the channel returns to its mode). Each channel's contact and object
+  estimates are in ``controller_status`` whatever the mode.
+* Friction calibration: the action ``~/calibrate_friction``
+  (``seaforce_msgs/action/CalibrateFriction``) runs a
+  :class:`~seaforce_ros.core.friction_calibration.FrictionCalibration`; when it applies the new
+  values the node sets the channel's ``plant.endpoint_damping``,
+  ``plant.endpoint_stiffness``, ``dahl.coulomb_force`` and ``dahl.sigma`` to them.
+  ``<channel>.friction.adaptation`` turns the online adaptation on; its state is in
+  ``/diagnostics``.
 
 Layouts: separate processes (this executable) or composed with the plant in ``bringup`` /
 ``hardware_bringup``; with ``loop:=direct`` there the plant's cycle thread calls
@@ -50,11 +51,8 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.action import ActionServer, CancelResponse, GoalResponse
-from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.task import Future
 from seaforce_msgs.action import CalibrateFriction as CalibrateFrictionAction
 from seaforce_msgs.action import Grasp as GraspAction
 from seaforce_msgs.msg import ActuatorCommand, ActuatorState, ControllerStatus
@@ -63,20 +61,18 @@ from std_srvs.srv import Trigger
 from . import param_specs as ps
 from ..core.control_cycle import ControlCycle, StateChecks
 from ..core.controller import ChannelController
-from ..core.episodes import Episode, EventLog
 from ..core.errors import SeaforceError
 from ..core.friction_calibration import (CalibrationGoal, FrictionCalibration,
-                                       InvalidCalibrationError, check_calibration_goal)
-from ..core.grasp import Grasp, GraspGoal, InvalidGoalError, check_goal
+                                       check_calibration_goal)
+from ..core.grasp import Grasp, GraspGoal, check_goal
 from ..core.params import ControllerConfig, guard_carries
 from ..core.schema import BRINGUP, CONTROLLER
+from .jobs import JobAction, JobActions
 from .ros_common import (GRAPH_PERIOD, STATUS_QOS, StartupError, control_qos, declare,
                          diagnostic_status, diagnostics_publisher, log_events, node_label,
                          publish_diagnostics, run, shutdown_safe)
 from .timing import LoopStats
 
-GRASP_FEEDBACK_RATE = 50.0     # Hz
-GRASP_START_TIMEOUT = 1.0      # s a goal waits for the cycle to take its grasp over
 #: s without a state the cycle ran on after which the node (not the cycle, which does not
 #: run) ends a goal and refuses new ones -- at least state_timeout. Shorter stalls the cycle
 #: sees itself when states return (it re-arms and ends the goal); a starved node process
@@ -159,23 +155,10 @@ class ControllerNode(Node):
             self.create_subscription(ActuatorState, 'actuator_state', self._on_state,
                                      control_qos(qos, subscriber=True))
         self.create_service(Trigger, '~/reset', self._on_reset)
-        self._grasps = {}                # channel index -> (Grasp, handle, Future, start time)
-        self._grasp_log = EventLog()
-        self._rejections = Episode(self._grasp_log)   # logged once per 10 s, with a count
         self._last_state = None          # monotonic time of the latest state run on [s]
-        ActionServer(self, GraspAction, '~/grasp', execute_callback=self._execute_grasp,
-                     goal_callback=lambda goal: GoalResponse.ACCEPT,
-                     cancel_callback=lambda handle: CancelResponse.ACCEPT,
-                     callback_group=ReentrantCallbackGroup())
-        self.create_timer(1.0 / GRASP_FEEDBACK_RATE, self._grasp_tick)
-        # friction calibration
-        self._calibrations = {}          # channel index -> (calibration, handle, Future, start)
-        ActionServer(self, CalibrateFrictionAction, '~/calibrate_friction',
-                     execute_callback=self._execute_calibration,
-                     goal_callback=lambda goal: GoalResponse.ACCEPT,
-                     cancel_callback=lambda handle: CancelResponse.ACCEPT,
-                     callback_group=ReentrantCallbackGroup())
-        self.create_timer(1.0 / GRASP_FEEDBACK_RATE, self._calibration_tick)
+        self.jobs = JobActions(self, self.channels, controllers, self.cycle, self._stalled)
+        self.jobs.add(self._grasp_action())
+        self.jobs.add(self._calibration_action())
         self._state_topic = self.resolve_topic_name('actuator_state')
         self.create_timer(GRAPH_PERIOD, self._watch_graph)
         self.add_on_set_parameters_callback(self._validate_parameters)
@@ -314,35 +297,6 @@ class ControllerNode(Node):
         self.cycle.set_state_publishers(sorted(
             node_label(i) for i in self.get_publishers_info_by_topic(self._state_topic)))
 
-    # --- grasps --------------------------------------------------------------------------
-    def _channel_for(self, channel, error):
-        """The index of a goal's ``channel`` if a goal can run on it now, else ``error`` (an
-        exception class) with the reason: unknown, busy, faulted, stopped by the plant, no
-        states arriving."""
-        if channel not in self.channels:
-            raise error(f'unknown channel {channel!r}; the channels are '
-                        + ', '.join(self.channels))
-        index = self.channels.index(channel)
-        held = self._grasps.get(index)
-        if held is not None:
-            raise error(f'channel {channel} is held by a grasp goal ({held[0].phase}); '
-                        'cancel it first')
-        if index in self._calibrations:
-            raise error(f'channel {channel} is calibrating its friction; cancel it first')
-        fault = self.cycle.fault(index)
-        if fault and self.cycle.latched(index):
-            raise error(f'channel {channel} is faulted: {fault}; call ~/reset')
-        if fault:
-            raise error(f'channel {channel} is {fault} (it re-initialises itself at the next '
-                        'clean state: send the goal again)')
-        stopped = self.cycle.plant_stopped(index)
-        if stopped:
-            raise error(f'the plant has stopped channel {channel}: {stopped}')
-        stalled = self._stalled()
-        if stalled:
-            raise error(stalled + ': the control cycle is not running')
-        return index
-
     def _stalled(self):
         """'no actuator_state for ...' when the cycle has run on none for longer than
         max(STALL_TIME, state_timeout) (then the cycle, when states return, sees the stall
@@ -355,106 +309,35 @@ class ControllerNode(Node):
             return f'no actuator_state for {age:.2f} s (> {limit:g} s)'
         return ''
 
-    def _stall_message(self, job):
-        """Why a started, running grasp or calibration must end because the cycle does not
-        run (a plant that died, a cut link), else ''."""
-        stalled = self._stalled() if job.active and job.started else ''
-        return stalled + ': the plant stopped, or the link to it' if stalled else ''
-
-    def _end_stalled(self, goals, index, label, message, result):
-        """End the goal in ``goals`` (grasps or calibrations) on channel ``index`` now; its job
-        ends in the cycle's thread when the cycle runs again (re-initialised first: the
-        stall is older than state_timeout)."""
-        job, handle, done, _ = goals.pop(index)
-        job.request_abort(message)
-        handle.abort()
-        self.get_logger().warn(f'{self.channels[index]}: {label} aborted: {message}')
-        done.set_result(result)
-
-    def _grasp_for(self, goal):
-        """(channel index, Grasp) for an action goal, or InvalidGoalError with the reason."""
-        index = self._channel_for(goal.channel, InvalidGoalError)
-        config = self.configs[index]
-        request = GraspGoal(goal.channel, goal.closing_velocity, goal.grip_force,
-                            goal.max_force, goal.probe)
-        try:
+    # --- grasps --------------------------------------------------------------------------
+    def _grasp_action(self) -> JobAction:
+        """``~/grasp``: a Grasp per goal."""
+        def make(index, goal):
+            config = self.configs[index]
+            request = GraspGoal(goal.channel, goal.closing_velocity, goal.grip_force,
+                                goal.max_force, goal.probe)
             check_goal(request, config.grasp, config.estimator, config.max_torque)
-        except InvalidGoalError as exc:
-            raise InvalidGoalError(f'{goal.channel}: {exc}') from None
-        return index, Grasp(request, config, self.dt)
+            return Grasp(request, config, self.dt)
 
-    async def _execute_grasp(self, handle):
-        """One goal: checked, handed to the cycle, followed by :meth:`_grasp_tick` until done."""
-        try:
-            index, grasp = self._grasp_for(handle.request)
-        except InvalidGoalError as exc:
-            self._rejections.begin(time.monotonic(), f'grasp goal rejected: {exc}')
-            self._rejections.end(time.monotonic())
-            log_events(self.get_logger(), self._grasp_log.drain())
-            handle.abort()
-            return self._grasp_result(None, f'rejected: {exc}')
-        done = Future()
-        self._grasps[index] = (grasp, handle, done, time.monotonic())
-        self.controllers[index].request_grasp(grasp)
-        goal = handle.request
-        self.get_logger().info(f'{goal.channel}: grasp at {goal.closing_velocity:g} rad/s, '
-                               f'grip {goal.grip_force:g} N m, max {goal.max_force:g} N m'
-                               + (', probing' if goal.probe else ''))
-        return await done
+        def describe(goal):
+            return (f'grasp at {goal.closing_velocity:g} rad/s, grip {goal.grip_force:g} N m, '
+                    f'max {goal.max_force:g} N m' + (', probing' if goal.probe else ''))
 
-    @shutdown_safe
-    def _grasp_tick(self):
-        """Feedback, cancel requests, start time-outs and ends of the running grasps."""
-        for index, (grasp, handle, done, started) in list(self._grasps.items()):
-            channel = self.channels[index]
-            if handle.is_cancel_requested and grasp.active:
-                if not grasp.withdraw('canceled before it started', 'canceled'):
-                    grasp.request_release('released (goal canceled)')
-            if grasp.active and not grasp.started and \
-                    time.monotonic() - started > GRASP_START_TIMEOUT:
-                grasp.withdraw(f'the control cycle did not take the grasp within '
-                               f'{GRASP_START_TIMEOUT:g} s (are states arriving?)')
-            message = self._stall_message(grasp)
-            if message:
-                estimator = self.controllers[index].estimator
-                self._end_stalled(self._grasps, index, 'grasp', message, self._grasp_result(
-                    grasp, message, estimator.estimate() if grasp.contact else None))
-                continue
-            if grasp.active:
-                handle.publish_feedback(self._grasp_feedback(index, grasp))
-                continue
-            del self._grasps[index]
-            result = self._grasp_result(grasp, grasp.message, grasp.estimate)
-            if grasp.outcome == 'canceled':
-                handle.canceled()
-            else:
-                handle.abort()
-            self.get_logger().info(f'{channel}: grasp {grasp.outcome}: {grasp.message}')
-            done.set_result(result)
+        return JobAction('~/grasp', GraspAction, Grasp.kind, make, self._grasp_result, describe,
+                         busy=lambda grasp: f'is held by a grasp goal ({grasp.phase})',
+                         cancel_reason='released (goal canceled)')
 
-    def _grasp_feedback(self, index, grasp):
-        est = self.controllers[index].estimator
-        estimate = est.estimate()
-        sign = 1.0 if grasp.goal.closing_velocity > 0 else -1.0
-        feedback = GraspAction.Feedback()
-        feedback.phase = grasp.phase
-        feedback.endpoint_position = est.position
-        feedback.force = -sign * est.force
-        # before this goal's contact the estimator still has the last object's fit
-        feedback.object_stiffness = estimate.stiffness if grasp.contact else math.nan
-        feedback.object_damping = estimate.damping if grasp.contact else math.nan
-        return feedback
-
-    @staticmethod
-    def _grasp_result(grasp, message, estimate=None):
-        """The action's result: ``estimate`` the object as the grasp let go of it, or as it
-        was when the grasp was aborted (None: no contact)."""
+    def _grasp_result(self, index, grasp, message):
+        """The action's result: the object as the grasp let go of it, or as the estimator has
+        it for a goal ended while its grasp runs (a stall); none without a contact."""
         result = GraspAction.Result()
         result.message = message
         result.contact = bool(grasp is not None and grasp.contact)
+        estimate = None
+        if result.contact:
+            estimate = (self.controllers[index].estimator.estimate() if grasp.active
+                        else grasp.estimate)
         nan = math.nan
-        if not result.contact:
-            estimate = None
         result.contact_position = estimate.contact_position if estimate else nan
         result.object_stiffness = estimate.stiffness if estimate else nan
         result.object_stiffness_sigma = estimate.stiffness_sigma if estimate else nan
@@ -464,73 +347,29 @@ class ControllerNode(Node):
         return result
 
     # --- friction calibration ------------------------------------------------------------
-    def _calibration_for(self, goal):
-        """(channel index, FrictionCalibration) for a goal, or InvalidCalibrationError."""
-        index = self._channel_for(goal.channel, InvalidCalibrationError)
-        config = self.configs[index]
-        request = CalibrationGoal(goal.channel, goal.amplitude, goal.speed, goal.apply)
-        try:
+    def _calibration_action(self) -> JobAction:
+        """``~/calibrate_friction``: a FrictionCalibration per goal; the values it applies
+        become the channel's parameters."""
+        def make(index, goal):
+            config = self.configs[index]
+            request = CalibrationGoal(goal.channel, goal.amplitude, goal.speed, goal.apply)
             check_calibration_goal(request, config.friction,
                                    self.controllers[index].endpoint_position_estimate)
-        except InvalidCalibrationError as exc:
-            raise InvalidCalibrationError(f'{goal.channel}: {exc}') from None
-        return index, FrictionCalibration(request, config, self.dt)
+            return FrictionCalibration(request, config, self.dt)
 
-    async def _execute_calibration(self, handle):
-        goal = handle.request
-        try:
-            index, calibration = self._calibration_for(goal)
-        except InvalidCalibrationError as exc:
-            self._rejections.begin(time.monotonic(), f'calibration goal rejected: {exc}')
-            self._rejections.end(time.monotonic())
-            log_events(self.get_logger(), self._grasp_log.drain())
-            handle.abort()
-            return self._calibration_result(None, f'rejected: {exc}')
-        done = Future()
-        self._calibrations[index] = (calibration, handle, done, time.monotonic())
-        self.controllers[index].request_calibration(calibration)
-        self.get_logger().info(f'{goal.channel}: friction calibration, {goal.amplitude:g} rad '
-                               f'at up to {goal.speed:g} rad/s'
-                               + (', applying' if goal.apply else ''))
-        return await done
+        def describe(goal):
+            return (f'friction calibration, {goal.amplitude:g} rad at up to {goal.speed:g} '
+                    'rad/s' + (', applying' if goal.apply else ''))
 
-    @shutdown_safe
-    def _calibration_tick(self):
-        for index, (calibration, handle, done, started) in list(self._calibrations.items()):
-            channel = self.channels[index]
-            if handle.is_cancel_requested and calibration.active:
-                if not calibration.withdraw('canceled before it started', 'canceled'):
-                    calibration.request_cancel('canceled')
-            if calibration.active and not calibration.started and \
-                    time.monotonic() - started > GRASP_START_TIMEOUT:
-                calibration.withdraw(f'the control cycle did not take the calibration within '
-                                     f'{GRASP_START_TIMEOUT:g} s (are states arriving?)')
-            message = self._stall_message(calibration)
-            if message:
-                self._end_stalled(self._calibrations, index, 'friction calibration', message,
-                                  self._calibration_result(calibration,
-                                                           message + ', nothing applied'))
-                continue
-            if calibration.active:
-                feedback = CalibrateFrictionAction.Feedback()
-                feedback.phase = calibration.phase
-                feedback.progress = calibration.progress
-                handle.publish_feedback(feedback)
-                continue
-            del self._calibrations[index]
-            message = calibration.message
+        def finish(index, calibration):
             if calibration.applied:
-                message = self._store_friction(index, calibration.new, message)
-            result = self._calibration_result(calibration, message)
-            if calibration.outcome == 'succeeded':
-                handle.succeed()
-            elif calibration.outcome == 'canceled':
-                handle.canceled()
-            else:
-                handle.abort()
-            self.get_logger().info(f'{channel}: friction calibration {calibration.outcome}: '
-                                   f'{message}')
-            done.set_result(result)
+                return self._store_friction(index, calibration.new, calibration.message)
+            return calibration.message
+
+        return JobAction('~/calibrate_friction', CalibrateFrictionAction,
+                         FrictionCalibration.kind, make, _calibration_result, describe,
+                         busy=lambda calibration: 'is calibrating its friction',
+                         cancel_reason='canceled', finish=finish)
 
     def _store_friction(self, index, new, message):
         """Set the channel's friction parameters to the applied values (the controller already
@@ -544,28 +383,6 @@ class ControllerNode(Node):
         if failed:
             return f'{message}; parameters not updated: {failed[0]}'
         return message
-
-    @staticmethod
-    def _calibration_result(calibration, message):
-        result = CalibrateFrictionAction.Result()
-        result.names = list(_FRICTION_KEYS)
-        result.message = message
-        nan = math.nan
-        old = new = None
-        if calibration is not None:
-            old, new = calibration.old, calibration.new
-        olds = ([old.endpoint_damping, old.endpoint_stiffness, old.coulomb_force, old.sigma]
-                if old else [nan] * 4)
-        news = ([new.endpoint_damping, new.endpoint_stiffness, new.coulomb_force, new.sigma]
-                if new else [nan] * 4)
-        result.old_values = [float(v) for v in olds]
-        result.new_values = [float(v) for v in news]
-        result.new_values_sigma = ([float(v) for v in (
-            new.endpoint_damping_sigma, new.endpoint_stiffness_sigma, new.coulomb_force_sigma,
-            new.sigma_sigma)] if new else [nan] * 4)
-        result.change = [n - o for n, o in zip(result.new_values, result.old_values)]
-        result.applied = bool(calibration is not None and calibration.applied)
-        return result
 
     @staticmethod
     def _friction_diagnostics(ctrl):
@@ -619,6 +436,32 @@ class ControllerNode(Node):
                  **dict(zip(_GUARD_FIELDS, _guard_values(ctrl))),
                  **self._friction_diagnostics(ctrl)}))
         publish_diagnostics(self, self.diag_pub, statuses)
+
+
+def _calibration_result(index, calibration, message):
+    """``~/calibrate_friction``'s result: the values before and after with the new ones'
+    1-sigma; a goal ended while its calibration runs (a stall) applied nothing."""
+    result = CalibrateFrictionAction.Result()
+    result.names = list(_FRICTION_KEYS)
+    if calibration is not None and calibration.active:
+        message += ', nothing applied'
+    result.message = message
+    nan = math.nan
+    old = new = None
+    if calibration is not None:
+        old, new = calibration.old, calibration.new
+    olds = ([old.endpoint_damping, old.endpoint_stiffness, old.coulomb_force, old.sigma]
+            if old else [nan] * 4)
+    news = ([new.endpoint_damping, new.endpoint_stiffness, new.coulomb_force, new.sigma]
+            if new else [nan] * 4)
+    result.old_values = [float(v) for v in olds]
+    result.new_values = [float(v) for v in news]
+    result.new_values_sigma = ([float(v) for v in (
+        new.endpoint_damping_sigma, new.endpoint_stiffness_sigma, new.coulomb_force_sigma,
+        new.sigma_sigma)] if new else [nan] * 4)
+    result.change = [n - o for n, o in zip(result.new_values, result.old_values)]
+    result.applied = bool(calibration is not None and calibration.applied)
+    return result
 
 
 _GUARD_FIELDS = ('passivity_energy', 'passivity_dissipated', 'passivity_damping')

@@ -144,7 +144,7 @@ def calibrate(plant, dahl, cfg=CONFIG, amp=0.5, speed=1.0, apply=True, env=None,
     cal = FrictionCalibration(CalibrationGoal("pinch", amp, speed, apply), cfg, DT)
     n0 = 400
     n = n0 + int((cfg.friction.calibration_duration + 0.2) / DT)
-    rec = run_closed_loop(sim, ctl, n, on_switch={n0: lambda s, c: c.request_calibration(cal)})
+    rec = run_closed_loop(sim, ctl, n, on_switch={n0: lambda s, c: c.request_job(cal)})
     return cal, ctl, rec
 
 
@@ -154,7 +154,7 @@ DRIFTS = [(1.5, 0.7, 1.5, 1.0)] + [tuple(np.round(r, 3)) for r in np.random.defa
 
 @pytest.mark.parametrize("drift", DRIFTS)
 def test_calibration_after_drift_recovers_parameters_and_impedance(drift):
-    """The issue's drift (b_e, F_c +50 %, k_e -30 %) and random ones within physical ranges."""
+    """A worn finger's drift (b_e, F_c +50 %, k_e -30 %) and random ones within physical ranges."""
     fb, fk, ff, fs = drift
     true_plant = PLANT.scaled(endpoint_damping=fb, endpoint_stiffness=fk)
     true_dahl = DahlParams(sigma=DAHL.sigma * fs, coulomb_force=DAHL.coulomb_force * ff)
@@ -198,7 +198,7 @@ def test_calibration_aborts_on_a_blocked_finger():
     cal, ctl, rec = calibrate(PLANT, DAHL, env=contact_object(0.1, 50.0, 0.1))
     assert cal.outcome == "aborted" and "blocked" in cal.message
     assert not cal.applied and ctl.config == CONFIG
-    assert ctl.calibration is None and ctl.mode == "dob_full_ff"
+    assert ctl.job is None and ctl.mode == "dob_full_ff"
 
 
 def test_calibration_aborts_when_the_motion_would_leave_the_joint_range():
@@ -211,30 +211,30 @@ def test_cancel_mode_change_reset_and_busy():
     ctl = ChannelController(CONFIG, DT)
     goal = CalibrationGoal("pinch", 0.3, 1.0, True)
     cal = FrictionCalibration(goal, CONFIG, DT)
-    ctl.request_calibration(cal)
+    ctl.request_job(cal)
     ctl.update(0.0, 0.0, 0.0)
-    assert ctl.calibration is cal and cal.started
+    assert ctl.job is cal and cal.started
     other = FrictionCalibration(goal, CONFIG, DT)
-    ctl.request_calibration(other)
+    ctl.request_job(other)
     ctl.update(0.0, 0.0, 0.0)
     assert other.outcome == "aborted" and "busy" in other.message
     cal.request_cancel("goal canceled")
     u = ctl.update(0.0, 0.0, 0.0)
-    assert cal.outcome == "canceled" and ctl.calibration is None
+    assert cal.outcome == "canceled" and ctl.job is None
     assert ctl.update(0.0, 0.0, 0.0) == pytest.approx(u)         # back to the mode, bumpless
     # the node ended the goal (no states for state_timeout): aborted in the cycle's thread
     cal = FrictionCalibration(goal, CONFIG, DT)
-    ctl.request_calibration(cal)
+    ctl.request_job(cal)
     ctl.update(0.0, 0.0, 0.0)
     cal.request_abort("no actuator_state for 0.06 s")
     assert cal.active
     ctl.update(0.0, 0.0, 0.0)
-    assert cal.outcome == "aborted" and ctl.calibration is None and not cal.applied
+    assert cal.outcome == "aborted" and ctl.job is None and not cal.applied
     assert cal.message == "no actuator_state for 0.06 s, nothing applied"
     for action, words in ((lambda c: c.configure(CONFIG.replace(mode="hold")), "mode set"),
                           (lambda c: c.reset(), "re-initialised")):
         cal = FrictionCalibration(goal, CONFIG, DT)
-        ctl.request_calibration(cal)
+        ctl.request_job(cal)
         ctl.update(0.0, 0.0, 0.0)
         action(ctl)
         ctl.update(0.0, 0.0, 0.0)
@@ -284,9 +284,9 @@ def test_controller_torque_bounded_while_calibrating(samples, limit):
                  max_tracking_error=10.0)
     ctl = ChannelController(cfg, DT)
     cal = FrictionCalibration(CalibrationGoal("p", 0.5, 1.0, True), cfg, DT)
-    ctl.request_calibration(cal)
+    ctl.request_job(cal)
     for x, v, fp in samples:
-        running = ctl.calibration is not None or not cal.started
+        running = ctl.job is not None or not cal.started
         u = ctl.update(x, v, fp)
         if running:
             assert abs(u) <= limit
@@ -395,7 +395,7 @@ def test_lost_samples_do_not_bias_the_fit():
     sim = ChannelSimulator(plant, dahl, dt=DT, seed=2)
     ctl = ChannelController(cfg, DT)
     cal = FrictionCalibration(CalibrationGoal("pinch", 0.4, 1.0, True), cfg, DT)
-    ctl.request_calibration(cal)
+    ctl.request_job(cal)
     m, u, steps = sim.measurement(), 0.0, 1
     while cal.active:
         if rng.random() < 0.3:
@@ -414,7 +414,7 @@ def test_reference_waits_while_the_plant_applies_something_else():
     advance on that sample, so a coasting finger is not left behind."""
     ctl = ChannelController(CONFIG, DT)
     cal = FrictionCalibration(CalibrationGoal("pinch", 0.3, 1.0, True), CONFIG, DT)
-    ctl.request_calibration(cal)
+    ctl.request_job(cal)
     for _ in range(10):
         ctl.update(0.0, 0.0, 0.0)
     before = cal.progress
@@ -435,7 +435,7 @@ def test_the_cycle_aborts_a_calibration_with_the_torque(bad, words):
     ctrls = [ChannelController(CONFIG, DT) for _ in range(2)]
     cc = ControlCycle(("wrist", "pinch"), ctrls)
     cal = FrictionCalibration(CalibrationGoal("pinch", 0.3, 1.0, True), CONFIG, DT)
-    ctrls[1].request_calibration(cal)
+    ctrls[1].request_job(cal)
     now, wall = 50.0, 1_800_000_000_000_000_000
     state = dict(x=(0.0, 0.0), v=(0.0, 0.0), fp=(0.0, 0.0), fa=(0.0, 0.0), advance=DT)
     for k in range(1, 30):
@@ -447,25 +447,25 @@ def test_the_cycle_aborts_a_calibration_with_the_torque(bad, words):
         if k == 20:
             assert cal.started and cal.active
     assert cal.outcome == "aborted" and words in cal.message, cal.message
-    assert out.effort[1] == 0.0 and not cal.applied and ctrls[1].calibration is None
+    assert out.effort[1] == 0.0 and not cal.applied and ctrls[1].job is None
 
 
 def test_a_grasp_and_a_calibration_never_share_a_channel():
     ctl = ChannelController(CONFIG, DT)
     cal = FrictionCalibration(CalibrationGoal("pinch", 0.3, 1.0, True), CONFIG, DT)
-    ctl.request_calibration(cal)
+    ctl.request_job(cal)
     ctl.update(0.0, 0.0, 0.0)
     grasp = Grasp(GraspGoal("pinch", 0.3, 0.3, 0.6, False), CONFIG, DT)
-    ctl.request_grasp(grasp)
+    ctl.request_job(grasp)
     ctl.update(0.0, 0.0, 0.0)
     assert grasp.outcome == "aborted" and "friction calibration" in grasp.message
-    assert ctl.calibration is cal and ctl.grasp is None
+    assert ctl.job is cal
     cal.request_cancel()
     ctl.update(0.0, 0.0, 0.0)
     grasp = Grasp(GraspGoal("pinch", 0.3, 0.3, 0.6, False), CONFIG, DT)
-    ctl.request_grasp(grasp)
+    ctl.request_job(grasp)
     ctl.update(0.0, 0.0, 0.0)
     other = FrictionCalibration(CalibrationGoal("pinch", 0.3, 1.0, True), CONFIG, DT)
-    ctl.request_calibration(other)
+    ctl.request_job(other)
     ctl.update(0.0, 0.0, 0.0)
-    assert ctl.grasp is grasp and other.outcome == "aborted" and "busy" in other.message
+    assert ctl.job is grasp and other.outcome == "aborted" and "busy" in other.message

@@ -51,7 +51,7 @@ class Grasping:
         goal = GraspGoal('pinch', v, grip, max_force, probe)
         check_goal(goal, self.config.grasp, self.config.estimator, self.config.max_torque)
         self.grasp = Grasp(goal, self.config, DT)
-        self.ctl.request_grasp(self.grasp)
+        self.ctl.request_job(self.grasp)
         return self.grasp
 
     def step(self, n=1):
@@ -143,7 +143,7 @@ def test_cancel_releases_to_the_mode_before_without_the_grip(before):
     grip_torque = g.log[-1][3]
     grasp.request_release('released')
     g.until(lambda: not grasp.active).step(1)
-    assert grasp.outcome == 'canceled' and g.ctl.grasp is None and g.ctl.mode == before
+    assert grasp.outcome == 'canceled' and g.ctl.job is None and g.ctl.mode == before
     after = g.log[-1][3]
     if before == 'passive':
         assert after == 0.0
@@ -177,7 +177,7 @@ def test_reset_ends_a_grasp():
     g.ctl.reset(0.0)
     g.step()
     assert grasp.outcome == 'aborted' and 're-initialised' in grasp.message
-    assert g.log[-1][3] == 0.0 and g.ctl.grasp is None
+    assert g.log[-1][3] == 0.0 and g.ctl.job is None
 
 
 def test_a_second_grasp_on_a_held_channel_never_runs():
@@ -187,7 +187,7 @@ def test_a_second_grasp_on_a_held_channel_never_runs():
     second = g.start(0.3, 0.5, 1.0)
     g.step(1)
     assert second.outcome == 'aborted' and 'another grasp' in second.message
-    assert g.ctl.grasp is first
+    assert g.ctl.job is first
 
 
 @pytest.mark.parametrize('seed', range(6))
@@ -220,7 +220,7 @@ def test_an_object_taken_away_in_hold_is_let_go_at_once(seed):
     assert grasp.outcome == 'aborted', where
     assert 'gave way' in grasp.message or 'contact lost' in grasp.message, grasp.message
     g.step(2)
-    assert g.ctl.grasp is None and g.ctl.mode == 'passive' and g.log[-1][3] == 0.0
+    assert g.ctl.job is None and g.ctl.mode == 'passive' and g.log[-1][3] == 0.0
 
 
 @pytest.mark.parametrize('seed', range(8))
@@ -363,7 +363,7 @@ class Cycle:
     def grasp(self):
         goal = GraspGoal('pinch', 0.3, 0.5, 1.0, True)
         g = Grasp(goal, self.configs[1], DT)
-        self.ctrls[1].request_grasp(g)
+        self.ctrls[1].request_job(g)
         return g
 
 
@@ -380,7 +380,7 @@ def test_a_latched_fault_aborts_the_grasp_and_zeroes_the_torque():
     c.cc.request_reset()
     c.state()
     effort = c.state()
-    assert effort[1] == 0.0 and c.ctrls[1].grasp is None    # back in passive
+    assert effort[1] == 0.0 and c.ctrls[1].job is None    # back in passive
 
 
 def test_a_grasp_requested_on_a_latched_channel_is_aborted():
@@ -432,7 +432,7 @@ def test_a_plant_that_stops_the_channel_for_longer_than_state_timeout_aborts_it(
     assert c.cc.plant_stopped(1) == words
     assert g.outcome == 'aborted'
     assert g.message == f'the plant stopped the channel ({words}) for longer than state_timeout'
-    assert c.ctrls[1].grasp is None
+    assert c.ctrls[1].job is None
 
 
 OPS = st.one_of(
@@ -473,7 +473,7 @@ def test_no_torque_nobody_commanded(ops):
             continue
         _, x, fp, age, n = op
         for _ in range(n):
-            idle = c.ctrls[1].grasp is None and c.ctrls[1].mode == 'passive'
+            idle = c.ctrls[1].job is None and c.ctrls[1].mode == 'passive'
             effort = c.state(x=x, fp=fp, fa=0.0, age=0.0 if math.isnan(age) else age,
                              advance=DT if math.isnan(age) or age < 0.2 else 0.3)
             if math.isnan(age):
@@ -484,7 +484,7 @@ def test_no_torque_nobody_commanded(ops):
                 assert abs(g.force_command) <= g.goal.max_force + 1e-12               # 1
             if c.cc.latched(1):
                 assert e == 0.0                                                      # 3
-            if idle and c.ctrls[1].grasp is None and c.ctrls[1].mode == 'passive':
+            if idle and c.ctrls[1].job is None and c.ctrls[1].mode == 'passive':
                 assert e == 0.0                                                      # 2
 
 
@@ -511,7 +511,7 @@ def draw_objects(seed, n):
 
 @pytest.mark.parametrize('k, b, position, v, grip', OBJECTS + draw_objects(12, 4))
 def test_grasp_goals_with_the_model_15_percent_off(k, b, position, v, grip):
-    """The issue's goals, on the simulated gripper whose plant is 15 % off the controller's
+    """The grasp's goals, on the simulated gripper whose plant is 15 % off the controller's
     model (every parameter, random signs):
 
     * stiffness within 10 % up to 5 N m/rad, 25 % up to 15 (30 % at the top of the range: the
@@ -523,8 +523,8 @@ def test_grasp_goals_with_the_model_15_percent_off(k, b, position, v, grip):
       sigma says so);
     * contact detected within 10 ms at 0.15-0.3 rad/s (slower, the force b_o v that stands out
       of the noise first is smaller, and the finger slows as it meets the object: within 30 ms
-      down to 0.05 rad/s; README: the bound), peak contact force before the squeeze below 0.05 N m
-      (objects up to 5 N m/rad);
+      down to 0.05 rad/s; docs/grasping.md: the bound), peak contact force before the squeeze
+      below 0.05 N m (objects up to 5 N m/rad);
     * grip within 5 % in a settled hold (softer than 0.3 N m/rad: the finger's own k_e, 15 %
       off, is a fifth of the object's stiffness: within 8 %); max_force never exceeded.
     """

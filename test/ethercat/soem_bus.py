@@ -32,7 +32,7 @@ CYCLE_PERIOD = 0.0005
 
 
 def cia402_state(statusword):
-    """CiA 402 state name from a statusword (ETHERCAT.md section 11 patterns)."""
+    """CiA 402 state name from a statusword (CiA 402's state patterns)."""
     sw = statusword
     if sw & 0x4F == 0x00:
         return "not_ready_to_switch_on"

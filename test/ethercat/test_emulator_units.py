@@ -59,7 +59,7 @@ def configure_addresses(bus):
 
 
 def program_default_map(bus):
-    """What SOEM's config_map programs for the default bus (ETHERCAT.md section 7)."""
+    """What SOEM's config_map programs for the default bus (its SM and FMMU writes)."""
     log = 0
     for i in (0, 1):                                     # drive outputs
         send(bus, [(F.FPWR, 0x1001 + i, 0x0810, struct.pack("<HHBBBB", 0x1100, 5, 0x64, 0, 1, 0)),

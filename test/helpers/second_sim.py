@@ -23,7 +23,8 @@ here): pressure force through a 16-bit ADC over +-10 N m with 5e-4 N m Gaussian 
 encoder 2^20 counts/rev, endpoint encoder 40,000 counts/rev, motor velocity the backward
 difference of the quantised position.
 
-:func:`draw_family` draws the issue's randomised family; :func:`transfer_functions` gives the
+:func:`draw_family` draws the randomised family of plants (each parameter log-uniform around
+Table I, see there) the identification is measured on; :func:`transfer_functions` gives the
 paper's four plants (Fig. 4 A-D) analytically from the eight parameters.
 """
 from __future__ import annotations

@@ -34,7 +34,7 @@ ST_ERROR = 0x0040
 ST_TXPDO_STATE = 0x4000
 ST_TXPDO_TOGGLE = 0x8000
 
-#: vendor 2 = Beckhoff; the EL3102 product code is inferred, not checked (ETHERCAT.md 7).
+#: vendor 2 = Beckhoff; the EL3102 product code is inferred from the EL3121's, not checked.
 DEFAULT_IDENTITY = Identity(vendor_id=0x00000002, product_code=0x0C1E3052,
                             revision=0x00100000, serial=1)
 

@@ -3,7 +3,7 @@ once per process-data frame, runs the watchdogs and applies fault injection.
 
 Frame handling (:meth:`Bus.handle`) works in place on the received Ethernet frame; the
 reply is the same frame with data, ADP (auto-increment / broadcast) and WKC updated and
-the source MAC set to 03:01:01:01:01:01.  WKC rules (ETHERCAT.md section 2): each
+the source MAC set to 03:01:01:01:01:01.  WKC rules (ETG.1000.4): each
 addressed slave adds 1 for a read, 1 for a write, 3 for a read-write (LRW: +1 if a read
 FMMU matched, +2 if a write FMMU matched), once per slave per datagram.
 

@@ -1,4 +1,4 @@
-"""CiA 402 drive without mailbox, PDOs from the SII (ETHERCAT.md sections 7 and 11).
+"""CiA 402 drive without mailbox, PDOs from the SII (as SOEM's config_map reads them).
 
 Process image (fixed mapping, from the SII):
 

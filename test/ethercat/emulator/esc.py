@@ -119,7 +119,7 @@ class EscSlave:
         m[0x0005] = 8                  # SyncManagers supported
         m[0x0006] = 8                  # process RAM [KiB]
         m[REG_PORT_DESC] = 0x0F        # ports 0 and 1: MII
-        _U16.pack_into(m, REG_FEATURES, 0x0000)     # no DC (ETHERCAT.md section 10)
+        _U16.pack_into(m, REG_FEATURES, 0x0000)     # no DC: SOEM's config_dc then stops
         _U16.pack_into(m, REG_PDI_CONTROL, 0x0005)
         _U16.pack_into(m, REG_WD_DIVIDER, 2498)     # 100 us ticks
         _U16.pack_into(m, REG_WD_TIME_PDI, 1000)
@@ -290,7 +290,7 @@ class EscSlave:
     def al_control(self, value):
         """Handle a write of ``value`` to AL control 0x0120.
 
-        Policy (ETHERCAT.md section 6): the ack bit clears the error flag and code; with
+        Policy (as SOEM's requests need it): the ack bit clears the error flag and code; with
         the error flag set and no ack, requests for a higher state are ignored; INIT ->
         PRE-OP -> SAFE-OP -> OP, any step down and the current state are accepted; any
         other request keeps the state and sets the error flag with code 0x0011 (0x0012

@@ -1,4 +1,4 @@
-"""EtherCAT frame and datagram layout (ETG.1000.4; ETHERCAT.md section 2).
+"""EtherCAT frame and datagram layout (ETG.1000.4).
 
 All fields little-endian.  An EtherCAT frame is an Ethernet frame with EtherType 0x88A4
 whose payload starts with a 2-byte frame header (bits 0-10 length, bits 12-15 type = 1),

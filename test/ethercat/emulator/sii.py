@@ -1,4 +1,4 @@
-"""SII EEPROM image builder (ETG.2010; ETHERCAT.md section 5).
+"""SII EEPROM image builder (ETG.2010).
 
 The image is a ``bytearray`` of 16-bit words: a 64-word header (configuration area,
 identity at words 0x08-0x0F, mailbox words 0x18-0x1C) and categories from word 0x40,
