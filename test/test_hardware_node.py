@@ -423,6 +423,54 @@ def test_lifecycle_transitions_gate_the_torque_over_the_bus(ecat_emulator, proce
     assert 'Traceback' not in out and 'FATAL' not in out, out
 
 
+def test_activating_again_after_a_short_activation_re_enters_from_zero_torque(
+        ecat_emulator, processes, tmp_path, probe):
+    """A deactivate/activate shorter than state_timeout, the pinch channel in hold against a
+    1.5 N m torque sine (its torque follows the load): after each activate the drive's torque
+    starts from zero and rises as after a first start -- no step to the torque of the last
+    run (the plant's state numbers go on across activations, so the controller neither
+    answers the new run's states from its cache nor drops them as out of order: before, the
+    first torque was the last run's, then a run hit the 5 N m limit), and the state numbers
+    after it continue those before it."""
+    config = emulator_config()
+    config['channels']['pinch']['environment'] = {'mode': 'torque_sine', 'amplitude': 1.5,
+                                                  'frequency': 3.0}
+    harness = ecat_emulator(config)
+    client = harness.client
+    bringup = start_bringup(processes, tmp_path, harness,
+                            {'autostart': 'inactive', 'pinch.mode': 'hold',
+                             'state_timeout': 0.05})
+    lifecycle = Lifecycle(probe)
+    probe.record(ActuatorState, 'actuator_state', OBSERVE_QOS)
+    for round_ in range(4):
+        client.start_trace(decimation=1, max_samples=40000)
+        ok, state = lifecycle.set(Transition.TRANSITION_ACTIVATE)
+        assert state == 'active', (round_, ok, bringup.output()[-3000:])
+        probe.wait_for(lambda: abs(client.slave('pinch_drive')['target_torque']) > 0,
+                       timeout=30, what='torque before the short deactivation')
+        time.sleep(0.03)
+        before = [m.cycle for m in probe.messages('actuator_state')]
+        assert lifecycle.set(Transition.TRANSITION_DEACTIVATE)[1] == 'inactive'
+        assert lifecycle.set(Transition.TRANSITION_ACTIVATE)[1] == 'active'
+        time.sleep(0.5)
+        assert lifecycle.set(Transition.TRANSITION_DEACTIVATE)[1] == 'inactive'
+        torque = np.asarray(client.trace(stop=True)['pinch']['torque'])
+        on = np.flatnonzero(torque)
+        runs = np.split(on, np.flatnonzero(np.diff(on) > 10) + 1)
+        assert len(runs) == 2, (round_, [(int(r[0]), int(r[-1])) for r in runs if r.size])
+        for k, run in enumerate(runs):
+            # the first 50 ms of each activation (its end, a deactivate, drops it to zero)
+            start = torque[run[0]:min(run[0] + 100, run[-1] + 1)]
+            steps = np.abs(np.diff(np.concatenate([[0.0], start])))
+            assert steps.max() < 0.3, (round_, k, np.round(start[:8], 3).tolist())
+        assert np.abs(torque).max() < 4.99, (round_, float(np.abs(torque).max()))
+        after = [m.cycle for m in probe.messages('actuator_state')][len(before):]
+        assert before and after and min(after) > max(before), (round_, before[-3:], after[:3])
+        probe.clear('actuator_state')
+    out = bringup.output()
+    assert 'Traceback' not in out and 'went back' not in out, out[-3000:]
+
+
 def test_wrong_identity_fails_configure_with_the_reason(ecat_emulator, processes, tmp_path,
                                                          probe):
     """configure through ~/change_state on a bus whose pinch drive has another product code:

@@ -175,6 +175,13 @@ class PlantCycle:
         rounded to units and saturated to int16.
     quiet_period : float >= 0
         Minimum time between two log reports of the same repeated condition [s].
+    start_cycle : int >= 0
+        The number of the state before the first step (a lockstep plant publishes it as its
+        initial state; every step's state is numbered one more). A plant that starts again
+        (a lifecycle node activated anew) goes on from its previous numbers: no state of
+        this run then has the number of an earlier one, so a command answering an earlier
+        run's state -- late, or a controller's cached answer to the same number -- is never
+        taken for an answer to this run's, and the controller sees the numbers go on.
 
     Notes
     -----
@@ -186,7 +193,7 @@ class PlantCycle:
 
     def __init__(self, channels: Sequence[str], dt: float, limits: PlantLimits | None = None,
                  units_per_nm: Sequence[float] | None = None,
-                 quiet_period: float = 10.0) -> None:
+                 quiet_period: float = 10.0, start_cycle: int = 0) -> None:
         self.channels: tuple[str, ...] = tuple(channels)
         n = len(self.channels)
         if n == 0:
@@ -198,6 +205,8 @@ class PlantCycle:
         limits = PlantLimits() if limits is None else limits
         if not isinstance(limits, PlantLimits):
             raise TypeError("limits must be a PlantLimits")
+        if not (isinstance(start_cycle, int) and start_cycle >= 0):
+            raise InvalidParameterError("start_cycle", start_cycle, "an integer >= 0")
         if units_per_nm is not None:
             units_per_nm = tuple(float(u) for u in units_per_nm)
             if len(units_per_nm) != n or not all(math.isfinite(u) and u > 0
@@ -209,7 +218,8 @@ class PlantCycle:
         self._index = {c: i for i, c in enumerate(self.channels)}
         self.events = EventLog()
         self.out = PlantOutput(n)
-        self.cycle = 0                       # newest published state
+        self.cycle = start_cycle             # newest published state
+        self._start_cycle = start_cycle      # answers to earlier numbers are not to this run
         self._inbox: deque = deque(maxlen=64)   # (names, efforts, answers)
         self._limits_box: Mailbox[PlantLimits] = Mailbox()
         self._reset_box: Mailbox[bool] = Mailbox()
@@ -533,7 +543,7 @@ class PlantCycle:
                 continue
             age = (ticks - published_at[answers % _TICK_RING] if current - answers < _TICK_RING
                    else current - answers)
-            if answers < 0 or age > max_age:
+            if answers < self._start_cycle or age > max_age:
                 self._reject("stale", now, f"actuator_command ignored: it answers cycle "
                                             f"{answers}, {age} cycles old (> command_timeout); "
                                             "a command must carry the cycle of the state it "

@@ -298,8 +298,14 @@ class PlantNode(LifecycleNode):
         return f'{opened}; {self.backend.configure()}'
 
     def _activate(self) -> str:
+        # the state numbers go on from the previous activation: a controller must not take
+        # this run's states for the last run's (it would answer them from its cache, or drop
+        # them as out of order) nor a late command of the last run for an answer to this one;
+        # the first states carry STATUS_COMMAND_TIMEOUT (no command yet), from which the
+        # controller re-enters bumplessly at the torque applied, zero
+        start = 0 if self.plant is None else self.plant.cycle + 1
         self.plant = PlantCycle(self.channels, self.dt, self._limits(),
-                                units_per_nm=self.backend.units_per_nm)
+                                units_per_nm=self.backend.units_per_nm, start_cycle=start)
         self._new_statistics()
         self._velocity = [0.0] * len(self.channels)
         self._watch_graph()
@@ -364,7 +370,9 @@ class PlantNode(LifecycleNode):
         if not self._active or plant is None:
             response.success = False
             response.message = (f'{self.lifecycle_state()}: nothing to reset (activate starts '
-                                'without latched faults)')
+                                "without the plant's latched faults; a drive that still "
+                                'reports a fault latches it again: ~/reset once active clears '
+                                'it)')
         else:
             response.message = 'reset requested; ' + plant.request_reset()
             response.success = True

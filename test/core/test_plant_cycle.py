@@ -150,6 +150,36 @@ def test_command_from_before_a_plant_restart_is_ignored():
     assert not status[0] & STATUS_FAULT
 
 
+def test_a_plant_activated_again_goes_on_numbering_and_takes_no_earlier_answer():
+    """A new run (a lifecycle activate) numbers on from start_cycle, the number after the
+    last run's: its first state is timed out (zero torque: the controller re-enters from
+    it), an answer to any earlier run's state -- a late command, or the cache of a controller
+    that saw that number -- is stale, and no answer is taken until one to this run's states
+    arrives (its initial state, start_cycle, included: a lockstep plant publishes it)."""
+    first, clock_first = make()
+    for _ in range(40):
+        clock_first.cycle()
+        clock_first.send(CH, [2.0, 2.0])
+    last = first.cycle
+    plant, clock = make(start_cycle=last + 1)
+    torque, status, *_ = clock.cycle()
+    assert plant.cycle == last + 2
+    assert torque == [0.0, 0.0] and status == [STATUS_COMMAND_TIMEOUT] * 2
+    for answers in (last, last - 5, 0):
+        clock.send(CH, [2.0, 2.0], answers=answers)
+        torque, status, *_ = clock.cycle()
+        assert torque == [0.0, 0.0] and status == [STATUS_COMMAND_TIMEOUT] * 2, answers
+    assert plant.rejected['stale'] == 3
+    clock.send(CH, [0.5, 0.5], answers=last + 1)
+    torque, status, *_ = clock.cycle()
+    assert torque == [0.5, 0.5] and status == [0, 0]
+    clock.send(CH, [0.25, 0.25])
+    torque, status, *_ = clock.cycle()
+    assert torque == [0.25, 0.25] and status == [0, 0]
+    with pytest.raises(InvalidParameterError, match="start_cycle"):
+        PlantCycle(CH, DT, start_cycle=-1)
+
+
 def test_malformed_commands_are_rejected_whole():
     plant, clock = make()
     clock.cycle()
