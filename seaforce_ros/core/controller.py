@@ -380,6 +380,7 @@ class ChannelController:
         """
         if not (_isfinite(x) and _isfinite(v) and _isfinite(f_p)):
             raise _non_finite(x, v, f_p)
+        # the hand-overs, then observe and estimate
         keep_ledger = False
         if self._pending or self._jobs:
             keep_ledger = self._take_handovers()
