@@ -14,15 +14,36 @@ Prints, in one run:
 * the passivity guard per cycle, on a recorded run in which it acts (m_n = 0.1 m,
   lambda = 2 pi 50, stiff object), next to the controller update measured in the same run.
 
+With ``--baseline REV`` it prints instead, in one run, the per-sample rows of a git revision
+(exported with ``git archive`` into a temporary directory, its ``core`` imported beside the
+working tree's) and of the working tree, timed interleaved in chunks of samples on the same
+inputs, with their ratio: the controller update in ``dob_full_ff`` (the estimator's share
+split out), the contact estimator alone and the update with a grasp; the simulator step, whose
+code neither side changed, shows what the host's noise alone does to a ratio. Per row: the mean
+and p99 of the per-call times over every repetition, and the floor: per chunk of samples the
+repetition that ran fastest (the least disturbed by other processes), averaged. Then the
+memory the update keeps, traced over N and 2N samples (no allocation per sample: it does not
+grow).
+
 Timing figures are printed, never asserted.
 
-Run:  PYTHONPATH=. python bench/core_sim_speed.py
+Run:  PYTHONPATH=. python bench/core_sim_speed.py [--baseline main]
 """
 
+import argparse
+import importlib
+import importlib.util
+import io
 import math
 import platform
+import shutil
+import subprocess
 import sys
+import tarfile
+import tempfile
 import time
+import tracemalloc
+from pathlib import Path
 
 import numpy as np
 
@@ -112,8 +133,16 @@ def fmt(times):
     return f"mean {np.mean(times):6.2f} us   p99 {np.percentile(times, 99):6.2f} us"
 
 
-def main():
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--baseline", metavar="REV",
+                        help="compare the per-sample rows with this git revision (e.g. main)")
+    parser.add_argument("--repeats", type=int, default=5,
+                        help="repetitions of each compared row (default 5)")
+    args = parser.parse_args(argv)
     print(f"Python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}")
+    if args.baseline:
+        return compare_rows(args.baseline, args.repeats)
     env = position_sine(0.5, 1.0)
     n = 40000
 
@@ -282,6 +311,155 @@ def guard_rows():
         print(f"  {name} {fmt(t)}   median {np.median(t):5.2f} us")
     print(f"  guard / controller update without it (medians): "
           f"{np.median(t_guard) / np.median(t_plain):.2f}")
+
+
+# --- before / after, in one run ----------------------------------------------------------------
+def load_core(rev, directory):
+    """The ``seaforce_ros.core`` of git revision ``rev``, exported into ``directory`` and
+    imported as the package ``_baseline_core`` (it imports itself relatively only)."""
+    root = Path(__file__).resolve().parents[1]
+    try:
+        archive = subprocess.run(["git", "-C", str(root), "archive", rev, "seaforce_ros/core"],
+                                 capture_output=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError) as err:
+        detail = getattr(err, "stderr", b"") or b""
+        raise SystemExit(f"--baseline {rev}: git archive failed: "
+                         f"{detail.decode(errors='replace').strip() or err}")
+    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+        tar.extractall(directory, filter="data")
+    core = Path(directory) / "seaforce_ros" / "core"
+    for path in core.glob("*.py"):
+        if "from seaforce_ros" in path.read_text() or "import seaforce_ros" in path.read_text():
+            raise SystemExit(f"--baseline {rev}: {path.name} imports seaforce_ros by name; "
+                             "its core cannot be loaded beside the working tree's")
+    spec = importlib.util.spec_from_file_location("_baseline_core", core / "__init__.py",
+                                                  submodule_search_locations=[str(core)])
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["_baseline_core"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def interleaved(makers, samples, repeats, chunk=500):
+    """Per-call times [us] of each ``makers[label]()`` (a fresh callable per repetition) over
+    ``samples`` (argument tuples), the labels taking turns chunk by chunk (in a rotating
+    order) so that both see the same load. Returns ``{label: (times, floor)}``: ``times`` of
+    shape (repeats, n); ``floor`` the mean per call of the fastest repetition of each chunk."""
+    n = len(samples)
+    labels = list(makers)
+    times = {label: np.empty((repeats, n)) for label in labels}
+    clock = time.perf_counter_ns
+    for r in range(repeats):
+        calls = {label: make() for label, make in makers.items()}
+        for c, start in enumerate(range(0, n, chunk)):
+            k = (c + r) % len(labels)
+            for label in labels[k:] + labels[:k]:
+                fn, row = calls[label], times[label][r]
+                for i in range(start, min(n, start + chunk)):
+                    a = samples[i]
+                    t0 = clock()
+                    fn(*a)
+                    row[i] = clock() - t0
+    result = {}
+    for label, t in times.items():
+        t = t * 1e-3
+        chunks = [t[:, s:s + chunk].sum(axis=1).min() for s in range(0, n, chunk)]
+        result[label] = (t, sum(chunks) / n)
+    return result
+
+
+def kept_memory(update, samples):
+    """Traced memory [B] after N updates and after 2N (``samples`` holds 2N + a warm-up)."""
+    n = (len(samples) - 1000) // 2
+    for a in samples[:1000]:
+        update(*a)
+    tracemalloc.start()
+    try:
+        for a in samples[1000:1000 + n]:
+            update(*a)
+        first = tracemalloc.get_traced_memory()[0]
+        for a in samples[1000 + n:1000 + 2 * n]:
+            update(*a)
+        second = tracemalloc.get_traced_memory()[0]
+    finally:
+        tracemalloc.stop()
+    return n, first, second
+
+
+def compare_rows(rev, repeats):
+    """The per-sample rows of ``rev`` and of the working tree, interleaved (module docstring)."""
+    directory = tempfile.mkdtemp(prefix="seaforce-baseline-")
+    try:
+        old = load_core(rev, directory)
+        sides = (("before", old), ("after", sys.modules["seaforce_ros.core"]))
+        n = 20000
+        env = position_sine(0.5, 1.0)
+        sim = ChannelSimulator(PLANT, DAHL, environment=env)
+        rec = run_closed_loop(sim, ChannelController(ControllerConfig(mode="dob_full_ff")), n)
+        free = list(zip(rec["x"].tolist(), rec["v"].tolist(), rec["f_p"].tolist()))
+        torques = [(u,) for u in rec["u"].tolist()]
+        cfg, rows = record_grasp()
+        grasp_in = [r[:3] for r in rows]
+        estimator_in = [(r[3], r[2], r[5]) for r in rows]
+
+        def update(core, stub_estimator=False):
+            def make():
+                ctl = core.ChannelController(core.ControllerConfig(mode="dob_full_ff"))
+                if stub_estimator:
+                    ctl.estimator.update = lambda *a: None
+                return ctl.update
+            return make
+
+        def estimator(core):
+            def make():
+                c = core.ControllerConfig(mode="passive")
+                module = importlib.import_module(core.__name__ + ".estimator")
+                return module.ContactEstimator(c.estimator, c.plant).update
+            return make
+
+        def grasping(core):
+            def make():
+                c = core.ControllerConfig(mode="passive")
+                ctl = core.ChannelController(c)
+                module = importlib.import_module(core.__name__ + ".grasp")
+                request = getattr(ctl, "request_job", None) or ctl.request_grasp   # older
+                request(module.Grasp(module.GraspGoal("pinch", 0.3, 0.4, 0.8, True), c))
+                return ctl.update
+            return make
+
+        def simulator(core):
+            def make():
+                return core.ChannelSimulator(core.PlantParams.table_i(), core.DahlParams(),
+                                             environment=core.position_sine(0.5, 1.0)).step
+            return make
+
+        table = (("ChannelController.update, dob_full_ff", update, free),
+                 ("  the same, estimator stubbed out", lambda c: update(c, True), free),
+                 ("ContactEstimator.update (recorded grasp)", estimator, estimator_in),
+                 ("ChannelController.update with a grasp", grasping, grasp_in),
+                 ("ChannelSimulator.step (same code: noise)", simulator, torques))
+        print(f"\nbefore = {rev}, after = the working tree; per call [us], {repeats} "
+              f"repetitions interleaved in chunks of 500 samples")
+        print(f"{'':42s} {'mean':>13s} {'ratio':>6s}  {'floor':>13s} {'ratio':>6s}  "
+              f"{'p99':>13s}")
+        print(f"{'':42s} {'before after':>13s} {'':6s}  {'before after':>13s} {'':6s}  "
+              f"{'before after':>13s}")
+        for name, maker, samples in table:
+            res = interleaved({label: maker(core) for label, core in sides}, samples, repeats)
+            (tb, fb), (ta, fa) = res["before"], res["after"]
+            print(f"{name:42s} {tb.mean():6.2f} {ta.mean():6.2f} {ta.mean() / tb.mean():6.2f}  "
+                  f"{fb:6.2f} {fa:6.2f} {fa / fb:6.2f}  "
+                  f"{np.percentile(tb, 99):6.2f} {np.percentile(ta, 99):6.2f}")
+        more = list(zip(rec["x"].tolist(), rec["v"].tolist(), rec["f_p"].tolist()))
+        print("\nmemory kept by ChannelController.update, dob_full_ff (traced after N and 2N "
+              "updates):")
+        for label, core in sides:
+            ctl = core.ChannelController(core.ControllerConfig(mode="dob_full_ff"))
+            k, first, second = kept_memory(ctl.update, more)
+            print(f"  {label:6s}  N = {k}: {first} B, 2N: {second} B ({second - first:+d} B)")
+    finally:
+        shutil.rmtree(directory, ignore_errors=True)
+    return 0
 
 
 if __name__ == "__main__":

@@ -108,7 +108,8 @@ def run(args):
 
         try:
             harness.start()
-            hw = (f'    interface: {harness.master_interface}\n    bus_config: {BUS}\n')
+            hw = (f'    interface: {harness.master_interface}\n    bus_config: {BUS}\n'
+                  '    autostart: active\n')
             for layout in ('topics', 'direct'):
                 if args.only in ('sim', 'direct' if layout == 'topics' else 'topics'):
                     continue

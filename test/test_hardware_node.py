@@ -10,6 +10,8 @@ import pytest
 import yaml
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState, GetState
 from seaforce_msgs.msg import ActuatorCommand, ActuatorState
 from std_srvs.srv import Trigger
 
@@ -56,9 +58,10 @@ def start_hardware(processes, tmp_path, harness, overrides=None, bus=BUS, wait=T
     # a loaded test host (and the emulator serving its side channel) can delay frames: the
     # tests tolerate 100 ms of working-counter errors (the cable-pull test uses the default
     # 10 cycles) and program a 0.5 s drive watchdog instead of 0.1 s
+    # autostart active: these tests are about the running loop (the lifecycle has its own)
     values = {'interface': harness.master_interface, 'bus_config': str(bus),
               'torque_limit': 5.0, 'wkc_error_limit': 200, 'drive_watchdog': 0.5,
-              **(overrides or {})}
+              'autostart': 'active', **(overrides or {})}
     # real-time priority, as on a real rig (docs/ethercat-hardware.md): a starved cycle thread
     # lets the drives' watchdogs expire on this shared 2-core host
     return start_node(processes, 'hardware_node', 'hardware', tmp_path,
@@ -74,7 +77,7 @@ def start_bringup(processes, tmp_path, harness, overrides=None):
     """hardware_bringup loop:=direct at SCHED_FIFO 40 (hardware + controller, one process)."""
     values = {'interface': harness.master_interface, 'bus_config': str(BUS), 'rate': RATE,
               'torque_limit': 5.0, 'wkc_error_limit': 200, 'drive_watchdog': 0.5,
-              'loop': 'direct', **RELAXED, **(overrides or {})}
+              'loop': 'direct', 'autostart': 'active', **RELAXED, **(overrides or {})}
     path = tmp_path / 'bringup.yaml'
     path.write_text(yaml.safe_dump({'/**': {'ros__parameters': values}}))
     proc = processes.start(['chrt', '-f', '40', str(executable('hardware_bringup')),
@@ -312,3 +315,163 @@ def test_direct_layout_over_ethercat(ecat_emulator, processes, tmp_path, probe):
     assert all(abs(applied - commanded) <= 0.5 / 1000 for applied, commanded in driven)
     assert 'no fault was latched' in probe.call(Trigger, '/controller/reset',
                                                 timeout=TIMEOUT).message
+
+
+# --- the managed node: lifecycle_msgs services over the emulated bus -----------------------
+DRIVES = ('wrist_drive', 'pinch_drive')
+SLAVES = DRIVES + ('pressure_terminal',)
+OP = 8
+
+
+class Lifecycle:
+    """The test's client of /hardware's lifecycle services (what `ros2 lifecycle` calls).
+
+    One client per service for the whole test. A change is not idempotent, so it is re-sent
+    only after a long silence (an answer lost to the discovery race); what it did is then
+    judged by the state it left, read with ``get_state``."""
+
+    def __init__(self, probe):
+        self.probe = probe
+        self.change = probe.node.create_client(ChangeState, '/hardware/change_state')
+        self.get = probe.node.create_client(GetState, '/hardware/get_state')
+        for client in (self.change, self.get):
+            assert client.wait_for_service(timeout_sec=30.0), 'no lifecycle services'
+
+    def state(self):
+        return self.probe._request(lambda: self.get.call_async(GetState.Request()), TIMEOUT,
+                                   'get_state').current_state.label
+
+    def set(self, transition):
+        """Request ``transition`` (a Transition id); returns (success, state after)."""
+        request = ChangeState.Request(transition=Transition(id=transition))
+        response = self.probe._request(lambda: self.change.call_async(request), 4 * TIMEOUT,
+                                       'change_state')
+        return response.success, self.state()
+
+
+def _slaves(client, key):
+    return {name: client.slave(name)[key] for name in SLAVES}
+
+
+def assert_no_torque(client):
+    """No drive enabled or commanded: target torque 0 as the drives received it, none
+    applied, no drive in Operation enabled."""
+    for drive in DRIVES:
+        status = client.slave(drive)
+        assert status['target_torque'] == 0, (drive, status)
+        assert not status['torque_applied'], (drive, status)
+        assert status['cia402_state'] != 'operation_enabled', (drive, status)
+
+
+def test_lifecycle_transitions_gate_the_torque_over_the_bus(ecat_emulator, processes, tmp_path,
+                                                            probe):
+    """hardware_bringup (direct layout) started unconfigured, moved by the standard
+    lifecycle_msgs services: configure = bus in SAFE-OP, no torque; activate = OP, a command
+    reaches the drive; deactivate = zero torque, drives disabled, SAFE-OP (and activate again
+    works); cleanup = bus in INIT."""
+    harness = ecat_emulator(driven_config(amplitude=0.2))
+    client = harness.client
+    bringup = start_bringup(processes, tmp_path, harness,
+                            {'autostart': 'unconfigured', 'pinch.mode': 'hold'})
+    lifecycle = Lifecycle(probe)
+    assert lifecycle.state() == 'unconfigured'
+    assert set(_slaves(client, 'al_state').values()) == {1}        # never touched: INIT
+
+    ok, state = lifecycle.set(Transition.TRANSITION_CONFIGURE)
+    assert state == 'inactive', (ok, bringup.output()[-3000:])
+    assert set(_slaves(client, 'al_state').values()) == {4}, _slaves(client, 'al_state')
+    assert 'identities checked' in bringup.output()
+    probe.record(ActuatorState, 'actuator_state', OBSERVE_QOS)
+    time.sleep(1.0)              # inactive for a while: still nothing reaches a drive
+    assert_no_torque(client)
+    assert not any(e['value'] & 0x0F == OP for e in client.al_history())
+    assert probe.messages('actuator_state') == []      # the loop is open: no state published
+
+    for round_ in range(2):      # activate after a deactivate starts the loop afresh
+        ok, state = lifecycle.set(Transition.TRANSITION_ACTIVATE)
+        assert state == 'active', (round_, ok, bringup.output()[-3000:])
+        probe.wait_for(lambda: client.torque_applied('pinch_drive'), timeout=30,
+                       what=f'torque applied by the emulated drive (activation {round_ + 1})')
+        assert client.slave('pinch_drive')['target_torque'] != 0
+        assert set(_slaves(client, 'al_state').values()) == {OP}
+        probe.wait_messages('actuator_state', 10, timeout=30)
+
+        ok, state = lifecycle.set(Transition.TRANSITION_DEACTIVATE)
+        assert state == 'inactive', (round_, ok, bringup.output()[-3000:])
+        assert_no_torque(client)
+        assert {client.cia402_state(d) for d in DRIVES} == {'switch_on_disabled'}
+        assert set(_slaves(client, 'al_state').values()) == {4}
+        probe.clear('actuator_state')
+        time.sleep(1.0)          # and it stays so: no frame, no watchdog fault, no state
+        assert_no_torque(client)
+        assert {client.cia402_state(d) for d in DRIVES} == {'switch_on_disabled'}
+        assert probe.messages('actuator_state') == []
+
+    ok, state = lifecycle.set(Transition.TRANSITION_CLEANUP)
+    assert state == 'unconfigured', (ok, bringup.output()[-3000:])
+    assert set(_slaves(client, 'al_state').values()) == {1}
+    assert {client.last_al_request(s) & 0x0F for s in SLAVES} == {1}
+    assert not any('watchdog' in e['text'].lower() for e in client.events())
+
+    # a transition that does not exist from here is refused, the node lives on
+    ok, state = lifecycle.set(Transition.TRANSITION_ACTIVATE)
+    assert not ok and state == 'unconfigured'
+    assert 'transition 3 refused: not available from unconfigured' in bringup.output()
+    bringup.send_signal(signal.SIGINT)
+    assert bringup.wait(timeout=10) == 0, bringup.output()
+    out = bringup.output()
+    assert 'Traceback' not in out and 'FATAL' not in out, out
+
+
+def test_wrong_identity_fails_configure_with_the_reason(ecat_emulator, processes, tmp_path,
+                                                         probe):
+    """configure through ~/change_state on a bus whose pinch drive has another product code:
+    the transition fails, the node stays unconfigured with the reason in its log, no drive
+    was enabled and the bus is back in INIT."""
+    harness = ecat_emulator(emulator_config())
+    bus = yaml.safe_load(BUS.read_text())
+    bus['slaves'][1]['product_code'] = 0x0403
+    wrong = tmp_path / 'bus_wrong.yaml'
+    wrong.write_text(yaml.safe_dump(bus))
+    hardware = start_hardware(processes, tmp_path, harness, {'autostart': 'unconfigured'},
+                              bus=wrong)
+    lifecycle = Lifecycle(probe)
+    ok, state = lifecycle.set(Transition.TRANSITION_CONFIGURE)
+    assert not ok and state == 'unconfigured', (ok, state)
+    assert hardware.wait_for_output('configure failed: slave 2 (pinch_drive', timeout=10), \
+        hardware.output()
+    out = hardware.output()
+    assert '0x00000402' in out and '0x00000403' in out and 'Traceback' not in out, out
+    assert hardware.popen.poll() is None, out          # still there, unconfigured
+    assert_no_torque(harness.client)
+    assert not any(e['value'] & 0x0F == OP for e in harness.client.al_history())
+    assert set(_slaves(harness.client, 'al_state').values()) == {1}
+
+
+def test_failed_activate_returns_to_inactive_with_zero_torque(ecat_emulator, processes,
+                                                              tmp_path, probe):
+    """hardware_node with the default autostart (inactive: bus checked, drives disabled). A
+    slave that refuses OP (an AL error it was not acknowledged) fails activate: the node
+    reports why, stays inactive with no torque and the bus in SAFE-OP; cleanup + configure
+    acknowledge the error and activate then works."""
+    harness = ecat_emulator(emulator_config())
+    client = harness.client
+    hardware = start_hardware(processes, tmp_path, harness, {'autostart': 'inactive'})
+    lifecycle = Lifecycle(probe)
+    assert lifecycle.state() == 'inactive'
+    assert set(_slaves(client, 'al_state').values()) == {4}
+    assert_no_torque(client)
+    client.al_error('pinch_drive')
+    ok, state = lifecycle.set(Transition.TRANSITION_ACTIVATE)
+    assert not ok and state == 'inactive', (ok, state, hardware.output()[-3000:])
+    assert hardware.wait_for_output('activate failed: slaves did not reach OP', timeout=10)
+    assert_no_torque(client)
+    assert set(_slaves(client, 'al_state').values()) == {4}
+    for transition, goal in ((Transition.TRANSITION_CLEANUP, 'unconfigured'),
+                             (Transition.TRANSITION_CONFIGURE, 'inactive'),
+                             (Transition.TRANSITION_ACTIVATE, 'active')):
+        ok, state = lifecycle.set(transition)
+        assert state == goal, (transition, ok, state, hardware.output()[-3000:])
+    probe.wait_for(lambda: {client.cia402_state(d) for d in DRIVES} == {'operation_enabled'},
+                   timeout=10, what='drives enabled after the second activate')
+    assert 'Traceback' not in hardware.output()

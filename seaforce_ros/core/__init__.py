@@ -29,6 +29,8 @@ plant_cycle          the plant side: what torque each channel may have this cycl
 sensors              sensor models
 environment          endpoint environments of the simulator
 simulator            ChannelSimulator, run_closed_loop
+backend              PlantBackend: the plant behind a plant node, with a lifecycle
+sim_backend          SimBackend: the simulator as a PlantBackend
 """
 
 from .errors import (SeaforceError, InvalidParameterError, NonPassiveError,

@@ -53,11 +53,13 @@ channel's mode (a calibration applies nothing).
 
 import math
 from collections import deque
+from collections.abc import Iterable, Mapping, Sequence
 
 from .controller import ChannelController
 from .episodes import ERROR, Episode, EventLog
 from .errors import InvalidParameterError
 from .handover import Mailbox
+from .params import ControllerConfig
 from .plant_cycle import STATUS_COMMAND_TIMEOUT, STATUS_FAULT
 from .schema import CONTROLLER, ParameterGroup, group, param
 
@@ -119,14 +121,95 @@ class ControlOutput:
     answered : bool
         False when the state was dropped (no channel could be mapped, or start-up backlog):
         send no command.
-    cycle : int
-        The state's cycle (the command answers it).
+    cycle : int or None
+        The state's cycle (the command answers it); -1 before the first answer, None when
+        every channel was zeroed before any state was admitted.
     """
 
-    def __init__(self, n):
-        self.effort = [0.0] * n
-        self.answered = False
-        self.cycle = -1
+    def __init__(self, n: int) -> None:
+        self.effort: list[float] = [0.0] * n
+        self.answered: bool = False
+        self.cycle: int | None = -1
+
+
+class _StreamState:
+    """What the cycle keeps about the stream of states from one sample to the next.
+
+    last_cycle : int or None
+        Cycle of the newest state admitted (None before the first).
+    last_arrival : float
+        Monotonic time it arrived [s].
+    answered_names : list of str or None
+        Names of the state ``out.effort`` answers (None: no answer to repeat).
+    names, index, ours
+        The mapping of the last well-formed names: the names, the index of each channel in
+        them (-1: missing) and whether any channel is there.
+    publishers : tuple of str
+        The publishers of ``actuator_state`` the graph shows.
+    """
+
+    __slots__ = ("last_cycle", "last_arrival", "answered_names", "names", "index", "ours",
+                 "publishers")
+
+    def __init__(self) -> None:
+        self.last_cycle: int | None = None
+        self.last_arrival = 0.0
+        self.answered_names: list[str] | None = None
+        self.names: list[str] = []
+        self.index: tuple[int, ...] = ()
+        self.ours = False
+        self.publishers: tuple[str, ...] = ()
+
+
+class _ChannelState:
+    """Fault bookkeeping of one channel from one sample to the next.
+
+    latched : str
+        The latched fault ('' when none).
+    rearming : str
+        The re-arming condition that held at the last sample ('' when none).
+    needs_reset : bool
+        Re-initialise the controller at the next clean sample.
+    stopped : int
+        Cycles the plant has been applying its own torque instead of the command ...
+    status : int
+        ... and its ``STATUS_*`` bits then.
+    episode : Episode
+        The log episode of the channel's re-arming conditions.
+    """
+
+    __slots__ = ("latched", "rearming", "needs_reset", "stopped", "status", "episode")
+
+    def __init__(self, episode: Episode) -> None:
+        self.latched = ""
+        self.rearming = ""
+        self.needs_reset = True
+        self.stopped = 0
+        self.status = 0
+        self.episode = episode
+
+
+class _Sample:
+    """What the admission and stream stages found in the sample being processed.
+
+    index : tuple of int or None
+        Index of each channel in the state's arrays (-1: missing); None when malformed.
+    kind : str or None
+        The condition of the whole stream (``STALE_STATE``, ``STATE_GAP``, ``FUTURE_STAMP``),
+        or None.
+    reason : str
+        Its description.
+    steps : int
+        Sample periods since the previous admitted state (1 after a gap or a restart).
+    """
+
+    __slots__ = ("index", "kind", "reason", "steps")
+
+    def __init__(self) -> None:
+        self.index: tuple[int, ...] | None = None
+        self.kind: str | None = None
+        self.reason = ""
+        self.steps = 1
 
 
 class ControlCycle:
@@ -140,11 +223,20 @@ class ControlCycle:
     checks : StateChecks, optional
     quiet_period : float >= 0
         Minimum time between two log reports of the same repeated condition [s].
+
+    Notes
+    -----
+    :meth:`step` runs five stages in turn, each a method over explicit state
+    (:class:`_StreamState` for the stream, one :class:`_ChannelState` per channel, the
+    sample's findings in :class:`_Sample`): take the hand-overs, admit the sample (drop it or
+    answer it as before), classify the stream (stale, gap, restart), check each channel's
+    values, run each channel's controller and check its torque.
     """
 
-    def __init__(self, channels, controllers, checks=None, quiet_period=10.0):
-        self.channels = tuple(channels)
-        self.controllers = list(controllers)
+    def __init__(self, channels: Sequence[str], controllers: Sequence[ChannelController],
+                 checks: StateChecks | None = None, quiet_period: float = 10.0) -> None:
+        self.channels: tuple[str, ...] = tuple(channels)
+        self.controllers: list[ChannelController] = list(controllers)
         n = len(self.channels)
         if n == 0 or len(set(self.channels)) != n:
             raise InvalidParameterError("channels", list(channels), "unique names, at least one")
@@ -154,81 +246,88 @@ class ControlCycle:
         dts = {c.dt for c in self.controllers}
         if len(dts) != 1:
             raise InvalidParameterError("dt", sorted(dts), "the same for every channel")
-        self.dt = dts.pop()
+        self.dt: float = dts.pop()
         self.events = EventLog()
         self.out = ControlOutput(n)
-        self._checks_box = Mailbox()
-        self._reset_box = Mailbox()
-        self._configs = deque()            # {channel index: ControllerConfig} hand-overs
-        self._state_publishers = ()
+        self._checks_box: Mailbox[StateChecks] = Mailbox()
+        self._reset_box: Mailbox[bool] = Mailbox()
+        self._configs: deque = deque()     # {channel index: ControllerConfig} hand-overs
         self._apply_checks(StateChecks() if checks is None else checks)
-        self._latched = [""] * n           # latched fault reason per channel
-        self._rearming = [""] * n          # re-arming condition holding this sample
-        self._needs_reset = [True] * n     # full re-initialisation at the next clean sample
-        self._stopped = [0] * n            # cycles the plant has been applying fai, not ours
-        self._status = [0] * n             # ... and its status bits then
+        self._stream = _StreamState()
         self._stream_ep = Episode(self.events, quiet_period)
-        self._channel_ep = [Episode(self.events, quiet_period) for _ in range(n)]
         self._drop_ep = Episode(self.events, quiet_period)
-        self._mapping = ([], ())
-        self._answered_names = None        # names of the state out.effort answers
-        self._last_cycle = None
-        self._last_arrival = None
-        self.counts = {kind: 0 for kind in FAULT_KINDS}
+        self._ch = [_ChannelState(Episode(self.events, quiet_period)) for _ in range(n)]
+        self._sample = _Sample()
+        self.counts: dict[str, int] = {kind: 0 for kind in FAULT_KINDS}
         self.faults_latched = 0
         self.dropped = 0
 
     # --- hand-over from other threads ------------------------------------------------------
-    def configure(self, checks):
+    def configure(self, checks: StateChecks) -> None:
         """New :class:`StateChecks`, effective at the start of the next step."""
         if not isinstance(checks, StateChecks):
             raise TypeError("checks must be a StateChecks")
         self._checks_box.put(checks)
 
-    def configure_channels(self, configs):
+    def configure_channels(self, configs: Mapping[int, ControllerConfig]) -> None:
         """New configurations ``{channel index: ControllerConfig}`` (validated), taken together
         at the start of the next step: a change that sets several channels reaches all of them
         in the same cycle."""
         self._configs.append(dict(configs))
 
-    def set_state_publishers(self, names):
+    def set_state_publishers(self, names: Iterable[str]) -> None:
         """The publishers of ``actuator_state`` the ROS graph shows now (node names)."""
-        self._state_publishers = tuple(names)
+        self._stream.publishers = tuple(names)
 
-    def request_reset(self):
+    def request_reset(self) -> str:
         """Clear every latched fault at the start of the next step; returns what it clears."""
         self._reset_box.put(True)
-        cleared = [c for c, f in zip(self.channels, self._latched) if f]
+        cleared = [c for c, ch in zip(self.channels, self._ch) if ch.latched]
         return ("cleared faults on " + ", ".join(cleared)) if cleared else "no fault was latched"
 
     # --- status ----------------------------------------------------------------------------
     @property
-    def checks(self):
+    def checks(self) -> StateChecks:
+        """The :class:`StateChecks` in force."""
         return self._checks
 
-    def fault(self, i):
+    def fault(self, i: int) -> str:
         """Channel ``i``'s latched fault, or its re-arming condition, or ''."""
-        if self._latched[i]:
-            return self._latched[i]
-        if self._rearming[i]:
-            return "re-arming: " + self._rearming[i]
+        ch = self._ch[i]
+        if ch.latched:
+            return ch.latched
+        if ch.rearming:
+            return "re-arming: " + ch.rearming
         return ""
 
-    def latched(self, i):
-        return self._latched[i]
+    def latched(self, i: int) -> str:
+        """Channel ``i``'s latched fault, or ''."""
+        return self._ch[i].latched
 
-    def plant_stopped(self, i):
+    def plant_stopped(self, i: int) -> str:
         """Why the plant applies its own torque on channel ``i`` instead of the command, or
         '': its fault (``STATUS_FAULT``, latched on the plant's side until its reset) at
         once, a command timeout (``STATUS_COMMAND_TIMEOUT``) once it has lasted longer than
         ``state_timeout`` -- a late command now and then (a loaded host) is no stop."""
-        stopped, status = self._stopped[i], self._status[i]
-        if stopped and (status & STATUS_FAULT or stopped > self._gap_cycles):
-            return _plant_stop_reason(status)
+        ch = self._ch[i]
+        if ch.stopped and (ch.status & STATUS_FAULT or ch.stopped > self._gap_cycles):
+            return _plant_stop_reason(ch.status)
         return ""
 
+    @property
+    def _answered_names(self) -> list[str] | None:
+        # the names the present answer is for (the property tests compare with it)
+        return self._stream.answered_names
+
+    @property
+    def _needs_reset(self) -> list[bool]:
+        # which channels re-initialise at their next clean sample (read by the property tests)
+        return [ch.needs_reset for ch in self._ch]
+
     # --- the cycle -------------------------------------------------------------------------
-    def step(self, names, cycle, stamp_ns, x, v, f_p, f_a, status, now_ns, now):
+    def step(self, names: Sequence[str], cycle: int, stamp_ns: int, x: Sequence[float],
+             v: Sequence[float], f_p: Sequence[float], f_a: Sequence[float],
+             status: Sequence[int], now_ns: int, now: float) -> ControlOutput:
         """One state sample -> one command.
 
         Parameters
@@ -253,6 +352,37 @@ class ControlCycle:
         -------
         ControlOutput
         """
+        self._take_handovers()
+        out = self.out
+        sample = self._sample
+        age_ns = now_ns - stamp_ns
+        if not self._admit(sample, names, cycle, age_ns, x, v, f_p, f_a, status, now):
+            return out
+        self._classify_stream(sample, cycle, age_ns, now)
+        index = sample.index
+        if index is None:
+            self.counts[MALFORMED_STATE] += 1
+            self._condition_all(now, MALFORMED_STATE,
+                                _malformed_reason(names, x, v, f_p, f_a, status))
+            return out
+        effort = out.effort
+        for i, ctrl in enumerate(self.controllers):
+            j = index[i]
+            if self._check_channel(i, j, x, v, f_p, f_a, now):
+                effort[i] = self._run_channel(i, ctrl, x[j], v[j], f_p[j], f_a[j], status[j],
+                                              sample, now)
+            else:
+                effort[i] = 0.0
+        out.cycle = cycle
+        stream = self._stream
+        if names != stream.answered_names:
+            stream.answered_names = list(names)
+        return out
+
+    # --- stages of a step ------------------------------------------------------------------
+    def _take_handovers(self) -> None:
+        """Stage 1: what other threads handed over since the last step -- new checks, new
+        controller configurations (all of a change in the same cycle), a reset."""
         checks = self._checks_box.take()
         if checks is not None:
             self._apply_checks(checks)
@@ -261,16 +391,29 @@ class ControlCycle:
             for i, config in configs.popleft().items():
                 self.controllers[i].configure(config)
         if self._reset_box.take():
-            self._reset()
+            for ch in self._ch:
+                if ch.latched:
+                    ch.latched = ""
+                    ch.needs_reset = True
+
+    def _admit(self, sample: _Sample, names: Sequence[str], cycle: int, age_ns: int,
+               x: Sequence[float], v: Sequence[float], f_p: Sequence[float],
+               f_a: Sequence[float], status: Sequence[int], now: float) -> bool:
+        """Stage 2: whether the sample goes on to the controllers. It does not when it is
+        dropped unanswered (``out.answered`` False: no channel of ours in it, the start-up
+        backlog, delivered out of order) or answered as it stands (zero torque while two
+        publishers of ``actuator_state`` exist; the same answer to a re-published state).
+        Sets ``sample.index`` (None for a malformed state, which goes on to be reported)."""
         out = self.out
-        effort = out.effort
-        n_names = len(names)
-        if (len(x) != n_names or len(v) != n_names or len(f_p) != n_names
-                or len(f_a) != n_names or len(status) != n_names):
-            mapping = None
+        stream = self._stream
+        n = len(names)
+        if (len(x) != n or len(v) != n or len(f_p) != n or len(f_a) != n
+                or len(status) != n):
+            index = None
         else:
-            mapping = self._map(names)
-        if mapping is not None and not any(j >= 0 for j in mapping[1]):
+            index = self._map(names)
+        sample.index = index
+        if index is not None and not stream.ours:
             # nothing here to control: not our plant (or all names wrong)
             self.dropped += 1
             self._drop_ep.begin(now, f"actuator_state names none of the channels "
@@ -278,214 +421,238 @@ class ControlCycle:
                                      "dropped, no command sent")
             self._drop_ep.end(now)
             out.answered = False
-            return out
-        checks = self._checks
-        age_ns = now_ns - stamp_ns
-        last = self._last_cycle
+            return False
+        last = stream.last_cycle
         if last is None and age_ns > self._timeout_ns:
             self.dropped += 1      # start-up backlog: states older than the first fresh one
             out.answered = False
-            return out
+            return False
         if last is not None and last - self._gap_cycles <= cycle < last:
             # older than the newest state already answered: delivered out of order. Answering
             # it would look like a second command source to the plant; a restarted plant
             # starts far lower (its cycles start at 1, and it takes longer than that to start)
             self.dropped += 1
             out.answered = False
-            return out
+            return False
         out.answered = True
-        if len(self._state_publishers) > 1:
+        publishers = stream.publishers
+        if len(publishers) > 1:
             # two plants (or a bag played into a running one): whose state would we answer?
             self.counts[STATE_SOURCES] += 1
             self._condition_all(now, STATE_SOURCES,
-                                f"{len(self._state_publishers)} publishers of actuator_state: "
-                                + ", ".join(self._state_publishers))
-            return out
-        if cycle == out.cycle and names == self._answered_names:
-            return out             # a re-published state: the same answer again
-        stream = ""                # a condition of the whole stream this sample
-        stream_kind = None
-        if age_ns < -self._timeout_ns:
-            stream_kind = FUTURE_STAMP
-            stream = f"state stamped {-age_ns * 1e-6:.1f} ms in the future"
-        elif age_ns > self._timeout_ns:
-            stream_kind = STALE_STATE
-            stream = f"stale state: {age_ns * 1e-6:.1f} ms old (> state_timeout)"
+                                f"{len(publishers)} publishers of actuator_state: "
+                                + ", ".join(publishers))
+            return False
+        # a re-published state gets the same answer again
+        return not (cycle == out.cycle and names == stream.answered_names)
+
+    def _classify_stream(self, sample: _Sample, cycle: int, age_ns: int, now: float) -> None:
+        """Stage 3: the condition of the whole stream this sample (a stamp from the future, a
+        stale state or a stall, a gap or a restart of the plant), ``sample.steps`` since the
+        previous state; a condition latches or re-arms every channel, and the end of a
+        re-arming one is reported."""
+        stream = self._stream
+        last = stream.last_cycle
+        timeout_ns = self._timeout_ns
+        gap = self._gap_cycles
+        kind = None
+        reason = ""
+        if age_ns < -timeout_ns:
+            kind = FUTURE_STAMP
+            reason = f"state stamped {-age_ns * 1e-6:.1f} ms in the future"
+        elif age_ns > timeout_ns:
+            kind = STALE_STATE
+            reason = f"stale state: {age_ns * 1e-6:.1f} ms old (> state_timeout)"
         elif last is not None:
             if cycle < last:
-                stream_kind = STATE_GAP
-                stream = f"cycle went back from {last} to {cycle} (plant restarted)"
-            elif cycle - last > self._gap_cycles:
-                stream_kind = STATE_GAP
-                stream = f"cycle jumped from {last} to {cycle} ({cycle - last - 1} missing)"
-            elif now - self._last_arrival > checks.state_timeout:
-                stream_kind = STALE_STATE
-                stream = (f"no state for {1e3 * (now - self._last_arrival):.1f} ms "
+                kind = STATE_GAP
+                reason = f"cycle went back from {last} to {cycle} (plant restarted)"
+            elif cycle - last > gap:
+                kind = STATE_GAP
+                reason = f"cycle jumped from {last} to {cycle} ({cycle - last - 1} missing)"
+            elif now - stream.last_arrival > self._checks.state_timeout:
+                kind = STALE_STATE
+                reason = (f"no state for {1e3 * (now - stream.last_arrival):.1f} ms "
                           "(> state_timeout)")
-        steps = cycle - last if last is not None and 0 < cycle - last <= self._gap_cycles else 1
-        self._last_cycle = cycle
-        self._last_arrival = now
-        if stream_kind is not None:
-            self.counts[stream_kind] += 1
-            if stream_kind in checks.latched:
-                for i in range(len(self.channels)):
-                    self._latch(i, stream)
+        sample.steps = cycle - last if last is not None and 0 < cycle - last <= gap else 1
+        sample.kind = kind
+        sample.reason = reason
+        stream.last_cycle = cycle
+        stream.last_arrival = now
+        if kind is not None:
+            self.counts[kind] += 1
+            if kind in self._checks.latched:
+                for i in range(len(self._ch)):
+                    self._latch(i, reason)
             else:
-                self._stream_ep.begin(now, stream + ": zero torque; every channel re-arms "
-                                               "from the plant's present state")
-                for i in range(len(self.channels)):
-                    self._needs_reset[i] = True
-                    self._rearming[i] = stream
+                self._stream_ep.begin(now, reason + ": zero torque; every channel re-arms "
+                                                    "from the plant's present state")
+                for ch in self._ch:
+                    ch.needs_reset = True
+                    ch.rearming = reason
         elif self._stream_ep.active:
             self._stream_ep.end(now, "states flow again: channels re-initialised from the "
                                      "plant's present state")
-        if mapping is None:
-            self.counts[MALFORMED_STATE] += 1
-            self._condition_all(now, MALFORMED_STATE, self._malformed_reason(names, x, v, f_p,
-                                                                             f_a, status))
-            return out
-        index = mapping[1]
-        plim, vlim, flim = checks.position_limit, checks.velocity_limit, checks.force_limit
-        for i, ctrl in enumerate(self.controllers):
-            j = index[i]
-            if j < 0:
-                self.counts[MISSING_CHANNEL] += 1
-                self._condition(i, now, MISSING_CHANNEL, "channel missing from actuator_state")
-                effort[i] = 0.0
-                continue
-            xi, vi, fpi, fai = x[j], v[j], f_p[j], f_a[j]
-            if not (-plim <= xi <= plim and -vlim <= vi <= vlim and -flim <= fpi <= flim
-                    and -flim <= fai <= flim):
-                kind, reason = self._bad_values(xi, vi, fpi, fai)
-                self.counts[kind] += 1
-                self._condition(i, now, kind, reason)
-                effort[i] = 0.0
-                continue
-            if self._latched[i] or stream_kind is not None:
-                if ctrl.job is not None:
-                    ctrl.abort_job(f"fault latched: {self._latched[i]}" if self._latched[i]
-                                   else stream)
-                ctrl.reenter(fai)          # estimators stay live; no windup meanwhile
-                try:
-                    ctrl.update(xi, vi, fpi, steps)
-                except ArithmeticError:
-                    pass
-                effort[i] = 0.0
-                continue
-            if self._needs_reset[i]:
-                self._needs_reset[i] = False
-                self._stopped[i] = 0
-                ctrl.reset(fai)
-            elif status[j] & _PLANT_STOPPED:
-                # the plant applies fai instead of our torque: follow it (no windup); a brief
-                # stop keeps the targets, a longer one than state_timeout re-captures them
-                self._stopped[i] += steps
-                self._status[i] = status[j]
-                if self._stopped[i] > self._gap_cycles:
-                    ctrl.reset(fai, f"the plant stopped the channel "
-                                    f"({_plant_stop_reason(status[j])}) for longer than "
-                                    "state_timeout")
-                else:
-                    ctrl.reenter(fai)
-            else:
-                self._stopped[i] = 0
-            if self._rearming[i]:
-                self._rearming[i] = ""
-                self._channel_ep[i].end(now, f"{self.channels[i]}: re-armed from the plant's "
-                                             "present state")
-            try:
-                u = ctrl.update(xi, vi, fpi, steps)
-            except ArithmeticError:        # an overflow the checks above did not foresee
-                u = math.nan
-            if not -ctrl.config.max_torque <= u <= ctrl.config.max_torque:
-                if math.isfinite(u):
-                    kind = TORQUE_LIMIT
-                    reason = (f"torque {u:.4g} N m beyond max_torque "
-                              f"{ctrl.config.max_torque:g} N m")
-                else:
-                    kind = NON_FINITE_TORQUE
-                    reason = f"computed torque is {u!r} (an intermediate overflowed)"
-                self.counts[kind] += 1
-                self._condition(i, now, kind, reason)
-                u = 0.0
-            effort[i] = u
-        out.cycle = cycle
-        self._answered_names = list(names) if names != self._answered_names else \
-            self._answered_names
-        return out
 
-    # --- internals -------------------------------------------------------------------------
-    def _apply_checks(self, checks):
+    def _check_channel(self, i: int, j: int, x: Sequence[float], v: Sequence[float],
+                       f_p: Sequence[float], f_a: Sequence[float], now: float) -> bool:
+        """Stage 4, channel ``i`` at index ``j`` of the state: True when it is there with
+        finite, plausible values; else the condition is met (latched or re-arming)."""
+        if j < 0:
+            self.counts[MISSING_CHANNEL] += 1
+            self._condition(i, now, MISSING_CHANNEL, "channel missing from actuator_state")
+            return False
+        plim, vlim, flim = self._limits
+        xi, vi, fpi, fai = x[j], v[j], f_p[j], f_a[j]
+        if (-plim <= xi <= plim and -vlim <= vi <= vlim and -flim <= fpi <= flim
+                and -flim <= fai <= flim):
+            return True
+        kind, reason = _bad_values(xi, vi, fpi, fai)
+        self.counts[kind] += 1
+        self._condition(i, now, kind, reason)
+        return False
+
+    def _run_channel(self, i: int, ctrl: ChannelController, x: float, v: float, f_p: float,
+                     f_a: float, status: int, sample: _Sample, now: float) -> float:
+        """Stage 5, channel ``i`` with checked values: its torque [N m] this sample. Zero
+        while it is latched or the stream has a condition (its estimators stay live);
+        otherwise it takes over from the plant where it must, runs and its torque is
+        checked."""
+        ch = self._ch[i]
+        if ch.latched or sample.kind is not None:
+            self._follow_while_faulted(ch, ctrl, x, v, f_p, f_a, sample)
+            return 0.0
+        self._take_over(i, ch, ctrl, f_a, status, sample.steps, now)
+        try:
+            u = ctrl.update(x, v, f_p, sample.steps)
+        except ArithmeticError:        # an overflow the checks above did not foresee
+            u = math.nan
+        limit = ctrl.config.max_torque
+        if -limit <= u <= limit:
+            return u
+        if math.isfinite(u):
+            kind = TORQUE_LIMIT
+            reason = f"torque {u:.4g} N m beyond max_torque {limit:g} N m"
+        else:
+            kind = NON_FINITE_TORQUE
+            reason = f"computed torque is {u!r} (an intermediate overflowed)"
+        self.counts[kind] += 1
+        self._condition(i, now, kind, reason)
+        return 0.0
+
+    # --- parts of the stages ---------------------------------------------------------------
+    @staticmethod
+    def _follow_while_faulted(ch: _ChannelState, ctrl: ChannelController, x: float, v: float,
+                              f_p: float, f_a: float, sample: _Sample) -> None:
+        """A channel with zero torque: its job ends, its estimators follow the plant (no
+        windup), the torque it would give is dropped."""
+        if ctrl.job is not None:
+            ctrl.abort_job(f"fault latched: {ch.latched}" if ch.latched else sample.reason)
+        ctrl.reenter(f_a)
+        try:
+            ctrl.update(x, v, f_p, sample.steps)
+        except ArithmeticError:
+            pass
+
+    def _take_over(self, i: int, ch: _ChannelState, ctrl: ChannelController, f_a: float,
+                   status: int, steps: int, now: float) -> None:
+        """A clean sample: a channel to re-initialise starts from the applied torque ``f_a``
+        [N m]; while the plant applies its own torque the controller follows it (a brief stop
+        keeps the targets, one longer than ``state_timeout`` re-captures them); a re-arming
+        channel is reported re-armed."""
+        if ch.needs_reset:
+            ch.needs_reset = False
+            ch.stopped = 0
+            ctrl.reset(f_a)
+        elif status & _PLANT_STOPPED:
+            ch.stopped += steps
+            ch.status = status
+            if ch.stopped > self._gap_cycles:
+                ctrl.reset(f_a, f"the plant stopped the channel ({_plant_stop_reason(status)}) "
+                                "for longer than state_timeout")
+            else:
+                ctrl.reenter(f_a)
+        else:
+            ch.stopped = 0
+        if ch.rearming:
+            ch.rearming = ""
+            ch.episode.end(now, f"{self.channels[i]}: re-armed from the plant's present state")
+
+    def _apply_checks(self, checks: StateChecks) -> None:
         self._checks = checks
         self._timeout_ns = int(checks.state_timeout * 1e9)
         self._gap_cycles = max(1, int(math.ceil(checks.state_timeout / self.dt)))
+        self._limits = (checks.position_limit, checks.velocity_limit, checks.force_limit)
 
-    def _map(self, names):
-        """(names, index of each channel in ``names`` or -1), or None for repeated names."""
-        cached_names, _ = self._mapping
-        if names == cached_names:
-            return self._mapping
+    def _map(self, names: Sequence[str]) -> tuple[int, ...] | None:
+        """Index of each channel in ``names`` (-1: not there), or None for repeated names;
+        the last mapping is kept with whether any channel is there."""
+        stream = self._stream
+        if names == stream.names:
+            return stream.index
         if len(set(names)) != len(names):
             return None
         position = {name: j for j, name in enumerate(names)}
-        self._mapping = (list(names), tuple(position.get(c, -1) for c in self.channels))
-        return self._mapping
+        index = tuple(position.get(c, -1) for c in self.channels)
+        stream.names = list(names)
+        stream.index = index
+        stream.ours = any(j >= 0 for j in index)
+        return index
 
-    def _condition(self, i, now, kind, reason):
+    def _condition(self, i: int, now: float, kind: str, reason: str) -> None:
         """Channel ``i`` met ``kind`` this sample: latch it, or zero it until a clean one."""
         if kind in self._checks.latched:
             self._latch(i, reason)
             return
+        ch = self._ch[i]
         self.controllers[i].abort_job(reason)
-        self._needs_reset[i] = True
-        self._rearming[i] = reason
-        self._channel_ep[i].begin(now, f"{self.channels[i]}: {reason}: zero torque until a "
-                                       "clean sample re-arms it")
+        ch.needs_reset = True
+        ch.rearming = reason
+        ch.episode.begin(now, f"{self.channels[i]}: {reason}: zero torque until a clean "
+                              "sample re-arms it")
 
-    def _condition_all(self, now, kind, reason):
-        for i in range(len(self.channels)):
+    def _condition_all(self, now: float, kind: str, reason: str) -> None:
+        for i in range(len(self._ch)):
             self.out.effort[i] = 0.0
             self._condition(i, now, kind, reason)
-        self.out.cycle = self._last_cycle
-        self._answered_names = None
+        self.out.cycle = self._stream.last_cycle
+        self._stream.answered_names = None
 
-    def _latch(self, i, reason):
-        if self._latched[i]:
+    def _latch(self, i: int, reason: str) -> None:
+        ch = self._ch[i]
+        if ch.latched:
             return
         self.controllers[i].abort_job(f"fault latched: {reason}")
-        self._latched[i] = reason
-        self._needs_reset[i] = True
+        ch.latched = reason
+        ch.needs_reset = True
         self.faults_latched += 1
         self.events.add(ERROR, f"{self.channels[i]}: FAULT latched, zero torque: {reason}; "
                                "call ~/reset (std_srvs/Trigger) to clear")
 
-    def _reset(self):
-        for i in range(len(self.channels)):
-            if self._latched[i]:
-                self._latched[i] = ""
-                self._needs_reset[i] = True
 
-    @staticmethod
-    def _bad_values(x, v, f_p, f_a):
-        values = (("motor_position", x), ("motor_velocity", v), ("pressure_force", f_p),
-                  ("motor_effort", f_a))
-        for name, value in values:
-            if not math.isfinite(value):
-                return NON_FINITE_STATE, f"non-finite state: {name} = {value!r}"
-        return IMPLAUSIBLE_STATE, "implausible state: " + ", ".join(
-            f"{name} = {value:.4g}" for name, value in values) + " (beyond the state limits)"
-
-    @staticmethod
-    def _malformed_reason(names, x, v, f_p, f_a, status):
-        if len(set(names)) != len(names):
-            return f"malformed actuator_state: repeated names {list(names)}"
-        sizes = ", ".join(f"{field} {len(seq)}" for field, seq in (
-            ("motor_position", x), ("motor_velocity", v), ("pressure_force", f_p),
-            ("motor_effort", f_a), ("status", status)) if len(seq) != len(names))
-        return f"malformed actuator_state: {len(names)} names but {sizes} entries"
+def _bad_values(x: float, v: float, f_p: float, f_a: float) -> tuple[str, str]:
+    """The condition kind and its description for values the plausibility check refused."""
+    values = (("motor_position", x), ("motor_velocity", v), ("pressure_force", f_p),
+              ("motor_effort", f_a))
+    for name, value in values:
+        if not math.isfinite(value):
+            return NON_FINITE_STATE, f"non-finite state: {name} = {value!r}"
+    return IMPLAUSIBLE_STATE, "implausible state: " + ", ".join(
+        f"{name} = {value:.4g}" for name, value in values) + " (beyond the state limits)"
 
 
-def _plant_stop_reason(status):
+def _malformed_reason(names: Sequence[str], x: Sequence[float], v: Sequence[float],
+                      f_p: Sequence[float], f_a: Sequence[float], status: Sequence[int]) -> str:
+    """What is wrong with a malformed state, in words."""
+    if len(set(names)) != len(names):
+        return f"malformed actuator_state: repeated names {list(names)}"
+    sizes = ", ".join(f"{field} {len(seq)}" for field, seq in (
+        ("motor_position", x), ("motor_velocity", v), ("pressure_force", f_p),
+        ("motor_effort", f_a), ("status", status)) if len(seq) != len(names))
+    return f"malformed actuator_state: {len(names)} names but {sizes} entries"
+
+
+def _plant_stop_reason(status: int) -> str:
     """The plant-side stop ``status`` (``STATUS_*`` bits) says, in words."""
     words = [text for bit, text in ((STATUS_FAULT, "a plant fault: clear it with the plant's "
                                                    "~/reset"),

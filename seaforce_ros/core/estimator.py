@@ -141,7 +141,7 @@ velocity_excitation : rms endpoint velocity only b_o explains [rad/s]
 NO_ESTIMATE = ObjectEstimate(_NAN, _NAN, _NAN, _NAN, _NAN, 0.0, 0.0)
 
 
-def svf_coefficients(cutoff, dt):
+def svf_coefficients(cutoff: float, dt: float) -> tuple[float, float, float, float, float, float]:
     """The state-variable filter ``H(s) = w^2/(s^2 + 2 zeta w s + w^2)`` (Butterworth, ``w =
     2 pi cutoff``, ``cutoff`` in Hz) discretised exactly for an input held over ``dt`` [s]:
     ``(a11, a12, b1, a21, a22, b2)`` of ``p' = a11 p + a12 q + b1 u``, ``q' = a21 p + a22 q +
@@ -194,13 +194,15 @@ class ContactEstimator:
         ended, nothing fitted, the free-motion statistics and bias left as they were).
     """
 
-    def __init__(self, params=None, plant=None, dt=5e-4, rest_position=0.0):
+    def __init__(self, params: EstimatorParams | None = None, plant: PlantParams | None = None,
+                 dt: float = 5e-4, rest_position: float = 0.0) -> None:
         self.dt = float(dt)
         self.configure(EstimatorParams() if params is None else params,
                        PlantParams.table_i() if plant is None else plant, rest_position)
         self.reset()
 
-    def configure(self, params, plant, rest_position=0.0):
+    def configure(self, params: EstimatorParams, plant: PlantParams,
+                  rest_position: float = 0.0) -> None:
         """New parameters (validated), effective now; the state is kept."""
         if not isinstance(params, EstimatorParams) or not isinstance(plant, PlantParams):
             raise TypeError("params must be EstimatorParams and plant PlantParams")
@@ -231,7 +233,7 @@ class ContactEstimator:
         # samples of the filtered residual per independent sample (its correlation time)
         self._kappa = max(1.0, 1.0 / (2.0 * params.filter_cutoff * dt))
 
-    def reset(self):
+    def reset(self) -> None:
         """Forget everything: no contact, no fit; the next :meth:`update` starts the filters
         from its sample."""
         self._first = True
@@ -260,16 +262,20 @@ class ContactEstimator:
         self.quiet = False           # this sample was skipped
         self._clear_fit()
 
-    def _clear_fit(self):
-        self._stats = None           # (S 6x6, p0, bias) published at each fold: read atomically
-        self._cache = None           # (stats, contacts, ObjectEstimate) of the last estimate()
+    def _clear_fit(self) -> None:
+        # (S 6x6, p0, bias) published at each fold: read atomically
+        self._stats: tuple[np.ndarray, float, float] | None = None
+        # (stats, contacts, ObjectEstimate) of the last estimate()
+        self._cache: tuple[tuple | None, int, ObjectEstimate] | None = None
         self._S = np.zeros((6, 6))
-        self._block = []             # x - p0, q, a, 1, z, F_d of each sample since the last fold
+        # x - p0, q, a, 1, z, F_d of each sample since the last fold: the first _filled values
+        self._block = [0.0] * _BLOCK_VALUES
+        self._filled = 0
         self._skip = 0
         self._below = 0              # samples in a row below the release level
         self._p0 = 0.0
 
-    def rearm(self):
+    def rearm(self) -> None:
         """Declare the present motion free: the residual of the last :data:`RECENT` s becomes
         the free-motion bias and a contact the residual may have started is dropped with its
         fit (a finger that has just started moving: its model error changes faster than the
@@ -282,7 +288,7 @@ class ContactEstimator:
             self._clear_fit()
         self._take_bias()
 
-    def _take_bias(self):
+    def _take_bias(self) -> None:
         """The residual's recent mean (not one noisy sample) becomes part of the bias; the
         residual's spread is measured anew (the largest threshold first): a new motion's
         model error is not the last one's."""
@@ -295,16 +301,16 @@ class ContactEstimator:
         self._recent = 0.0
         self._drift = 0.0
 
-    def freeze(self):
+    def freeze(self) -> None:
         """Stop fitting and detecting (the fit stays as it is): a grasp letting go of its
         object. The unloading and the finger's motion after it would be fitted with the bias
         of the approach, which the motion's direction changes (the Dahl model's error)."""
         if not self._frozen:
             self._frozen = True
-            if self._block:
+            if self._filled:
                 self._fold()
 
-    def let_go(self):
+    def let_go(self) -> None:
         """End a :meth:`freeze`: the contact, if any, is over (its fit is kept) and the recent
         residual is the free-motion bias."""
         self._frozen = False
@@ -313,7 +319,7 @@ class ContactEstimator:
             self.direction = 0
         self._take_bias()
 
-    def disturb(self):
+    def disturb(self) -> None:
         """The plant replaced the torque for a while (a command timeout, its fault): the
         residual holds a force the model did not see until the filters have settled -- the
         next :data:`QUIET_TIME` of samples are quiet, as after a gap of lost states."""
@@ -321,107 +327,159 @@ class ContactEstimator:
         self.quiet = True
 
     @property
-    def threshold(self):
+    def threshold(self) -> float:
         """The contact threshold in force [N m] (adapted in free motion; see module
         docstring)."""
         return math.sqrt(self._on2)
 
     # --- per sample -----------------------------------------------------------------------
-    def update(self, xe, fp, fd, steps=1):
+    def update(self, xe: float, fp: float, fd: float, steps: int = 1) -> None:
         """One sample: estimated endpoint position X_e_hat [rad], pressure force F_p [N m],
         Dahl force F_d [N m]; ``steps`` sample periods since the previous one (the inputs
         are interpolated linearly over them, as the hose inversion and the friction fit do: held
         at the new value, a motion's ramp becomes a step that the filter's acceleration and
         the residual see as a force -- a late loop's lost samples made contacts in free
-        motion)."""
+        motion).
+
+        Allocates nothing that outlives the call (a fit's block is a preallocated list, folded
+        into the information matrix every :data:`BLOCK` samples)."""
         g = fp + fd
         if self._first:
-            self._first = False
-            self.position, self.velocity, self._f1, self._f2 = xe, 0.0, g, 0.0
-            self.bias = g + self._ke * (xe - self._rest)
-            self._x_in, self._g_in = xe, g
-        a11, a12, b1, a21, a22, b2 = self._coef
-        p, q0, f1, f2 = self.position, self.velocity, self._f1, self._f2
+            self._start(xe, g)
+        q0 = self.velocity
+        ke, be, me, ke_rest, inv_dt = self._model
         if steps == 1:
+            a11, a12, b1, a21, a22, b2 = self._coef
+            p = self.position
+            f1 = self._f1
+            f2 = self._f2
             p, q = a11 * p + a12 * q0 + b1 * xe, a21 * p + a22 * q0 + b2 * xe
             f1, f2 = a11 * f1 + a12 * f2 + b1 * g, a21 * f1 + a22 * f2 + b2 * g
+            acc = (q - q0) * inv_dt
+            recent_alpha = self._recent_alpha
+            detect_alpha = self._detect_alpha
         else:
-            q = q0
-            x0, g0 = self._x_in, self._g_in
-            dx, dg = (xe - x0) / steps, (g - g0) / steps
-            for k in range(1, steps + 1):
-                xk, gk = x0 + k * dx, g0 + k * dg
-                p, q = a11 * p + a12 * q + b1 * xk, a21 * p + a22 * q + b2 * xk
-                f1, f2 = a11 * f1 + a12 * f2 + b1 * gk, a21 * f1 + a22 * f2 + b2 * gk
+            p, q, f1, f2 = self._filter_steps(xe, g, steps)
+            acc = (q - q0) * inv_dt / steps
+            recent_alpha = 1.0 - (1.0 - self._recent_alpha) ** steps
+            detect_alpha = 1.0 - (1.0 - self._detect_alpha) ** steps
         self._x_in = xe
         self._g_in = g
-        self.position, self.velocity, self._f1, self._f2 = p, q, f1, f2
-        ke, be, me, ke_rest, inv_dt = self._model
-        acc = (q - q0) * inv_dt / steps
+        self.position = p
+        self.velocity = q
+        self._f1 = f1
+        self._f2 = f2
         r = f1 + ke * p - ke_rest + be * q + me * acc - self.bias
         self.force = r
-        self._recent += (self._recent_alpha if steps == 1 else
-                         1.0 - (1.0 - self._recent_alpha) ** steps) * (r - self._recent)
+        recent = self._recent
+        self._recent = recent + recent_alpha * (r - recent)
         d = self.detection
-        d += (self._detect_alpha if steps == 1 else 1.0 - (1.0 - self._detect_alpha) ** steps) \
-            * (r - d)
+        d += detect_alpha * (r - d)
         self.detection = d
         if steps > QUIET_GAP or self._quiet:
-            # a gap or a torque the model did not see: nothing starts, ends, is fitted or
-            # tracked until the filters have settled (this sample, then QUIET_TIME's)
-            if steps > QUIET_GAP:
-                self._quiet = self._quiet_samples
-            else:
-                self._quiet = self._quiet - steps if self._quiet > steps else 0
-            self.quiet = True
-            self._below = 0
-            return
-        self.quiet = False
-        if self._frozen:
-            return
-        if self.contact:
-            if d * self.direction > -self._off:
-                # below the release level: not a sample of the object; the contact ends when
-                # that lasts (noise on a light touch must not end it)
-                self._below += steps
-                if self._below >= self._loss_samples:
-                    self._end_contact()
-            elif self._skip:
-                self._skip -= 1
-                self._below = 0
-            else:
-                if self._below:
-                    self._below = 0
-                block = self._block
-                block.extend((p - self._p0, q, acc, 1.0, -f1, fd))
-                if len(block) == _BLOCK_VALUES:
-                    self._fold()
+            self._go_quiet(steps)
+        elif self._frozen:
+            self.quiet = False
+        elif self.contact:
+            self.quiet = False
+            self._in_contact(d, p, q, acc, f1, fd, steps)
         else:
+            self.quiet = False
+            # free motion: a contact starts when d leaves its free-motion mean by more than
+            # the threshold (or exceeds contact_threshold)
             excess = d - self.detection_mean
             excess2 = excess * excess
-            if excess2 > self._on2 or d * d > self._ceiling2:
-                self._start_contact(excess if excess2 > self._on2 else d, p)
+            on2 = self._on2
+            ceiling2 = self._ceiling2
+            if excess2 > on2 or d * d > ceiling2:
+                self._start_contact(excess if excess2 > on2 else d, p)
                 return
-            # the free-motion mean and spread of d (kept as SPREAD_FACTOR^2 times the mean
-            # square deviation: the threshold squared before its bounds)
+            # else the mean and spread of d follow it (kept as SPREAD_FACTOR^2 times the mean
+            # square deviation: the threshold squared before its bounds) ...
             a = self._spread_alpha if steps == 1 else min(1.0, self._spread_alpha * steps)
             self.detection_mean += a * excess
             on2 = self._spread2
             on2 += a * (self._factor2 * excess2 - on2)
             self._spread2 = on2
-            self._on2 = self._floor2 if on2 < self._floor2 else (
-                self._ceiling2 if on2 > self._ceiling2 else on2)
-            # critically damped tracker of the bias and its drift (a slowly changing model
-            # error, k_e's for one, drifts with the position: no lag on a steady drift), at the
-            # rate of baseline_time or of baseline_distance travelled, whichever is faster
+            floor2 = self._floor2
+            self._on2 = floor2 if on2 < floor2 else (ceiling2 if on2 > ceiling2 else on2)
+            # ... and so does a critically damped tracker of the bias and its drift (a slowly
+            # changing model error, k_e's for one, drifts with the position: no lag on a
+            # steady drift), at the rate of baseline_time or of baseline_distance travelled,
+            # whichever is faster
             w = self._rate_distance * (q if q > 0.0 else -q)
-            if w < self._rate_time:
-                w = self._rate_time
-            w *= steps
-            self.bias += self._drift * steps + 2.0 * w * r
-            self._drift += w * w * r
+            rate_time = self._rate_time
+            if w < rate_time:
+                w = rate_time
+            drift = self._drift
+            if steps == 1:
+                self.bias += drift + 2.0 * w * r
+            else:
+                w *= steps
+                self.bias += drift * steps + 2.0 * w * r
+            self._drift = drift + w * w * r
 
-    def _start_contact(self, excess, p):
+    def _start(self, xe: float, g: float) -> None:
+        """The first sample after a reset starts the filters at rest at it."""
+        self._first = False
+        self.position, self.velocity, self._f1, self._f2 = xe, 0.0, g, 0.0
+        self.bias = g + self._ke * (xe - self._rest)
+        self._x_in, self._g_in = xe, g
+
+    def _filter_steps(self, xe: float, g: float, steps: int) -> tuple[float, float, float, float]:
+        """Both filters over ``steps`` periods, their inputs interpolated linearly from the
+        previous sample's to ``xe`` and ``g``: ``(H X_e, s H X_e, H g, s H g)``."""
+        a11, a12, b1, a21, a22, b2 = self._coef
+        p, q, f1, f2 = self.position, self.velocity, self._f1, self._f2
+        x0, g0 = self._x_in, self._g_in
+        dx, dg = (xe - x0) / steps, (g - g0) / steps
+        for k in range(1, steps + 1):
+            xk, gk = x0 + k * dx, g0 + k * dg
+            p, q = a11 * p + a12 * q + b1 * xk, a21 * p + a22 * q + b2 * xk
+            f1, f2 = a11 * f1 + a12 * f2 + b1 * gk, a21 * f1 + a22 * f2 + b2 * gk
+        return p, q, f1, f2
+
+    def _go_quiet(self, steps: int) -> None:
+        """A gap or a torque the model did not see: nothing starts, ends, is fitted or
+        tracked until the filters have settled (this sample, then QUIET_TIME's)."""
+        if steps > QUIET_GAP:
+            self._quiet = self._quiet_samples
+        else:
+            self._quiet = self._quiet - steps if self._quiet > steps else 0
+        self.quiet = True
+        self._below = 0
+
+    def _in_contact(self, d: float, p: float, q: float, acc: float, f1: float, fd: float,
+                    steps: int) -> None:
+        """A sample in contact: the contact ends when ``d`` stays below the release level
+        (such samples are not of the object); the first ones after its start are skipped
+        (the filters still hold free motion); the others go to the fit's block."""
+        if d * self.direction > -self._off:
+            # below the release level: not a sample of the object; the contact ends when
+            # that lasts (noise on a light touch must not end it)
+            self._below += steps
+            if self._below >= self._loss_samples:
+                self._end_contact()
+        elif self._skip:
+            self._skip -= 1
+            self._below = 0
+        else:
+            if self._below:
+                self._below = 0
+            block = self._block
+            k = self._filled
+            block[k] = p - self._p0
+            block[k + 1] = q
+            block[k + 2] = acc
+            block[k + 3] = 1.0
+            block[k + 4] = -f1
+            block[k + 5] = fd
+            k += 6
+            self._filled = k
+            if k == _BLOCK_VALUES:
+                self._fold()
+
+    def _start_contact(self, excess: float, p: float) -> None:
         """A contact starts at the filtered endpoint position ``p``; ``excess`` < 0: something
         pushes towards -X_e."""
         self.contact = True
@@ -435,19 +493,19 @@ class ContactEstimator:
         self._skip = self._settle
         self._below = 0
 
-    def _end_contact(self):
-        if self._block:
+    def _end_contact(self) -> None:
+        if self._filled:
             self._fold()
         self.contact = False
         self.direction = 0
 
-    def _fold(self):
+    def _fold(self) -> None:
         """Add the block's cross products to the information matrix (forgetting the old ones
         if the finger moved in the block) and publish a consistent snapshot."""
-        block = self._block
-        n = len(block) // 6
-        x = np.fromiter(block, float, len(block)).reshape(n, 6)
-        self._block = []
+        filled = self._filled
+        n = filled // 6
+        x = np.fromiter(self._block, float, filled).reshape(n, 6)
+        self._filled = 0
         block = x.T @ x
         if block[1, 1] > self._moving * n:
             self._S = self._S * self._block_decay ** (n / BLOCK) + block
@@ -456,7 +514,7 @@ class ContactEstimator:
         self._stats = (self._S, self._p0, self.bias)
 
     # --- reading ----------------------------------------------------------------------------
-    def estimate(self):
+    def estimate(self) -> ObjectEstimate:
         """The object's :class:`ObjectEstimate` from the fit so far (the latest contact's, also
         after it ended); NaN where the excitation is too small. Safe to call from another
         thread than :meth:`update`'s (it reads one snapshot); recomputed only when a block has
@@ -469,7 +527,7 @@ class ContactEstimator:
         self._cache = (stats, contacts, result)
         return result
 
-    def _solve(self, stats, onset):
+    def _solve(self, stats: tuple | None, onset: float) -> ObjectEstimate:
         unknown = NO_ESTIMATE._replace(contact_position=onset)
         if stats is None:
             return unknown
@@ -521,7 +579,8 @@ class ContactEstimator:
         return ObjectEstimate(stiffness, sigma_k, damping, sigma_b, position, exc_k, exc_b)
 
 
-def _hose_sensitivity(stiffness, damping, ks, bs, u):
+def _hose_sensitivity(stiffness: float, damping: float, ks: float, bs: float,
+                      u: float) -> tuple[float, float]:
     """Largest change of the estimated k_o + k_e and b_o + b_e (``stiffness``, ``damping``)
     when the true hose is k_s (1 +- u), b_s (1 +- u) instead of the model's ``ks``, ``bs``.
 
@@ -545,7 +604,7 @@ def _hose_sensitivity(stiffness, damping, ks, bs, u):
     return worst_k, worst_b
 
 
-def _spd_inverse(a, rcond=1e-12):
+def _spd_inverse(a: list[list[float]], rcond: float = 1e-12) -> list[list[float]] | None:
     """Inverse of the symmetric positive definite matrix ``a`` (list of lists), or None when it
     is (numerically) singular: a regressor that never varied independently of the others.
     Scaled to unit diagonal, Cholesky-factored (a pivot below ``rcond`` means singular),

@@ -15,41 +15,46 @@ from __future__ import annotations
 
 import threading
 from collections import deque
-from typing import Deque, Generic, Optional, TypeVar
+from typing import Deque, Optional, TypeVar
 
 __all__ = ["Mailbox", "Claim"]
 
 _T = TypeVar("_T")
 
 
-class Mailbox(Generic[_T]):
+class Mailbox(Deque[_T]):
     """A hand-over: :meth:`put` (any thread), :meth:`take` (the one thread that takes), of
-    values of one type (``Mailbox[ControllerConfig]``).
+    values of one type (``Mailbox[ControllerConfig]``); true while a value waits.
 
     Parameters
     ----------
     size : int or None
         How many values wait at most: 1 (the default) keeps only the newest put; None keeps
         every one, taken oldest first.
+
+    Notes
+    -----
+    A deque itself, not a wrapper: the cycle asks every sample whether something waits, and a
+    deque answers that, and an empty :meth:`take`, without a Python call or a caught
+    exception.
     """
 
     def __init__(self, size: Optional[int] = 1) -> None:
-        self._slot: Deque[_T] = deque(maxlen=size)
+        super().__init__(maxlen=size)
 
     def put(self, value: _T) -> None:
-        """Hand ``value`` over (with one slot: replacing what waits)."""
-        self._slot.append(value)
+        """Hand ``value`` over (any thread); with one slot it replaces a value waiting."""
+        self.append(value)
 
     def take(self) -> Optional[_T]:
         """The oldest value waiting (with one slot: the newest put since the last take), or
         None."""
-        try:
-            return self._slot.popleft()
-        except IndexError:
+        if not self:
             return None
-
-    def __bool__(self) -> bool:
-        return bool(self._slot)
+        try:
+            return self.popleft()
+        except IndexError:      # another thread took it in between
+            return None
 
 
 class Claim:

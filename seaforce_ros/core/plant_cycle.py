@@ -55,6 +55,7 @@ Rules (each with a status bit per channel, an event for the log and a counter):
 import math
 from array import array
 from collections import deque
+from collections.abc import Iterable, Sequence
 
 from .episodes import ERROR, INFO, Episode, EventLog
 from .errors import InvalidParameterError
@@ -112,12 +113,51 @@ class PlantOutput:
         Send one fault reset to the drive this cycle (after ``~/reset``).
     """
 
-    def __init__(self, n):
-        self.torque = [0.0] * n
-        self.units = [0] * n
-        self.status = [STATUS_COMMAND_TIMEOUT] * n
-        self.enable = [True] * n
-        self.fault_reset = [False] * n
+    def __init__(self, n: int) -> None:
+        self.torque: list[float] = [0.0] * n
+        self.units: list[int] = [0] * n
+        self.status: list[int] = [STATUS_COMMAND_TIMEOUT] * n
+        self.enable: list[bool] = [True] * n
+        self.fault_reset: list[bool] = [False] * n
+
+
+class _PlantChannel:
+    """One channel's state from one cycle to the next.
+
+    fault : str
+        The latched fault ('' when none).
+    was_allowed : bool
+        The drive was in Operation enabled last cycle.
+    grace : int
+        Cycles the drive may still report Fault (after a reset).
+    timeout_episode : Episode
+        The log episode of its command timeouts.
+    effort : float
+        The accepted command [N m] (0 for a non-finite one).
+    raw : float
+        The command as received: a repeated answer must match it.
+    answer : int
+        The cycle the accepted command answers (-1: none since the start or a reset).
+    answer_tick : int
+        The plant's step count when that state was published.
+    """
+
+    __slots__ = ("fault", "was_allowed", "grace", "timeout_episode", "effort", "raw", "answer",
+                 "answer_tick")
+
+    def __init__(self, timeout_episode: Episode) -> None:
+        self.fault = ""
+        self.was_allowed = False
+        self.grace = 0
+        self.timeout_episode = timeout_episode
+        self.forget()
+
+    def forget(self) -> None:
+        """No command: none accepted yet, or forgotten by a reset."""
+        self.effort = 0.0
+        self.raw = 0.0
+        self.answer = -1
+        self.answer_tick = 0
 
 
 class PlantCycle:
@@ -135,10 +175,19 @@ class PlantCycle:
         rounded to units and saturated to int16.
     quiet_period : float >= 0
         Minimum time between two log reports of the same repeated condition [s].
+
+    Notes
+    -----
+    :meth:`step` runs its stages in turn, each a method over explicit state (one
+    :class:`_PlantChannel` per channel): take the hand-overs (limits, reset, the commands
+    received), judge the command sources, then per channel check the channel (velocity trip,
+    drive), watch its commands (timeout) and decide its torque.
     """
 
-    def __init__(self, channels, dt, limits=None, units_per_nm=None, quiet_period=10.0):
-        self.channels = tuple(channels)
+    def __init__(self, channels: Sequence[str], dt: float, limits: PlantLimits | None = None,
+                 units_per_nm: Sequence[float] | None = None,
+                 quiet_period: float = 10.0) -> None:
+        self.channels: tuple[str, ...] = tuple(channels)
         n = len(self.channels)
         if n == 0:
             raise InvalidParameterError("channels", list(channels), "at least one channel")
@@ -161,46 +210,42 @@ class PlantCycle:
         self.events = EventLog()
         self.out = PlantOutput(n)
         self.cycle = 0                       # newest published state
-        self._inbox = deque(maxlen=64)       # (names, efforts, answers)
-        self._limits_box = Mailbox()
-        self._reset_box = Mailbox()
+        self._inbox: deque = deque(maxlen=64)   # (names, efforts, answers)
+        self._limits_box: Mailbox[PlantLimits] = Mailbox()
+        self._reset_box: Mailbox[bool] = Mailbox()
         self.ticks = 0                       # steps so far: the watchdog's clock
         self._published_at = array("q", bytes(8 * _TICK_RING))   # cycle -> ticks then
-        self._publishers = ()
-        self._mapping = ([], ())             # cached (names, index per name)
+        self._publishers: tuple[str, ...] = ()
+        self._mapping: tuple[list[str], tuple[int, ...]] = ([], ())   # cached names, index
         self._apply_limits(limits)
-        self._fault = [""] * n               # latched per-channel fault reason
-        self._was_allowed = [False] * n      # the drive was in Operation enabled last cycle
-        self._grace = [0] * n                # cycles a drive may still report Fault
+        self._ch = [_PlantChannel(Episode(self.events, quiet_period)) for _ in range(n)]
         self._bus_fault = ""
         self._conflict = ""
         self._wkc_errors = 0                 # consecutive
-        self._timeout_ep = [Episode(self.events, quiet_period) for _ in range(n)]
         self._crowded_ep = Episode(self.events, quiet_period, severity=ERROR)
         self._reject_ep = {kind: Episode(self.events, quiet_period)
                            for kind in ("stale", "future", "malformed", "unknown")}
-        self.rejected = {kind: 0 for kind in self._reject_ep}
+        self.rejected: dict[str, int] = {kind: 0 for kind in self._reject_ep}
         self.faults_latched = 0
         self.wkc_errors_total = 0
-        self._forget_commands()
 
     # --- hand-over from other threads ------------------------------------------------------
-    def command(self, names, efforts, answers):
+    def command(self, names: Sequence[str], efforts: Sequence[float], answers: int) -> None:
         """Queue one command: efforts [N m] for ``names``, answering state ``answers``.
         Checked at the next :meth:`step`. ``efforts`` must not change afterwards."""
         self._inbox.append((names, efforts, answers))
 
-    def set_publishers(self, names):
+    def set_publishers(self, names: Iterable[str]) -> None:
         """The publishers of ``actuator_command`` the ROS graph shows now (node names)."""
         self._publishers = tuple(names)
 
-    def configure(self, limits):
+    def configure(self, limits: PlantLimits) -> None:
         """New :class:`PlantLimits`, effective at the start of the next step."""
         if not isinstance(limits, PlantLimits):
             raise TypeError("limits must be a PlantLimits")
         self._limits_box.put(limits)
 
-    def request_reset(self):
+    def request_reset(self) -> str:
         """Ask for a reset at the start of the next step; returns what it will clear."""
         self._reset_box.put(True)
         latched = self.latched_faults()
@@ -208,15 +253,17 @@ class PlantCycle:
 
     # --- status for diagnostics ------------------------------------------------------------
     @property
-    def limits(self):
+    def limits(self) -> PlantLimits:
+        """The :class:`PlantLimits` in force."""
         return self._limits
 
     @property
-    def bus_fault(self):
+    def bus_fault(self) -> str:
+        """The latched bus fault, or ''."""
         return self._bus_fault
 
     @property
-    def conflict(self):
+    def conflict(self) -> str:
         """The latched conflict (with the publishers the graph lists now), else the graph's
         second publisher, else ''."""
         if self._conflict:
@@ -228,25 +275,26 @@ class PlantCycle:
                     + ", ".join(self._publishers))
         return ""
 
-    def channel_fault(self, i):
+    def channel_fault(self, i: int) -> str:
         """The fault that zeroes channel ``i`` ('' when none)."""
-        return self._fault[i] or self._bus_fault or self.conflict
+        return self._ch[i].fault or self._bus_fault or self.conflict
 
-    def latched_faults(self):
+    def latched_faults(self) -> list[str]:
         """Every latched fault as 'where: reason' strings."""
-        out = [f"{c}: {f}" for c, f in zip(self.channels, self._fault) if f]
+        out = [f"{c}: {ch.fault}" for c, ch in zip(self.channels, self._ch) if ch.fault]
         if self._bus_fault:
             out.append(f"bus: {self._bus_fault}")
         if self._conflict:
             out.append(f"commands: {self._conflict}")
         return out
 
-    def timeouts(self, i):
+    def timeouts(self, i: int) -> int:
         """Command-timeout episodes of channel ``i`` so far."""
-        return self._timeout_ep[i].count
+        return self._ch[i].timeout_episode.count
 
     # --- the cycle -------------------------------------------------------------------------
-    def step(self, now, velocity=None, drives=None):
+    def step(self, now: float, velocity: Sequence[float] | None = None,
+             drives: Sequence[tuple[bool, bool]] | None = None) -> PlantOutput:
         """Decide this cycle's torques.
 
         Parameters
@@ -263,103 +311,17 @@ class PlantCycle:
         -------
         PlantOutput
         """
-        limits = self._limits_box.take()
-        if limits is not None:
-            self._apply_limits(limits)
-        self.ticks += 1
-        ticks = self.ticks
-        out = self.out
-        if self._reset_box.take():
-            self._reset(now)
-        else:
-            resets = out.fault_reset
-            for i in range(len(resets)):
-                resets[i] = False
-        if self._inbox:
-            self._take_commands(now)
-        max_age = self._max_age
-        crowded = len(self._publishers) > 1
-        if crowded != self._crowded_ep.active:
-            if crowded:
-                self._crowded_ep.begin(now, f"{self.conflict}: zero torque on every channel "
-                                            "while more than one can command (a process "
-                                            "killed a moment ago stays listed until its DDS "
-                                            "lease expires)")
-            else:
-                self._crowded_ep.end(now, "one publisher of actuator_command left: commands "
-                                          "accepted again")
-                self._forget_commands()
-        lim = self._limits.torque_limit
-        vmax = self._limits.max_velocity
-        timeout = self._limits.command_timeout
-        upn = self._units_per_nm
-        bus_fault = self._bus_fault
-        blocked = bool(bus_fault or self._conflict or crowded)
-        for i in range(len(self.channels)):
-            if velocity is not None and not self._fault[i]:
-                v = velocity[i]
-                if not math.isfinite(v):
-                    self._latch(i, f"non-finite motor velocity {v!r}")
-                elif vmax > 0.0 and not -vmax <= v <= vmax:
-                    self._latch(i, f"motor speed {v:.2f} rad/s beyond max_velocity {vmax:g}")
-            allowed = True
-            if drives is not None:
-                allowed, drive_faulted = drives[i]
-                if drive_faulted:
-                    if self._grace[i] > 0:
-                        self._grace[i] -= 1
-                    elif not self._fault[i]:
-                        self._latch(i, "drive reports a fault (statusword bit 3)")
-                else:
-                    self._grace[i] = 0
-                    if self._was_allowed[i] and not allowed and out.enable[i] \
-                            and not self._fault[i]:
-                        self._latch(i, "drive left Operation enabled without being told to "
-                                       "(quick stop, safe torque off, mode change?)")
-                self._was_allowed[i] = allowed
-            answer = self._answer[i]
-            age = ticks - self._answer_tick[i]
-            timed_out = answer < 0 or age > max_age
-            episode = self._timeout_ep[i]
-            if timed_out != episode.active:
-                if timed_out:
-                    if answer >= 0:
-                        episode.begin(now, f"{self.channels[i]}: no fresh actuator_command: the "
-                                           f"newest answers a state {age} cycles old "
-                                           f"(> command_timeout {1e3 * timeout:g} ms): zero "
-                                           "torque")
-                else:
-                    episode.end(now, f"{self.channels[i]}: commands back, torque re-enabled")
-            status = STATUS_COMMAND_TIMEOUT if timed_out else STATUS_OK
-            u = self._effort[i]
-            if blocked or self._fault[i] or not allowed:
-                status |= STATUS_FAULT     # the plant applies none of the controller's torque
-                u = 0.0
-            elif timed_out:
-                u = 0.0
-            elif u > lim:
-                u, status = lim, status | STATUS_LIMIT
-            elif u < -lim:
-                u, status = -lim, status | STATUS_LIMIT
-            if upn is not None:
-                k = upn[i]
-                units = round(u * k)
-                if units / k > lim:          # rounding must not cross the limit either
-                    units -= 1
-                elif units / k < -lim:
-                    units += 1
-                if units > INT16_MAX:
-                    units, status = INT16_MAX, status | STATUS_LIMIT
-                elif units < INT16_MIN:
-                    units, status = INT16_MIN, status | STATUS_LIMIT
-                out.units[i] = units
-                u = units / k
-            out.torque[i] = u
-            out.status[i] = status
-            out.enable[i] = not (bus_fault or self._fault[i])
-        return out
+        self._take_handovers(now)
+        blocked = self._judge_sources(now)
+        for i, ch in enumerate(self._ch):
+            if velocity is not None and not ch.fault:
+                self._check_velocity(i, velocity[i])
+            allowed = True if drives is None else self._check_drive(i, ch, *drives[i])
+            timed_out = self._watch_commands(i, ch, now)
+            self._decide(i, ch, blocked or not allowed, timed_out)
+        return self.out
 
-    def exchange(self, wkc, expected_wkc):
+    def exchange(self, wkc: int, expected_wkc: int) -> bool:
         """Result of this cycle's process-data exchange (hardware); True if complete."""
         if wkc == expected_wkc:
             self._wkc_errors = 0
@@ -374,51 +336,161 @@ class PlantCycle:
                                    "disabled; call ~/reset (std_srvs/Trigger) to retry")
         return False
 
-    def state_published(self):
+    def state_published(self) -> int:
         """A fresh sample went out: it is the new current cycle; returns its number."""
         self.cycle += 1
         self._published_at[self.cycle % _TICK_RING] = self.ticks
         return self.cycle
 
+    # --- stages of a step ------------------------------------------------------------------
+    def _take_handovers(self, now: float) -> None:
+        """New limits, a reset (or the end of the last one's fault-reset pulse), the commands
+        received since the last step; the watchdog's clock advances."""
+        limits = self._limits_box.take()
+        if limits is not None:
+            self._apply_limits(limits)
+        self.ticks += 1
+        if self._reset_box.take():
+            self._reset(now)
+        else:
+            resets = self.out.fault_reset
+            for i in range(len(resets)):
+                resets[i] = False
+        if self._inbox:
+            self._take_commands(now)
+
+    def _judge_sources(self, now: float) -> bool:
+        """Whether no command may be applied this cycle: a bus fault, a latched conflict or
+        more than one publisher of ``actuator_command`` in the graph (reported when that
+        begins and ends; the commands are forgotten when it ends)."""
+        crowded = len(self._publishers) > 1
+        if crowded != self._crowded_ep.active:
+            if crowded:
+                self._crowded_ep.begin(now, f"{self.conflict}: zero torque on every channel "
+                                            "while more than one can command (a process "
+                                            "killed a moment ago stays listed until its DDS "
+                                            "lease expires)")
+            else:
+                self._crowded_ep.end(now, "one publisher of actuator_command left: commands "
+                                          "accepted again")
+                self._forget_commands()
+        return bool(self._bus_fault or self._conflict or crowded)
+
+    def _check_velocity(self, i: int, v: float) -> None:
+        """The velocity trip of channel ``i`` (not latched yet): ``v`` [rad/s] non-finite or
+        beyond ``max_velocity`` latches its fault."""
+        vmax = self._limits.max_velocity
+        if not math.isfinite(v):
+            self._latch(i, f"non-finite motor velocity {v!r}")
+        elif vmax > 0.0 and not -vmax <= v <= vmax:
+            self._latch(i, f"motor speed {v:.2f} rad/s beyond max_velocity {vmax:g}")
+
+    def _check_drive(self, i: int, ch: _PlantChannel, allowed: bool, faulted: bool) -> bool:
+        """Channel ``i``'s drive: a fault (after the reset's grace period) or leaving Operation
+        enabled untold latches the channel's fault; returns whether it may have torque."""
+        if faulted:
+            if ch.grace > 0:
+                ch.grace -= 1
+            elif not ch.fault:
+                self._latch(i, "drive reports a fault (statusword bit 3)")
+        else:
+            ch.grace = 0
+            if ch.was_allowed and not allowed and self.out.enable[i] and not ch.fault:
+                self._latch(i, "drive left Operation enabled without being told to "
+                               "(quick stop, safe torque off, mode change?)")
+        ch.was_allowed = allowed
+        return allowed
+
+    def _watch_commands(self, i: int, ch: _PlantChannel, now: float) -> bool:
+        """The command watchdog of channel ``i``: True while its newest accepted command
+        answers a state more than ``command_timeout`` old (or there is none); the start and
+        the end of a timeout are reported."""
+        answer = ch.answer
+        age = self.ticks - ch.answer_tick
+        timed_out = answer < 0 or age > self._max_age
+        episode = ch.timeout_episode
+        if timed_out != episode.active:
+            if timed_out:
+                if answer >= 0:
+                    episode.begin(now, f"{self.channels[i]}: no fresh actuator_command: the "
+                                       f"newest answers a state {age} cycles old "
+                                       f"(> command_timeout "
+                                       f"{1e3 * self._limits.command_timeout:g} ms): zero "
+                                       "torque")
+            else:
+                episode.end(now, f"{self.channels[i]}: commands back, torque re-enabled")
+        return timed_out
+
+    def _decide(self, i: int, ch: _PlantChannel, stopped: bool, timed_out: bool) -> None:
+        """Channel ``i``'s torque, drive units, status and enable this cycle: zero when
+        ``stopped`` (nothing may be applied), faulted or ``timed_out``, else the command
+        clamped to ``torque_limit`` (and rounded to drive units within it)."""
+        out = self.out
+        lim = self._limits.torque_limit
+        status = STATUS_COMMAND_TIMEOUT if timed_out else STATUS_OK
+        u = ch.effort
+        if stopped or ch.fault:
+            status |= STATUS_FAULT     # the plant applies none of the controller's torque
+            u = 0.0
+        elif timed_out:
+            u = 0.0
+        elif u > lim:
+            u, status = lim, status | STATUS_LIMIT
+        elif u < -lim:
+            u, status = -lim, status | STATUS_LIMIT
+        upn = self._units_per_nm
+        if upn is not None:
+            k = upn[i]
+            units = round(u * k)
+            if units / k > lim:          # rounding must not cross the limit either
+                units -= 1
+            elif units / k < -lim:
+                units += 1
+            if units > INT16_MAX:
+                units, status = INT16_MAX, status | STATUS_LIMIT
+            elif units < INT16_MIN:
+                units, status = INT16_MIN, status | STATUS_LIMIT
+            out.units[i] = units
+            u = units / k
+        out.torque[i] = u
+        out.status[i] = status
+        out.enable[i] = not (self._bus_fault or ch.fault)
+
     # --- internals -------------------------------------------------------------------------
-    def _apply_limits(self, limits):
+    def _apply_limits(self, limits: PlantLimits) -> None:
         self._limits = limits
         self._max_age = min(_TICK_RING // 2,
                             max(1, int(math.ceil(limits.command_timeout / self.dt))))
 
-    def _forget_commands(self):
-        """Forget every command (start, and after a reset)."""
-        n = len(self.channels)
-        self._effort = [0.0] * n           # accepted effort (0.0 for a non-finite one)
-        self._raw = [0.0] * n              # as received: a repeated answer must match it
-        self._answer = [-1] * n            # cycle answered by the accepted command
-        self._answer_tick = [0] * n        # ticks when that state was published
+    def _forget_commands(self) -> None:
+        """Forget every command (after a reset, and when a second publisher has gone)."""
+        for ch in self._ch:
+            ch.forget()
 
-    def _latch(self, i, reason):
-        self._fault[i] = reason
+    def _latch(self, i: int, reason: str) -> None:
+        self._ch[i].fault = reason
         self.faults_latched += 1
         self.events.add(ERROR, f"{self.channels[i]}: FAULT latched, zero torque: {reason}; "
                                "call ~/reset (std_srvs/Trigger) to clear")
 
-    def _latch_conflict(self, reason):
+    def _latch_conflict(self, reason: str) -> None:
         self._conflict = reason
         self.faults_latched += 1
         self.events.add(ERROR, f"two command sources: {reason}; zero torque on every channel "
                                "until one source is left and ~/reset is called")
 
-    def _reject(self, kind, now, text):
+    def _reject(self, kind: str, now: float, text: str) -> None:
         self.rejected[kind] += 1
         episode = self._reject_ep[kind]
         episode.begin(now, text)
         episode.end(now)
 
-    def _reset(self, now):
+    def _reset(self, now: float) -> None:
         cleared = [f for f in self.latched_faults() if not f.startswith("commands: ")]
-        n = len(self.channels)
-        for i in range(n):
-            self._fault[i] = ""
-            self._grace[i] = RESET_GRACE_CYCLES
-            self._was_allowed[i] = False     # the drive walks up to Operation enabled again
+        for i, ch in enumerate(self._ch):
+            ch.fault = ""
+            ch.grace = RESET_GRACE_CYCLES
+            ch.was_allowed = False           # the drive walks up to Operation enabled again
             self.out.fault_reset[i] = True
             self.out.enable[i] = True
         self._bus_fault = ""
@@ -436,7 +508,9 @@ class PlantCycle:
         self.events.add(INFO, "reset: " + ("cleared " + "; ".join(cleared) if cleared
                                            else "no fault was latched") + kept)
 
-    def _take_commands(self, now):
+    def _take_commands(self, now: float) -> None:
+        """Accept the queued commands that answer a fresh state this plant published, one
+        source's answers only (a second source latches the conflict)."""
         inbox = self._inbox
         current = self.cycle
         ticks = self.ticks
@@ -466,31 +540,35 @@ class PlantCycle:
                                             "answers")
                 continue
             for value, i in zip(efforts, mapping):
-                if i < 0:
-                    continue
-                last = self._answer[i]
-                if answers <= last:
-                    prev = self._raw[i]
-                    same = value == prev or (value != value and prev != prev)
-                    if answers < last or not same:
-                        if not self._conflict:
-                            how = ("answered twice with different efforts" if answers == last
-                                   else f"answered after cycle {last}")
-                            who = (f" (publishers: {', '.join(self._publishers)})"
-                                   if self._publishers else "")
-                            self._latch_conflict(f"cycle {answers} {how} for "
-                                                 f"{self.channels[i]}{who}")
-                    continue      # the same answer again (a re-published state) or rejected
-                self._answer[i] = answers
-                self._answer_tick[i] = published_at[answers % _TICK_RING]
-                self._raw[i] = value
-                if not math.isfinite(value):
-                    if not self._fault[i]:
-                        self._latch(i, f"non-finite torque command {value!r}")
-                    value = 0.0
-                self._effort[i] = value
+                if i >= 0:
+                    self._accept(i, value, answers, published_at[answers % _TICK_RING])
 
-    def _map(self, names, now):
+    def _accept(self, i: int, value: float, answers: int, tick: int) -> None:
+        """Channel ``i``'s command ``value`` [N m] answering cycle ``answers`` (published at
+        step ``tick``): accepted when it answers a newer cycle than the last; the same answer
+        again is ignored, a different one or an older cycle latches the conflict."""
+        ch = self._ch[i]
+        last = ch.answer
+        if answers <= last:
+            prev = ch.raw
+            same = value == prev or (value != value and prev != prev)
+            if (answers < last or not same) and not self._conflict:
+                how = ("answered twice with different efforts" if answers == last
+                       else f"answered after cycle {last}")
+                who = (f" (publishers: {', '.join(self._publishers)})" if self._publishers
+                       else "")
+                self._latch_conflict(f"cycle {answers} {how} for {self.channels[i]}{who}")
+            return      # the same answer again (a re-published state) or rejected
+        ch.answer = answers
+        ch.answer_tick = tick
+        ch.raw = value
+        if not math.isfinite(value):
+            if not ch.fault:
+                self._latch(i, f"non-finite torque command {value!r}")
+            value = 0.0
+        ch.effort = value
+
+    def _map(self, names: Sequence[str], now: float) -> tuple[int, ...] | None:
         """Channel index per name of a command (-1: not a channel here); None if malformed."""
         cached_names, cached = self._mapping
         if names == cached_names:

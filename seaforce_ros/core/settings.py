@@ -18,13 +18,16 @@ from .schema import (BRINGUP, CONTROLLER, HARDWARE, PLANTS, RECORDER, SIM, Param
 
 __all__ = ["CommonSettings", "ControllerSettings", "BringupSettings", "PlantSettings",
            "SimSettings", "SimulatorParams", "HardwareSettings", "RecorderSettings",
-           "EXECUTORS", "CONTROL_QOS", "LOOPS", "CLOCK_MODES", "STORAGES", "DEFAULT_TOPICS",
+           "EXECUTORS", "CONTROL_QOS", "LOOPS", "CLOCK_MODES", "AUTOSTART_STATES", "STORAGES",
+           "DEFAULT_TOPICS",
            "SIM_MODEL_GROUPS", "SIM_PREFIX"]
 
 EXECUTORS = ("events", "single_threaded")
 CONTROL_QOS = ("reliable", "best_effort")
 LOOPS = ("topics", "direct")
 CLOCK_MODES = ("realtime", "lockstep")
+#: The lifecycle states a plant node can take by itself at start (managed-node labels).
+AUTOSTART_STATES = ("unconfigured", "inactive", "active")
 STORAGES = ("mcap", "sqlite3")
 #: The package's own topics bag_recorder records by default.
 DEFAULT_TOPICS = ("actuator_state", "actuator_command", "controller_status")
@@ -79,6 +82,14 @@ class PlantSettings(ParameterGroup):
 
     joint_state_rate: float = param(100.0, "Hz", "sensor_msgs/JointState rate, 0 = off",
                                     ge=0.0, le=20000.0)
+    # hardware: inactive, so that a drive is enabled only by an explicit `activate`, while a
+    # bus fault (a missing slave, a wrong identity) still shows at start, as before
+    autostart: str = param("inactive", "", "lifecycle state the node goes to by itself at "
+                           "start: unconfigured (wait for configure), inactive (configured: "
+                           "plant checked, no torque; wait for activate) or active (torque "
+                           "follows actuator_command at once); then `ros2 lifecycle set` moves "
+                           "it", choices=AUTOSTART_STATES, read_only=True,
+                           node_defaults={SIM: "active"})
 
 
 @group("", nodes=(SIM,), per_channel=False)

@@ -1,10 +1,14 @@
 """Exception types of :mod:`seaforce_ros.ethercat`: one root, :class:`EthercatError`, so the
-hardware node catches one type and reports the message (it names what to check or fix)."""
+hardware node catches one type and reports the message (it names what to check or fix). The
+root is a :class:`~seaforce_ros.core.backend.BackendError`: a plant node handles a failed
+transition of its EtherCAT backend like that of any other backend."""
+
+from ..core.backend import BackendError
 
 __all__ = ['EthercatError', 'BusConfigError', 'BusError', 'IdentityError']
 
 
-class EthercatError(Exception):
+class EthercatError(BackendError):
     """Base class of every error :mod:`seaforce_ros.ethercat` raises for bad input or a bus
     that cannot work."""
 

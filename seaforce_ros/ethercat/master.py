@@ -1,8 +1,10 @@
 """The EtherCAT master of the hardware node: pysoem (SOEM) driven from a :class:`BusConfig`.
 
-No ROS here. :class:`EthercatBus` brings the bus up (identity check before anything is
-written to a drive), exchanges process data once per cycle, packs/unpacks the configured PDO
-entries, and takes the bus back to INIT. The per-cycle path does no allocation beyond the
+No ROS here. :class:`EthercatBus` opens the interface (:meth:`~EthercatBus.open`), brings
+the bus to SAFE-OP with every identity checked before anything is written to a drive
+(:meth:`~EthercatBus.configure`), to OP and back (:meth:`~EthercatBus.request_op`,
+:meth:`~EthercatBus.request_safe_op`), exchanges process data once per cycle, packs/unpacks
+the configured PDO entries, and takes the bus back to INIT. The per-cycle path does no allocation beyond the
 bytes objects pysoem itself returns.
 """
 from __future__ import annotations
@@ -66,7 +68,8 @@ class EthercatBus:
 
     # --- bring-up ------------------------------------------------------------------------
     def open(self) -> None:
-        """Open the interface, find and check every slave, map process data, go to SAFE-OP."""
+        """Open the interface (a raw socket; nothing is sent yet). Raises :class:`BusError`
+        naming what to check; then nothing is left open."""
         try:
             import pysoem
         except ImportError as exc:
@@ -76,28 +79,43 @@ class EthercatBus:
         try:
             # SOEM switches the interface to promiscuous mode and never switches it back:
             # close() restores what it was
-            self._was_promiscuous = bool(interface_flags(self.interface) & IFF_PROMISC)
+            was_promiscuous = bool(interface_flags(self.interface) & IFF_PROMISC)
         except OSError as exc:
             raise BusError(f'no network interface {self.interface!r} ({exc.strerror}); '
                            '`ip link` lists them') from None
         master = pysoem.Master()
+        self._was_promiscuous = was_promiscuous
         try:
             master.open(self.interface)
         except Exception as exc:
+            self.close()
             raise BusError(
                 f'cannot open EtherCAT interface {self.interface!r}: {exc}. Check the name '
                 '(ip link) and the capabilities: sudo setcap cap_net_raw,cap_net_admin+ep '
                 '$(readlink -f $(which python3))') from exc
         self.master = master
+
+    def configure(self) -> None:
+        """Find and check every slave, map the process data, bring the bus to SAFE-OP.
+
+        Nothing is written to a drive's outputs before every identity has been checked.
+        Raises :class:`BusError` (:class:`IdentityError` for a wrong device) naming what to
+        check; the bus is then left as it is for :meth:`to_init` and :meth:`close`.
+        """
+        pysoem, master = self._pysoem, self.master
+        if master is None:
+            raise BusError('the EtherCAT interface is not open')
+        self.expected_wkc = None
+        self._inputs = [bytes(s.inputs.size) for s in self.config.slaves]
+        for out in self._outputs:
+            out[:] = bytes(len(out))
         found = master.config_init()
         if found <= 0:
-            self.close()
             raise BusError(f'no EtherCAT slave answered on {self.interface} (config_init '
                            f'returned {found}); check cabling and power')
         expected = self.config.slaves
         if found != len(expected):
             names = [master.slaves[i].name for i in range(found)]
-            self.close()
             raise BusError(f'{found} slave(s) on the bus ({", ".join(names)}) but the '
                            f'configuration lists {len(expected)} '
                            f'({", ".join(s.name for s in expected)})')
@@ -106,29 +124,30 @@ class EthercatBus:
         try:
             master.config_map()
         except Exception as exc:
-            self.close()
             raise BusError(f'process data mapping failed: {exc}') from exc
         for position, want in enumerate(expected):
             slave = master.slaves[position]
             n_out, n_in = len(slave.output), len(slave.input)
             if n_out != want.outputs.size or n_in != want.inputs.size:
-                self.close()
                 raise BusError(
                     f'slave {position + 1} ({want.name}) maps {n_out} output / {n_in} input '
                     f'bytes but the configuration describes {want.outputs.size} / '
                     f'{want.inputs.size}: fix its outputs/inputs entries')
         if master.state_check(pysoem.SAFEOP_STATE, 50000) != pysoem.SAFEOP_STATE:
-            master.read_state()
-            states = ', '.join(f'{expected[i].name}: 0x{master.slaves[i].state:02X} '
-                               f'(AL {master.slaves[i].al_status:#06x})'
-                               for i in range(found))
-            self.close()
-            raise BusError(f'slaves did not reach SAFE-OP: {states}')
+            raise BusError(f'slaves did not reach SAFE-OP: {self._states()}')
         self.expected_wkc = master.expected_wkc
         try:
             master.always_release_gil = True
         except AttributeError:
             pass
+
+    def _states(self) -> str:
+        """Every slave's AL state and status code, read from the bus now (for a message)."""
+        master = self.master
+        master.read_state()
+        return ', '.join(f'{want.name}: 0x{master.slaves[i].state:02X} '
+                         f'(AL {master.slaves[i].al_status:#06x})'
+                         for i, want in enumerate(self.config.slaves))
 
     def set_process_data_watchdog(self, seconds: float) -> None:
         """Program every drive's SyncManager (process-data) watchdog: a drive whose outputs stop
@@ -142,7 +161,6 @@ class EthercatBus:
         mismatch = got[0] != want.vendor_id or got[1] != want.product_code or (
             want.revision is not None and got[2] != want.revision)
         if mismatch:
-            self.close()
             raise IdentityError(
                 f'slave {position + 1} ({want.name}, "{slave.name}") is not the configured '
                 f'device: vendor {_hex(got[0])} product code {_hex(got[1])} revision '
@@ -151,7 +169,8 @@ class EthercatBus:
                 'commanded; fix the bus YAML or the cabling order.')
 
     def request_op(self, timeout_s: float = 2.0) -> None:
-        """Request OP while exchanging (zero) process data, as SOEM needs."""
+        """Request OP while exchanging process data (the outputs as they are set now), as
+        SOEM needs; :class:`BusError` if the slaves do not all get there in time."""
         pysoem = self._pysoem
         master = self.master
         master.state = pysoem.OP_STATE
@@ -162,10 +181,17 @@ class EthercatBus:
             if master.state_check(pysoem.OP_STATE, 1000) == pysoem.OP_STATE:
                 return
             time.sleep(0.0005)
-        master.read_state()
-        states = ', '.join(f'{s.name}: 0x{master.slaves[i].state:02X}'
-                           for i, s in enumerate(self.config.slaves))
-        raise BusError(f'slaves did not reach OP within {timeout_s} s: {states}')
+        raise BusError(f'slaves did not reach OP within {timeout_s} s: {self._states()}')
+
+    def request_safe_op(self) -> None:
+        """Bring every slave back to SAFE-OP (their outputs go to their safe state; inputs
+        stay readable); :class:`BusError` if they do not all report it."""
+        pysoem = self._pysoem
+        master = self.master
+        master.state = pysoem.SAFEOP_STATE
+        master.write_state()
+        if master.state_check(pysoem.SAFEOP_STATE, 50000) != pysoem.SAFEOP_STATE:
+            raise BusError(f'slaves did not go back to SAFE-OP: {self._states()}')
 
     # --- cycle ---------------------------------------------------------------------------
     def set_output(self, slave: int, entry: str, value: int) -> None:
