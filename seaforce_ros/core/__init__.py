@@ -14,7 +14,10 @@ analysis             force-feedback comparison (Fig. 7), low-frequency limits, Z
                      impedance from time series, hold-gain design
 dahl                 Dahl hysteresis (eq. 14-15), exact per-sample update
 signals              log chirps and their fades
-controller           ChannelController: the 2 kHz update of one channel, all modes
+observer             endpoint observer: hose inversion, Dahl play, friction feed-forward
+dob                  disturbance observer (eq. 19), bumpless entry
+modes                the nine modes, one small class each, keyed by name
+controller           ChannelController: the 2 kHz update of one channel, in stages
 estimator            contact detection and object impedance from motor state and pressure
 jobs                 what overrides a channel's mode for a while: the job protocol
 grasp                a grasp: approach, squeeze, probe, hold, release

@@ -345,7 +345,7 @@ class Grasp(Job):
                 "object_stiffness": estimate.stiffness if self.contact else math.nan,
                 "object_damping": estimate.damping if self.contact else math.nan}
 
-    def _enter(self, phase):
+    def _enter(self, phase: str) -> None:
         self.phase = phase
         self._t = 0.0
 
@@ -357,73 +357,108 @@ class Grasp(Job):
     def update(self, est: ContactEstimator, ve: float, steps: int = 1) -> float:
         """Advance ``steps`` samples; returns ``F_g`` [N m]. ``est`` is the channel's
         :class:`~.estimator.ContactEstimator`, already updated with this sample, ``ve`` the
-        controller's endpoint velocity estimate V_e_hat [rad/s] (undelayed)."""
+        controller's endpoint velocity estimate V_e_hat [rad/s] (undelayed).
+
+        Stages: the requests from other threads; the clock; then the phase's stage -- a
+        steady hold (the common case, kept short), the release, done, the approach, or a
+        contact phase (the object checked, the contact force of the phase, the command). A
+        stage that releases the grasp runs the release at once, on this sample (``steps``
+        0: no time passes twice)."""
+        if self._abort_request is not None or self._release_request is not None:
+            self._take_requests(est)
+        self._t += self.dt * steps
+        phase = self.phase
+        if phase == "hold" and est.contact:
+            output = self._hold_steady(est, ve, steps)
+            if output is not None:
+                return output
+        if phase == "release":
+            return self._release_step(est, ve, steps)
+        if phase == "done":
+            self.force_command = self._output = self._pushed = 0.0
+            return 0.0
+        if phase == "approach":
+            f = self._approach(est, self._sign, steps)
+            if self.phase == "approach":
+                self.force_command = self._output = self._pushed = f
+                return f
+            if self.phase == "release":
+                return self.update(est, ve, 0)
+            phase = "contact"
+        if self._object_gone(est, phase):
+            return self.update(est, ve, 0)
+        force = self._phase_force(est, phase, steps)
+        if force is None:
+            return self.update(est, ve, 0)
+        return self._command(force, est, ve)
+
+    def _take_requests(self, est: ContactEstimator) -> None:
+        """The abort and the release requested from another thread since the last sample."""
         if self._abort_request is not None:
             self.abort_now(self._abort_request, est.estimate() if self.contact else None)
         if self._release_request is not None:
             self.release(self._release_request)
             self._release_request = None
-        elapsed = self.dt * steps
-        self._t += elapsed
-        phase = self.phase
-        if phase == "hold" and est.contact:
-            # the common case, kept short: the grip, averaged; checks as below
-            s = self._sign
-            c = -s * est.force
-            grip = self.grip_force
-            if SLIP_FRACTION * grip <= c <= self._max and not est.quiet and \
-                    s * (est.position - self._contact_at) <= self._give_way:
-                self._slip = 0.0
-                self.grip_force = grip + self._hold_alpha * steps * (c - grip)
-                pushed = self._hold_command - est.bias
-                self._pushed = pushed
-                self._output = output = pushed - self._damping * ve
-                return output
-        if phase == "release":
-            est.freeze()
-            if (self._release_from or self._release_contact) and self._gave_way(est):
-                # the object gave way while the force ramped down: nothing pushes any more
-                self._release_from = self._release_contact = 0.0
-            ramp = self.params.release_time
-            scale = 1.0 - self._t / ramp
-            if scale <= 0.0:
-                scale = 0.0
-                if self._relax is None:
-                    self._relax = self._relax_time(est)
-                if abs(est.velocity) < STILL_SPEED:
-                    self._steady += elapsed
-                else:
-                    self._steady = 0.0
-                if self._steady >= STILL_TIME or self._t >= ramp + self._relax:
-                    if self.contact:
-                        self.estimate = est.estimate()    # the fit, frozen since the release
-                    est.let_go()
-                    self.outcome = self._pending_outcome
-                    self._enter("done")
-                    self.force_command = self._output = 0.0   # done: nothing remains
-                    return 0.0
-            self.force_command = self._release_contact * scale
-            # the damper stays: the object unloads the finger gently (a finger at minimum
-            # impedance let go of a squeezed object would fly open)
-            self._output = self._release_from * scale - self._damping * ve
-            return self._output
-        if phase == "done":
-            self.force_command = self._output = self._pushed = 0.0
-            return 0.0
+
+    def _hold_steady(self, est: ContactEstimator, ve: float, steps: int) -> float | None:
+        """``hold`` with a contact force within the slip level and ``max_force``, the
+        estimator not quiet and the finger within ``give_way_travel``: the grip, its average
+        updated; F_g [N m]. None when a check fails (the contact stage decides)."""
         s = self._sign
-        if phase == "approach":
-            f = self._approach(est, s, steps)
-            if self.phase != "contact":
-                if self.phase == "release":
-                    return self.update(est, ve, 0)
-                self.force_command = self._output = self._pushed = f
-                return f
-            phase = "contact"
+        c = -s * est.force
+        grip = self.grip_force
+        if SLIP_FRACTION * grip <= c <= self._max and not est.quiet and \
+                s * (est.position - self._contact_at) <= self._give_way:
+            self._slip = 0.0
+            self.grip_force = grip + self._hold_alpha * steps * (c - grip)
+            pushed = self._hold_command - est.bias
+            self._pushed = pushed
+            self._output = output = pushed - self._damping * ve
+            return output
+        return None
+
+    def _release_step(self, est: ContactEstimator, ve: float, steps: int) -> float:
+        """``release``: F_g ramps to zero in ``release_time`` (at once if the object gave way
+        meanwhile), the damper on; then done once the finger is still or the object has
+        relaxed. The estimator's fit is frozen meanwhile and the contact declared over at the
+        end."""
+        est.freeze()
+        if (self._release_from or self._release_contact) and self._gave_way(est):
+            # the object gave way while the force ramped down: nothing pushes any more
+            self._release_from = self._release_contact = 0.0
+        ramp = self.params.release_time
+        scale = 1.0 - self._t / ramp
+        if scale <= 0.0:
+            scale = 0.0
+            if self._relax is None:
+                self._relax = self._relax_time(est)
+            if abs(est.velocity) < STILL_SPEED:
+                self._steady += self.dt * steps
+            else:
+                self._steady = 0.0
+            if self._steady >= STILL_TIME or self._t >= ramp + self._relax:
+                if self.contact:
+                    self.estimate = est.estimate()    # the fit, frozen since the release
+                est.let_go()
+                self.outcome = self._pending_outcome
+                self._enter("done")
+                self.force_command = self._output = 0.0   # done: nothing remains
+                return 0.0
+        self.force_command = self._release_contact * scale
+        # the damper stays: the object unloads the finger gently (a finger at minimum
+        # impedance let go of a squeezed object would fly open)
+        self._output = self._release_from * scale - self._damping * ve
+        return self._output
+
+    def _object_gone(self, est: ContactEstimator, phase: str) -> bool:
+        """A contact phase's checks of the object: the contact lost, the finger past the
+        contact by more than ``give_way_travel``, the contact force estimate beyond
+        ``max_force``. True when one failed: the grasp is released (aborted)."""
         if not est.contact:
             self.release(f"contact lost at {est.position:.4g} rad in {phase}", "aborted",
                          drop=True)
-            return self.update(est, ve, 0)
-        p = self.params
+            return True
+        s = self._sign
         if self._gave_way(est):
             # the object gave way (or was taken away) and the contact estimate still sees
             # one: the model's error at the speed the grip drives a free finger to (first:
@@ -433,19 +468,26 @@ class Grasp(Job):
                          f"(grasp.give_way_travel {self._give_way:g} rad): the object gave "
                          f"way, or is too soft for this grip",
                          "aborted", drop=True)
-            return self.update(est, ve, 0)
+            return True
         c = -s * est.force                 # contact force estimate, > 0 pushing back
         if c > self._max and not est.quiet:    # (quiet: no sample of it; f stays bounded)
             self.release(f"contact force estimate {c:.4g} N m beyond max_force "
                          f"{self._max:g} N m in {phase}", "aborted")
-            return self.update(est, ve, 0)
+            return True
+        return False
+
+    def _phase_force(self, est: ContactEstimator, phase: str, steps: int) -> float | None:
+        """The contact force f [N m] of a contact phase (``contact``, ``squeeze``, ``probe``,
+        ``hold``), moving on to the next phase when this one is over. None when the object
+        slipped in ``hold`` (the grasp is released, aborted)."""
+        c = -self._sign * est.force        # contact force estimate, > 0 pushing back
         t = self._t
         if phase == "contact":
-            f = self._touch
             if t >= CONTACT_TIME:
                 self._enter("squeeze")
-        elif phase == "squeeze":
-            x = min(1.0, t / p.squeeze_time)
+            return self._touch
+        if phase == "squeeze":
+            x = min(1.0, t / self.params.squeeze_time)
             f = self._touch + (self._grip - self._touch) * (0.5 - 0.5 * math.cos(math.pi * x))
             if x >= 1.0 and self._amp > 0.0:
                 self._enter("probe")
@@ -453,28 +495,35 @@ class Grasp(Job):
             elif x >= 1.0:
                 self._enter_hold(c, est)
                 self.message = "holding"
-        elif phase == "probe":
+            return f
+        if phase == "probe":
             f = self._grip + self._amp * self._probe(t)
-            if t >= p.probe_duration:
+            if t >= self.params.probe_duration:
                 self._enter_hold(c, est)
                 self.message = "holding"
-        elif not est.quiet:     # hold, when the short path above did not decide
-            f = self._grip
-            grip = self.grip_force
-            if c < SLIP_FRACTION * grip:
-                # a creeping soft object's force only rises towards the grip; this one fell
-                # (counted over the samples seen: one after a gap is one sample of it)
-                self._slip += self.dt
-                if self._slip >= SLIP_TIME:
-                    self.release(f"the object gave way in hold: contact force estimate "
-                                 f"{c:.3g} N m, held {grip:.3g} N m", "aborted", drop=True)
-                    return self.update(est, ve, 0)
-            else:
-                self._slip = 0.0
-            self.grip_force = grip + self._hold_alpha * steps * (c - grip)
-        else:   # hold, quiet: the force estimate is no sample of the object (lost states, a
-            f = self._grip      # plant stop, after which the grip comes back)
+            return f
+        if est.quiet:   # hold, quiet: the force estimate is no sample of the object (lost
+            self._slip = 0.0    # states, a plant stop, after which the grip comes back)
+            return self._grip
+        # hold, when the steady stage did not decide
+        grip = self.grip_force
+        if c < SLIP_FRACTION * grip:
+            # a creeping soft object's force only rises towards the grip; this one fell
+            # (counted over the samples seen: one after a gap is one sample of it)
+            self._slip += self.dt
+            if self._slip >= SLIP_TIME:
+                self.release(f"the object gave way in hold: contact force estimate "
+                             f"{c:.3g} N m, held {grip:.3g} N m", "aborted", drop=True)
+                return None
+        else:
             self._slip = 0.0
+        self.grip_force = grip + self._hold_alpha * steps * (c - grip)
+        return self._grip
+
+    def _command(self, f: float, est: ContactEstimator, ve: float) -> float:
+        """F_g [N m] for the contact force ``f`` (bounded to ``[0, max_force]``): the
+        estimator's free-motion bias commanded away, the contact damper on."""
+        s = self._sign
         f = min(max(f, 0.0), self._max)
         self.force_command = s * f
         # the model's free-motion error (the estimator's bias) shifts the real contact force:
@@ -483,21 +532,20 @@ class Grasp(Job):
         self._output = self._pushed - self._damping * ve
         return self._output
 
-    def _gave_way(self, est):
+    def _gave_way(self, est: ContactEstimator) -> bool:
         """The finger is more than give_way_travel past the contact point, towards the
         object (False before a contact: ``_contact_at`` is NaN)."""
         return self._sign * (est.position - self._contact_at) > self._give_way
 
-    def _enter_hold(self, c, est):
+    def _enter_hold(self, c: float, est: ContactEstimator) -> None:
         self._enter("hold")
         # the average starts from the force estimate, or from the grip commanded when the
         # estimate is no sample of the object (a quiet estimator)
         self.grip_force = self._grip if est.quiet else c
         self._slip = 0.0
 
-    def _approach(self, est, s, steps):
-        """The approach servo's force, or the phase changes (contact, release)."""
-        p = self.params
+    def _approach(self, est: ContactEstimator, s: float, steps: int) -> float:
+        """``approach``: the servo's force [N m], or the phase changes (contact, release)."""
         if self._start is None:
             self._start = est.position
         travel = s * (est.position - self._start)
@@ -508,45 +556,63 @@ class Grasp(Job):
             self._armed = self._closed = False
             self._steady = self._slow = 0.0
         elif not self._armed:
-            elapsed = self.dt * steps
-            if abs(est.velocity - self._v) <= max(0.15 * abs(self._v), STEADY_SPEED):
-                self._steady += elapsed
-            else:
-                self._steady = 0.0
-            speed = abs(self._v)
-            if abs(est.velocity) < 0.25 * speed:
-                self._slow += elapsed
-            else:
-                self._slow = 0.0
-            if s * est.velocity >= 0.5 * speed:
-                self._closed = True
-            if self._steady >= ARM_TIME and travel >= self._arm_travel:
-                est.rearm()
-                self._armed = True
-            elif self._at_cap and est.contact and est.direction * s > 0 and (
-                    (self._t >= ARM_TIME_MAX and self._slow >= ARM_TIME)
-                    or (self._closed and s * est.velocity < -max(0.25 * speed, STEADY_SPEED))):
-                # a contact on the closing side before the finger could arm, the servo
-                # pushing towards it with all it may: the finger is held up (it started
-                # touching the object, or met one before it moved steadily), or it bounced
-                # back off one (a closing finger pushed on towards the object cannot move
-                # away by itself) -- that is the contact (below)
-                self._armed = True
+            self._arm(est, s, steps, travel)
         if self._armed and est.contact:
-            if est.direction * s < 0:
-                self.release("pushed from the side away from the object: no grasp", "aborted")
-                return 0.0
-            self.contact = True
-            self._estimator = est
-            self.contact_time = self._t
-            self._contact_at = est.position
-            self.message = "contact"
-            self._enter("contact")
+            self._touched(est, s)
             return 0.0
+        p = self.params
         if travel > p.max_travel or self._t > self._timeout:
             self.release(f"no contact within {travel:.3g} rad of travel in {self._t:.2f} s "
                          f"(grasp.max_travel {p.max_travel:g} rad)", "aborted")
             return 0.0
+        return self._servo(est, s, steps)
+
+    def _arm(self, est: ContactEstimator, s: float, steps: int, travel: float) -> None:
+        """Arm the contact detection once the finger moves steadily past the Dahl transition
+        (the estimator's bias re-captured), or when a contact on the closing side holds up or
+        bounces back a finger the servo pushes with all it may."""
+        elapsed = self.dt * steps
+        if abs(est.velocity - self._v) <= max(0.15 * abs(self._v), STEADY_SPEED):
+            self._steady += elapsed
+        else:
+            self._steady = 0.0
+        speed = abs(self._v)
+        if abs(est.velocity) < 0.25 * speed:
+            self._slow += elapsed
+        else:
+            self._slow = 0.0
+        if s * est.velocity >= 0.5 * speed:
+            self._closed = True
+        if self._steady >= ARM_TIME and travel >= self._arm_travel:
+            est.rearm()
+            self._armed = True
+        elif self._at_cap and est.contact and est.direction * s > 0 and (
+                (self._t >= ARM_TIME_MAX and self._slow >= ARM_TIME)
+                or (self._closed and s * est.velocity < -max(0.25 * speed, STEADY_SPEED))):
+            # a contact on the closing side before the finger could arm, the servo
+            # pushing towards it with all it may: the finger is held up (it started
+            # touching the object, or met one before it moved steadily), or it bounced
+            # back off one (a closing finger pushed on towards the object cannot move
+            # away by itself) -- that is the contact
+            self._armed = True
+
+    def _touched(self, est: ContactEstimator, s: float) -> None:
+        """An armed approach meets a contact: ``contact`` on the closing side, released
+        (aborted) from the other."""
+        if est.direction * s < 0:
+            self.release("pushed from the side away from the object: no grasp", "aborted")
+            return
+        self.contact = True
+        self._estimator = est
+        self.contact_time = self._t
+        self._contact_at = est.position
+        self.message = "contact"
+        self._enter("contact")
+
+    def _servo(self, est: ContactEstimator, s: float, steps: int) -> float:
+        """The approach's PI speed servo, bounded to +-approach_force [N m] (the integral
+        held while the output is at a bound: no wind-up)."""
+        p = self.params
         cap = p.approach_force
         error = p.approach_damping * (self._v - est.velocity)
         i = self._integral
@@ -559,7 +625,7 @@ class Grasp(Job):
         self._at_cap = s * f >= cap
         return f
 
-    def _relax_time(self, est):
+    def _relax_time(self, est: ContactEstimator) -> float:
         """How long the object may take to push the finger back after the release ramp:
         RELAX_TIMES time constants ``(b_o + B_c)/k_o`` of the estimated object (RELAX_TIME
         without an estimate), at most RELAX_TIME_MAX. Waiting for a finger at minimum
@@ -573,7 +639,7 @@ class Grasp(Job):
             return RELAX_TIME
         return min(RELAX_TIME_MAX, RELAX_TIMES * (b + self._damping) / k)
 
-    def _probe(self, t):
+    def _probe(self, t: float) -> float:
         p = self.params
         return faded_log_chirp(t, p.probe_start_frequency, p.probe_end_frequency,
                                p.probe_duration, 0.5 * p.probe_duration)

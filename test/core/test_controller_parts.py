@@ -1,0 +1,81 @@
+"""The controller's parts alone: endpoint observer, DOB, modes (the controller composes them)."""
+
+import math
+
+import pytest
+
+from seaforce_ros.core import DOB_MODES, MODES, ControllerConfig, PlantParams, TargetParams
+from seaforce_ros.core.dob import DisturbanceObserver
+from seaforce_ros.core.modes import MODE_TYPES, ReferenceMode, TorqueMode
+from seaforce_ros.core.observer import EndpointObserver, hose_coefficients
+
+DT = 5e-4
+CONFIG = ControllerConfig(mode="dob_full_ff",
+                          target=TargetParams(stiffness=2.0, damping=0.01, force=0.1))
+PLANT = PlantParams.table_i()
+
+
+def test_one_mode_class_per_mode_and_the_dob_modes_give_a_reference():
+    assert tuple(MODE_TYPES) == MODES
+    assert {n for n, cls in MODE_TYPES.items() if issubclass(cls, ReferenceMode)} \
+        == set(DOB_MODES)
+    assert all(issubclass(cls, TorqueMode) for n, cls in MODE_TYPES.items()
+               if n not in DOB_MODES)
+    assert {n for n, cls in MODE_TYPES.items() if cls.uses_feedforward} \
+        == {"dob_linear_ff", "dob_full_ff", "impedance"}
+
+
+@pytest.mark.parametrize("steps", [1, 3])
+def test_dob_entry_is_bumpless(steps):
+    dob = DisturbanceObserver(CONFIG.dob, DT)
+    dob.enter(0.37, 0.05, 0.2, -0.4, 0.11, steps)
+    assert dob.update(0.05, 0.2, -0.4, 0.11, steps) == pytest.approx(0.37, abs=1e-15)
+
+
+@pytest.mark.parametrize("name", [n for n in MODES if n not in DOB_MODES and n != "passive"])
+@pytest.mark.parametrize("full", [True, False])
+def test_torque_modes_enter_from_the_applied_torque(name, full):
+    mode = MODE_TYPES[name](CONFIG.replace(mode=name), DT)
+    assert isinstance(mode, TorqueMode)
+    if not full:        # a re-entry keeps targets captured at an earlier entry
+        mode.enter(0.01, 0.0, 0.0, 1, -0.2, True)
+        mode.update(0.03, 0.1, 0.05, 1)
+    assert mode.enter(0.02, 0.3, -0.1, 1, 0.25, full) == pytest.approx(0.25, abs=1e-15)
+
+
+def test_passive_is_zero_at_once():
+    mode = MODE_TYPES["passive"](CONFIG, DT)
+    assert isinstance(mode, TorqueMode)
+    assert mode.enter(0.1, 0.2, 0.3, 1, 0.9, True) == 0.0 == mode.update(0.1, 0.2, 0.3, 1)
+
+
+def test_observer_at_rest_and_the_reference_modes():
+    """A constant F_p: the hose deflects by F_p/k_s, V_e_hat is V; F_cmp is eq. 29 on them."""
+    obs = EndpointObserver(PLANT, CONFIG.feedforward, CONFIG.dahl, DT)
+    for _ in range(50):
+        obs.update(0.1, 0.0, 0.02)
+    delta = 0.02 / PLANT.hose_stiffness
+    assert obs.position == pytest.approx(0.1 + delta, rel=1e-12)
+    assert obs.velocity == pytest.approx(0.0, abs=1e-12)
+    assert obs.compensation == pytest.approx(PLANT.endpoint_stiffness * (0.1 + delta), rel=1e-9)
+    refs = {}
+    for name in DOB_MODES:
+        mode = MODE_TYPES[name](CONFIG, DT)
+        assert isinstance(mode, ReferenceMode)
+        refs[name] = mode.enter(obs)
+    ff = obs.compensation + obs.dahl_force
+    assert refs == {"dob": 0.0, "dob_linear_ff": obs.compensation, "dob_full_ff": ff,
+                    "impedance": ff - 0.01 * obs.velocity, "force": 0.1}
+
+
+def test_hose_coefficients_over_n_periods_are_n_single_ones_for_a_ramp():
+    """The first-order hold is exact for a linear F_p: one step over 4 T equals four steps."""
+    ks, inv_bs = PLANT.hose_stiffness, 1.0 / PLANT.hose_damping
+    a1, c01, c11 = hose_coefficients(ks, inv_bs, DT)
+    a4, c04, c14 = hose_coefficients(ks, inv_bs, 4 * DT)
+    delta, f = 1e-4, [0.0, 0.01, 0.02, 0.03, 0.04]
+    d = delta
+    for k in range(4):
+        d = a1 * d + c01 * f[k] + c11 * f[k + 1]
+    assert a4 * delta + c04 * f[0] + c14 * f[4] == pytest.approx(d, rel=1e-12)
+    assert a1 == pytest.approx(math.exp(-ks * inv_bs * DT))
