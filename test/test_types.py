@@ -1,7 +1,7 @@
 """The ROS-free packages (core, bags, identification) are annotated and type-check.
 
 mypy runs with the configuration in setup.cfg (``[mypy]``: every function annotated, every
-body checked; the modules being restructured are listed there). Its cache is the default
+body checked, no module excepted). Its cache is the default
 ``.mypy_cache`` of the repository (ignored by git): a first run checks everything (5 s of CPU;
 9-14 s wall on a loaded 2-core host), a later one only what changed (under 1 s).
 """

@@ -162,9 +162,9 @@ class FrictionFit:
         self._f = [max(-1.0, min(1.0, float(force)))] * len(self.ratios)
         self._clear()
 
-    def _clear(self):
+    def _clear(self) -> None:
         self.S = np.zeros((self._width, self._width))
-        self._block = []
+        self._block: list[float] = []
         self.folds = 0
 
     def update(self, xe: float, xd: float, fp: float, record: bool = True,
@@ -197,7 +197,7 @@ class FrictionFit:
             if len(block) >= self._width * BLOCK:
                 self.fold()
 
-    def _advance(self, xe, xd, fp):
+    def _advance(self, xe: float, xd: float, fp: float) -> None:
         """One sample period of the Dahl states and the filters with these inputs."""
         a11, a12, b1, a21, a22, b2 = self._coef
         dx = xd - self._xd
@@ -392,7 +392,7 @@ def check_calibration_goal(goal: CalibrationGoal, params: FrictionParams,
             f"{params.calibration_duration:g} s (no reversal left to fit)")
 
 
-def _check_range(amplitude, position, params):
+def _check_range(amplitude: float, position: float, params: FrictionParams) -> None:
     if not math.isfinite(position) or position - amplitude < params.position_min \
             or position + amplitude > params.position_max:
         raise InvalidCalibrationError(
@@ -586,7 +586,7 @@ class FrictionCalibration(Job):
                 self._conclude()
         return u
 
-    def _conclude(self):
+    def _conclude(self) -> None:
         new = self.fit.estimate(self._solutions)
         self.new = new
         self.progress = 1.0
@@ -655,14 +655,14 @@ class FrictionAdaptation:
         self.updates = 0
         self._new_fit(0.0)
 
-    def _new_fit(self, force):
+    def _new_fit(self, force: float) -> None:
         c = self._center
         ratios = [c / ADAPTATION_STEP, c, c * ADAPTATION_STEP] if c > 0.0 else [1.0]
         self.fit = FrictionFit(self._plant, self._exponent, ratios, self.dt, self._cutoff,
                                self.params.adaptation_time)
         self.fit.reset(force)
         self._settle = 0
-        self._solving = None         # the candidates solved since the last fold
+        self._solving: list[Solution] | None = None   # candidates solved since the last fold
 
     def update(self, xe: float, xd: float, fp: float, free: bool, dahl_force: float,
                steps: int = 1) -> bool:
@@ -690,7 +690,7 @@ class FrictionAdaptation:
                 self._solving = []
         return False
 
-    def _step(self, solutions):
+    def _step(self, solutions: Sequence[Solution]) -> bool:
         fit = self.fit
         est = fit.estimate(solutions)
         fp = self.params
