@@ -21,8 +21,8 @@ import time
 import numpy as np
 
 from seaforce_ros.core import (ChannelController, ChannelSimulator, ControllerConfig,
-                               DahlParams, DobParams, PlantParams, position_sine,
-                               run_closed_loop)
+                               DahlParams, DobParams, ForceFeedbackParams, PlantParams,
+                               position_sine, run_closed_loop)
 from seaforce_ros.core.analysis import (frequency_response, impedance_from_position,
                                         magnitude_db)
 from seaforce_ros.core.plant import PlantModel
@@ -30,7 +30,7 @@ from seaforce_ros.core.plant import PlantModel
 DT = 5e-4
 FREQS = (0.3, 1.0, 3.0, 10.0, 30.0)
 ZW_FREQS = (1.0, 3.0, 10.0)
-MODES = (("passive", {}), ("hold", {}), ("force_feedback", {"force_feedback_gain": 1.0}),
+MODES = (("passive", {}), ("hold", {}), ("force_feedback", {"force_feedback": ForceFeedbackParams(gain=1.0)}),
          ("dob", {}), ("dob_linear_ff", {}), ("dob_full_ff", {}))
 
 
