@@ -26,9 +26,11 @@ from seaforce_msgs.msg import ActuatorState, ControllerStatus
 
 from helpers.actions import ActionTestClient, CalibrationClient
 from helpers.nodes import start_node
-from helpers.states import value
+from helpers.states import stamp_ns, value
 
 DT = 5e-4
+#: status bits of a channel whose torque the plant replaced (its command timeout, a fault)
+PLANT_STOPPED = ActuatorState.STATUS_COMMAND_TIMEOUT | ActuatorState.STATUS_FAULT
 PLANT_KEYS = ('motor_inertia', 'motor_damping', 'motor_stiffness', 'endpoint_inertia',
               'endpoint_damping', 'endpoint_stiffness', 'hose_damping', 'hose_stiffness')
 TABLE_I = {'motor_inertia': 1.1116e-3, 'motor_damping': 2.9814e-2, 'motor_stiffness': 0.1642,
@@ -328,14 +330,24 @@ def test_grasps_in_the_default_layout_in_real_time(processes, tmp_path, probe, c
         if handle.status == GoalStatus.STATUS_ABORTED:
             pytest.fail(f'{where}: {client.result(handle).result.message}')
         time.sleep(max(1.0, 6.0 * (0.06 + CONTACT_DAMPING) / k))    # a soft object creeps
+        canceled_ns = time.time_ns()
         answer = client.cancel(handle)
         result = answer.result
         assert answer.status == GoalStatus.STATUS_CANCELED, (where, result.message)
         assert result.contact and abs(result.object_stiffness - k) <= 0.15 * k, (
             where, result.object_stiffness)
-        # (a plant stop under the hog lets the grip go for 10 ms or more at a time; the held
-        # grip is averaged over 0.1 s)
-        assert abs(result.grip_force - 0.3) <= 0.10 * 0.3, (where, result.grip_force)
+        # the held grip is an average with a 0.1 s time constant: the 10 % goal is for a
+        # settled hold, one in which the plant applied the commands over the last 0.3 s. A
+        # plant stop under the hog (its command timeout: zero torque for 10 ms or more) in
+        # that window pulls the average down -- a fresh-clone run measured 0.262 for 0.3 --
+        # and the grip is then held to 30 %
+        window = [m for m in probe.messages('actuator_state')
+                  if 0 <= canceled_ns - stamp_ns(m) <= 300_000_000]
+        assert len(window) > 100, (where, len(window))       # the probe saw the hold
+        stopped = [m.cycle for m in window if value(m, 'pinch', 'status') & PLANT_STOPPED]
+        tolerance = 0.30 if stopped else 0.10
+        assert abs(result.grip_force - 0.3) <= tolerance * 0.3, (
+            where, result.grip_force, f'plant stopped in {len(stopped)} of the last states')
         ok, reason = probe.set_parameters('/sim', {'pinch.environment.position': 10.0})
         assert ok, reason
         time.sleep(0.5)
