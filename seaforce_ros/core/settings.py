@@ -33,7 +33,7 @@ STORAGES = ("mcap", "sqlite3")
 DEFAULT_TOPICS = ("actuator_state", "actuator_command", "controller_status")
 #: The model groups the sim declares read-only (the controller's model) and again under
 #: :data:`SIM_PREFIX` (the plant it simulates, default the model; they change at run time).
-SIM_MODEL_GROUPS: Tuple[type, ...] = (PlantParams, DahlParams)
+SIM_MODEL_GROUPS: Tuple[type[ParameterGroup], ...] = (PlantParams, DahlParams)
 SIM_PREFIX = "sim."
 
 _CONTROL_NODES = (CONTROLLER, SIM, HARDWARE)

@@ -124,8 +124,7 @@ _ARG = re.compile(r'(?P<open>^(?P<indent>[ \t]*)<arg\s+name="(?P<name>[\w-]+)"[^
 _CHOICE = re.compile(r'^[ \t]*<choice\s+value="[^"]*"\s*/>[ \t]*\n', re.M)
 
 
-def _spec_for(name: str, channels: Sequence[str]) -> Optional[Spec]:
-    rows = schema.by_key()
+def _spec_for(name: str, channels: Sequence[str], rows: Dict[str, Spec]) -> Optional[Spec]:
     if name in rows:
         return rows[name]
     head, _, rest = name.partition(".")
@@ -136,8 +135,9 @@ def launch_choices(text: str, channels: Sequence[str] = ("wrist", "pinch")) -> s
     """``text`` (a launch XML file) with the ``<choice>`` list of every argument that sets a
     parameter with allowed values replaced by those values, in the schema's order."""
     wanted: Dict[str, Tuple[str, ...]] = {}
+    rows = schema.by_key()          # built once per file, not once per <param>
     for key, arg in _PARAM.findall(text):
-        spec = _spec_for(key, channels)
+        spec = _spec_for(key, channels, rows)
         if spec is not None and spec.choices:
             wanted[arg] = spec.choices
 
