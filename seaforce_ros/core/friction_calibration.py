@@ -474,14 +474,11 @@ class FrictionCalibration(Job):
         ``request_abort`` ends it aborted the same way.)"""
         self._cancel = reason
 
-    def hold_reference(self) -> None:
+    def reenter(self) -> None:
         """(cycle thread) The plant applies something else than our torque this sample (a
         command timeout): the reference does not advance at the next update, so that the
         finger the plant let coast is not left behind by a moving reference."""
         self._hold = True
-
-    #: The plant applied another torque (a command timeout): the reference waits.
-    reenter = hold_reference
 
     def abort_now(self, reason: str) -> None:
         """End at once, commanding nothing more (the cycle zeroed the torque)."""
