@@ -1,5 +1,5 @@
-"""The control core, the identification and the bag packages must import without ROS (rclpy,
-message packages) or pysoem."""
+"""The control core, the identification, the commissioning and the bag packages must import
+without ROS (rclpy, message packages) or pysoem."""
 import os
 import pathlib
 import subprocess
@@ -10,7 +10,7 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 
 
-@pytest.mark.parametrize('package', ['core', 'identification', 'bags'])
+@pytest.mark.parametrize('package', ['core', 'identification', 'bags', 'commissioning'])
 def test_package_imports_without_ros(package):
     code = ('import sys\n'
             f'import seaforce_ros.{package} as pkg\n'

@@ -1,0 +1,11 @@
+"""Commissioning a gripper without ROS: what a lab with motor encoders, hose pressure and motor
+torque (no endpoint encoder, no external force) measures of its own gripper, and the settings
+it gets from that.
+
+Modules (each lists its own public names in ``__all__``): :mod:`.errors` (one root,
+:class:`~.errors.CommissioningError`), :mod:`.record` (one free-air excitation of one channel,
+as the controller saw it).
+
+The package imports none of its modules: a caller loads only what it needs.
+"""
+__all__ = ["errors", "record"]
