@@ -1000,12 +1000,12 @@ def _os_error(exc: OSError, what: str) -> ReportError:
     return ReportError(f"cannot {what}: {hint}")
 
 
-def _prepare(directory: pathlib.Path) -> bool:
-    """Create ``directory`` (parents too); whether it was created."""
+def _prepare(directory: pathlib.Path) -> List[pathlib.Path]:
+    """Create ``directory`` (parents too); the directories created, innermost first."""
     if directory.exists() and not directory.is_dir():
         raise ReportError(f"cannot write the report into {directory}: it is a file; remove it "
                           "or give another directory")
-    created = not directory.exists()
+    created = [p for p in (directory, *directory.parents) if not p.exists()]
     try:
         directory.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -1060,8 +1060,8 @@ def write_report(directory: _PathLike, data: CommissioningReport) -> pathlib.Pat
     ReportError
         ``directory`` is a file, cannot be created or written, or the disk is full. Nothing
         is left half-written: every file is written under a temporary name first and renamed
-        when all are complete, ``report.html`` last; a directory this call created is removed
-        again when it stays empty.
+        when all are complete, ``report.html`` last; the directories this call created are
+        removed again.
     """
     d = pathlib.Path(directory)
     created = _prepare(d)
@@ -1072,11 +1072,11 @@ def write_report(directory: _PathLike, data: CommissioningReport) -> pathlib.Pat
         files.append(("report.html", render_html(data, figures).encode("utf-8")))
         _write_all(d, files)
     except BaseException:
-        if created:
+        for p in created:
             try:
-                d.rmdir()
+                p.rmdir()
             except OSError:
-                pass
+                break
         raise
     return d / "report.html"
 

@@ -1,0 +1,351 @@
+"""The commissioning report: report.json round trip, escaping, a self-contained page, clear
+errors with nothing half-written, and a headless Chromium screenshot that shows every figure.
+
+How the screenshot check works: every figure PNG carries its own marker colour
+(``FIGURE_MARKERS``, a colour with one channel 0 and one 255 that no plot line, band, text or
+CSS of the report uses): a 30 px lettered badge in its top left corner and a 12 px square in
+its bottom right corner. In the screenshot, the pixels of a figure's colour must (1) exist,
+(2) fill the badge's corner and the square's corner, and (3) span exactly the PNG's width and
+height. A missing image has no such pixels, a broken one shows the browser's icon instead, a
+truncated or partly decoded one lacks the bottom square, a scaled or cropped one spans the
+wrong size, an image shown twice spans twice its height. The second test hands the check
+pages with one figure removed, truncated, or replaced by another, and proves it names
+exactly that figure.
+"""
+import base64
+import errno
+import html.parser
+import json
+import math
+import os
+import pathlib
+import re
+import shutil
+import subprocess
+import tempfile
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from helpers.report_example import example_report
+from seaforce_ros.commissioning import report as rp
+from seaforce_ros.commissioning.errors import CommissioningError
+from seaforce_ros.commissioning.report import (FIGURE_MARKERS, ReportError, load_report,
+                                               report_json, summary_table, write_report)
+
+CHROMIUM = '/usr/bin/chromium'
+WINDOW = (1280, 6000)   # wide enough for the 1100 px figures at 1:1, tall enough for the page
+TOLERANCE = 6           # per colour channel
+
+
+# --- the screenshot and its check -------------------------------------------------------------
+
+def screenshot(page, out, tmp):
+    """Headless Chromium's screenshot of ``page`` (a file) at WINDOW, no network, no profile."""
+    assert os.access(CHROMIUM, os.X_OK), (
+        f'{CHROMIUM} is missing: scripts/test installs it (apt-get install chromium)')
+    profile = pathlib.Path(tmp) / f'profile-{out.stem}'
+    cmd = [CHROMIUM, '--headless', '--no-sandbox', '--disable-gpu', '--disable-quic',
+           '--no-first-run', '--disable-background-networking', '--disable-component-update',
+           '--disable-sync', f'--user-data-dir={profile}', '--force-device-scale-factor=1',
+           '--hide-scrollbars', f'--screenshot={out}', f'--window-size={WINDOW[0]},{WINDOW[1]}',
+           pathlib.Path(page).resolve().as_uri()]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and out.exists(), done.stderr[-2000:]
+    shutil.rmtree(profile, ignore_errors=True)
+    return out
+
+
+def figure_problems(shot, sizes):
+    """What the screenshot lacks: one line per figure of ``sizes`` (letter -> PNG (w, h))
+    whose two marks are not there, in their corners, spanning the PNG's size."""
+    img = np.asarray(Image.open(shot).convert('RGB')).astype(np.int16)
+    problems = []
+    for letter, (w, h) in sizes.items():
+        rgb = np.array(FIGURE_MARKERS[letter][1], dtype=np.int16)
+        mask = np.all(np.abs(img - rgb) <= TOLERANCE, axis=2)
+        ys, xs = np.nonzero(mask)
+        if len(ys) == 0:
+            problems.append(f'({letter}) not on the page')
+            continue
+        y0, y1, x0, x1 = ys.min(), ys.max(), xs.min(), xs.max()
+        badge = mask[y0:y0 + 30, x0:x0 + 30].sum()
+        square = mask[y1 - 11:y1 + 1, x1 - 11:x1 + 1].sum()
+        span = (x1 - x0 + 1, y1 - y0 + 1)
+        if badge < 500:
+            problems.append(f'({letter}) badge: {badge} of 900 px')
+        if square < 130:
+            problems.append(f'({letter}) bottom-right square: {square} of 144 px')
+        if abs(span[0] - w) > 1 or abs(span[1] - h) > 1:
+            problems.append(f'({letter}) spans {span[0]}x{span[1]} px, the PNG is {w}x{h}')
+    return problems
+
+
+def png_sizes(directory):
+    out = {}
+    for letter, (name, _) in FIGURE_MARKERS.items():
+        p = directory / name
+        if p.exists():
+            with Image.open(p) as im:
+                out[letter] = im.size
+    return out
+
+
+@pytest.fixture(scope='module')
+def written(tmp_path_factory):
+    """The example report written once, with its screenshot."""
+    tmp = tmp_path_factory.mktemp('report')
+    data = example_report(seed=3)
+    page = write_report(tmp / 'run', data)
+    shot = screenshot(page, tmp / 'shot.png', tmp)
+    return data, page, shot, tmp
+
+
+def test_screenshot_shows_every_figure(written):
+    data, page, shot, _ = written
+    sizes = png_sizes(page.parent)
+    assert sorted(sizes) == ['a', 'b', 'c', 'd']
+    assert figure_problems(shot, sizes) == []
+    # The colours are the figures' own: the page's text and CSS never use them.
+    text = re.sub(r'data:image/png;base64,[A-Za-z0-9+/=]+', '', page.read_text()).lower()
+    for _, rgb in FIGURE_MARKERS.values():
+        assert '#%02x%02x%02x' % rgb not in text
+        assert 'rgb(%d, %d, %d)' % rgb not in text and 'rgb(%d,%d,%d)' % rgb not in text
+
+
+def _img_tags(text):
+    return list(re.finditer(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"', text))
+
+
+def test_check_catches_a_missing_or_broken_figure(written):
+    _, page, _, tmp = written
+    text = page.read_text()
+    sizes = png_sizes(page.parent)
+    tags = _img_tags(text)
+    assert len(tags) == 4
+    a, b, c, d = tags
+    half = b.group(1)[:len(b.group(1)) // 2]
+    variants = {
+        # (c)'s whole <figure> removed
+        'c': re.sub(r'<figure id="fig-c">.*?</figure>', '', text, flags=re.S),
+        # (b) truncated in the middle of its data: the browser decodes its top rows only
+        'b': text.replace(b.group(1), half[:len(half) // 4 * 4]),
+        # (d) replaced by (a): (d)'s colour is gone, (a)'s spans two images
+        'd': text.replace(d.group(1), a.group(1)),
+        # (a) not a PNG at all: the broken-image icon
+        'a': text.replace(a.group(1), base64.b64encode(b'not a png').decode()),
+    }
+    for letter, variant in variants.items():
+        assert variant != text
+        tampered = page.parent / f'tampered-{letter}.html'
+        tampered.write_text(variant)
+        problems = figure_problems(screenshot(tampered, tmp / f'shot-{letter}.png', tmp), sizes)
+        flagged = {p[1] for p in problems}
+        assert letter in flagged, (letter, problems)
+        assert flagged <= {letter, 'a'}, (letter, problems)   # a: the duplicate of variant d
+        tampered.unlink()
+
+
+def test_partial_report_draws_what_it_has(tmp_path):
+    """A run that stopped before the noise sweep and the tuning: figures (a)-(c), the page
+    says (d) was not drawn, the screenshot shows the three."""
+    data = example_report(seed=1)
+    data.noise, data.tuning, data.zwidth.wall = None, None, None
+    page = write_report(tmp_path / 'partial', data)
+    sizes = png_sizes(page.parent)
+    assert sorted(sizes) == ['a', 'b', 'c']
+    assert 'torque_noise.png: not drawn' in page.read_text()
+    assert figure_problems(screenshot(page, tmp_path / 'shot.png', tmp_path), sizes) == []
+
+
+# --- report.json ------------------------------------------------------------------------------
+
+def test_json_round_trip(tmp_path):
+    data = example_report(seed=2)
+    data.zwidth.wall.k_quantisation[:5] = np.inf   # no quantisation limit at low damping
+    data.meta.seed = None
+    page = write_report(tmp_path / 'r', data)
+    raw = json.loads((page.parent / 'report.json').read_text())
+    assert raw['schema'] == rp.SCHEMA
+    m_e = raw['identification'][5]
+    assert m_e['value'] is None and m_e['sigma'] is None and m_e['status'].startswith('not ')
+    assert raw['zwidth']['wall']['k_quantisation'][:5] == ['inf'] * 5
+    assert raw['meta']['seed'] is None
+    for key in ('sigma', 'coherence'):
+        assert len(raw['responses'][0][key]) == len(raw['responses'][0]['omega'])
+    back = load_report(page.parent)
+    assert report_json(back) == report_json(data)
+    assert isinstance(back.responses[0].measured, np.ndarray)
+    np.testing.assert_array_equal(back.responses[1].measured, data.responses[1].measured)
+    np.testing.assert_array_equal(back.impedance[3].z, data.impedance[3].z)
+    assert math.isnan(back.identification[5].value)
+    assert back.identification[4].previous == data.identification[4].previous
+    assert back.zwidth.wall.binding == data.zwidth.wall.binding
+    assert back.meta.phases == data.meta.phases and back.meta.dry_run
+    assert summary_table(back) == summary_table(data)
+
+
+def test_load_report_refuses_other_schemas_and_garbage(tmp_path):
+    page = write_report(tmp_path / 'r', example_report())
+    path = page.parent / 'report.json'
+    raw = json.loads(path.read_text())
+    raw['schema'] = rp.SCHEMA + 1
+    path.write_text(json.dumps(raw))
+    with pytest.raises(ReportError, match='schema'):
+        load_report(path)
+    raw['schema'] = rp.SCHEMA
+    raw['responses'][0]['omega'] = 'fast'
+    path.write_text(json.dumps(raw))
+    with pytest.raises(ReportError, match=r'responses\[0\]\.omega'):
+        load_report(path)
+    path.write_text('{not json')
+    with pytest.raises(ReportError, match='not JSON'):
+        load_report(path)
+    with pytest.raises(ReportError, match='cannot read'):
+        load_report(tmp_path / 'nowhere')
+
+
+def test_bad_data_is_refused_with_the_field_named():
+    with pytest.raises(ReportError, match='sigma has 3 values'):
+        rp.PortResponse('F_p/X', 'N m/rad', [1, 2], [1, 2], [1, 2, 3], [1, 1], [1, 2])
+    with pytest.raises(ReportError, match='omega must be finite and > 0'):
+        rp.ModeImpedance('dob', [0.0, 1.0], [1, 1], [1, 1], [1, 1])
+    assert issubclass(ReportError, CommissioningError)
+
+
+# --- the page: escaping, nothing external -----------------------------------------------------
+
+class _Tags(html.parser.HTMLParser):
+    def __init__(self):
+        super().__init__()
+        self.tags, self.attrs = [], []
+
+    def handle_starttag(self, tag, attrs):
+        self.tags.append(tag)
+        self.attrs += [(tag, k, v or '') for k, v in attrs]
+
+
+def test_html_escapes_every_text(tmp_path):
+    evil = '<script>alert("x")</script>&<b>'
+    data = example_report()
+    data.meta.channel = evil
+    data.identification[5].status = f'not identified ({evil})'
+    data.tuning.rows[0].bound_by = evil
+    data.summary.append(evil)
+    data.meta.phases[evil] = 1.0
+    page = write_report(tmp_path / 'r', data)
+    text = page.read_text()
+    parser = _Tags()
+    parser.feed(text)
+    assert 'script' not in parser.tags and 'b' in parser.tags   # the page's own <b> only
+    assert '<script>' not in text
+    assert text.count('&lt;script&gt;alert(&quot;x&quot;)&lt;/script&gt;&amp;&lt;b&gt;') >= 6
+    assert summary_table(data).count(evil) >= 3   # plain text stays as it is
+
+
+def test_html_references_nothing_external(written):
+    _, page, _, _ = written
+    text = page.read_text()
+    parser = _Tags()
+    parser.feed(text)
+    outside = re.sub(r'data:image/png;base64,[A-Za-z0-9+/=]+', '', text)
+    assert not re.search(r'https?:|ftp:|file:|//[a-z]', outside, re.I)
+    assert not {'script', 'link', 'iframe', 'object', 'embed', 'base'} & set(parser.tags)
+    assert 'url(' not in text and '@import' not in text
+    srcs = [v for tag, k, v in parser.attrs if k in ('src', 'href', 'srcset', 'data')]
+    assert len(srcs) == 4
+    assert all(v.startswith('data:image/png;base64,') for v in srcs)
+    for v in srcs:   # each is a whole PNG
+        assert base64.b64decode(v.split(',', 1)[1]).startswith(b'\x89PNG\r\n\x1a\n')
+
+
+# --- errors: nothing half-written -------------------------------------------------------------
+
+def test_directory_that_is_a_file(tmp_path):
+    f = tmp_path / 'taken'
+    f.write_text('x')
+    with pytest.raises(ReportError, match='it is a file'):
+        write_report(f, example_report())
+    with pytest.raises(ReportError, match='a part of the path is a file'):
+        write_report(f / 'sub', example_report())
+    assert f.read_text() == 'x'
+
+
+def _in_child_as_nobody(fn):
+    """Run ``fn`` in a forked child with uid/gid nobody (root writes anywhere); its error
+    message, or 'no error'."""
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:   # the child: never returns into pytest
+        code = 0
+        try:
+            os.close(r)
+            os.setgid(65534)
+            os.setuid(65534)
+            try:
+                fn()
+                msg = 'no error'
+            except ReportError as exc:
+                msg = f'ReportError: {exc}'
+            except BaseException as exc:  # noqa: B902 - reported to the parent as text
+                msg = f'{type(exc).__name__}: {exc}'
+            os.write(w, msg.encode())
+        except BaseException:  # noqa: B902
+            code = 1
+        finally:
+            os._exit(code)
+    os.close(w)
+    with os.fdopen(r) as fh:
+        msg = fh.read()
+    _, status = os.waitpid(pid, 0)
+    assert status == 0, msg
+    return msg
+
+
+def test_unwritable_directory():
+    base = pathlib.Path(tempfile.mkdtemp(prefix='report-ro-'))
+    try:
+        base.chmod(0o755)
+        locked = base / 'locked'
+        locked.mkdir(mode=0o555)
+        locked.chmod(0o555)
+        data = example_report()
+        for target in (locked, locked / 'new' / 'run'):
+            def attempt():
+                write_report(target, data)
+            if os.geteuid() == 0:
+                msg = _in_child_as_nobody(attempt)
+            else:
+                with pytest.raises(ReportError) as err:
+                    attempt()
+                msg = f'ReportError: {err.value}'
+            assert msg.startswith('ReportError: ') and 'permission' in msg, msg
+            assert str(locked) in msg
+        assert list(locked.iterdir()) == []
+    finally:
+        locked.chmod(0o755)
+        shutil.rmtree(base)
+
+
+@pytest.mark.parametrize('fail_at', [1, 4, 6])
+def test_disk_full_leaves_nothing_half_written(tmp_path, monkeypatch, fail_at):
+    """The disk fills while the n-th file is written: a ReportError that says so, no temporary
+    file, an earlier report in the directory as it was, a new directory removed."""
+    old = write_report(tmp_path / 'again', example_report(seed=5))
+    before = {p.name: p.read_bytes() for p in old.parent.iterdir()}
+    calls = []
+    real_fsync = os.fsync
+
+    def fsync(fd):
+        calls.append(fd)
+        if len(calls) == fail_at:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        real_fsync(fd)
+    monkeypatch.setattr(rp.os, 'fsync', fsync)
+    for target in (old.parent, tmp_path / 'fresh' / 'run'):
+        calls.clear()
+        with pytest.raises(ReportError, match='the disk is full: free some space'):
+            write_report(target, example_report(seed=6))
+    assert {p.name: p.read_bytes() for p in old.parent.iterdir()} == before
+    assert not (tmp_path / 'fresh').exists()
