@@ -93,7 +93,7 @@ def _floats(obj: object, name: str, *fields_: str) -> int:
 def _arrays(obj: object, name: str, fields_: Sequence[str], dtype: type) -> int:
     n = -1
     for f in fields_:
-        a = np.asarray(getattr(obj, f), dtype=dtype).reshape(-1)
+        a: npt.NDArray[Any] = np.asarray(getattr(obj, f), dtype=dtype).reshape(-1)
         object.__setattr__(obj, f, a)
         if n >= 0 and len(a) != n:
             raise ReportError(f"{name}: {f} has {len(a)} values, {fields_[0]} has {n}: "
@@ -501,7 +501,7 @@ def _decode(hint: Any, raw: Any, where: str) -> Any:
         if not isinstance(raw, dict):
             raise ValueError(f"{where}: expected an object")
         return {k: _decode(args[1], v, f"{where}.{k}") for k, v in raw.items()}
-    if dataclasses.is_dataclass(hint):
+    if isinstance(hint, type) and dataclasses.is_dataclass(hint):
         if not isinstance(raw, dict):
             raise ValueError(f"{where}: expected an object")
         hints = typing.get_type_hints(hint)
@@ -578,8 +578,8 @@ def _png(fig: Figure, letter: str, title: str) -> bytes:
     plt = _plt()
     _mark(fig, letter)
     w, h = fig.get_size_inches() * _DPI
-    fig.suptitle(title, x=40.0 / w, y=1.0 - 15.0 / h, ha="left", va="center", fontsize=12)
     fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - 34.0 / h))
+    fig.text(40.0 / w, 1.0 - 15.0 / h, title, ha="left", va="center", fontsize=12)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=_DPI)
     plt.close(fig)

@@ -161,7 +161,19 @@ def test_partial_report_draws_what_it_has(tmp_path):
 
 # --- report.json ------------------------------------------------------------------------------
 
-def test_json_round_trip(tmp_path):
+@pytest.fixture(scope='module')
+def drawn_once():
+    return rp.render_figures(example_report())
+
+
+@pytest.fixture
+def fast_figures(monkeypatch, drawn_once):
+    """write_report with the example's figures drawn once: for the tests about the files and
+    the page's text, not the figures."""
+    monkeypatch.setattr(rp, 'render_figures', lambda data: drawn_once)
+
+
+def test_json_round_trip(tmp_path, fast_figures):
     data = example_report(seed=2)
     data.zwidth.wall.k_quantisation[:5] = np.inf   # no quantisation limit at low damping
     data.meta.seed = None
@@ -186,7 +198,7 @@ def test_json_round_trip(tmp_path):
     assert summary_table(back) == summary_table(data)
 
 
-def test_load_report_refuses_other_schemas_and_garbage(tmp_path):
+def test_load_report_refuses_other_schemas_and_garbage(tmp_path, fast_figures):
     page = write_report(tmp_path / 'r', example_report())
     path = page.parent / 'report.json'
     raw = json.loads(path.read_text())
@@ -226,7 +238,7 @@ class _Tags(html.parser.HTMLParser):
         self.attrs += [(tag, k, v or '') for k, v in attrs]
 
 
-def test_html_escapes_every_text(tmp_path):
+def test_html_escapes_every_text(tmp_path, fast_figures):
     evil = '<script>alert("x")</script>&<b>'
     data = example_report()
     data.meta.channel = evil
@@ -262,7 +274,7 @@ def test_html_references_nothing_external(written):
 
 # --- errors: nothing half-written -------------------------------------------------------------
 
-def test_directory_that_is_a_file(tmp_path):
+def test_directory_that_is_a_file(tmp_path, fast_figures):
     f = tmp_path / 'taken'
     f.write_text('x')
     with pytest.raises(ReportError, match='it is a file'):
@@ -303,7 +315,7 @@ def _in_child_as_nobody(fn):
     return msg
 
 
-def test_unwritable_directory():
+def test_unwritable_directory(fast_figures):
     base = pathlib.Path(tempfile.mkdtemp(prefix='report-ro-'))
     try:
         base.chmod(0o755)
@@ -329,7 +341,7 @@ def test_unwritable_directory():
 
 
 @pytest.mark.parametrize('fail_at', [1, 4, 6])
-def test_disk_full_leaves_nothing_half_written(tmp_path, monkeypatch, fail_at):
+def test_disk_full_leaves_nothing_half_written(tmp_path, monkeypatch, fail_at, fast_figures):
     """The disk fills while the n-th file is written: a ReportError that says so, no temporary
     file, an earlier report in the directory as it was, a new directory removed."""
     old = write_report(tmp_path / 'again', example_report(seed=5))

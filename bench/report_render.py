@@ -1,0 +1,65 @@
+"""Time to write the commissioning report and to render its page.
+
+Prints, for the synthetic example report of the tests (every section filled): the wall time of
+``write_report`` (four figures drawn with matplotlib Agg, report.json, report.html) per
+repetition, the size of each file, and the wall time of a headless Chromium screenshot of the
+page (``/usr/bin/chromium``, the render test's flags). Timing figures are printed, never
+asserted.
+
+Run:  PYTHONPATH=. python bench/report_render.py [--repeats 3] [--out DIR]
+(``--out`` keeps the last report and its screenshot there, for a look.)
+"""
+import argparse
+import pathlib
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / 'test'))
+
+from helpers.report_example import example_report  # noqa: E402
+from seaforce_ros.commissioning.report import write_report  # noqa: E402
+
+CHROMIUM = '/usr/bin/chromium'
+
+
+def screenshot(page, out, profile, size=(1280, 6000)):
+    cmd = [CHROMIUM, '--headless', '--no-sandbox', '--disable-gpu', '--disable-quic',
+           '--no-first-run', '--disable-background-networking', '--disable-component-update',
+           '--disable-sync', f'--user-data-dir={profile}', '--force-device-scale-factor=1',
+           '--hide-scrollbars', f'--screenshot={out}', f'--window-size={size[0]},{size[1]}',
+           page.resolve().as_uri()]
+    subprocess.run(cmd, capture_output=True, check=True, timeout=120)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    ap.add_argument('--repeats', type=int, default=3)
+    ap.add_argument('--out', type=pathlib.Path, default=None)
+    args = ap.parse_args()
+    data = example_report()
+    with tempfile.TemporaryDirectory() as tmp:
+        out = args.out or pathlib.Path(tmp) / 'out'
+        write_times, shot_times = [], []
+        for i in range(args.repeats):
+            t0 = time.perf_counter()
+            page = write_report(out / 'report', data)
+            write_times.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            screenshot(page, out / 'screenshot.png', pathlib.Path(tmp) / f'profile{i}')
+            shot_times.append(time.perf_counter() - t0)
+        print(f'write_report (4 figures, json, html): median {statistics.median(write_times):.2f} s'
+              f'  ({", ".join(f"{t:.2f}" for t in write_times)})')
+        print(f'chromium screenshot 1280x6000:         median {statistics.median(shot_times):.2f} s'
+              f'  ({", ".join(f"{t:.2f}" for t in shot_times)})')
+        for p in sorted(page.parent.iterdir()):
+            print(f'  {p.name:20s} {p.stat().st_size / 1024:8.1f} KiB')
+        if args.out:
+            print(f'kept in {out}')
+
+
+if __name__ == '__main__':
+    main()
