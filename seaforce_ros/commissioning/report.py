@@ -34,6 +34,7 @@ import math
 import os
 import pathlib
 import typing
+import warnings
 from dataclasses import dataclass, field
 from typing import (TYPE_CHECKING, Any, Callable, Dict, List, Mapping, Optional, Sequence,
                     Tuple, Union)
@@ -51,8 +52,9 @@ if TYPE_CHECKING:
 
 __all__ = ["SCHEMA", "MODES", "FIGURE_MARKERS", "ReportError", "ParameterRow", "PortResponse",
            "LoopFigure", "ModeImpedance", "WallBoundary", "ZWidthChart", "NoiseSweep",
-           "TuningRow", "Tuning", "ReportMeta", "CommissioningReport", "write_report",
-           "load_report", "report_json", "summary_table", "render_html", "render_figures"]
+           "TuningRow", "Tuning", "ReportMeta", "CommissioningReport", "RenderedFigure",
+           "write_report", "load_report", "report_json", "summary_table", "render_html",
+           "render_figures"]
 
 SCHEMA = 1
 """Version of ``report.json``'s layout; :func:`load_report` refuses any other."""
@@ -283,6 +285,28 @@ class WallBoundary:
         """Per damping, which limit binds: ``"passivity"`` or ``"quantisation"``."""
         return ["passivity" if p <= q else "quantisation"
                 for p, q in zip(self.k_passivity, self.k_quantisation)]
+
+    def at_chosen(self) -> Optional[Tuple[float, str]]:
+        """(K_max [N m/rad], the limit that binds) at the chosen damping, each limit
+        interpolated linearly in B; None without a chosen damping or curve."""
+        b = self.chosen_damping
+        if not (math.isfinite(b) and len(self.damping)):
+            return None
+        order = np.argsort(self.damping)
+        p, q = (float(np.interp(b, self.damping[order], k[order]))
+                for k in (self.k_passivity, self.k_quantisation))
+        if math.isnan(q) or p <= q:
+            return p, "passivity"
+        return q, "quantisation"
+
+    def describe(self) -> str:
+        """One line: the chosen (B, K) against K_max(B) and what binds."""
+        at = self.at_chosen()
+        if at is None:
+            return "virtual wall: no chosen damping"
+        k, which = at
+        return (f"virtual wall: at B = {self.chosen_damping:.4g} N m s/rad K_max = {k:.4g} "
+                f"N m/rad ({which} binds), chosen K = {_num(self.chosen_stiffness)} N m/rad")
 
 
 @dataclass
@@ -718,7 +742,9 @@ def _fig_noise(noise: NoiseSweep) -> Figure:
 
 
 @dataclass(frozen=True)
-class _Figure:
+class RenderedFigure:
+    """One drawn figure: letter (a-d), file name, title, caption, the PNG's bytes."""
+
     letter: str
     file: str
     title: str
@@ -743,9 +769,11 @@ def _captions(data: CommissioningReport) -> List[Tuple[str, str, Callable[[], Fi
                     "band; open circles: measured points, where a backdrive measured them."))
     if data.zwidth is not None:
         chart = data.zwidth
-        wall = (" Right: the stable virtual walls of impedance mode, K_max(B) the lower of "
-                "the passivity-with-delay and the quantisation limits (thick where it binds), "
-                "and the chosen (B, K).") if chart.wall is not None else ""
+        wall = ""
+        if chart.wall is not None:
+            wall = (" Right: the stable virtual walls of impedance mode, K_max(B) the lower of "
+                    "the passivity-with-delay and the quantisation limits (thick where it "
+                    f"binds), and the chosen (B, K); {chart.wall.describe()}.")
         out.append(("c", "Z-width: predicted vs measured", lambda: _fig_zwidth(chart),
                     "Z-width, the range between the stiff hold and the lowest-impedance mode, "
                     "predicted with its 1-sigma band and measured (red)." + wall))
@@ -758,13 +786,16 @@ def _captions(data: CommissioningReport) -> List[Tuple[str, str, Callable[[], Fi
     return out
 
 
-def render_figures(data: CommissioningReport) -> List[Tuple[str, str, str, str, bytes]]:
-    """The report's figures as PNG bytes: ``[(letter, file name, title, caption, png)]``, one
-    per section that has data, in the order (a)-(d)."""
+def render_figures(data: CommissioningReport) -> List[RenderedFigure]:
+    """The report's figures, one per section that has data, in the order (a)-(d)."""
     figs = []
-    for letter, title, draw, caption in _captions(data):
-        png = _png(draw(), letter, f"({letter}) {title}")
-        figs.append((letter, FIGURE_MARKERS[letter][0], title, caption, png))
+    with warnings.catch_warnings():
+        # Data with nothing to draw on a log axis (all NaN, zero) leaves its panel empty,
+        # which the figure shows; matplotlib's warning about it would say nothing more.
+        warnings.simplefilter("ignore", UserWarning)
+        for letter, title, draw, caption in _captions(data):
+            png = _png(draw(), letter, f"({letter}) {title}")
+            figs.append(RenderedFigure(letter, FIGURE_MARKERS[letter][0], title, caption, png))
     return figs
 
 
@@ -822,10 +853,12 @@ def summary_table(data: CommissioningReport) -> str:
     lines = [f"commissioning of {m.channel} on {m.date}: "
              + ("applied" if m.applied else "dry run (nothing applied)")
              + ("" if m.seed is None else f", simulated (seed {m.seed})"),
-             "phases: " + ", ".join(f"{k} {v:.1f} s" for k, v in m.phases.items())]
+             "phases: " + (", ".join(f"{k} {v:.1f} s" for k, v in m.phases.items()) or "-")]
     lines += [f"  {s}" for s in data.summary]
     if data.zwidth is not None:
         lines.append("  " + _zwidth_headline(data.zwidth))
+        if data.zwidth.wall is not None:
+            lines.append("  " + data.zwidth.wall.describe())
     if data.identification:
         lines += ["", _plain(
             ("parameter", "symbol", "value +- 1-sigma", "unit", "previous (drift)", "status"),
@@ -836,10 +869,12 @@ def summary_table(data: CommissioningReport) -> str:
                              [(f.name, _pm(f.value, f.sigma), f.unit) for f in data.loop],
                              "tnt")]
     if data.tuning is not None:
-        lines += ["", _plain(("tuned parameter", "old", "new", "unit", "bound by"),
-                             [(r.key, _num(r.old), ("* " if r.changed else "") + _num(r.new),
-                               r.unit, r.bound_by) for r in data.tuning.rows], "tnntt"),
-                  f"binding constraint: {data.tuning.binding}"]
+        if data.tuning.rows:
+            lines += ["", _plain(("tuned parameter", "old", "new", "unit", "bound by"),
+                                 [(r.key, _num(r.old), ("* " if r.changed else "")
+                                   + _num(r.new), r.unit, r.bound_by)
+                                  for r in data.tuning.rows], "tnntt")]
+        lines.append(f"binding constraint: {data.tuning.binding or '-'}")
     return "\n".join(lines)
 
 
@@ -944,8 +979,7 @@ def _cards(data: CommissioningReport) -> str:
     return '<div class="cards">' + "".join(cards) + "</div>"
 
 
-def render_html(data: CommissioningReport,
-                figures: Sequence[Tuple[str, str, str, str, bytes]]) -> str:
+def render_html(data: CommissioningReport, figures: Sequence[RenderedFigure]) -> str:
     """``report.html``'s text: self-contained (inline CSS, ``figures`` as base64 data URIs,
     nothing fetched); every text of ``data`` escaped."""
     m = data.meta
@@ -967,12 +1001,12 @@ def render_html(data: CommissioningReport,
             [("", [(_e(f.name), False), (_e(_pm(f.value, f.sigma)), True),
                    (_e(f.unit), False)]) for f in data.loop])]
     parts.append("<h2>Figures</h2>")
-    drawn = {f[0] for f in figures}
-    for letter, file, title, caption, png in figures:
-        uri = "data:image/png;base64," + base64.b64encode(png).decode("ascii")
-        parts.append(f'<figure id="fig-{letter}"><img src="{uri}" alt="({letter}) '
-                     f'{_e(title)}"><figcaption><b>({letter}) {_e(title)}.</b> {_e(caption)} '
-                     f"<i>({_e(file)})</i></figcaption></figure>")
+    drawn = {f.letter for f in figures}
+    for f in figures:
+        uri = "data:image/png;base64," + base64.b64encode(f.png).decode("ascii")
+        parts.append(f'<figure id="fig-{f.letter}"><img src="{uri}" alt="({f.letter}) '
+                     f'{_e(f.title)}"><figcaption><b>({f.letter}) {_e(f.title)}.</b> '
+                     f"{_e(f.caption)} <i>({_e(f.file)})</i></figcaption></figure>")
     for letter in FIGURE_MARKERS:
         if letter not in drawn:
             parts.append(f'<p class="missing">({letter}) {_e(FIGURE_MARKERS[letter][0])}: '
@@ -1063,11 +1097,15 @@ def write_report(directory: _PathLike, data: CommissioningReport) -> pathlib.Pat
         when all are complete, ``report.html`` last; the directories this call created are
         removed again.
     """
+    try:   # checked again as a whole: the data classes can be changed after construction
+        data = _decode(CommissioningReport, _encode(data), "report")
+    except (ValueError, TypeError, KeyError, CommissioningError) as exc:
+        raise ReportError(f"nothing written: {exc}") from None
     d = pathlib.Path(directory)
     created = _prepare(d)
     try:
         figures = render_figures(data)
-        files = [(file, png) for _, file, _, _, png in figures]
+        files = [(f.file, f.png) for f in figures]
         files.append(("report.json", report_json(data).encode("utf-8")))
         files.append(("report.html", render_html(data, figures).encode("utf-8")))
         _write_all(d, files)
