@@ -305,7 +305,7 @@ class WallBoundary:
         if at is None:
             return "virtual wall: no chosen damping"
         k, which = at
-        return (f"virtual wall: at B = {self.chosen_damping:.4g} N m s/rad K_max = {k:.4g} "
+        return (f"virtual wall: at B = {self.chosen_damping:.4g} N m s/rad, K_max = {k:.4g} "
                 f"N m/rad ({which} binds), chosen K = {_num(self.chosen_stiffness)} N m/rad")
 
 
@@ -737,7 +737,7 @@ def _fig_noise(noise: NoiseSweep) -> Figure:
     ax.set_xlabel("DOB cut-off lambda [rad/s]")
     ax.set_ylabel("RMS torque command noise [N m]")
     _grid(ax)
-    ax.legend(fontsize=9, loc="upper left")
+    ax.legend(fontsize=9, loc="lower right")
     return fig
 
 
@@ -781,8 +781,8 @@ def _captions(data: CommissioningReport) -> List[Tuple[str, str, Callable[[], Fi
         noise = data.noise
         out.append(("d", "DOB torque noise vs lambda", lambda: _fig_noise(noise),
                     "RMS of the DOB's torque command from the measured sensor noise against "
-                    "the cut-off lambda, the budget (red) and the lambda chosen (black): the "
-                    "largest that stays within the budget and the passivity bound."))
+                    "the cut-off lambda, with its 1-sigma band, the budget (red) and the "
+                    "lambda the tuning chose (black)."))
     return out
 
 
@@ -899,6 +899,7 @@ table{border-collapse:collapse;background:#fff;width:100%;font-size:13px}
 th,td{border:1px solid #d5d9e0;padding:3px 8px;text-align:left;vertical-align:top}
 th{background:#e8ebf0}
 td.n{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
+td.u{white-space:nowrap}
 tr.bad td{background:#fbe3e3}tr.changed td{background:#e6f2e0}
 .drift{color:#9c1c1c;font-weight:bold}
 code{font-size:12px}
@@ -913,13 +914,14 @@ def _e(text: object) -> str:
     return html.escape(str(text), quote=True)
 
 
-def _table(headers: Sequence[str], rows: Sequence[Tuple[str, Sequence[Tuple[str, bool]]]]
+def _table(headers: Sequence[str], rows: Sequence[Tuple[str, Sequence[Tuple[str, str]]]]
            ) -> str:
-    """``rows``: (row class, [(escaped cell html, numeric)])."""
+    """``rows``: (row class, [(escaped cell html, cell class: "n" a number, "u" a unit, ""
+    text)])."""
     head = "".join(f"<th>{_e(h)}</th>" for h in headers)
     body = "".join(
-        f'<tr class="{cls}">' + "".join(f'<td class="n">{c}</td>' if n else f"<td>{c}</td>"
-                                        for c, n in cells) + "</tr>"
+        f'<tr class="{cls}">' + "".join(f'<td class="{k}">{c}</td>' if k else f"<td>{c}</td>"
+                                        for c, k in cells) + "</tr>"
         for cls, cells in rows)
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
@@ -930,11 +932,11 @@ def _identification_html(rows: Sequence[ParameterRow]) -> str:
         drift = _e(_drift(r))
         if abs(r.drift_sigmas) > 3.0:
             drift = f'<span class="drift">{drift}</span>'
-        cells = [(f"<code>{_e(r.name)}</code>", False), (_e(r.symbol), False),
-                 (_e(_pm(r.value, r.sigma)), True), (_e(r.unit), False), (drift, True)]
+        cells = [(f"<code>{_e(r.name)}</code>", ""), (_e(r.symbol), ""),
+                 (_e(_pm(r.value, r.sigma)), "n"), (_e(r.unit), "u"), (drift, "n")]
         if any(math.isfinite(x.true) for x in rows):
-            cells.append((_e(_num(r.true)), True))
-        cells.append((_e(r.status), False))
+            cells.append((_e(_num(r.true)), "n"))
+        cells.append((_e(r.status), ""))
         body.append(("" if r.identified else "bad", cells))
     headers = ["parameter", "symbol", "value \u00b1 1-sigma", "unit", "previous (drift)"]
     if any(math.isfinite(x.true) for x in rows):
@@ -944,9 +946,9 @@ def _identification_html(rows: Sequence[ParameterRow]) -> str:
 
 def _tuning_html(tuning: Tuning) -> str:
     body = [("changed" if r.changed else "",
-             [(f"<code>{_e(r.key)}</code>", False), (_e(_num(r.old)), True),
-              ((f"<b>{_e(_num(r.new))}</b>" if r.changed else _e(_num(r.new))), True),
-              (_e(r.unit), False), (_e(r.bound_by), False)]) for r in tuning.rows]
+             [(f"<code>{_e(r.key)}</code>", ""), (_e(_num(r.old)), "n"),
+              ((f"<b>{_e(_num(r.new))}</b>" if r.changed else _e(_num(r.new))), "n"),
+              (_e(r.unit), "u"), (_e(r.bound_by), "")]) for r in tuning.rows]
     return (_table(["parameter", "old", "new", "unit", "bound by"], body)
             + f"<p><b>Binding constraint:</b> {_e(tuning.binding)}</p>")
 
@@ -963,7 +965,9 @@ def _cards(data: CommissioningReport) -> str:
         cards.append('<div class="card"><h3>Predicted Z-width</h3>'
                      + (f'<div class="big">{db:.1f} dB</div>1-sigma band {lo:.1f} .. '
                         f'{hi:.1f} dB, at w = {w:.3g} rad/s' if math.isfinite(w)
-                        else "no finite prediction") + "</div>")
+                        else "no finite prediction")
+                     + ("" if data.zwidth.wall is None
+                        else f"<br>{_e(data.zwidth.wall.describe())}") + "</div>")
     if data.tuning is not None:
         changed = [r for r in data.tuning.rows if r.changed]
         cards.append(f'<div class="card"><h3>Tuning</h3><div class="big">{len(changed)} '
@@ -998,8 +1002,8 @@ def render_html(data: CommissioningReport, figures: Sequence[RenderedFigure]) ->
     if data.loop:
         parts += ["<h2>Sensor and loop figures</h2>", _table(
             ["figure", "value \u00b1 1-sigma", "unit"],
-            [("", [(_e(f.name), False), (_e(_pm(f.value, f.sigma)), True),
-                   (_e(f.unit), False)]) for f in data.loop])]
+            [("", [(_e(f.name), ""), (_e(_pm(f.value, f.sigma)), "n"),
+                   (_e(f.unit), "u")]) for f in data.loop])]
     parts.append("<h2>Figures</h2>")
     drawn = {f.letter for f in figures}
     for f in figures:
