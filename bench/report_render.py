@@ -12,7 +12,6 @@ Run:  PYTHONPATH=. python bench/report_render.py [--repeats 3] [--out DIR]
 import argparse
 import pathlib
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -20,19 +19,9 @@ import time
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / 'test'))
 
+from helpers.chromium import screenshot  # noqa: E402
 from helpers.report_example import example_report  # noqa: E402
 from seaforce_ros.commissioning.report import write_report  # noqa: E402
-
-CHROMIUM = '/usr/bin/chromium'
-
-
-def screenshot(page, out, profile, size=(1280, 6000)):
-    cmd = [CHROMIUM, '--headless', '--no-sandbox', '--disable-gpu', '--disable-quic',
-           '--no-first-run', '--disable-background-networking', '--disable-component-update',
-           '--disable-sync', f'--user-data-dir={profile}', '--force-device-scale-factor=1',
-           '--hide-scrollbars', f'--screenshot={out}', f'--window-size={size[0]},{size[1]}',
-           page.resolve().as_uri()]
-    subprocess.run(cmd, capture_output=True, check=True, timeout=120)
 
 
 def main():
@@ -49,7 +38,7 @@ def main():
             page = write_report(out / 'report', data)
             write_times.append(time.perf_counter() - t0)
             t0 = time.perf_counter()
-            screenshot(page, out / 'screenshot.png', pathlib.Path(tmp) / f'profile{i}')
+            screenshot(page, out / 'screenshot.png', tmp)
             shot_times.append(time.perf_counter() - t0)
         print(f'write_report (4 figures, json, html): median {statistics.median(write_times):.2f} s'
               f'  ({", ".join(f"{t:.2f}" for t in write_times)})')

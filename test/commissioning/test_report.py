@@ -21,20 +21,19 @@ import os
 import pathlib
 import re
 import shutil
-import subprocess
 import tempfile
 
 import numpy as np
 import pytest
 from PIL import Image
 
+from helpers import chromium
 from helpers.report_example import example_report
 from seaforce_ros.commissioning import report as rp
 from seaforce_ros.commissioning.errors import CommissioningError
 from seaforce_ros.commissioning.report import (FIGURE_MARKERS, ReportError, load_report,
                                                report_json, summary_table, write_report)
 
-CHROMIUM = '/usr/bin/chromium'
 WINDOW = (1280, 6000)   # wide enough for the 1100 px figures at 1:1, tall enough for the page
 TOLERANCE = 6           # per colour channel
 
@@ -42,19 +41,7 @@ TOLERANCE = 6           # per colour channel
 # --- the screenshot and its check -------------------------------------------------------------
 
 def screenshot(page, out, tmp):
-    """Headless Chromium's screenshot of ``page`` (a file) at WINDOW, no network, no profile."""
-    assert os.access(CHROMIUM, os.X_OK), (
-        f'{CHROMIUM} is missing: scripts/test installs it (apt-get install chromium)')
-    profile = pathlib.Path(tmp) / f'profile-{out.stem}'
-    cmd = [CHROMIUM, '--headless', '--no-sandbox', '--disable-gpu', '--disable-quic',
-           '--no-first-run', '--disable-background-networking', '--disable-component-update',
-           '--disable-sync', f'--user-data-dir={profile}', '--force-device-scale-factor=1',
-           '--hide-scrollbars', f'--screenshot={out}', f'--window-size={WINDOW[0]},{WINDOW[1]}',
-           pathlib.Path(page).resolve().as_uri()]
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0 and out.exists(), done.stderr[-2000:]
-    shutil.rmtree(profile, ignore_errors=True)
-    return out
+    return chromium.screenshot(page, out, tmp, size=WINDOW)
 
 
 def figure_problems(shot, sizes):
