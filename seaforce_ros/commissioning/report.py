@@ -1055,9 +1055,10 @@ def _prepare(directory: pathlib.Path) -> List[pathlib.Path]:
 
 
 def _write_all(directory: pathlib.Path, files: Sequence[Tuple[str, bytes]]) -> None:
-    """Write every file under a temporary name, then rename them into place in order (the
-    last one, report.html, last of all): a failure leaves the previous files as they were
-    and no temporary file."""
+    """Write every file under a temporary name, then rename them into place in order, the
+    last one (report.html) last of all, after removing the earlier one: a failure while
+    writing leaves the previous files as they were and no temporary file; one while renaming
+    leaves no report.html."""
     temps: List[pathlib.Path] = []
     try:
         for name, content in files:
@@ -1067,6 +1068,9 @@ def _write_all(directory: pathlib.Path, files: Sequence[Tuple[str, bytes]]) -> N
                 fh.write(content)
                 fh.flush()
                 os.fsync(fh.fileno())
+        # From here on an earlier report's page would no longer match its files: it goes
+        # first, the new one comes last.
+        (directory / files[-1][0]).unlink(missing_ok=True)
         for (name, _), tmp in zip(files, temps):
             os.replace(tmp, directory / name)
     except OSError as exc:

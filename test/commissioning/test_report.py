@@ -399,3 +399,22 @@ def test_disk_full_leaves_nothing_half_written(tmp_path, monkeypatch, fail_at, f
             write_report(target, example_report(seed=6))
     assert {p.name: p.read_bytes() for p in old.parent.iterdir()} == before
     assert not (tmp_path / 'fresh').exists()
+
+
+def test_failed_rename_leaves_no_page(tmp_path, monkeypatch, fast_figures):
+    """A rename that fails after others succeeded: no report.html (the run does not look
+    complete), no temporary file."""
+    old = write_report(tmp_path / 'r', example_report())
+    calls = []
+    real_replace = os.replace
+
+    def replace(src, dst):
+        calls.append(dst)
+        if len(calls) == 3:
+            raise OSError(errno.EIO, os.strerror(errno.EIO))
+        real_replace(src, dst)
+    monkeypatch.setattr(rp.os, 'replace', replace)
+    with pytest.raises(ReportError, match='Input/output error: give another directory'):
+        write_report(old.parent, example_report(seed=4))
+    names = sorted(p.name for p in old.parent.iterdir())
+    assert 'report.html' not in names and not [n for n in names if n.endswith('.tmp')]
