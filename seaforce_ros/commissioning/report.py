@@ -93,15 +93,34 @@ def _floats(obj: object, name: str, *fields_: str) -> int:
 
 
 def _arrays(obj: object, name: str, fields_: Sequence[str], dtype: type) -> int:
+    """Turn ``fields_`` of ``obj`` into 1-D arrays of ``dtype`` of one length, returned."""
     n = -1
     for f in fields_:
-        a: npt.NDArray[Any] = np.asarray(getattr(obj, f), dtype=dtype).reshape(-1)
+        raw = getattr(obj, f)
+        try:
+            if dtype is np.float64 and np.iscomplexobj(raw):
+                raise TypeError("complex values where real ones belong")
+            a: npt.NDArray[Any] = np.asarray(raw, dtype=dtype)
+        except (TypeError, ValueError) as exc:
+            raise ReportError(f"{name}: {f} must be a list of numbers ({exc})") from None
+        if a.ndim != 1:
+            raise ReportError(f"{name}: {f} must be one-dimensional, it has shape {a.shape}")
         object.__setattr__(obj, f, a)
         if n >= 0 and len(a) != n:
             raise ReportError(f"{name}: {f} has {len(a)} values, {fields_[0]} has {n}: "
                               "give one value per frequency")
         n = len(a)
     return n
+
+
+def _scalars(obj: object, name: str, *fields_: str) -> None:
+    """Turn ``fields_`` of ``obj`` into floats."""
+    for f in fields_:
+        try:
+            object.__setattr__(obj, f, float(getattr(obj, f)))
+        except (TypeError, ValueError):
+            raise ReportError(f"{name}: {f} must be a number, got "
+                              f"{getattr(obj, f)!r}") from None
 
 
 def _check_omega(omega: _Array, name: str, key: str = "omega") -> None:
@@ -145,8 +164,7 @@ class ParameterRow:
     true: float = _NAN
 
     def __post_init__(self) -> None:
-        for f in ("value", "sigma", "previous", "true"):
-            setattr(self, f, float(getattr(self, f)))
+        _scalars(self, self.name, "value", "sigma", "previous", "true")
 
     @property
     def identified(self) -> bool:
@@ -210,7 +228,7 @@ class LoopFigure:
     unit: str
 
     def __post_init__(self) -> None:
-        self.value, self.sigma = float(self.value), float(self.sigma)
+        _scalars(self, self.name, "value", "sigma")
 
 
 @dataclass
@@ -272,8 +290,7 @@ class WallBoundary:
 
     def __post_init__(self) -> None:
         _floats(self, "wall", "damping", "k_passivity", "k_quantisation")
-        self.chosen_damping = float(self.chosen_damping)
-        self.chosen_stiffness = float(self.chosen_stiffness)
+        _scalars(self, "wall", "chosen_damping", "chosen_stiffness")
 
     @property
     def k_max(self) -> _Array:
@@ -379,7 +396,7 @@ class NoiseSweep:
     def __post_init__(self) -> None:
         _floats(self, "torque noise", "lam", "rms", "rms_sigma")
         _check_omega(self.lam, "torque noise", "lam")
-        self.budget, self.chosen = float(self.budget), float(self.chosen)
+        _scalars(self, "torque noise", "budget", "chosen")
 
 
 @dataclass
@@ -394,7 +411,7 @@ class TuningRow:
     bound_by: str
 
     def __post_init__(self) -> None:
-        self.old, self.new = float(self.old), float(self.new)
+        _scalars(self, self.key, "old", "new")
 
     @property
     def changed(self) -> bool:
@@ -435,7 +452,11 @@ class ReportMeta:
     seed: Optional[int] = None
 
     def __post_init__(self) -> None:
-        self.phases = {str(k): float(v) for k, v in self.phases.items()}
+        try:
+            self.phases = {str(k): float(v) for k, v in self.phases.items()}
+        except (TypeError, ValueError, AttributeError):
+            raise ReportError(f"meta: phases must map phase names to durations [s], got "
+                              f"{self.phases!r}") from None
 
     @property
     def dry_run(self) -> bool:

@@ -261,6 +261,16 @@ def test_bad_data_is_refused_with_the_field_named():
         rp.PortResponse('F_p/X', 'N m/rad', [1, 2], [1, 2], [1, 2, 3], [1, 1], [1, 2])
     with pytest.raises(ReportError, match='omega must be finite and > 0'):
         rp.ModeImpedance('dob', [0.0, 1.0], [1, 1], [1, 1], [1, 1])
+    with pytest.raises(ReportError, match='coherence must be a list of numbers'):
+        rp.PortResponse('F_p/X', 'N m/rad', [1, 2], [1, 2], [1, 2], ['a', 'b'], [1, 2])
+    with pytest.raises(ReportError, match='lower must be a list of numbers .*complex'):
+        rp.ModeImpedance('dob', [1.0], [1j], [1j], [1])
+    with pytest.raises(ReportError, match=r'upper must be one-dimensional, .*\(1, 2\)'):
+        rp.ModeImpedance('dob', [1.0, 2.0], [1, 1], [1, 1], [[1, 1]])
+    with pytest.raises(ReportError, match="plant.k_s: sigma must be a number, got 'small'"):
+        rp.ParameterRow('plant.k_s', 'k_s', 'N m/rad', 13.0, 'small')
+    with pytest.raises(ReportError, match='phases must map'):
+        rp.ReportMeta('x', 'now', {'identification': 'long'}, applied=False)
     assert issubclass(ReportError, CommissioningError)
 
 
