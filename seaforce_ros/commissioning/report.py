@@ -492,6 +492,11 @@ def _enc_float(v: float) -> Union[float, str, None]:
 
 
 def _encode(obj: Any) -> Any:
+    """JSON value of report data. The virtual wall also gets its derived ``k_max`` and
+    ``binding`` (for readers other than :func:`load_report`, which recomputes them)."""
+    if isinstance(obj, WallBoundary):
+        return {**{f.name: _encode(getattr(obj, f.name)) for f in dataclasses.fields(obj)},
+                "k_max": _encode(obj.k_max), "binding": obj.binding}
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return {f.name: _encode(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
     if isinstance(obj, np.ndarray):

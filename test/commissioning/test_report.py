@@ -169,7 +169,10 @@ def test_json_round_trip(tmp_path, fast_figures):
     assert raw['schema'] == rp.SCHEMA
     m_e = raw['identification'][5]
     assert m_e['value'] is None and m_e['sigma'] is None and m_e['status'].startswith('not ')
-    assert raw['zwidth']['wall']['k_quantisation'][:5] == ['inf'] * 5
+    wall = raw['zwidth']['wall']
+    assert wall['k_quantisation'][:5] == ['inf'] * 5
+    assert wall['binding'][0] == 'passivity' and wall['binding'][-1] == 'quantisation'
+    assert wall['k_max'][-1] == 600.0 and wall['k_max'][0] == wall['k_passivity'][0]
     assert raw['meta']['seed'] is None
     for key in ('sigma', 'coherence'):
         assert len(raw['responses'][0][key]) == len(raw['responses'][0]['omega'])
