@@ -36,8 +36,7 @@ import pathlib
 import typing
 import warnings
 from dataclasses import dataclass, field
-from typing import (TYPE_CHECKING, Any, Callable, Dict, List, Mapping, Optional, Sequence,
-                    Tuple, Union)
+from typing import TYPE_CHECKING, Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -842,13 +841,15 @@ def _pm(value: float, sigma: float) -> str:
 
 
 def _drift(row: ParameterRow) -> str:
+    """``previous (+x.x %, +y.y sigma)``: the value of the last commissioning and the drift
+    since, relative and in units of this run's 1-sigma (either left out when undefined)."""
     if math.isnan(row.previous):
         return "-"
-    d = row.drift_sigmas
     rel = (row.value - row.previous) / row.previous if row.previous else _NAN
-    text = f"{_num(row.previous)} ({100 * rel:+.1f} %" if math.isfinite(rel) else _num(
-        row.previous) + " ("
-    return text + (f", {d:+.1f} sigma)" if math.isfinite(d) else ")")
+    parts = [f"{100 * rel:+.1f} %"] if math.isfinite(rel) else []
+    if math.isfinite(row.drift_sigmas):
+        parts.append(f"{row.drift_sigmas:+.1f} sigma")
+    return _num(row.previous) + (f" ({', '.join(parts)})" if parts else "")
 
 
 def _zwidth_headline(chart: ZWidthChart) -> str:

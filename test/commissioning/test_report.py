@@ -255,6 +255,18 @@ def test_wall_boundary_names_the_limit_that_binds():
     np.testing.assert_array_equal(wall.k_max, np.minimum(wall.k_passivity, 600.0))
 
 
+def test_drift_against_the_last_commissioning():
+    row = rp.ParameterRow('plant.hose_stiffness', 'k_s', 'N m/rad', 13.02, 0.21, previous=12.1)
+    assert row.drift_sigmas == pytest.approx((13.02 - 12.1) / 0.21)
+    assert rp._drift(row) == '12.1 (+7.6 %, +4.4 sigma)'
+    row.sigma = np.nan
+    assert rp._drift(row) == '12.1 (+7.6 %)'
+    row.previous = 0.0
+    assert rp._drift(row) == '0'
+    row.previous = np.nan
+    assert rp._drift(row) == '-' and math.isnan(row.drift_sigmas)
+
+
 def test_bad_data_is_refused_with_the_field_named():
     with pytest.raises(ReportError, match='sigma has 3 values'):
         rp.PortResponse('F_p/X', 'N m/rad', [1, 2], [1, 2], [1, 2, 3], [1, 1], [1, 2])
