@@ -11,7 +11,8 @@ Three estimates, each from the record alone (no model of the plant):
   ``block`` samples the robust std ``1.4826 MAD(d_k)/sqrt(C(2k, k))``; the estimate is the
   median over the blocks, which stays unbiased while less than half of the record holds
   content fast enough to pass the difference (a log chirp to 1 kHz spends 13 % of its time
-  above 300 Hz). Its 1-sigma is the blocks' spread (robust) over sqrt(blocks). The result is
+  above 300 Hz). Its 1-sigma is the blocks' spread (robust) over sqrt(blocks), at least the
+  MAD's own (1.166 sigma over the root of the n/k independent differences). The result is
   the noise as sampled, ADC quantisation included (a 16-bit ADC over +-10 N m adds
   ``q/sqrt(12)`` = 8.8e-5 N m in quadrature). The rest phase at the start, where the
   excitation is zero, gives a second estimate (the same estimator over it alone).
@@ -307,8 +308,8 @@ def pressure_noise(f_p: npt.ArrayLike, rest: int = 0, order: int = DIFFERENCE_OR
     Parameters
     ----------
     f_p : float array
-        Measured pressure force F_p [N m], at least ``order + 2 block`` samples... or fewer
-        (one block then).
+        Measured pressure force F_p [N m], at least ``order + 50`` samples (fewer than
+        ``block`` + ``order``: one block).
     rest : int >= 0
         Samples of rest at the start (excitation zero); fewer than :data:`MIN_REST`: no
         rest-phase estimate.
@@ -327,11 +328,13 @@ def pressure_noise(f_p: npt.ArrayLike, rest: int = 0, order: int = DIFFERENCE_OR
                                f"{order + 50} are needed for the noise estimate")
     per_block = _block_noise(f, order, block)
     std = float(np.median(per_block))
+    # the statistical floor: the MAD's std 1.166 sigma/sqrt(n) over the n/k independent
+    # differences there are (neighbouring k-th differences share k samples); quantised noise
+    # can make every block's MAD the same value, and the spread alone would then say 0
+    one = 1.166 * std * math.sqrt(order / max(f.size - order, 1))
     if per_block.size > 1:
         spread = _MAD_TO_STD * float(np.median(np.abs(per_block - std)))
-        one = 1.2533 * spread / math.sqrt(per_block.size)   # std of a median of Gaussians
-    else:
-        one = std * 0.6745 * math.sqrt(2.0 / max(f.size - order, 1))
+        one = max(one, 1.2533 * spread / math.sqrt(per_block.size))  # std of a median
     rest_std = math.nan
     if rest >= MIN_REST:
         rest_std = float(np.median(_block_noise(f[:rest], order, block)))
