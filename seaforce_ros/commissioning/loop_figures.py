@@ -24,8 +24,8 @@ Three estimates, each from the record alone (no model of the plant):
   from the first sample c' > c whose reported ``applied`` torque (``motor_effort``) equals
   the command clamped to the torque limit (:func:`command_applied`): delay = c' - c. A command
   that no sample within ``max_delay`` applied is missed. A command whose value another command
-  within ``max_delay`` cycles shares cannot be told from it (a constant command): it is
-  ambiguous and counted apart. A sample c' after a gap in the state record (c' - 1 > c
+  within ``max_delay`` cycles shares (within a drive unit) cannot be told from it (a constant
+  command): it is ambiguous and counted apart. A sample c' after a gap in the state record (c' - 1 > c
   missing) only bounds the delay from above: censored, counted apart. p50 and p99 of the
   delays with a distribution-free 95 % interval of p99 (order statistics), the histogram, the
   missed fraction with its 95 % upper bound (Clopper-Pearson), and the states the controller
@@ -459,11 +459,12 @@ def loop_delay(state_cycle: npt.ArrayLike, applied: npt.ArrayLike,
     targets = np.clip(cmd, -limit, limit)
     tol = 0.5 * effort_quantum + 1e-9 * np.maximum(1.0, np.abs(targets))
     n = cc.size
-    # ambiguous: a command within max_delay cycles (so within max_delay entries) has the value
+    # ambiguous: a command within max_delay cycles (so within max_delay entries) could be
+    # applied as the same value (within both tolerances: one drive unit)
     shared = np.zeros(n, bool)
     for k in range(1, min(max_delay, n - 1) + 1):
         same = ((cc[k:] - cc[:-k] <= max_delay)
-                & (np.abs(targets[k:] - targets[:-k]) <= np.minimum(tol[k:], tol[:-k])))
+                & (np.abs(targets[k:] - targets[:-k]) <= tol[k:] + tol[:-k]))
         shared[k:] |= same
         shared[:-k] |= same
     # per command and lag k = 1..max_delay: is state c + k recorded, and does it apply it
@@ -545,7 +546,7 @@ def loop_figures_from_arrays(arrays: LoopArrays, torque_limit: Optional[float] =
     delay = loop_delay(sc, arrays.applied, arrays.command_cycle, arrays.command,
                        torque_limit=torque_limit, effort_quantum=effort_quantum,
                        max_delay=max_delay)
-    if delay.ambiguous > 0.5 * delay.commands:
+    if delay.ambiguous > 0.25 * delay.commands:
         notes.append(f"{delay.ambiguous} of {delay.commands} commands share their value with a "
                      "neighbour: the delay rests on the others only (excite with a signal "
                      "that changes every sample)")
