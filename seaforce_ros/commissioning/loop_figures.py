@@ -22,14 +22,16 @@ Three estimates, each from the record alone (no model of the plant):
   fit no candidate is not quantised as far as it shows (q = 0, with the smallest step seen).
 * **Loop delay** in samples. A command answers state cycle c (its ``cycle``); it is applied
   from the first sample c' > c whose reported ``applied`` torque (``motor_effort``) equals
-  the command clamped to the torque limit (:func:`command_applied`): delay = c' - c. A command
+  the command clamped to the torque limit, within half a drive unit (:func:`command_applied`):
+  delay = c' - c. A command
   that no sample within ``max_delay`` applied is missed. A command whose value another command
   within ``max_delay`` cycles shares (within a drive unit) cannot be told from it (a constant
-  command): it is ambiguous and counted apart. A sample c' after a gap in the state record (c' - 1 > c
-  missing) only bounds the delay from above: censored, counted apart. p50 and p99 of the
-  delays with a distribution-free 95 % interval of p99 (order statistics), the histogram, the
-  missed fraction with its 95 % upper bound (Clopper-Pearson), and the states the controller
-  skipped (cycles between the first and last command that no command answers).
+  command): it is ambiguous and counted apart. A state missing from the record between c and
+  the sample that applied it (or in a window without one: a gap, the record's end) leaves
+  the delay bounded only: censored, counted apart. Reported: p50 and p99 of the delays with
+  a distribution-free 95 % interval of p99 (order statistics), the histogram, the missed
+  fraction with its 95 % upper bound (Clopper-Pearson), and the states the controller skipped
+  (cycles between the first and last command that no command answers).
 
 Inputs: :func:`loop_figures` (an :class:`~.record.ExcitationRecord`),
 :func:`loop_figures_from_arrays` (the state and command streams as arrays, e.g. from a bag)
@@ -382,6 +384,15 @@ def encoder_resolution(x: npt.ArrayLike, tolerance: float = QUANTUM_TOLERANCE,
 
 
 # --- loop delay ------------------------------------------------------------------------------
+def _as_applied(command: _Array, torque_limit: float,
+                effort_quantum: float) -> Tuple[_Array, _Array]:
+    """(target, tolerance) [N m] per command: clamped to +-``torque_limit``; an applied torque
+    within half the drive's ``effort_quantum`` plus 1e-9 relative (float round trips) of the
+    target is that command."""
+    target = np.clip(command, -torque_limit, torque_limit)
+    return target, 0.5 * effort_quantum + 1e-9 * np.maximum(1.0, np.abs(target))
+
+
 def command_applied(applied: npt.ArrayLike, command: float, torque_limit: float,
                     effort_quantum: float = 0.0) -> npt.NDArray[np.bool_]:
     """Which ``applied`` torques are ``command`` as the plant applies it: clamped to
@@ -395,9 +406,8 @@ def command_applied(applied: npt.ArrayLike, command: float, torque_limit: float,
     torque_limit : float > 0 [N m]
     effort_quantum : float >= 0 [N m]
     """
-    target = min(max(command, -torque_limit), torque_limit)
-    tol = 0.5 * effort_quantum + 1e-9 * max(1.0, abs(target))
-    return np.asarray(np.abs(np.asarray(applied, float) - target) <= tol)
+    target, tol = _as_applied(np.array([command], dtype=float), torque_limit, effort_quantum)
+    return np.asarray(np.abs(np.asarray(applied, float) - target[0]) <= tol[0])
 
 
 def _quantile_interval(n: int, q: float, level: float = 0.95) -> Tuple[int, int]:
@@ -456,8 +466,7 @@ def loop_delay(state_cycle: npt.ArrayLike, applied: npt.ArrayLike,
         if torque_limit is not None:
             raise LoopFiguresError(f"loop figures: torque limit {torque_limit!r} must be > 0")
         limit = math.inf                     # nothing was ever applied: no clamp seen
-    targets = np.clip(cmd, -limit, limit)
-    tol = 0.5 * effort_quantum + 1e-9 * np.maximum(1.0, np.abs(targets))
+    targets, tol = _as_applied(cmd, limit, effort_quantum)
     n = cc.size
     # ambiguous: a command within max_delay cycles (so within max_delay entries) could be
     # applied as the same value (within both tolerances: one drive unit)

@@ -388,8 +388,9 @@ def _fit_endpoint(bt: BlackmanTukey, sxe: Spectra, sfp: Spectra, s_fe: Optional[
                   path: DahlPath, lo: float, hi: float, dahl: bool, dahl_delay: float,
                   dahl_spectra: Dict[float, npt.NDArray[np.complex128]],
                   report: Callable[[str, float], None]) -> _Endpoint:
-    """The endpoint plant B (and D = X_e/F_e when there is an external force ``s_fe``, its
-    spectra with the cross-spectrum aligned) with Dahl hysteresis removed unless ``dahl`` is False."""
+    """The endpoint plant B (and D = X_e/F_e when there is an external force ``s_fe``: its
+    spectra, the cross-spectrum aligned), the Dahl hysteresis removed unless ``dahl`` is
+    False."""
     end_in: Spectra = (-sfp[0] if s_fe is None else s_fe[0] - sfp[0], auto_in)
     responses = {"B": bt.response(sxe, end_in, "X_e/(F_e-F_p)")}
     if s_fe is not None:

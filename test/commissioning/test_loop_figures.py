@@ -20,8 +20,8 @@ import pytest
 
 from seaforce_ros.commissioning.errors import CommissioningError
 from seaforce_ros.commissioning.loop_figures import (
-    MAX_DELAY, LoopArrays, LoopFiguresError, encoder_resolution, loop_delay, loop_figures,
-    loop_figures_from_arrays, pressure_noise, read_loop_arrays)
+    MAX_DELAY, LoopArrays, LoopFiguresError, command_applied, encoder_resolution, loop_delay,
+    loop_figures, loop_figures_from_arrays, pressure_noise, read_loop_arrays)
 from seaforce_ros.commissioning.record import ExcitationRecord
 
 DT = 5e-4
@@ -262,6 +262,13 @@ def test_clamped_and_rounded_commands_count_as_applied():
     assert strict.missed > 0.8 * N
 
 
+def test_command_applied_is_the_clamped_command_within_half_a_drive_unit():
+    applied = [1.0, 0.9995, 0.9994, -1.0, 0.5]
+    assert command_applied(applied, 2.5, 1.0, 1e-3).tolist() == [True, True, False, False,
+                                                                  False]
+    assert command_applied(applied, 0.5, 1.0).tolist() == [False] * 4 + [True]
+
+
 def test_a_constant_command_is_ambiguous_not_a_delay():
     cycles = np.arange(2000)
     commands = np.zeros(2000)
@@ -297,7 +304,8 @@ def test_from_a_bag_with_states_and_commands(tmp_path):
     rows, stamps = serialize_states(["wrist", "pinch"], data, dt=DT)
     store = typestore()
     cmd_type = "seaforce_msgs/msg/ActuatorCommand"
-    header_t, time_t = store.types["std_msgs/msg/Header"], store.types["builtin_interfaces/msg/Time"]
+    header_t = store.types["std_msgs/msg/Header"]
+    time_t = store.types["builtin_interfaces/msg/Time"]
     writer = Writer(tmp_path / "bag", version=8, storage_plugin=StoragePlugin.MCAP)
     writer.open()
     s_conn = writer.add_connection("/actuator_state", "seaforce_msgs/msg/ActuatorState",
