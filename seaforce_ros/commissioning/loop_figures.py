@@ -331,8 +331,13 @@ def pressure_noise(f_p: npt.ArrayLike, rest: int = 0, order: int = DIFFERENCE_OR
     if f.size < order + 50:
         raise LoopFiguresError(f"loop figures: {f.size} pressure samples, at least "
                                f"{order + 50} are needed for the noise estimate")
-    per_block = _block_noise(f, order, block)
+    with np.errstate(over="ignore", invalid="ignore"):
+        per_block = _block_noise(f, order, block)
     std = float(np.median(per_block))
+    if not math.isfinite(std):
+        raise LoopFiguresError(f"loop figures: the pressure samples (up to "
+                               f"{float(np.max(np.abs(f))):.3g} N m) overflow their "
+                               f"{order}th differences: not a pressure force in N m")
     # the statistical floor: the MAD's std 1.166 sigma/sqrt(n) over the n/k independent
     # differences there are (neighbouring k-th differences share k samples); quantised noise
     # can make every block's MAD the same value, and the spread alone would then say 0

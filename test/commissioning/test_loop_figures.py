@@ -380,3 +380,8 @@ def test_malformed_records_are_refused():
         loop_delay(np.arange(10), np.zeros(10), np.arange(10), np.zeros(10), max_delay=0)
     with pytest.raises(LoopFiguresError, match="at least 56"):
         pressure_noise(np.zeros(10))
+    with pytest.raises(LoopFiguresError, match="overflow"):
+        pressure_noise(1e307 * (-1.0) ** np.arange(1000))
+    # a few huge samples are outliers the median over blocks ignores
+    spikes = pressure_noise(np.r_[np.zeros(500), 1e307, -1e307, np.zeros(1500)])
+    assert spikes.std == 0.0
