@@ -129,9 +129,9 @@ DECIMATE = 2
 #: F_c/sigma from 0.1 mrad to 0.1 rad.
 RATIO_RANGE = (10.0, 1e4)
 #: Alternations of the friction fit and the port fit at most ...
-MAX_ITERATIONS = 4
+MAX_ITERATIONS = 3
 #: ... stopping when m_e, b_s and k_s change by less than this (relative).
-CONVERGED = 2e-3
+CONVERGED = 5e-3
 #: Median squared coherence of X and F_p with the excitation below which the record is refused.
 MIN_COHERENCE = 0.5
 #: Seconds at the start the friction fit leaves out (its filter and the Dahl states settle).
