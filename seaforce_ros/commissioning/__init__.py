@@ -4,8 +4,10 @@ it gets from that.
 
 Modules (each lists its own public names in ``__all__``): :mod:`.errors` (one root,
 :class:`~.errors.CommissioningError`), :mod:`.record` (one free-air excitation of one channel,
-as the controller saw it).
+as the controller saw it), :mod:`.free_air` (:func:`~.free_air.identify_free_air`: the eight
+Table I parameters and the Dahl hysteresis, each with its 1-sigma or why not, from one free-air
+excitation).
 
 The package imports none of its modules: a caller loads only what it needs.
 """
-__all__ = ["errors", "record"]
+__all__ = ["errors", "record", "free_air"]

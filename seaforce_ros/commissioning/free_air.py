@@ -285,6 +285,11 @@ def _bands(ref: _Real, dt: float, band: Optional[Tuple[float, float]]
                               "rad/s")
     nyquist = math.pi / dt
     duration = ref.size * dt
+    need = 4.0 * math.pi / REQUIRED_BAND[0]
+    if duration < need:
+        raise RecordTooShortError(
+            f"record of {duration:.2f} s: the band from {REQUIRED_BAND[0]:g} rad/s needs at "
+            f"least {need:.1f} s (two periods); record longer (tens of seconds)")
     ex_lo, ex_hi = excited_band(ref, dt)
     if band is None:
         lo = max(1.5 * ex_lo, 8.0 * math.pi / duration)
@@ -570,8 +575,9 @@ def identify_free_air(record: ExcitationRecord, *, band: Optional[Tuple[float, f
                                                friction.coulomb_force_sigma)
         estimates["sigma"] = _estimate(friction.sigma, friction.sigma_sigma,
                                        friction.sigma_reason)
-    m, b, k = (float(v) for v in fit_a.values)
-    model_a = 1.0 / (m * (1j * w) ** 2 + b * 1j * w + k)
+    mass, damping, stiffness = (float(v) for v in fit_a.values)
+    model_a = np.asarray(1.0 / (mass * (1j * w) ** 2 + damping * 1j * w + stiffness),
+                         dtype=np.complex128)
     model_p = _port_model(theta, w, np.ones_like(w, dtype=complex), None)
     sel_a = w <= motor_hi
     misfit = {"motor": float(np.sqrt(np.mean(np.abs(model_a[sel_a] - resp_a.h[sel_a]) ** 2

@@ -139,7 +139,7 @@ def short_chirp():
 
 
 def test_a_record_too_short_says_record_longer(short_chirp):
-    n = 4000
+    n = 2000
     r = short_chirp
     cut = as_record({k: getattr(r, k)[:n] for k in ("x", "v", "f_p", "applied", "command",
                                                     "excitation")})

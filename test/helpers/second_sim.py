@@ -65,6 +65,15 @@ def _matrices(p):
     return a, bvec
 
 
+def _dahl_after(fd, dx, sigma, fc):
+    """The Dahl force after a monotone path increment ``dx`` (exact solution of eq. 15)."""
+    if dx == 0.0 or sigma == 0.0:
+        return fd
+    if dx > 0.0:
+        return fc - (fc - fd) * math.exp(-sigma * dx / fc)
+    return -fc + (fc + fd) * math.exp(sigma * dx / fc)
+
+
 def simulate_chirp(plant, dahl=None, duration=120.0, amplitude=0.3, start_hz=0.01,
                    end_hz=1000.0, dt=5e-4, tail=1.0, substeps=2, hold=True, seed=0,
                    pressure_noise=5e-4, pressure_range=10.0, pressure_bits=16,
@@ -308,11 +317,8 @@ def simulate_motor_excitation(plant, dahl=None, excitation=None, servo=(0.1, 0.0
     qp = 2.0 * pressure_range / 2 ** pressure_bits if pressure_bits else 0.0
 
     def dahl_after(fd, dx):
-        if dx == 0.0 or sigma == 0.0:
-            return fd
-        if dx > 0.0:
-            return fc - (fc - fd) * math.exp(-sigma * dx / fc)
-        return -fc + (fc + fd) * math.exp(sigma * dx / fc)
+        # exact solution of eq. 15 along a monotone path increment dx
+        return _dahl_after(fd, dx, sigma, fc)
 
     rng = np.random.default_rng(seed)
     noise = (rng.standard_normal(n) * pressure_noise).tolist()
