@@ -43,10 +43,7 @@ def exact():
 
 def test_exact_linear_model_gives_all_eight_within_one_percent(exact):
     for key in PLANT_KEYS:
-        # b_s: 1.4 % measured (the port's top, where the held torque's images begin to
-        # alias into X and F_p, is where b_s shows)
-        tol = 0.02 if key == "hose_damping" else 0.01
-        assert exact.value(key) == pytest.approx(TABLE_I[key], rel=tol), key
+        assert exact.value(key) == pytest.approx(TABLE_I[key], rel=0.01), key
         assert exact.parameters[key].sigma > 0.0
     # no hysteresis in the data: none reported, with the reason
     assert not exact.parameters["sigma"].identified
