@@ -125,11 +125,14 @@ ALIAS_IMAGES = 3
 SK_ITERATIONS = 8
 #: Frequencies of the spectral grid.
 N_FREQ = 100
-#: Cut-off [Hz] of the friction fit's state-variable filter (the contact estimator's default).
-FILTER_CUTOFF = 30.0
+#: Cut-off [Hz] of the friction fit's state-variable filter. Low, so that the endpoint's
+#: inertia force (m_e w^2 X_e, with m_e from the port) is small next to the friction: at the
+#: contact estimator's 30 Hz a 1 % error of m_e moved sigma by 16-44 % and one of k_s by 100 %
+#: (through X_e_hat); at 5 Hz by 9-11 % and 2 %.
+FILTER_CUTOFF = 5.0
 #: The friction fit works on every DECIMATE-th sample (after a zero-phase anti-alias filter):
 #: its filter passes nothing above FILTER_CUTOFF, and the cost falls by this factor.
-DECIMATE = 2
+DECIMATE = 4
 #: Candidate sigma/F_c [1/rad] of the friction fit (10 per decade): a pre-sliding displacement
 #: F_c/sigma from 0.1 mrad to 0.1 rad.
 RATIO_RANGE = (10.0, 1e4)
@@ -141,6 +144,9 @@ CONVERGED = 5e-3
 MIN_COHERENCE = 0.5
 #: Seconds at the start the friction fit leaves out (its filter and the Dahl states settle).
 SETTLE_TIME = 0.5
+#: Zero-phase low-pass [Hz] of the estimated endpoint path that drives the friction fit's Dahl
+#: states (the fit sees nothing above FILTER_CUTOFF).
+DAHL_INPUT_CUTOFF = 100.0
 #: Zero-phase low-pass [Hz] of the estimated endpoint path that drives the Dahl force of the
 #: port fit (the pressure noise would otherwise reverse it at every sample).
 PATH_CUTOFF = 400.0
@@ -455,19 +461,25 @@ def _fit_friction(xe: _Real, f_p: _Real, endpoint_inertia: float, dt: float
     # from the central second difference (on time), and the fit's m_e is 1e-12 (nothing).
     acc = np.gradient(np.gradient(xe, dt), dt)
     f_in = f_p + endpoint_inertia * acc
+    # the Dahl input: X_e_hat low-passed (zero phase) at DAHL_INPUT_CUTOFF: the pressure noise
+    # on X_e_hat (5e-4 N m/k_s, 40-80 urad rms) would reverse the Dahl states at every sample
+    # and relax them by sigma/F_c times the noise (10 % and more for a pre-sliding
+    # displacement near 1 mrad), which the fit answered with a sigma 30-50 % too large
+    sos = scipy.signal.butter(4, DAHL_INPUT_CUTOFF, fs=1.0 / dt, output="sos")
+    x_dahl = scipy.signal.sosfiltfilt(sos, xe)
     if q > 1:
-        xd = scipy.signal.decimate(xe, q, ftype="fir", zero_phase=True).tolist()
-        fd = scipy.signal.decimate(f_in, q, ftype="fir", zero_phase=True).tolist()
+        xd, fd, dd = (scipy.signal.decimate(a, q, ftype="fir", zero_phase=True).tolist()
+                      for a in (xe, f_in, x_dahl))
     else:
-        xd, fd = xe.tolist(), f_in.tolist()
+        xd, fd, dd = xe.tolist(), f_in.tolist(), x_dahl.tolist()
     plant = dataclasses.replace(PlantParams.table_i(), endpoint_inertia=1e-12)
     lo, hi = RATIO_RANGE
     center = math.sqrt(lo * hi)
     ratios = ratio_grid(center, math.sqrt(hi / lo))
     fit = FrictionFit(plant, 1.0, ratios, dt * q, FILTER_CUTOFF)
     settle = int(SETTLE_TIME / (dt * q))
-    for i, (a, b) in enumerate(zip(xd, fd)):
-        fit.update(a, a, b, record=i >= settle)
+    for i, (a, d, b) in enumerate(zip(xd, dd, fd)):
+        fit.update(a, d, b, record=i >= settle)
     fit.fold()
     return fit.estimate([fit.solve_candidate(k) for k in range(len(ratios))])
 
