@@ -72,7 +72,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Dict, List, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 import numpy.typing as npt
@@ -97,6 +97,7 @@ __all__ = ["FreeAirIdentification", "Estimate", "Response", "identify_free_air",
 
 _Real = npt.NDArray[np.float64]
 _Complex = npt.NDArray[np.complex128]
+_AnyComplex = npt.NDArray[np.complexfloating[Any, Any]]
 Progress = Callable[[str, float], object]
 
 #: The eight Table I parameters, in PlantParams' order.
@@ -327,15 +328,14 @@ def _bands(ref: _Real, dt: float, band: Optional[Tuple[float, float]]
 
 
 # --- models ----------------------------------------------------------------------------------
-def _impedances(theta: Dict[str, float], s: _Complex
-                ) -> Tuple[_Complex, _Complex, _Complex]:
+def _impedances(theta: Dict[str, float], s: _AnyComplex
+                ) -> Tuple[_AnyComplex, _AnyComplex, _AnyComplex]:
     """(Z_m, Z_e, Z_s) at ``s`` [rad/s]."""
-    zm = theta["motor_inertia"] * s ** 2 + theta["motor_damping"] * s \
-        + theta["motor_stiffness"]
-    ze = theta["endpoint_inertia"] * s ** 2 + theta["endpoint_damping"] * s \
-        + theta["endpoint_stiffness"]
-    zs = theta["hose_damping"] * s + theta["hose_stiffness"]
-    return zm, ze, zs
+    def z(*coef: float) -> _AnyComplex:
+        return np.asarray(np.polyval(coef, s), dtype=np.complex128)
+    return (z(theta["motor_inertia"], theta["motor_damping"], theta["motor_stiffness"]),
+            z(theta["endpoint_inertia"], theta["endpoint_damping"], theta["endpoint_stiffness"]),
+            z(theta["hose_damping"], theta["hose_stiffness"]))
 
 
 def _alias_factor(theta: Dict[str, float], w: _Real, dt: float) -> _Complex:

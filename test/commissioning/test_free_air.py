@@ -80,11 +80,12 @@ def test_motor_and_port_are_resolved_separately(exact):
 
 def test_port_tends_to_the_hose_above_its_resonance(exact):
     """The docstring: above the hose resonance -F_p/X -> b_s s + k_s (k_s its real part, b_s
-    its imaginary part over w), on the measured response."""
+    its imaginary part over w), on the measured response (up to 1000 rad/s: above, the held
+    torque's aliasing, which the model folds in, moves it by more than 5 %)."""
     w_h = math.sqrt((TABLE_I["hose_stiffness"] + TABLE_I["endpoint_stiffness"])
                     / TABLE_I["endpoint_inertia"])
     port = exact.port
-    top = port.omega >= 6.0 * w_h
+    top = (port.omega >= 6.0 * w_h) & (port.omega <= 1000.0)
     assert top.any()
     zs = TABLE_I["hose_stiffness"] + 1j * port.omega[top] * TABLE_I["hose_damping"]
     assert np.max(np.abs(-port.h[top] / zs - 1.0)) < 0.05
