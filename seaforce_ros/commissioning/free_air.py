@@ -52,7 +52,9 @@ Method
      small amplitudes and as a Coulomb force F_c at large ones).
 
    m_e, k_s, b_s are first fitted with b_e, k_e free and no Dahl force (nonlinear weighted
-   least squares on the relative error of P, started from a linear fit of P's coefficients);
+   least squares on the relative error of P, within a factor :data:`PORT_SEARCH` of its start,
+   from two starts -- a linear fit of P's coefficients, and P's shape: its resonance and its
+   low band -- keeping the better);
    then, up to :data:`MAX_ITERATIONS` times until m_e, b_s, k_s change by less than
    :data:`CONVERGED`: the friction fit on X_e_hat, and the fit of P again for m_e, b_s, k_s
    with b_e, k_e held at the friction fit's values and the Dahl force of that fit (driven by
@@ -122,6 +124,8 @@ FORCE_ORDERS = ((0, 5.0), (1, math.inf))
 PORT_TOP = 2000.0
 #: Images of the held torque either side that the port's model folds back (aliasing).
 ALIAS_IMAGES = 3
+#: The port's nonlinear fit searches within this factor of its linear start.
+PORT_SEARCH = 100.0
 #: Sanathanan-Koerner iterations of the port's linear start.
 SK_ITERATIONS = 8
 #: Frequencies of the spectral grid.
@@ -403,6 +407,23 @@ def _port_start(w: _Real, p: _Complex, weight: _Real) -> Dict[str, float]:
             "hose_damping": max(bs, 1e-9), "hose_stiffness": ks}
 
 
+def _resonance_start(w: _Real, p: _Complex, linear: Dict[str, float]) -> Dict[str, float]:
+    """A second start of the port's fit, from the shape of P (the linear fit's k_s, b_s):
+    m_e from the resonance, where ``|P/Z_s| = |Z_e/(Z_s + Z_e)|`` peaks (``w_h^2 = k_s/m_e``,
+    k_e << k_s); below a fifth of it ``-P ~ Z_e``: k_e its real part at the lowest
+    frequency, b_e the median of its imaginary part over w."""
+    g = -p
+    ks, bs = linear["hose_stiffness"], linear["hose_damping"]
+    w_peak = float(w[np.argmax(np.abs(g) / np.abs(ks + 1j * w * bs))])
+    low = w <= w_peak / 5.0
+    if not low.any():
+        low = w <= w[0]
+    be = float(np.median(g[low].imag / w[low]))
+    return dict(linear, endpoint_inertia=ks / w_peak ** 2,
+                endpoint_stiffness=max(float(g[0].real), 1e-6 * ks),
+                endpoint_damping=be if be > 0.0 else linear["endpoint_damping"])
+
+
 def _fit_port(w: _Real, s_x: _Complex, s_fp: _Complex, s_fd: Optional[_Complex],
               rel_sigma: _Real, start: Dict[str, float], free: Sequence[str], dt: float
               ) -> Tuple[Dict[str, float], Dict[str, float], float]:
@@ -422,8 +443,12 @@ def _fit_port(w: _Real, s_x: _Complex, s_fp: _Complex, s_fd: Optional[_Complex],
         return np.concatenate([e.real, e.imag])
 
     z0 = np.log([start[k] for k in free])
-    sol = scipy.optimize.least_squares(resid, z0, method="lm", x_scale=1.0, xtol=1e-12,
-                                       ftol=1e-12, max_nfev=400 * (len(free) + 1))
+    # within a factor PORT_SEARCH of the start (the linear start is within a few 10 % on
+    # every record seen; Levenberg-Marquardt unbounded once ran off to overflow)
+    span = math.log(PORT_SEARCH)
+    sol = scipy.optimize.least_squares(resid, z0, method="trf", bounds=(z0 - span, z0 + span),
+                                       x_scale=1.0, xtol=1e-12, ftol=1e-12,
+                                       max_nfev=400 * (len(free) + 1))
     th = theta_of(sol.x)
     r = sol.fun
     dof = max(1, r.size - len(free))
@@ -580,8 +605,11 @@ def identify_free_air(record: ExcitationRecord, *, band: Optional[Tuple[float, f
     # torque (:func:`_alias_factor`): held at fit A's values
     start = dict(_port_start(w, resp_p.h, weight),
                  **{k: float(v) for k, v in zip(fit_a.names, fit_a.values)})
-    theta, sig_p, misfit_p = _fit_port(w, s_x[0], s_fp[0], None, resp_p.rel_sigma, start,
-                                       _PORT_KEYS, dt)
+    # two starts (the linear fit's, and one from P's shape, for when the linear fit's m_e is
+    # far off: 70x on one record); the better fit is kept
+    theta, sig_p, misfit_p = min(
+        (_fit_port(w, s_x[0], s_fp[0], None, resp_p.rel_sigma, st, _PORT_KEYS, dt)
+         for st in (start, _resonance_start(w, resp_p.h, start))), key=lambda f: f[2])
     friction: Optional[FrictionEstimate] = None
     xe = x
     s_fd: Optional[_Complex] = None
