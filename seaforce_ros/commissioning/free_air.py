@@ -49,7 +49,14 @@ Method
      identified hose, ``X_e_hat = X + F_p/(b_s s + k_s)`` (the controller's exact first-order
      hold, :func:`~seaforce_ros.core.observer.hose_coefficients`), with the identified m_e.
      A linear fit of P would lump the hysteresis into them (it acts as a stiffness sigma at
-     small amplitudes and as a Coulomb force F_c at large ones).
+     small amplitudes and as a Coulomb force F_c at large ones). The fit sees every
+     :data:`DECIMATE`-th sample; the inertia force m_e A_e (A_e the central second difference
+     of X_e_hat) is added to F_p before it (the fit's own acceleration is half a sample late,
+     which biased b_e and k_e); its Dahl states are driven by X_e_hat low-passed at
+     :data:`DAHL_INPUT_CUTOFF` Hz. Its filter's cut-off :data:`FILTER_CUTOFF` is low so that
+     the errors of m_e and of the hose, which enter through m_e A_e and X_e_hat, stay small
+     next to the friction. When it sees no hysteresis (F_c not positive by 3 sigma), b_e and
+     k_e are the port's linear fit's and sigma, F_c are not identified.
 
    m_e, k_s, b_s are first fitted with b_e, k_e free and no Dahl force (nonlinear weighted
    least squares on the relative error of P, within a factor :data:`PORT_SEARCH` of its start,

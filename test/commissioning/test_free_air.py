@@ -7,13 +7,13 @@ parameter: a change of the motor in the data leaves the endpoint and hose unchan
 other way round; the band a record must excite).
 
 Randomised family. Goal: m, m_e, k_s within 5 %; b, k, b_e, k_e, b_s within 15 %; sigma, F_c
-within 25 %, for >= 95 % of the family (each Table I parameter, sigma and F_c log-uniform in
-[0.5x, 2x]); ``bench/free_air_identification.py`` measures it over 40 draws. Here N = 8 draws
-(the fit takes ~2.5 s CPU each) and at most one may miss: a method that meets the goal with
-margin (1 % failing) fails this test with probability 0.3 %, one at the goal's edge (5 %) with
-5.7 %, one failing 30 % of the family is caught with probability 74 % per run. No draw may
-miss a limit by more than 2x. Every run draws its own seed (printed;
-``SEAFORCE_FREEAIR_SEED=<seed>`` replays one).
+within 25 %, for >= 95 % of 40 draws (each Table I parameter, sigma and F_c log-uniform in
+[0.5x, 2x]; the rig's sensors; no endpoint encoder; alternately on the second simulator and the
+core simulator): here all 40 are drawn (~1.9 s each: a 0.5 s simulation, a ~1.4 s fit) and at
+most 2 may miss. A method that misses 1 % of the family fails this test with probability
+0.8 %; one that misses 10 % is caught with probability 78 % per run. No draw may miss a limit
+by more than 2x. ``bench/free_air_identification.py`` prints the distributions. Every run
+draws its own seed (printed; ``SEAFORCE_FREEAIR_SEED=<seed>`` replays one).
 """
 import math
 import os
@@ -120,7 +120,7 @@ def test_randomised_family_meets_the_goals():
     print(f"SEAFORCE_FREEAIR_SEED={seed}")
     rng = np.random.default_rng(seed)
     failing = []
-    for i in range(8):
+    for i in range(40):
         plant, dahl = draw(rng)
         simulator = second_sim_record if i % 2 == 0 else core_sim_record
         result = identify_free_air(simulator(plant, dahl, seed=seed + i))
@@ -130,7 +130,7 @@ def test_randomised_family_meets_the_goals():
         assert not gross, f"seed {seed}, draw {i}: {gross} ({plant}, {dahl})"
         if missed:
             failing.append((i, missed))
-    assert len(failing) <= 1, f"seed {seed}: {failing}"
+    assert len(failing) <= 2, f"seed {seed}: {failing}"
 
 
 # --- errors ------------------------------------------------------------------------------------
