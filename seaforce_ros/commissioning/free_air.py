@@ -34,7 +34,8 @@ Method
 
    * m, b, k -- from A alone (weighted linear least squares on 1/A,
      :func:`~seaforce_ros.identification.fit.fit_mass_spring_damper`) over the band up to
-     :data:`MOTOR_TOP` rad/s (above it the held torque's aliasing exceeds 1 %): m is the
+     :data:`MOTOR_TOP` rad/s (its model has the hold's sinc and half-sample shift but not the
+     held torque's images, which grow as w^3 relative to X): m is the
      s^2 coefficient (the mass line above the motor's corner sqrt(k/m)), b the s coefficient,
      k the constant. Nothing of the endpoint or the hose enters A.
    * k_s, b_s -- from P above the hose resonance ``w_h = sqrt((k_s + k_e)/m_e)``, where
@@ -101,8 +102,10 @@ from .record import ExcitationRecord
 __all__ = ["FreeAirIdentification", "Estimate", "Response", "identify_free_air",
            "RecordTooShortError", "NotExcitedError", "NonFiniteRecordError",
            "LowCoherenceError", "PLANT_KEYS", "DAHL_KEYS", "REQUIRED_BAND", "MOTOR_TOP",
-           "PERIODS", "FORCE_ORDERS", "PORT_TOP", "N_FREQ", "FILTER_CUTOFF", "RATIO_RANGE", "MAX_ITERATIONS", "CONVERGED",
-           "MIN_COHERENCE"]
+           "PERIODS", "FORCE_ORDERS", "PORT_TOP", "ALIAS_IMAGES", "PORT_SEARCH",
+           "SK_ITERATIONS", "N_FREQ", "FILTER_CUTOFF", "DECIMATE", "RATIO_RANGE",
+           "MAX_ITERATIONS", "CONVERGED", "MIN_COHERENCE", "SETTLE_TIME", "DAHL_INPUT_CUTOFF",
+           "PATH_CUTOFF"]
 
 _Real = npt.NDArray[np.float64]
 _Complex = npt.NDArray[np.complex128]
