@@ -4,12 +4,14 @@ it gets from that.
 
 Modules (each lists its own public names in ``__all__``): :mod:`.errors` (one root,
 :class:`~.errors.CommissioningError`), :mod:`.record` (one free-air excitation of one channel,
-as the controller saw it), :mod:`.loop_figures` (from such a record or a bag: the pressure
-sensor's noise, the motor encoder's resolution, the control loop's delay and its misses),
-:mod:`.report` (the report a run ends with: its data model, one directory with
-``report.json``, the figures and a self-contained ``report.html``, and the plain-text
-summary).
+as the controller saw it; saved and loaded as ``.npz``), :mod:`.free_air`
+(:func:`~.free_air.identify_free_air`: the eight Table I parameters and the Dahl hysteresis,
+each with its 1-sigma or why not, from one free-air excitation), :mod:`.loop_figures` (from
+such a record or a bag: the pressure sensor's noise, the motor encoder's resolution, the
+control loop's delay and its misses), :mod:`.report` (the report a run ends with: its data
+model, one directory with ``report.json``, the figures and a self-contained ``report.html``,
+and the plain-text summary).
 
 The package imports none of its modules: a caller loads only what it needs.
 """
-__all__ = ["errors", "record", "loop_figures", "report"]
+__all__ = ["errors", "record", "free_air", "loop_figures", "report"]

@@ -65,6 +65,15 @@ def _matrices(p):
     return a, bvec
 
 
+def _dahl_after(fd, dx, sigma, fc):
+    """The Dahl force after a monotone path increment ``dx`` (exact solution of eq. 15)."""
+    if dx == 0.0 or sigma == 0.0:
+        return fd
+    if dx > 0.0:
+        return fc - (fc - fd) * math.exp(-sigma * dx / fc)
+    return -fc + (fc + fd) * math.exp(sigma * dx / fc)
+
+
 def simulate_chirp(plant, dahl=None, duration=120.0, amplitude=0.3, start_hz=0.01,
                    end_hz=1000.0, dt=5e-4, tail=1.0, substeps=2, hold=True, seed=0,
                    pressure_noise=5e-4, pressure_range=10.0, pressure_bits=16,
@@ -212,3 +221,142 @@ def drop_mask(n, fraction, rng, longest=40):
         lost += int(keep[start:start + length].sum())
         keep[start:start + length] = False
     return keep
+
+
+def _motor_matrices(p):
+    """The 4-state model with both inputs: motor torque (column 0), endpoint force (column 1)."""
+    a, b_end = _matrices(p)
+    b_motor = np.array([0.0, 1.0 / p["motor_inertia"], 0.0, 0.0])
+    return a, np.stack([b_motor, b_end], axis=1)
+
+
+def free_air_admittance(plant, omega, servo=(0.0, 0.0)):
+    """X/F_exc of the motor with the endpoint free, under the centring servo
+    ``F_a = F_exc - K_p X - K_d V`` (delays neglected), at ``omega`` [rad/s]: the motor sees
+    its own impedance, the servo's and the port's ``Z_s Z_e/(Z_s + Z_e)``."""
+    s = 1j * np.asarray(omega, float)
+    p = plant
+    zm = p["motor_inertia"] * s ** 2 + p["motor_damping"] * s + p["motor_stiffness"]
+    ze = p["endpoint_inertia"] * s ** 2 + p["endpoint_damping"] * s + p["endpoint_stiffness"]
+    zs = p["hose_damping"] * s + p["hose_stiffness"]
+    kp, kd = servo
+    return 1.0 / (zm + kp + kd * s + zs * ze / (zs + ze))
+
+
+def chirp_envelope(plant, start_hz, end_hz, servo=(0.0, 0.0), max_position=1.0,
+                   max_velocity=10.0, max_torque=0.5, margin=0.5, points=400):
+    """Torque amplitude [N m] of a motor log chirp as a function of frequency [Hz]: the
+    largest that keeps ``margin`` of ``max_position`` [rad] and ``max_velocity`` [rad/s] on
+    ``plant``'s free-air admittance, at most ``max_torque``. Returns ``(hz, amplitude)``
+    arrays (interpolate in log frequency)."""
+    hz = np.logspace(math.log10(start_hz), math.log10(end_hz), points)
+    w = 2.0 * math.pi * hz
+    gain = np.abs(free_air_admittance(plant, w, servo))
+    amp = np.minimum(max_position / gain, max_velocity / (w * gain))
+    return hz, np.minimum(margin * amp, max_torque)
+
+
+def motor_chirp(plant, duration=40.0, start_hz=0.3, end_hz=800.0, dt=5e-4, tail=0.2,
+                servo=(0.1, 0.002), fade=0.5, **envelope):
+    """The excitation samples [N m] of a motor-torque log chirp ``start_hz`` -> ``end_hz``
+    over ``duration`` s (amplitude :func:`chirp_envelope` on ``plant``, raised-cosine fades
+    of ``fade`` s at both ends, ``tail`` s of zero after)."""
+    n = int(round((duration + tail) / dt))
+    t = np.arange(n) * dt
+    rate = math.log(end_hz / start_hz) / duration
+    tc = np.minimum(t, duration)
+    phase = 2.0 * math.pi * start_hz * np.expm1(rate * tc) / rate
+    f_inst = start_hz * np.exp(rate * tc)
+    hz, amp = chirp_envelope(plant, start_hz, end_hz, servo, **envelope)
+    a = np.interp(np.log(f_inst), np.log(hz), amp)
+    e = np.clip(np.minimum(t, duration - t) / fade, 0.0, 1.0)
+    e = 0.5 * (1.0 - np.cos(math.pi * e))
+    return np.where(t < duration, a * e * np.sin(phase), 0.0)
+
+
+def simulate_motor_excitation(plant, dahl=None, excitation=None, servo=(0.1, 0.002), dt=5e-4,
+                              substeps=2, seed=0, pressure_noise=5e-4, pressure_range=10.0,
+                              pressure_bits=16, motor_counts=2 ** 20, **chirp):
+    """A motor-torque excitation with the endpoint free (F_e = 0) under a weak centring servo.
+
+    Each sample k: measure (quantised X, backward-difference V, F_p with noise), command
+    ``excitation[k] - K_p X - K_d V``; the command is applied one sample later and held over
+    that sample (the EtherCAT frame's delay), so the torque acting during ``[k, k+1]`` is the
+    command of sample ``k - 1`` and the torque reported at sample k (``applied``) is the one
+    that acted during ``[k-1, k]``. No endpoint encoder: ``x_e`` is NaN.
+
+    Parameters
+    ----------
+    plant : dict of the eight parameters; dahl : dict ``{sigma, coulomb_force}`` or None
+    excitation : array [N m] or None (default :func:`motor_chirp` on ``plant`` with ``chirp``)
+    servo : (K_p [N m/rad], K_d [N m s/rad])
+
+    Returns
+    -------
+    dict of arrays ``x v f_p applied command excitation x_e f_e`` and ``x_e_true``,
+    ``f_d_true``.
+    """
+    if excitation is None:
+        excitation = motor_chirp(plant, dt=dt, servo=servo, **chirp)
+    exc = np.asarray(excitation, float)
+    n = exc.size
+    h = dt / substeps
+    a, bmat = _motor_matrices(plant)
+    eye = np.eye(4)
+    lhs = np.linalg.inv(eye - 0.5 * h * a)
+    ad = (lhs @ (eye + 0.5 * h * a)).tolist()
+    bd = (lhs @ (h * bmat)).tolist()
+    (a00, a01, a02, a03), (a10, a11, a12, a13), (a20, a21, a22, a23), (a30, a31, a32, a33) = ad
+    (m0, e0), (m1, e1), (m2, e2), (m3, e3) = bd
+    e0, e1, e2, e3 = 0.5 * e0, 0.5 * e1, 0.5 * e2, 0.5 * e3       # trapezoid: (u0 + u1)/2
+    ks, bs = plant["hose_stiffness"], plant["hose_damping"]
+    sigma = dahl["sigma"] if dahl else 0.0
+    fc = dahl["coulomb_force"] if dahl else 1.0
+    kp, kd = servo
+    qx = 2.0 * math.pi / motor_counts if motor_counts else 0.0
+    qp = 2.0 * pressure_range / 2 ** pressure_bits if pressure_bits else 0.0
+
+    def dahl_after(fd, dx):
+        # exact solution of eq. 15 along a monotone path increment dx
+        return _dahl_after(fd, dx, sigma, fc)
+
+    rng = np.random.default_rng(seed)
+    noise = (rng.standard_normal(n) * pressure_noise).tolist()
+    exc_l = exc.tolist()
+    out = {k: np.empty(n) for k in ("x", "v", "f_p", "applied", "command", "x_e_true",
+                                     "f_d_true")}
+    ox, ov, ofp, oap, ocm, oxe, ofd = (out[k] for k in ("x", "v", "f_p", "applied", "command",
+                                                        "x_e_true", "f_d_true"))
+    x0 = x1 = x2 = x3 = 0.0
+    fd = 0.0
+    acting = 0.0          # torque held during the coming sample
+    pending = 0.0         # the command of this sample, applied from the next
+    xq_prev = 0.0
+    for i in range(n):
+        xq = qx * round(x0 / qx) if qx else x0
+        fp = ks * (x2 - x0) + bs * (x3 - x1) + noise[i]
+        fp = max(-pressure_range, min(pressure_range, fp))
+        if qp:
+            fp = min(qp * round(fp / qp), pressure_range - qp)
+        v = (xq - xq_prev) / dt
+        xq_prev = xq
+        cmd = exc_l[i] - kp * xq - kd * v
+        ox[i], ov[i], ofp[i], ocm[i], oxe[i], ofd[i] = xq, v, fp, cmd, x2, fd
+        oap[i] = acting
+        acting, pending = pending, cmd
+        u = acting
+        for _ in range(substeps):
+            c = -fd
+            y2 = a20 * x0 + a21 * x1 + a22 * x2 + a23 * x3 + m2 * u + e2 * (c - fd)
+            fd1 = dahl_after(fd, y2 - x2)
+            c = -fd - fd1
+            y0 = a00 * x0 + a01 * x1 + a02 * x2 + a03 * x3 + m0 * u + e0 * c
+            y1 = a10 * x0 + a11 * x1 + a12 * x2 + a13 * x3 + m1 * u + e1 * c
+            y2 = a20 * x0 + a21 * x1 + a22 * x2 + a23 * x3 + m2 * u + e2 * c
+            y3 = a30 * x0 + a31 * x1 + a32 * x2 + a33 * x3 + m3 * u + e3 * c
+            fd = dahl_after(fd, y2 - x2)
+            x0, x1, x2, x3 = y0, y1, y2, y3
+    out["excitation"] = exc.copy()
+    out["x_e"] = np.full(n, np.nan)
+    out["f_e"] = np.full(n, np.nan)
+    return out
