@@ -52,7 +52,8 @@ from ..core.simulator import discretise
 from .errors import CommissioningError
 
 __all__ = ["PREDICTED_MODES", "LoopFigures", "PredictionError", "dahl_describing_function",
-           "controller_gains", "predict_impedance", "predict_modes", "ImpedanceBand",
+           "controller_polynomials", "controller_gains", "closed_loop_radius",
+           "predict_impedance", "predict_modes", "ImpedanceBand",
            "predict_band", "perturbed_plants", "torque_noise", "hold_delay_limit",
            "HoldVerdict", "hold_verdict", "WallLimits", "wall_limits", "PLANT_FIELDS"]
 
@@ -179,10 +180,17 @@ def _dahl_down_stroke(y: _Float, sigma: float, fc: float, n: float) -> _Float:
 
 
 # --- the controller, mode by mode, as z-domain gains on (X, F_p) --------------------------
-def controller_gains(config: ControllerConfig, mode: str, z: _Complex, dt: float,
-                     dahl_gain: complex = 0j) -> Tuple[_Complex, _Complex]:
-    """The mode's command ``U = k_x(z) X + k_p(z) F_p`` from the measured motor position and
-    pressure force (velocity: the drive's backward difference), as the core computes it.
+_P = np.polynomial.polynomial
+
+
+def controller_polynomials(config: ControllerConfig, mode: str, dt: float,
+                           dahl_gain: complex = 0j) -> Tuple[_Complex, _Complex, _Float]:
+    """The mode's command as polynomials in ``q = z^-1`` (ascending powers)::
+
+        D(q) U = N_x(q) X + N_p(q) F_p
+
+    from the measured motor position and pressure force (velocity: the drive's backward
+    difference ``(1 - q)/T X``), as the core computes it (module docstring).
 
     Parameters
     ----------
@@ -190,8 +198,6 @@ def controller_gains(config: ControllerConfig, mode: str, z: _Complex, dt: float
         The controller's settings and model (b_e, k_e, b_s, k_s; the DOB; the hold gains).
     mode : str
         One of :data:`PREDICTED_MODES`.
-    z : complex array
-        ``e^{j w T}``.
     dt : float > 0
         T [s].
     dahl_gain : complex
@@ -199,44 +205,110 @@ def controller_gains(config: ControllerConfig, mode: str, z: _Complex, dt: float
 
     Returns
     -------
-    (k_x [N m/rad], k_p [-]) : complex arrays like ``z``
+    (N_x [N m/rad], N_p [-], D with D[0] = 1) : coefficient arrays
     """
     if mode not in PREDICTED_MODES:
         raise PredictionError(f"mode {mode!r}: the predictor models "
                               + ", ".join(PREDICTED_MODES))
-    q = 1.0 / z
-    zero = np.zeros_like(z)
-    v_x = (1.0 - q) / dt                        # backward difference
+    one = np.array([1.0 + 0j])
+    v_x = np.array([1.0, -1.0]) / dt                        # backward difference
     if mode == "passive":
-        return zero, zero
+        return 0 * one, 0 * one, one.real
     if mode == "hold":
-        return -(config.hold.stiffness + config.hold.damping * v_x), zero
+        return (-_P.polyadd(config.hold.stiffness * one, config.hold.damping * v_x), 0 * one,
+                one.real)
     if mode == "force_feedback":
-        return zero, zero + config.force_feedback.gain
+        return 0 * one, config.force_feedback.gain * one, one.real
     p = config.plant
     a, c0, c1 = hose_coefficients(p.hose_stiffness, 1.0 / p.hose_damping, dt)
-    delta_p = (c0 * q + c1) / (1.0 - a * q)      # hose deflection per F_p (eq. 29)
-    xe_x, xe_p = 1.0 + zero, delta_p              # X_e_hat = X + delta
-    ve_x, ve_p = v_x, (1.0 - p.hose_stiffness * delta_p) / p.hose_damping
-    ref_x, ref_p = zero, zero
+    d_h = np.array([1.0, -a])                   # the hose inversion's denominator
+    d_i = np.array([1.0, -1.0])                 # the DOB integrator's
+    # X_e_hat = X + delta, delta = [c1, c0]/d_h F_p; V_e_hat = V + (F_p - k_s delta)/b_s:
+    # the X parts are polynomials, the F_p parts polynomials over d_h
+    delta = np.array([c1, c0])
+    xe_x, xe_p = one, delta
+    ve_x, ve_p = v_x, _P.polysub(d_h, p.hose_stiffness * delta) / p.hose_damping
+    ref_x, ref_p = 0 * one, 0 * one
     if mode != "dob":
-        ref_x = p.endpoint_damping * ve_x + p.endpoint_stiffness * xe_x
-        ref_p = p.endpoint_damping * ve_p + p.endpoint_stiffness * xe_p
+        ref_x = _P.polyadd(p.endpoint_damping * ve_x, p.endpoint_stiffness * xe_x)
+        ref_p = _P.polyadd(p.endpoint_damping * ve_p, p.endpoint_stiffness * xe_p)
     if mode in ("dob_full_ff", "impedance"):
-        ref_x = ref_x + dahl_gain * xe_x
-        ref_p = ref_p + dahl_gain * xe_p
+        ref_x = _P.polyadd(ref_x, dahl_gain * xe_x)
+        ref_p = _P.polyadd(ref_p, dahl_gain * xe_p)
     if mode == "impedance":
         kt, bt = config.target.stiffness, config.target.damping
-        ref_x = ref_x - kt * xe_x - bt * ve_x
-        ref_p = ref_p - kt * xe_p - bt * ve_p
+        ref_x = _P.polysub(ref_x, _P.polyadd(kt * xe_x, bt * ve_x))
+        ref_p = _P.polysub(ref_p, _P.polyadd(kt * xe_p, bt * ve_p))
     dob = config.dob
     lam = dob.cutoff
     m_n = p.motor_inertia if dob.nominal_inertia is None else dob.nominal_inertia
-    integ = 0.5 * lam * dt * (1.0 + q) / (1.0 - q)
-    k_x = ref_x + integ * (ref_x - dob.nominal_stiffness) - lam * m_n * v_x \
-        - lam * dob.nominal_damping
-    k_p = ref_p + integ * (ref_p + 1.0)
-    return k_x, k_p
+    integ = 0.5 * lam * dt * np.array([1.0, 1.0])           # over d_i (trapezoidal)
+    ramp = _P.polyadd(lam * m_n * v_x, lam * dob.nominal_damping * one)
+    # U = F_ref + I/d_i (F_ref + F_p - k_n X) - ramp X, over d_h d_i
+    error_x = _P.polysub(ref_x, [dob.nominal_stiffness])
+    n_x = _P.polymul(_P.polysub(_P.polyadd(_P.polymul(ref_x, d_i), _P.polymul(integ, error_x)),
+                                _P.polymul(ramp, d_i)), d_h)
+    n_p = _P.polyadd(_P.polymul(ref_p, d_i), _P.polymul(integ, _P.polyadd(ref_p, d_h)))
+    return n_x, n_p, _P.polymul(d_h, d_i)
+
+
+def controller_gains(config: ControllerConfig, mode: str, z: _Complex, dt: float,
+                     dahl_gain: complex = 0j) -> Tuple[_Complex, _Complex]:
+    """:func:`controller_polynomials` at ``z = e^{j w T}``: ``U = k_x(z) X + k_p(z) F_p``,
+    k_x [N m/rad], k_p [-], complex arrays like ``z``."""
+    n_x, n_p, d = controller_polynomials(config, mode, dt, dahl_gain)
+    q = 1.0 / np.asarray(z)
+    den = _P.polyval(q, d)
+    return _P.polyval(q, n_x) / den, _P.polyval(q, n_p) / den
+
+
+def closed_loop_radius(true_plant: PlantParams, true_dahl: Optional[DahlParams],
+                       config: ControllerConfig, mode: str, *, delay: int = 1,
+                       dt: float = 5e-4, endpoint_stiffness: float = 0.0,
+                       endpoint_damping: float = 0.0) -> float:
+    """Spectral radius of the sampled closed loop of ``mode`` (< 1: stable), the endpoint
+    tied to ground by a spring-damper (0, 0: free; the position drive's 1000 N m/rad,
+    1.2 N m s/rad: held). The plant's Dahl hysteresis is its initial stiffness sigma (small
+    motion); the feed-forward's stays in its play.
+
+    State: the plant (4), the last L measured X and F_p, the last M commands; one row per
+    sample of ``D(q) U = N_x(q) X + N_p(q) F_p`` (:func:`controller_polynomials`).
+    """
+    delay = _check_delay(delay)
+    n_x, n_p, den = controller_polynomials(config, mode, dt)
+    n_x, n_p = n_x.real, n_p.real
+    phi6, gam6 = discretise(true_plant, dt, endpoint_stiffness, endpoint_damping, 0.0)
+    phi, gam_m = phi6[:4, :4].copy(), gam6[:4, 0]
+    if true_dahl is not None:
+        phi[:, 2] -= true_dahl.sigma * gam6[:4, 1]
+    hose = _hose_row(true_plant)
+    L = max(n_x.size, n_p.size) - 1
+    M = max(den.size - 1, delay)
+    n = 4 + 2 * L + M
+    ix, ip, iu = 4, 4 + L, 4 + 2 * L          # first index of each history
+    u_row = np.zeros(n)                       # u_k as a row of the state at k
+    u_row[:4] = (n_x[0] * np.eye(4)[0] + n_p[0] * hose) / den[0]
+    for i in range(1, L + 1):
+        u_row[ix + i - 1] += (n_x[i] if i < n_x.size else 0.0) / den[0]
+        u_row[ip + i - 1] += (n_p[i] if i < n_p.size else 0.0) / den[0]
+    for i in range(1, den.size):
+        u_row[iu + i - 1] -= den[i] / den[0]
+    A = np.zeros((n, n))
+    A[:4, :4] = phi
+    if delay == 0:
+        A[:4] += np.outer(gam_m, u_row)
+    else:
+        A[:4, iu + delay - 1] += gam_m
+    for base, row in ((ix, np.eye(4)[0]), (ip, hose)):
+        if L:
+            A[base, :4] = row
+            for i in range(1, L):
+                A[base + i, base + i - 1] = 1.0
+    if M:
+        A[iu] = u_row
+    for i in range(1, M):
+        A[iu + i, iu + i - 1] = 1.0
+    return float(np.max(np.abs(np.linalg.eigvals(A))))
 
 
 def _check_omega(omega: npt.ArrayLike, dt: float) -> _Float:
@@ -254,7 +326,10 @@ def _check_delay(delay: int) -> int:
     return int(delay)
 
 
-_HOSE_ROW = np.array([-1.0, 0.0, 1.0, 0.0])
+def _hose_row(plant: PlantParams) -> _Float:
+    """F_p = k_s (X_e - X) + b_s (V_e - V) as a row on the plant state (X, V, X_e, V_e)."""
+    return np.array([-plant.hose_stiffness, -plant.hose_damping, plant.hose_stiffness,
+                     plant.hose_damping])
 
 
 def _solve(phi: _Float, gam_m: _Float, gam_e: _Float, rhs: _Complex, z: complex, delay: int,
@@ -281,8 +356,7 @@ def predict_modes(true_plant: PlantParams, true_dahl: Optional[DahlParams],
         if mode not in PREDICTED_MODES:
             raise PredictionError(f"mode {mode!r}: the predictor models "
                                   + ", ".join(PREDICTED_MODES))
-    hose = true_plant.hose_stiffness * _HOSE_ROW \
-        + true_plant.hose_damping * np.array([0.0, -1.0, 0.0, 1.0])
+    hose = _hose_row(true_plant)
     play = config.feedforward.dahl_deadband
     out = {mode: np.empty(w.size, complex) for mode in modes}
     ken, ben = drive_stiffness, drive_damping
@@ -500,8 +574,7 @@ def torque_noise(true_plant: PlantParams, true_dahl: Optional[DahlParams],
     theta, weights = _noise_grid(dt)
     z = np.exp(1j * theta)
     k_x, k_p = controller_gains(config, mode, z, dt, 0j)
-    hose = true_plant.hose_stiffness * _HOSE_ROW \
-        + true_plant.hose_damping * np.array([0.0, -1.0, 0.0, 1.0])
+    hose = _hose_row(true_plant)
     # open plant with the Dahl spring: G = (zI - Phi + N Gamma_e e_2^T)^-1 Gamma_m
     base = phi.copy()
     base[:, 2] -= n_plant * gam_e

@@ -14,11 +14,12 @@ import pytest
 
 from seaforce_ros.commissioning.errors import CommissioningError
 from seaforce_ros.commissioning.predictor import (
-    PLANT_FIELDS, PREDICTED_MODES, LoopFigures, PredictionError, dahl_describing_function,
+    PLANT_FIELDS, PREDICTED_MODES, LoopFigures, PredictionError, closed_loop_radius,
+    dahl_describing_function,
     hold_delay_limit, hold_verdict, predict_band, predict_impedance, predict_modes,
     torque_noise, wall_limits)
 from seaforce_ros.core import ChannelController, ChannelSimulator, ControllerConfig
-from seaforce_ros.core.analysis import eq22_stiffness, frequency_response
+from seaforce_ros.core.analysis import eq22_stiffness, frequency_response, hold_loop
 from seaforce_ros.core.dahl import DahlState
 from seaforce_ros.core.params import (DahlParams, ForceFeedbackParams, GraspParams, PlantParams,
                                       TargetParams)
@@ -90,6 +91,20 @@ def _simulated_describing_function(dahl, amplitude, play, n=4000):
         f[i] = state.update(y)
     last = slice(2 * n, 3 * n)
     return complex(2.0 / n * np.sum(f[last] * np.exp(-1j * theta[last])) / amplitude)
+
+
+@pytest.mark.parametrize("delay", [0, 1, 3, 5])
+def test_closed_loop_of_the_hold_is_the_analysis_modules(delay):
+    """The generic sampled loop built from the controller's polynomials has, for the hold,
+    the spectral radius of the hand-built hold loop (core.analysis.hold_loop)."""
+    config = ControllerConfig()
+    for endpoint, k in (("free", 0.0), ("clamped", 1e4)):
+        b = 2.0 * 0.7 * math.sqrt(k * TABLE_I.endpoint_inertia)
+        A, _ = hold_loop(TABLE_I, config.hold.stiffness, config.hold.damping, DT, delay,
+                         endpoint, k or 1e4)
+        rho = closed_loop_radius(TABLE_I, None, config, "hold", delay=delay,
+                                 endpoint_stiffness=k, endpoint_damping=b)
+        assert rho == pytest.approx(float(np.max(np.abs(np.linalg.eigvals(A)))), rel=1e-9)
 
 
 def test_wall_limits_are_the_two_bounds():
