@@ -36,6 +36,7 @@ impedance mode.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Dict, Mapping, Optional, Sequence, Tuple
@@ -69,7 +70,7 @@ _Complex = npt.NDArray[np.complex128]
 _Float = npt.NDArray[np.float64]
 
 #: Samples per half cycle for the describing function's quadrature.
-_DF_POINTS = 2048
+_DF_POINTS = 512
 #: Fixed-point passes that bring the describing functions' amplitudes to the predicted motion.
 _DF_PASSES = 2
 
@@ -277,7 +278,7 @@ def closed_loop_radius(true_plant: PlantParams, true_dahl: Optional[DahlParams],
     delay = _check_delay(delay)
     n_x, n_p, den = controller_polynomials(config, mode, dt)
     n_x, n_p = n_x.real, n_p.real
-    phi6, gam6 = discretise(true_plant, dt, endpoint_stiffness, endpoint_damping, 0.0)
+    phi6, gam6 = _discretised(true_plant, dt, endpoint_stiffness, endpoint_damping, 0.0)
     phi, gam_m = phi6[:4, :4].copy(), gam6[:4, 0]
     if true_dahl is not None:
         phi[:, 2] -= true_dahl.sigma * gam6[:4, 1]
@@ -309,6 +310,14 @@ def closed_loop_radius(true_plant: PlantParams, true_dahl: Optional[DahlParams],
     for i in range(1, M):
         A[iu + i, iu + i - 1] = 1.0
     return float(np.max(np.abs(np.linalg.eigvals(A))))
+
+
+@functools.lru_cache(maxsize=4096)
+def _discretised(plant: PlantParams, dt: float, stiffness: float, damping: float,
+                 omega: float) -> Tuple[_Float, _Float]:
+    """:func:`~seaforce_ros.core.simulator.discretise`, remembered: a tuning evaluates many
+    controllers on one plant (the arrays are shared: never write into them)."""
+    return discretise(plant, dt, stiffness, damping, omega)
 
 
 def _check_omega(omega: npt.ArrayLike, dt: float) -> _Float:
@@ -360,31 +369,40 @@ def predict_modes(true_plant: PlantParams, true_dahl: Optional[DahlParams],
     play = config.feedforward.dahl_deadband
     out = {mode: np.empty(w.size, complex) for mode in modes}
     ken, ben = drive_stiffness, drive_damping
+    z = np.exp(1j * w * dt)
+    deflection = _endpoint_deflection(config, z, dt)
+    # the command is affine in the feed-forward's Dahl gain N: k = k(0) + N (k(1) - k(0))
+    gains = {}
+    for mode in modes:
+        k_x0, k_p0 = controller_gains(config, mode, z, dt, 0j)
+        k_x1, k_p1 = controller_gains(config, mode, z, dt, 1.0 + 0j)
+        gains[mode] = (k_x0, k_p0, k_x1 - k_x0, k_p1 - k_p0)
+    n_plant0 = dahl_describing_function(true_dahl, amplitude)
+    n_ff0 = dahl_describing_function(config.dahl, amplitude, play)
     for i, wi in enumerate(w):
-        phi6, gam6 = discretise(true_plant, dt, ken, ben, float(wi))
+        phi6, gam6 = _discretised(true_plant, dt, ken, ben, float(wi))
         phi, gam_m, gam_e = phi6[:4, :4], gam6[:4, 0], gam6[:4, 1]
         drive = np.array([1.0, 1j])             # x_d = Re(e^{jwt}), y_d = x_d'/w
         rhs = phi6[:4, 4:] @ drive
-        zi = complex(np.exp(1j * wi * dt))
-        za = np.array([zi])
+        zi = complex(z[i])
         for mode in modes:
-            n_plant = dahl_describing_function(true_dahl, amplitude)
-            n_ff = dahl_describing_function(config.dahl, amplitude, play)
+            k_x0, k_p0, dk_x, dk_p = (complex(g[i]) for g in gains[mode])
+            n_plant, n_ff = n_plant0, n_ff0
             s = np.zeros(4, complex)
             for _ in range(_DF_PASSES + 1):
-                k_x, k_p = controller_gains(config, mode, za, dt, n_ff)
-                s = _solve(phi, gam_m, gam_e, rhs, zi, delay, complex(k_x[0]),
-                           complex(k_p[0]), hose, n_plant)
+                s = _solve(phi, gam_m, gam_e, rhs, zi, delay, k_x0 + n_ff * dk_x,
+                           k_p0 + n_ff * dk_p, hose, n_plant)
                 # the drive phasor is 1: the motion's amplitudes are |S| A
                 n_plant = dahl_describing_function(true_dahl, abs(s[2]) * amplitude)
-                xe_hat = s[0] + _endpoint_deflection(config, zi, dt) * (hose @ s)
-                n_ff = dahl_describing_function(config.dahl, abs(xe_hat) * amplitude, play)
+                xe_hat = s[0] + deflection[i] * (hose @ s)
+                if dk_x != 0 or dk_p != 0:
+                    n_ff = dahl_describing_function(config.dahl, abs(xe_hat) * amplitude, play)
             f_e = ken * (1.0 - s[2]) + ben * (1j * wi - s[3])
             out[mode][i] = f_e / (1j * wi * s[2])
     return out
 
 
-def _endpoint_deflection(config: ControllerConfig, z: complex, dt: float) -> complex:
+def _endpoint_deflection(config: ControllerConfig, z: _Complex, dt: float) -> _Complex:
     """The controller's hose deflection per F_p, ``delta/F_p`` at z (eq. 29 discretised)."""
     p = config.plant
     a, c0, c1 = hose_coefficients(p.hose_stiffness, 1.0 / p.hose_damping, dt)
@@ -534,7 +552,7 @@ def predict_band(plant: PlantParams, plant_sigma: Mapping[str, float],
 def _noise_grid(dt: float) -> Tuple[_Float, _Float]:
     """Normalised frequencies theta in (0, pi) and trapezoid weights for (1/pi) int d theta:
     log-spaced (the closed loop's slow poles sit near theta = 0)."""
-    theta = np.concatenate([np.logspace(-7, math.log10(math.pi * 0.999), 1500), [math.pi]])
+    theta = np.concatenate([np.logspace(-7, math.log10(math.pi * 0.999), 800), [math.pi]])
     weights = np.empty_like(theta)
     d = np.diff(theta)
     weights[0] = 0.5 * d[0]
@@ -568,7 +586,7 @@ def torque_noise(true_plant: PlantParams, true_dahl: Optional[DahlParams],
     """
     dt = figures.dt
     d = figures.delay_p50 if delay is None else _check_delay(delay)
-    phi6, gam6 = discretise(true_plant, dt)
+    phi6, gam6 = _discretised(true_plant, dt, 0.0, 0.0, 0.0)
     phi, gam_m, gam_e = phi6[:4, :4], gam6[:4, 0], gam6[:4, 1]
     n_plant = 0.0 if true_dahl is None else true_dahl.sigma   # N -> sigma as A -> 0
     theta, weights = _noise_grid(dt)
@@ -623,7 +641,9 @@ class HoldVerdict:
 def hold_verdict(plant: PlantParams, stiffness: float, damping: float, delay: int = 1,
                  dt: float = 5e-4) -> HoldVerdict:
     """:class:`HoldVerdict` of the PD hold at ``delay`` samples."""
-    found = [hold_margins(plant, stiffness, damping, dt, delay, e) for e in ("free", "clamped")]
+    omega = np.logspace(-1.0, math.log10(math.pi / dt * 0.999), 600)
+    found = [hold_margins(plant, stiffness, damping, dt, delay, e, omega=omega)
+             for e in ("free", "clamped")]
     worst = min(found, key=lambda m: (m.stable, m.modulus_margin))
     return HoldVerdict(hold_delay_limit(plant, stiffness, damping, dt=dt),
                        hold_delay_limit(plant, stiffness, damping, dt=dt, endpoint="clamped"),
