@@ -4,8 +4,13 @@ it gets from that.
 
 Modules (each lists its own public names in ``__all__``): :mod:`.errors` (one root,
 :class:`~.errors.CommissioningError`), :mod:`.record` (one free-air excitation of one channel,
-as the controller saw it).
+as the controller saw it), :mod:`.predictor` (what each controller mode renders -- |Z| per mode
+from the sampled closed loop with the loop delay and the Dahl describing function, its 1-sigma
+band and the Z-width, the DOB's torque noise, the hold's delay limit, impedance mode's
+virtual-wall chart), :mod:`.tuning` (the DOB's lambda and nominal plant and the hold gains
+that widen the predicted Z-width under eq. 28 with a margin, a torque-noise budget and the
+loop delay).
 
 The package imports none of its modules: a caller loads only what it needs.
 """
-__all__ = ["errors", "record"]
+__all__ = ["errors", "record", "predictor", "tuning"]

@@ -39,7 +39,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from typing import Dict, Mapping, Optional, Sequence, Tuple
+from typing import Any, Dict, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 import numpy.typing as npt
@@ -68,6 +68,8 @@ PLANT_FIELDS = ("motor_inertia", "motor_damping", "motor_stiffness", "endpoint_i
 
 _Complex = npt.NDArray[np.complex128]
 _Float = npt.NDArray[np.float64]
+#: Polynomial coefficients (real or complex, as numpy's polynomial functions return them).
+_Coefficients = npt.NDArray[Any]
 
 #: Samples per half cycle for the describing function's quadrature.
 _DF_POINTS = 512
@@ -185,7 +187,8 @@ _P = np.polynomial.polynomial
 
 
 def controller_polynomials(config: ControllerConfig, mode: str, dt: float,
-                           dahl_gain: complex = 0j) -> Tuple[_Complex, _Complex, _Float]:
+                           dahl_gain: complex = 0j) -> Tuple[_Coefficients, _Coefficients,
+                                                             _Coefficients]:
     """The mode's command as polynomials in ``q = z^-1`` (ascending powers)::
 
         D(q) U = N_x(q) X + N_p(q) F_p
@@ -276,8 +279,8 @@ def closed_loop_radius(true_plant: PlantParams, true_dahl: Optional[DahlParams],
     sample of ``D(q) U = N_x(q) X + N_p(q) F_p`` (:func:`controller_polynomials`).
     """
     delay = _check_delay(delay)
-    n_x, n_p, den = controller_polynomials(config, mode, dt)
-    n_x, n_p = n_x.real, n_p.real
+    n_x_c, n_p_c, den = controller_polynomials(config, mode, dt)
+    n_x, n_p = n_x_c.real, n_p_c.real
     phi6, gam6 = _discretised(true_plant, dt, endpoint_stiffness, endpoint_damping, 0.0)
     phi, gam_m = phi6[:4, :4].copy(), gam6[:4, 0]
     if true_dahl is not None:
@@ -342,7 +345,7 @@ def _hose_row(plant: PlantParams) -> _Float:
 
 
 def _solve(phi: _Float, gam_m: _Float, gam_e: _Float, rhs: _Complex, z: complex, delay: int,
-           k_x: complex, k_p: complex, hose: _Float, dahl_gain: complex) -> _Complex:
+           k_x: complex, k_p: complex, hose: _Float, dahl_gain: complex) -> _Coefficients:
     """The plant state phasor S at the sample instants (module docstring)."""
     row = k_x * np.eye(4)[0] + k_p * hose
     M = z * np.eye(4) - phi - z ** (-delay) * np.outer(gam_m, row)
@@ -374,9 +377,9 @@ def predict_modes(true_plant: PlantParams, true_dahl: Optional[DahlParams],
     # the command is affine in the feed-forward's Dahl gain N: k = k(0) + N (k(1) - k(0))
     gains = {}
     for mode in modes:
-        k_x0, k_p0 = controller_gains(config, mode, z, dt, 0j)
-        k_x1, k_p1 = controller_gains(config, mode, z, dt, 1.0 + 0j)
-        gains[mode] = (k_x0, k_p0, k_x1 - k_x0, k_p1 - k_p0)
+        gx0, gp0 = controller_gains(config, mode, z, dt, 0j)
+        gx1, gp1 = controller_gains(config, mode, z, dt, 1.0 + 0j)
+        gains[mode] = (gx0, gp0, gx1 - gx0, gp1 - gp0)
     n_plant0 = dahl_describing_function(true_dahl, amplitude)
     n_ff0 = dahl_describing_function(config.dahl, amplitude, play)
     for i, wi in enumerate(w):
