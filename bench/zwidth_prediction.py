@@ -10,7 +10,11 @@ median, 90th percentile and largest |error| [dB], and the share within 3 dB. The
 delay limit (largest stable loop delay, endpoint free) predicted by
 :func:`~seaforce_ros.commissioning.predictor.hold_delay_limit` against the first delay at
 which the simulated hold (an extra command buffer in front of the simulator, a 0.01 rad
-initial offset, 1.5 s) grows, and the CPU time of a prediction.
+initial offset, 1.5 s) grows, and the CPU time of a prediction. Last, :func:`tune` on the
+first few plants (identified = true, 1-sigma 5 %, margin 2 sigma, pressure noise 5e-4 N m,
+2^20 counts/rev, delay p50 1 / p99 2 samples, budget 5 mN m rms): the settings, which
+constraint bound each, the predicted mean Z-width over 0.3-10 rad/s before (defaults on the
+identified model) and after, and the CPU time of a tune.
 
 Run (from the repository root, environment sourced)::
 
@@ -23,8 +27,9 @@ import time
 
 import numpy as np
 
-from seaforce_ros.commissioning.predictor import (PLANT_FIELDS, PREDICTED_MODES,
+from seaforce_ros.commissioning.predictor import (PLANT_FIELDS, PREDICTED_MODES, LoopFigures,
                                                   hold_delay_limit, predict_modes)
+from seaforce_ros.commissioning.tuning import InfeasibleTuningError, tune
 from seaforce_ros.core import ChannelController, ChannelSimulator, ControllerConfig
 from seaforce_ros.core.params import DahlParams, GraspParams, PlantParams, TargetParams
 from seaforce_ros.identification.zwidth_lib import simulate_impedance
@@ -135,7 +140,33 @@ def main():
           f"{sum(abs(d) <= 1 for d in diff)}/{len(diff)}")
     print(f"CPU: {cpu_pred / n * 1e3:.0f} ms per prediction of {len(PREDICTED_MODES)} modes "
           f"x {len(OMEGAS)} frequencies; whole run {time.process_time() - t0:.0f} s")
+    print_tuning([random_case(np.random.default_rng(100 + i))[:2] for i in range(5)])
     return 0
+
+
+def print_tuning(plants):
+    figures = LoopFigures(pressure_noise=5e-4, encoder_resolution=2 * math.pi / 2 ** 20,
+                          delay_p50=1, delay_p99=2)
+    print("\nTuning (identified = true plant, 1-sigma 5 %, margin 2, budget 5 mN m rms, "
+          "delay p50/p99 1/2):")
+    for plant, dahl in plants:
+        sigma = {n: 0.05 * getattr(plant, n) for n in PLANT_FIELDS}
+        t = time.process_time()
+        try:
+            r = tune(plant, sigma, dahl, figures, noise_budget=0.005)
+        except InfeasibleTuningError as exc:
+            print(f"  refused ({exc.constraint}): {exc}")
+            continue
+        cpu = time.process_time() - t
+        v = r.values
+        print(f"  lambda {v['dob.cutoff'] / (2 * math.pi):6.1f} Hz, m_n/m "
+              f"{v['dob.nominal_inertia'] / plant.motor_inertia:5.3f}, b_n "
+              f"{v['dob.nominal_damping']:+.2e}, hold {v['hold.stiffness']:g}/"
+              f"{v['hold.damping']:g} (delay limit {r.hold_delay_limit}), noise "
+              f"{r.torque_noise * 1e3:.2f} mN m; Z-width {np.mean(r.zwidth_before_db):.1f} -> "
+              f"{np.mean(r.zwidth_after_db):.1f} dB; CPU {cpu:.2f} s")
+        print(f"    lambda: {r.bindings['dob.cutoff']}; m_n: "
+              f"{r.bindings['dob.nominal_inertia']}; hold: {r.bindings['hold.stiffness']}")
 
 
 if __name__ == "__main__":
