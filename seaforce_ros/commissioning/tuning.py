@@ -266,9 +266,10 @@ def _hold_candidates(plant: PlantParams, figures: LoopFigures) -> List[Tuple[flo
 
 
 def _hold_stable(plant: PlantParams, kp: float, kd: float, figures: LoopFigures) -> bool:
-    """Stable at every delay 0..p99 + DELAY_RESERVE, endpoint free and clamped."""
+    """Stable at every delay 0..p99 + DELAY_RESERVE, endpoint free and clamped (the longest
+    delay first: it is the one that fails)."""
     config = ControllerConfig(hold=HoldParams(stiffness=kp, damping=kd))
-    for d in range(figures.delay_p99 + DELAY_RESERVE + 1):
+    for d in range(figures.delay_p99 + DELAY_RESERVE, -1, -1):
         for k_env in (0.0, 1e4):
             b_env = 2.0 * 0.7 * math.sqrt(k_env * plant.endpoint_inertia)
             if closed_loop_radius(plant, None, config, "hold", delay=d, dt=figures.dt,
