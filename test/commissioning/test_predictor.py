@@ -19,7 +19,8 @@ from seaforce_ros.commissioning.predictor import (
     hold_delay_limit, hold_verdict, predict_band, predict_impedance, predict_modes,
     torque_noise, wall_limits)
 from seaforce_ros.core import ChannelController, ChannelSimulator, ControllerConfig
-from seaforce_ros.core.analysis import eq22_stiffness, frequency_response, hold_loop
+from seaforce_ros.core.analysis import (eq22_stiffness, eq23_stiffness, eq24_stiffness,
+                                        frequency_response, hold_loop)
 from seaforce_ros.core.dahl import DahlState
 from seaforce_ros.core.params import (DahlParams, ForceFeedbackParams, GraspParams, PlantParams,
                                       TargetParams)
@@ -48,6 +49,22 @@ def test_force_feedback_low_frequency_stiffness_is_eq22():
     z = predict_impedance(TABLE_I, None, config, "force_feedback", [w])
     assert abs(z[0]) * w == pytest.approx(eq22_stiffness(TABLE_I), rel=1e-3)
     assert eq22_stiffness(TABLE_I) == pytest.approx(0.1453, abs=1e-4)
+
+
+def test_stiff_and_soft_motor_limits_are_eq23_and_eq24():
+    """Unpowered with a non-backdrivable motor (k = 1e5 k_s): the endpoint's DC stiffness is
+    k_s + k_e (eq. 23); internal force feedback K_f = 1 with a stiff hose (k_s = 1e4 k):
+    k/2 + k_e (eq. 24)."""
+    w = 1e-3
+    rigid_motor = TABLE_I.scaled(motor_stiffness=1e5 * TABLE_I.hose_stiffness
+                                 / TABLE_I.motor_stiffness)
+    z = predict_impedance(rigid_motor, None, ControllerConfig(), "passive", [w])
+    assert abs(z[0]) * w == pytest.approx(eq23_stiffness(rigid_motor), rel=1e-3)
+    stiff_hose = TABLE_I.scaled(hose_stiffness=1e4 * TABLE_I.motor_stiffness
+                                / TABLE_I.hose_stiffness)
+    config = ControllerConfig(plant=stiff_hose, force_feedback=ForceFeedbackParams(gain=1.0))
+    z = predict_impedance(stiff_hose, None, config, "force_feedback", [w])
+    assert abs(z[0]) * w == pytest.approx(eq24_stiffness(stiff_hose), rel=1e-3)
 
 
 @pytest.mark.parametrize("linear_ff", [False, True])
