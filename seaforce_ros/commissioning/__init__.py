@@ -8,10 +8,14 @@ as the controller saw it; saved and loaded as ``.npz``), :mod:`.free_air`
 (:func:`~.free_air.identify_free_air`: the eight Table I parameters and the Dahl hysteresis,
 each with its 1-sigma or why not, from one free-air excitation), :mod:`.loop_figures` (from
 such a record or a bag: the pressure sensor's noise, the motor encoder's resolution, the
-control loop's delay and its misses), :mod:`.report` (the report a run ends with: its data
-model, one directory with ``report.json``, the figures and a self-contained ``report.html``,
-and the plain-text summary).
+control loop's delay and its misses), :mod:`.predictor` (what each controller mode renders --
+|Z| per mode from the sampled closed loop with the loop delay and the Dahl describing function,
+its 1-sigma band and the Z-width, the DOB's torque noise, the hold's delay limit, impedance
+mode's virtual-wall chart), :mod:`.tuning` (the DOB's lambda and nominal plant and the hold
+gains that widen the predicted Z-width under eq. 28 with a margin, a torque-noise budget and
+the loop delay), :mod:`.report` (the report a run ends with: its data model, one directory with
+``report.json``, the figures and a self-contained ``report.html``, and the plain-text summary).
 
 The package imports none of its modules: a caller loads only what it needs.
 """
-__all__ = ["errors", "record", "free_air", "loop_figures", "report"]
+__all__ = ["errors", "record", "free_air", "loop_figures", "predictor", "tuning", "report"]

@@ -1,0 +1,449 @@
+"""Controller settings chosen from what commissioning identified (:func:`tune`).
+
+Motor frame, rotational SI units. From the identified plant (Table I's eight parameters and
+the Dahl sigma, F_c, each with a 1-sigma) and the loop figures (pressure noise, encoder
+resolution, loop delay p50/p99; :class:`~.predictor.LoopModel`) :func:`tune` chooses
+
+* the DOB: cut-off lambda and nominal plant (m_n, b_n, k_n). The DOB renders its nominal
+  plant below lambda (``K_m -> m_n s^2 + b_n s + k_n``), so the lowest impedance sits on the
+  passivity bounds of eq. 28 taken at the worst plant within ``passivity_margin`` sigmas
+  (``m + c sigma_m``, ``b - c sigma_b``, ``k - c sigma_k``): ``m_n = max(0, m - b/lambda)``,
+  ``k_n = 0``, ``b_n = -k/lambda``. lambda runs over a log grid, 1-300 Hz; each candidate must
+  keep the DOB's torque noise (:func:`~.predictor.torque_noise`, delay p50) below
+  ``noise_budget`` and its sampled loop stable at the p99 delay (``dob``, endpoint free and
+  held by the position drive: :func:`~.predictor.closed_loop_radius`). With ``allow_guard``
+  m_n may go below eq. 28 as far as the passivity guard's ``max_damping`` covers the
+  high-frequency deficit ``lambda (m - m_n) - b`` of the worst plant (``passivity_guard:
+  active``);
+* the hold's PD gains (K_p, K_d): the largest K_p (ties: the smallest K_d) on a log grid whose
+  sampled loop is stable at every delay up to p99 + 2 samples with the endpoint free and
+  clamped, with a modulus margin ``min |1 + L| >= 0.5`` at the p99 delay;
+* the model the feed-forward uses: the identified values (b_e, k_e, b_s, k_s, sigma, F_c and
+  the rest of the plant).
+
+Of every feasible candidate it keeps the one with the widest predicted Z-width over ``band``
+(the mean of ``20 log10(|Z_hold|/|Z_dob_full_ff|)`` on a log grid, predicted on the identified
+plant with the p50 delay, :func:`~.predictor.predict_modes`); the settings it started from are
+a candidate too (when they meet the constraints), so tuning never narrows the Z-width.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any, Dict, List, Mapping, Optional, Tuple
+
+import numpy as np
+import numpy.typing as npt
+
+from ..core.analysis import HoldMargins
+from ..core.environment import DRIVE_DAMPING, DRIVE_STIFFNESS
+from ..core.errors import NonPassiveError
+from ..core.params import (ControllerConfig, DahlParams, DobParams, GraspParams, GuardParams,
+                           HoldParams, PlantParams, check_dob_passivity, guard_carries)
+from ..core.simulator import discretise
+from .errors import CommissioningError
+from .predictor import (PLANT_FIELDS, LoopModel, closed_loop_radius, hold_verdict,
+                        predict_modes, torque_noise)
+
+__all__ = ["TuningResult", "InfeasibleTuningError", "tune", "worst_plant", "TUNED_KEYS",
+           "HOLD_MODULUS_MARGIN", "DELAY_RESERVE"]
+
+_Float = npt.NDArray[np.float64]
+
+#: The flat keys (relative to ``<channel>.``) a tuning sets.
+TUNED_KEYS = tuple(f"plant.{n}" for n in PLANT_FIELDS) + (
+    "dahl.sigma", "dahl.coulomb_force", "dob.cutoff", "dob.nominal_inertia",
+    "dob.nominal_damping", "dob.nominal_stiffness", "hold.stiffness", "hold.damping",
+    "passivity_guard", "grasp.contact_damping")
+#: Smallest ``min |1 + L|`` of the hold loop at the p99 delay (gain margin >= 6 dB, phase
+#: margin >= 29 deg).
+HOLD_MODULUS_MARGIN = 0.5
+#: Samples of delay beyond p99 the hold must stay stable at.
+DELAY_RESERVE = 2
+
+_CUTOFFS = 2.0 * math.pi * np.logspace(0.0, math.log10(300.0), 36)     # rad/s
+_HOLD_STIFFNESS = np.round(np.logspace(0.0, 3.0, 31), 1)                # N m/rad
+_HOLD_DAMPING = np.round(np.logspace(-2.0, 0.5, 26), 3)                 # N m s/rad
+_EDGE = 1e-9          # relative step inside an eq. 28 bound (rounding)
+
+
+class InfeasibleTuningError(CommissioningError):
+    """No setting meets the constraints; ``constraint`` names the one that failed
+    (``'noise_budget'``, ``'passivity'``, ``'dob_stability'`` or ``'hold_stability'``)."""
+
+    def __init__(self, constraint: str, message: str) -> None:
+        super().__init__(message)
+        self.constraint = constraint
+
+
+@dataclass(frozen=True)
+class TuningResult:
+    """What :func:`tune` chose and why.
+
+    Attributes
+    ----------
+    values : dict
+        The new parameter values, flat keys of :meth:`ControllerConfig.to_dict`
+        (:data:`TUNED_KEYS`).
+    config : ControllerConfig
+        ``ControllerConfig.from_dict(values, base=<the starting config>)``.
+    omega : float array
+        The band's grid [rad/s].
+    zwidth_before_db, zwidth_after_db : float arrays
+        Predicted Z-width over ``omega`` [dB] with the starting and the tuned settings.
+    bindings : dict key -> str
+        Which constraint bound each choice (or the objective that did).
+    torque_noise : float
+        Predicted RMS of F_a from the sensor noise, tuned DOB [N m].
+    hold_delay_limit : int
+        Largest loop delay [samples] the tuned hold is stable at (endpoint free and clamped).
+    hold_margins : HoldMargins
+        The tuned hold's margins at the p99 delay.
+    guard : str
+        Why the passivity guard is needed ('' when eq. 28 holds without it).
+    """
+
+    values: Dict[str, Any]
+    config: ControllerConfig
+    omega: _Float
+    zwidth_before_db: _Float
+    zwidth_after_db: _Float
+    bindings: Dict[str, str]
+    torque_noise: float
+    hold_delay_limit: int
+    hold_margins: HoldMargins
+    guard: str
+
+    @property
+    def gain_db(self) -> float:
+        """Mean Z-width gained over the band [dB]."""
+        return float(np.mean(self.zwidth_after_db) - np.mean(self.zwidth_before_db))
+
+
+def worst_plant(plant: PlantParams, plant_sigma: Mapping[str, float],
+                margin: float) -> PlantParams:
+    """The plant eq. 28 is taken on: ``m + c sigma_m``, ``b - c sigma_b``, ``k - c sigma_k``
+    (b and k at least 0), c = ``margin`` (both bounds tighten as m grows and b, k shrink)."""
+    def moved(name: str, sign: float) -> float:
+        return max(0.0, getattr(plant, name) + sign * margin * float(plant_sigma.get(name, 0.0)))
+
+    return dataclasses.replace(plant, motor_inertia=moved("motor_inertia", 1.0),
+                               motor_damping=moved("motor_damping", -1.0),
+                               motor_stiffness=moved("motor_stiffness", -1.0))
+
+
+def _check_inputs(plant: PlantParams, plant_sigma: Mapping[str, float], figures: LoopModel,
+                  band: Tuple[float, float], noise_budget: float,
+                  passivity_margin: float) -> None:
+    if not isinstance(plant, PlantParams):
+        raise CommissioningError("plant: a PlantParams (the identified Table I parameters)")
+    if not isinstance(figures, LoopModel):
+        raise CommissioningError("figures: a LoopModel (noise, resolution, delays)")
+    for key, value in plant_sigma.items():
+        if key not in PLANT_FIELDS + ("sigma", "coulomb_force"):
+            raise CommissioningError(f"plant_sigma: unknown key {key!r}; known: "
+                                     + ", ".join(PLANT_FIELDS + ("sigma", "coulomb_force")))
+        if not (math.isfinite(value) and value >= 0.0):
+            raise CommissioningError(f"plant_sigma[{key!r}] = {value!r}: a 1-sigma must be "
+                                     ">= 0 and finite")
+    lo, hi = band
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 < lo < hi < math.pi / figures.dt):
+        raise CommissioningError(f"band = {band!r} rad/s: need 0 < low < high < pi/T")
+    if not (math.isfinite(noise_budget) and noise_budget > 0.0):
+        raise CommissioningError(f"noise_budget = {noise_budget!r} N m: must be > 0 and finite")
+    if not (math.isfinite(passivity_margin) and 0.0 <= passivity_margin <= 100.0):
+        raise CommissioningError(f"passivity_margin = {passivity_margin!r} sigma: 0..100")
+
+
+def _start_config(config: Optional[ControllerConfig], plant: PlantParams,
+                  dahl: DahlParams) -> ControllerConfig:
+    """The settings tuning starts from: ``config``, or the defaults on the identified model
+    (the grasp's contact damping within 10 b_s, which the defaults exceed for soft hoses)."""
+    if config is not None:
+        return config
+    b_max = 10.0 * plant.hose_damping
+    grasp = GraspParams(contact_damping=min(GraspParams().contact_damping, b_max))
+    return ControllerConfig(plant=plant, dahl=dahl, grasp=grasp)
+
+
+def _model_values(plant: PlantParams, dahl: DahlParams, base: ControllerConfig) -> Dict[str, Any]:
+    values: Dict[str, Any] = {f"plant.{n}": float(getattr(plant, n)) for n in PLANT_FIELDS}
+    values["dahl.sigma"] = float(dahl.sigma)
+    values["dahl.coulomb_force"] = float(dahl.coulomb_force)
+    values["grasp.contact_damping"] = min(base.grasp.contact_damping, 10.0 * plant.hose_damping)
+    return values
+
+
+@dataclass
+class _Candidate:
+    dob: DobParams
+    guard: bool
+    noise: float = math.nan
+    score: float = math.nan
+    binding: Dict[str, str] = dataclasses.field(default_factory=dict)
+
+
+def _dob_candidates(worst: PlantParams, base: ControllerConfig,
+                    allow_guard: bool) -> List[_Candidate]:
+    """The nominal plant on the eq. 28 bounds of the worst plant, per lambda (module
+    docstring); with the guard, also m_n as low as its max_damping covers."""
+    m, b, k = worst.motor_inertia, worst.motor_damping, worst.motor_stiffness
+    alpha = base.passivity.max_damping
+    out = []
+    for lam in _CUTOFFS:
+        lam = float(lam)
+        bound = m - b / lam
+        m_n = max(0.0, bound * (1.0 + _EDGE) + 1e-15)
+        why_m = ("passivity: eq. 28 m_n >= m - b/lambda at the worst plant" if bound > 0.0
+                 else "range: m_n >= 0 (eq. 28 allows any m_n at this lambda)")
+        b_n = -k / lam * (1.0 - _EDGE)
+        why = {"dob.nominal_inertia": why_m,
+               "dob.nominal_damping": "passivity: eq. 28 k_n <= k + lambda b_n with k_n = 0 at "
+                                      "the worst plant",
+               "dob.nominal_stiffness": "objective: k_n = 0 (the lowest eq. 28 allows)"}
+        out.append(_Candidate(DobParams(cutoff=lam, nominal_inertia=m_n, nominal_damping=b_n,
+                                        nominal_stiffness=0.0), False, binding=why))
+        guarded = max(0.0, (m - (b + alpha) / lam) * (1.0 + _EDGE) + 1e-15)
+        if allow_guard and guarded < m_n:
+            why_g = dict(why)
+            why_g["dob.nominal_inertia"] = (
+                "passivity guard: lambda (m - m_n) - b <= passivity.max_damping at the worst "
+                "plant" if guarded > 0.0 else "range: m_n >= 0 (the guard covers the deficit)")
+            out.append(_Candidate(dataclasses.replace(out[-1].dob, nominal_inertia=guarded),
+                                  True, binding=why_g))
+    return out
+
+
+def _passive(worst: PlantParams, candidate: _Candidate, base: ControllerConfig) -> bool:
+    """eq. 28 on the worst plant, or (a guarded candidate) the guard's damping covering the
+    worst plant's deficit."""
+    dob = candidate.dob
+    if candidate.guard:
+        m_n = dob.nominal_inertia if dob.nominal_inertia is not None else worst.motor_inertia
+        deficit = dob.cutoff * (worst.motor_inertia - m_n) - worst.motor_damping
+        return deficit <= base.passivity.max_damping and \
+            dob.nominal_stiffness <= worst.motor_stiffness + dob.cutoff * dob.nominal_damping
+    try:
+        check_dob_passivity(worst, dob)
+    except NonPassiveError:
+        return False
+    return True
+
+
+def _mean_db(z: npt.NDArray[np.complex128]) -> float:
+    return float(np.mean(20.0 * np.log10(np.abs(z))))
+
+
+def _dob_stable(plant: PlantParams, dahl: DahlParams, config: ControllerConfig,
+                delay: int, dt: float) -> bool:
+    """The DOB's sampled loop (``dob``) stable with the endpoint free and driven."""
+    return all(closed_loop_radius(plant, dahl, config, "dob", delay=delay, dt=dt,
+                                  endpoint_stiffness=k, endpoint_damping=b) < 1.0
+               for k, b in ((0.0, 0.0), (DRIVE_STIFFNESS, DRIVE_DAMPING)))
+
+
+def _hold_candidates(plant: PlantParams, figures: LoopModel) -> List[Tuple[float, float]]:
+    """(K_p, K_d) of the grid with ``min |1 + L| >= HOLD_MODULUS_MARGIN`` at the p99 delay
+    (endpoint free and clamped), largest K_p first, then smallest K_d."""
+    dt, d = figures.dt, figures.delay_p99
+    omega = np.logspace(-1.0, math.log10(math.pi / dt * 0.999), 600)
+    z = np.exp(1j * omega * dt)
+    ok = np.ones((_HOLD_STIFFNESS.size, _HOLD_DAMPING.size), bool)
+    for k_env in (0.0, 1e4):
+        b_env = 2.0 * 0.7 * math.sqrt(k_env * plant.endpoint_inertia)
+        phi6, gam6 = discretise(plant, dt, k_env, b_env, 0.0)
+        phi, gam = phi6[:4, :4], gam6[:4, 0]
+        g = np.linalg.solve(z[:, None, None] * np.eye(4)[None] - phi[None],
+                            np.broadcast_to(gam, (z.size, 4))[..., None])[:, 0, 0]
+        c = _HOLD_STIFFNESS[:, None, None] + _HOLD_DAMPING[None, :, None] \
+            * ((1.0 - 1.0 / z) / dt)[None, None, :]
+        loop = c * (g * z ** (-d))[None, None, :]
+        ok &= np.min(np.abs(1.0 + loop), axis=2) >= HOLD_MODULUS_MARGIN
+    pairs = [(float(kp), float(kd)) for i, kp in enumerate(_HOLD_STIFFNESS)
+             for j, kd in enumerate(_HOLD_DAMPING) if ok[i, j]]
+    return sorted(pairs, key=lambda p: (-p[0], p[1]))
+
+
+def _hold_stable(plant: PlantParams, kp: float, kd: float, figures: LoopModel) -> bool:
+    """Stable at every delay 0..p99 + DELAY_RESERVE, endpoint free and clamped (the longest
+    delay first: it is the one that fails)."""
+    config = ControllerConfig(hold=HoldParams(stiffness=kp, damping=kd))
+    for d in range(figures.delay_p99 + DELAY_RESERVE, -1, -1):
+        for k_env in (0.0, 1e4):
+            b_env = 2.0 * 0.7 * math.sqrt(k_env * plant.endpoint_inertia)
+            if closed_loop_radius(plant, None, config, "hold", delay=d, dt=figures.dt,
+                                  endpoint_stiffness=k_env, endpoint_damping=b_env) >= 1.0:
+                return False
+    return True
+
+
+def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
+         figures: LoopModel, *, band: Tuple[float, float] = (0.3, 10.0),
+         noise_budget: float = 0.01, passivity_margin: float = 2.0,
+         allow_guard: bool = False, config: Optional[ControllerConfig] = None,
+         amplitude: float = 0.5, points: int = 8) -> TuningResult:
+    """Choose the DOB and hold settings that widen the predicted Z-width (module docstring).
+
+    Parameters
+    ----------
+    plant : PlantParams
+        Identified m, b, k, m_e, b_e, k_e, b_s, k_s.
+    plant_sigma : mapping str -> float >= 0
+        Their 1-sigma, keyed by the PlantParams field names (missing: 0); ``'sigma'`` and
+        ``'coulomb_force'`` for the Dahl model's.
+    dahl : DahlParams
+        Identified sigma [N m/rad], F_c [N m], n.
+    figures : LoopModel
+        Pressure noise [N m], encoder resolution [rad], delay p50/p99 [samples], T [s].
+    band : (float, float), 0 < low < high < pi/T
+        Where the Z-width counts [rad/s].
+    noise_budget : float > 0
+        Largest predicted RMS of F_a from the sensor noise [N m].
+    passivity_margin : float >= 0
+        Sigmas of m, b, k against which eq. 28 must hold.
+    allow_guard : bool
+        m_n may go below eq. 28 as far as the passivity guard's ``max_damping`` (from
+        ``config``) covers; the result then sets ``passivity_guard: active``.
+    config : ControllerConfig, optional
+        The settings to start from (default: the defaults on the identified model); the
+        result keeps everything tuning does not set.
+    amplitude : float > 0
+        Drive amplitude of the predicted Z [rad].
+    points : int >= 2
+        Frequencies of the band's log grid.
+
+    Returns
+    -------
+    TuningResult
+
+    Raises
+    ------
+    InfeasibleTuningError
+        No DOB setting meets the noise budget, passivity or stability, or no hold gains stay
+        stable at p99 + 2 samples; ``constraint`` names which.
+    CommissioningError
+        Bad input.
+    """
+    _check_inputs(plant, plant_sigma, figures, band, noise_budget, passivity_margin)
+    if points < 2:
+        raise CommissioningError(f"points = {points!r}: at least 2 frequencies")
+    base = _start_config(config, plant, dahl)
+    model = base.replace(plant=plant, dahl=dahl,
+                         grasp=dataclasses.replace(base.grasp, contact_damping=min(
+                             base.grasp.contact_damping, 10.0 * plant.hose_damping)))
+    omega = np.logspace(math.log10(band[0]), math.log10(band[1]), points)
+    dt = figures.dt
+    before = predict_modes(plant, dahl, base, ("hold", "dob_full_ff"), omega,
+                           delay=figures.delay_p50, dt=dt, amplitude=amplitude)
+    worst = worst_plant(plant, plant_sigma, passivity_margin)
+
+    # --- the DOB ---------------------------------------------------------------------------
+    candidates = _dob_candidates(worst, base, allow_guard)
+    start = _Candidate(dataclasses.replace(base.dob), base.passivity.mode == "active",
+                       binding={k: "kept: the starting setting predicts the widest Z-width"
+                                for k in ("dob.cutoff", "dob.nominal_inertia",
+                                          "dob.nominal_damping", "dob.nominal_stiffness")})
+    candidates.append(start)
+    failures: Dict[str, int] = {}
+    quietest = math.inf
+    feasible: List[_Candidate] = []
+    for c in candidates:
+        if c.guard and not allow_guard:
+            failures["passivity"] = failures.get("passivity", 0) + 1
+            continue
+        if not _passive(worst, c, base):
+            failures["passivity"] = failures.get("passivity", 0) + 1
+            continue
+        trial = model.replace(dob=c.dob, passivity=_guard(model, c.guard),
+                              allow_non_passive=False)
+        c.noise = math.hypot(*torque_noise(plant, dahl, trial, figures))
+        quietest = min(quietest, c.noise)
+        if c.noise > noise_budget:
+            failures["noise_budget"] = failures.get("noise_budget", 0) + 1
+            continue
+        if not _dob_stable(plant, dahl, trial, figures.delay_p99, dt):
+            failures["dob_stability"] = failures.get("dob_stability", 0) + 1
+            continue
+        z = predict_modes(plant, dahl, trial, ("dob_full_ff",), omega, delay=figures.delay_p50,
+                          dt=dt, amplitude=amplitude)["dob_full_ff"]
+        c.score = -_mean_db(z)
+        feasible.append(c)
+    if not feasible:
+        constraint = max(failures, key=lambda k: failures[k]) if failures else "passivity"
+        detail = (f"the quietest passive DOB setting makes {quietest:.3g} N m rms of torque "
+                  f"noise, above noise_budget = {noise_budget:.3g} N m: raise the budget or "
+                  "quieten the sensors" if constraint == "noise_budget" else
+                  f"no DOB setting on the grid is {constraint.replace('_', ' ')}")
+        raise InfeasibleTuningError(constraint, f"tune: {detail} (candidates failing: "
+                                    + ", ".join(f"{k} {v}" for k, v in failures.items())
+                                    + ")")
+    best = max(feasible, key=lambda c: c.score)
+    lam_index = next((i for i, lam in enumerate(_CUTOFFS) if lam == best.dob.cutoff), -1)
+    noisier = [c for c in candidates if c.dob.cutoff > best.dob.cutoff and c is not start
+               and c.noise > noise_budget]
+    bindings = dict(best.binding)
+    if best is not start:
+        bindings["dob.cutoff"] = (
+            "noise budget: the next larger lambda predicts more torque noise than allowed"
+            if noisier and lam_index >= 0 else
+            "grid end (300 Hz)" if lam_index == len(_CUTOFFS) - 1 else
+            "objective: widest predicted Z-width over the band")
+
+    # --- the hold --------------------------------------------------------------------------
+    hold_pairs = [(base.hold.stiffness, base.hold.damping)] + _hold_candidates(plant, figures)
+    designed = next(((kp, kd) for kp, kd in hold_pairs[1:]
+                     if _hold_stable(plant, kp, kd, figures)), None)
+    stable = [] if designed is None else [designed]
+    if _hold_stable(plant, *hold_pairs[0], figures):
+        stable.append(hold_pairs[0])
+    if not stable:
+        raise InfeasibleTuningError(
+            "hold_stability", f"tune: no hold gains on the grid keep min |1 + L| >= "
+            f"{HOLD_MODULUS_MARGIN} at {figures.delay_p99} samples and stay stable at "
+            f"{figures.delay_p99 + DELAY_RESERVE} samples of delay: shorten the loop delay")
+    scored = []
+    for kp, kd in stable:
+        trial = model.replace(hold=HoldParams(stiffness=kp, damping=kd))
+        z = predict_modes(plant, dahl, trial, ("hold",), omega, delay=figures.delay_p50,
+                          dt=dt, amplitude=amplitude)["hold"]
+        scored.append((_mean_db(z), kp, kd))
+    _, kp, kd = max(scored)
+    if (kp, kd) == hold_pairs[0] and len(stable) > 1:
+        bindings["hold.stiffness"] = bindings["hold.damping"] = \
+            "kept: the starting gains predict a higher |Z_hold| and are stable at p99 + 2"
+    else:
+        bindings["hold.stiffness"] = (
+            f"hold stability: the largest K_p on the grid with min |1 + L| >= "
+            f"{HOLD_MODULUS_MARGIN} at p99 = {figures.delay_p99} samples and stable at "
+            f"p99 + {DELAY_RESERVE}")
+        bindings["hold.damping"] = "hold stability: the smallest K_d with that K_p"
+
+    # --- the result ------------------------------------------------------------------------
+    values = _model_values(plant, dahl, base)
+    m_n = best.dob.nominal_inertia
+    assert m_n is not None
+    values.update({"dob.cutoff": best.dob.cutoff, "dob.nominal_inertia": m_n,
+                   "dob.nominal_damping": best.dob.nominal_damping,
+                   "dob.nominal_stiffness": best.dob.nominal_stiffness,
+                   "hold.stiffness": kp, "hold.damping": kd,
+                   "passivity_guard": "active" if best.guard else base.passivity.mode})
+    for key in TUNED_KEYS[:len(PLANT_FIELDS) + 2]:
+        bindings.setdefault(key, "identified value")
+    bindings.setdefault("grasp.contact_damping", "range: at most 10 b_s")
+    bindings.setdefault("passivity_guard", "passivity guard carries m_n below eq. 28"
+                        if best.guard else "kept")
+    tuned = ControllerConfig.from_dict(values, base=base)
+    after = predict_modes(plant, dahl, tuned, ("hold", "dob_full_ff"), omega,
+                          delay=figures.delay_p50, dt=dt, amplitude=amplitude)
+    verdict = hold_verdict(plant, kp, kd, delay=figures.delay_p99, dt=dt)
+    return TuningResult(values, tuned, omega, _zwidth(before), _zwidth(after), bindings,
+                        best.noise, verdict.delay_limit, verdict.margins, guard_carries(tuned))
+
+
+def _guard(config: ControllerConfig, active: bool) -> GuardParams:
+    return dataclasses.replace(config.passivity, mode="active") if active else config.passivity
+
+
+def _zwidth(z: Mapping[str, npt.NDArray[np.complex128]]) -> _Float:
+    return np.asarray(20.0 * np.log10(np.abs(z["hold"]) / np.abs(z["dob_full_ff"])), float)
