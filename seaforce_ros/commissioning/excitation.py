@@ -121,7 +121,10 @@ class ExcitationGoal:
         Chirp start and end frequency [Hz], ``0 < lo < hi``; None: the channel's
         ``commissioning.start_frequency`` and ``end_frequency``.
     duration : float or None
-        Chirp duration [s], fades included; None: ``commissioning.duration``.
+        Chirp duration [s], fades included; None: ``commissioning.duration``. The contact test
+        assumes a slow sweep (``ln(f_1/f_0)/duration`` up to about 0.5 per second: 20 s over
+        the default band, 8 s over 5..200 Hz); a faster one may see contacts in free air (the
+        job then aborts: safe, but no record).
     """
 
     __slots__ = ("channel", "band", "duration")

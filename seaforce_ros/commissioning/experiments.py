@@ -40,13 +40,17 @@ class ExcitationRun:
         and external force ``f_e`` [N m] filled in.
     job : FreeAirExcitation
         The job, done: ``outcome``, ``message``, ``peak_position``, ``peak_speed``, ...
-    after : int
-        Samples the channel ran in its mode after the job ended (``settle``).
+    output : float array
+        The controller's torque command at every sample it ran [N m] (the job's samples,
+        the one it ended on, then ``settle`` samples of the mode).
+    ended : int
+        Index in ``output`` of the sample the job ended on.
     """
 
     record: ExcitationRecord
     job: FreeAirExcitation
-    after: int
+    output: np.ndarray
+    ended: int
 
     @property
     def outcome(self) -> Optional[str]:
@@ -106,6 +110,7 @@ def simulate_excitation(true_plant: PlantParams, true_dahl: Optional[DahlParams]
     n = job.capacity
     x_e = np.full(n, np.nan)
     f_e = np.full(n, np.nan)
+    output = np.zeros(n + 1 + settle)
     update = ctrl.update
     step = sim.step
     m = sim.measurement()
@@ -115,6 +120,7 @@ def simulate_excitation(true_plant: PlantParams, true_dahl: Optional[DahlParams]
         ctrl.cycle = k
         ctrl.applied = m.f_a
         u = update(m.x, m.v, m.f_p)
+        output[k] = u
         if len(job) > recorded:
             x_e[recorded] = m.x_e
             f_e[recorded] = m.f_e
@@ -123,12 +129,16 @@ def simulate_excitation(true_plant: PlantParams, true_dahl: Optional[DahlParams]
         k += 1
     if job.active:      # cannot happen: the job records every sample and ends in time
         job.abort_now("the simulation ran past the job's capacity")
+    ended = k - 1
     for i in range(settle):
-        ctrl.cycle = k + i
+        ctrl.cycle = k
         ctrl.applied = m.f_a
-        m = step(update(m.x, m.v, m.f_p))
+        u = update(m.x, m.v, m.f_p)
+        output[k] = u
+        m = step(u)
+        k += 1
     record = replace(job.record(), x_e=x_e[:recorded], f_e=f_e[:recorded])
-    return ExcitationRun(record, job, settle)
+    return ExcitationRun(record, job, output[:k].copy(), ended)
 
 
 def run_free_air_excitation(true_plant: PlantParams, true_dahl: Optional[DahlParams],
