@@ -221,26 +221,34 @@ def _free_air_admittance(plant: PlantParams, stiffness: float, damping: float,
     return result
 
 
-def nominal_amplitude(config: ControllerConfig, frequency: _Array, room: float,
-                      limit: float) -> _Array:
-    """The amplitude law's model part ``a_0(f)`` [N m] at ``frequency`` [Hz] (module
-    docstring): the torque for which the model's largest motion over ``f/2..2f`` (endpoint
-    free or held by its Dahl stiffness sigma) reaches :data:`TARGET` of ``room`` [rad] in
-    position and of ``commissioning.max_speed`` in speed, at most ``limit`` [N m]."""
+def _motion_per_torque(config: ControllerConfig,
+                       frequency: _Array) -> tuple[_Array, _Array]:
+    """The model's largest ``|X/F_a|`` [rad/(N m)] and ``|V/F_a|`` [rad/(s N m)] over
+    ``f/2..2f`` for each ``frequency`` [Hz], the endpoint free or held by its Dahl stiffness
+    sigma, the centring servo included."""
     c = config.commissioning
     f = np.asarray(frequency, dtype=float)
-    # the window: a fine grid over f/2..2f for every f
     offsets = np.exp(np.linspace(-math.log(_WINDOW), math.log(_WINDOW), 41))
-    fw = f[:, None] * offsets[None, :]
-    w = 2.0 * math.pi * fw
+    w = 2.0 * math.pi * f[:, None] * offsets[None, :]
     worst_x = np.zeros_like(f)
     worst_v = np.zeros_like(f)
     for held in (0.0, config.dahl.sigma):
         h = np.abs(_free_air_admittance(config.plant, c.stiffness, c.damping, held, w))
         worst_x = np.maximum(worst_x, h.max(axis=1))
         worst_v = np.maximum(worst_v, (h * w).max(axis=1))
-    amplitude: _Array = np.minimum(np.minimum(TARGET * room / worst_x,
-                                              TARGET * c.max_speed / worst_v), limit)
+    return worst_x, worst_v
+
+
+def nominal_amplitude(config: ControllerConfig, frequency: _Array, room: float,
+                      limit: float) -> _Array:
+    """The amplitude law's model part ``a_0(f)`` [N m] at ``frequency`` [Hz] (module
+    docstring): the torque for which the model's largest motion over ``f/2..2f`` (endpoint
+    free or held by its Dahl stiffness sigma) reaches :data:`TARGET` of ``room`` [rad] in
+    position and of ``commissioning.max_speed`` in speed, at most ``limit`` [N m]."""
+    worst_x, worst_v = _motion_per_torque(config, frequency)
+    speed = TARGET * config.commissioning.max_speed
+    amplitude: _Array = np.minimum(np.minimum(TARGET * room / worst_x, speed / worst_v),
+                                   limit)
     return amplitude
 
 
@@ -312,8 +320,10 @@ class FreeAirExcitation(Job):
         # the amplitude law's model part, per unit room (scaled when x_0 is known)
         self._table_step = math.log(10.0) / _TABLE_DENSITY
         n_table = int(math.ceil(math.log(f1 / f0) / self._table_step)) + 2
-        grid = f0 * np.exp(self._table_step * np.arange(n_table))
-        self._grid = grid
+        worst_x, worst_v = _motion_per_torque(
+            config, f0 * np.exp(self._table_step * np.arange(n_table)))
+        self._per_room = [float(a) for a in TARGET / worst_x]
+        self._for_speed = [float(a) for a in TARGET * c.max_speed / worst_v]
         self._table: list[float] = []
         # the record, for the whole excitation
         self.capacity = n = int(math.ceil(self._end / dt)) + 2
@@ -340,7 +350,6 @@ class FreeAirExcitation(Job):
         self._room = 0.0
         self._env_x = 0.0
         self._env_v = 0.0
-        self._baseline = 0.0
         self._centre_x = math.nan
         self._centre_f = 0.0
         self._rest_samples = 0
@@ -477,8 +486,8 @@ class FreeAirExcitation(Job):
         self._x0 = self._centre_x = x
         self._bias = u_prev
         self._room = min(x - lo, hi - x)
-        self._table = [float(a) for a in nominal_amplitude(self.config, self._grid,
-                                                           self._room, limit - abs(u_prev))]
+        room = self._room               # the table of a_0 for it (pure Python: no numpy here)
+        self._table = [min(room * p, s) for p, s in zip(self._per_room, self._for_speed)]
         self.message = "resting"
         return ""
 
@@ -539,9 +548,10 @@ class FreeAirExcitation(Job):
         t = self._t
         self._t = t + dt
         tc = t - self._rest
-        if tc < 0.0:
-            self._baseline += (f_p - self._baseline) / (self._rest_samples + 1)
-            self._centre_f = self._baseline
+        if tc < 0.0:                    # the rest: the free-air pressure force
+            k = self._rest_samples + 1
+            self._rest_samples = k
+            self._centre_f += (f_p - self._centre_f) / k
         if tc < 0.0 or tc >= self.duration:
             self.frequency = self.amplitude = 0.0
             self.progress = min(1.0, max(0.0, t / self._end))
