@@ -486,8 +486,9 @@ class FreeAirExcitation(Job):
         self._x0 = self._centre_x = x
         self._bias = u_prev
         self._room = min(x - lo, hi - x)
-        room = self._room               # the table of a_0 for it (pure Python: no numpy here)
-        self._table = [min(room * p, s) for p, s in zip(self._per_room, self._for_speed)]
+        # the table of a_0 for this room and bound (pure Python: no numpy in the cycle)
+        room, cap = self._room, limit - abs(u_prev)
+        self._table = [min(room * p, s, cap) for p, s in zip(self._per_room, self._for_speed)]
         self.message = "resting"
         return ""
 
