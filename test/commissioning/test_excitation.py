@@ -21,6 +21,8 @@ from seaforce_ros.core.environment import contact_object
 from seaforce_ros.core.jobs import InvalidJobGoalError
 from seaforce_ros.core.params import DahlParams, PlantParams
 
+from helpers.second_sim import DAHL, TABLE_I, MotorTorqueSim
+
 DT = 5e-4
 FAST = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -202,6 +204,49 @@ def test_runner_is_deterministic_per_seed_and_raises_when_it_fails():
     with pytest.raises(ExcitationFailed, match="joint range") as info:
         run_free_air_excitation(plant, dahl, outside, **short)
     assert info.value.run.outcome == "aborted"
+
+
+def test_on_the_second_simulator_the_record_identifies_the_motor_plant():
+    """An independent oracle: the job in a ChannelController on the second simulator (its own
+    discretisation, Dahl and sensors), 3 plants 0.5x..2x of Table I. Each excitation
+    succeeds within the limits, and the record is consistent with the true motor plant: a
+    least-squares fit of ``F_a + F_p = m X'' + b X' + k X`` (central differences; the torque
+    applied around sample i is the mean of ``applied[i]`` and ``applied[i + 1]``, the samples
+    up to 100 Hz) gives the true m, b, k within 3 %: cycle, X, F_p and the applied torque are
+    aligned."""
+    rng = np.random.default_rng(7)
+    config = ControllerConfig()
+    c = config.commissioning
+    for draw in range(3):
+        plant = {k: v * math.exp(rng.uniform(math.log(0.5), math.log(2.0)))
+                 for k, v in TABLE_I.items()}
+        dahl = {k: v * math.exp(rng.uniform(math.log(0.5), math.log(2.0)))
+                for k, v in DAHL.items()}
+        sim = MotorTorqueSim(plant, dahl, seed=draw)
+        ctrl = ChannelController(config, DT)
+        job = FreeAirExcitation(ExcitationGoal("a", duration=20.0), config, DT)
+        ctrl.request_job(job)
+        k = 0
+        while job.active and k < job.capacity:
+            x, v, fp, fa = sim.measure()
+            ctrl.cycle, ctrl.applied = 7 * k, fa
+            sim.step(ctrl.update(x, v, fp))
+            k += 1
+        assert job.outcome == "succeeded", (draw, job.message)
+        r = job.record()
+        assert np.array_equal(r.cycle, 7 * np.arange(len(r)))
+        assert job.peak_position < 0.75 * min(-c.position_min, c.position_max)
+        assert job.peak_speed < 0.9 * c.max_speed
+        rate = math.log(c.end_frequency / c.start_frequency) / 20.0
+        end = int((c.rest_duration + math.log(100.0 / c.start_frequency) / rate) / DT)
+        i = np.arange(int(c.rest_duration / DT) + 1, end)
+        regressors = np.column_stack([(r.x[i + 1] - 2.0 * r.x[i] + r.x[i - 1]) / DT ** 2,
+                                      (r.x[i + 1] - r.x[i - 1]) / (2.0 * DT), r.x[i]])
+        force = 0.5 * (r.applied[i] + r.applied[i + 1]) + r.f_p[i]
+        m, b, k_fit = np.linalg.lstsq(regressors, force, rcond=None)[0]
+        assert m == pytest.approx(plant["motor_inertia"], rel=0.03), draw
+        assert b == pytest.approx(plant["motor_damping"], rel=0.03), draw
+        assert k_fit == pytest.approx(plant["motor_stiffness"], rel=0.03), draw
 
 
 # --- contact ---------------------------------------------------------------------------------
