@@ -4,6 +4,7 @@ object in the way (a contact abort, zero torque from then on), and the job insid
 ControlCycle (bumpless return, the cycle and applied torque it records)."""
 import dataclasses
 import math
+import tracemalloc
 
 import numpy as np
 import pytest
@@ -105,6 +106,32 @@ def test_finite_samples_end_succeeded_and_the_clock_counts_steps():
     assert phases[0] == "rest" and "excite" in phases and phases[-1] == "done"
     assert job.progress == 1.0
     assert len(job) == len(phases) < 105
+
+
+def test_the_per_sample_path_keeps_no_memory():
+    """Traced memory after N more job updates (excitation phase, the contact test running) is
+    what it was after N: the record is preallocated, nothing is built per sample and kept."""
+    config = ControllerConfig()
+    job = FreeAirExcitation(ExcitationGoal("a", (20.0, 400.0), 8.0), config, DT)
+    n = 4000
+
+    def feed(samples):              # a free finger's motion at ~95 Hz, F_p against it
+        for i in samples:
+            job.update(5e-3 * math.sin(0.3 * i), 3.0 * math.cos(0.3 * i),
+                       -5e-3 * math.sin(0.3 * i), 0.0, 0.0, i)
+
+    feed(range(n))                  # the rest and the start of the chirp, before tracing
+    tracemalloc.start()
+    try:
+        feed(range(n, 2 * n))
+        first, _ = tracemalloc.get_traced_memory()
+        feed(range(2 * n, 3 * n))
+        second, _ = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert job.phase == "excite" and len(job) == 3 * n
+    assert 0.0 < job.contact_level < 1.0            # the contact test ran
+    assert abs(second - first) < 512
 
 
 def test_goal_checks_name_the_field():
