@@ -5,7 +5,9 @@ controller's model: Table I) one default excitation (0.2..800 Hz in 40 s after a
 in closed loop on the core simulator, printing per plant: the outcome, peak |X - x_0| [rad]
 and its share of the room, peak |V| [rad/s] and its share of max_speed, peak |F_a| [N m],
 the contact test's level (aborts above 1), the amplitude correction g at the end, and the
-wall time of the simulation. Timing figures are printed, never asserted.
+wall time of the simulation; then the job's own cost per sample (``FreeAirExcitation.update``
+in the excitation phase, the contact test running), mean and p99 over chunks. Timing figures
+are printed, never asserted.
 
 Run:  PYTHONPATH=. python bench/commissioning_excitation.py [--draws 10] [--duration 40]
 """
@@ -17,6 +19,7 @@ import time
 
 import numpy as np
 
+from seaforce_ros.commissioning.excitation import ExcitationGoal, FreeAirExcitation
 from seaforce_ros.commissioning.experiments import simulate_excitation
 from seaforce_ros.core import ControllerConfig, DahlParams, PlantParams
 
@@ -52,6 +55,26 @@ def main() -> None:
               f"{job.gain:5.2f} {seconds:6.2f}")
     print(f"simulation of {args.duration:g} s + rest: mean {np.mean(times):.2f} s, "
           f"max {np.max(times):.2f} s per record")
+    job_cost(model)
+
+
+def job_cost(model: ControllerConfig, chunk: int = 200, chunks: int = 100) -> None:
+    """The job's update alone, on a free finger's synthetic motion."""
+    job = FreeAirExcitation(ExcitationGoal("bench", (20.0, 400.0), 20.0), model)
+    x = [5e-3 * math.sin(0.3 * i) for i in range(chunk * (chunks + 10))]
+    v = [3.0 * math.cos(0.3 * i) for i in range(len(x))]
+    update = job.update
+    for i in range(chunk * 10):         # the rest and the chirp's first periods
+        update(x[i], v[i], -x[i], 0.0, 0.0, i)
+    per_call = []
+    for c in range(10, chunks + 10):
+        start = time.perf_counter()
+        for i in range(c * chunk, (c + 1) * chunk):
+            update(x[i], v[i], -x[i], 0.0, 0.0, i)
+        per_call.append((time.perf_counter() - start) / chunk * 1e6)
+    print(f"FreeAirExcitation.update per sample [us]: mean {np.mean(per_call):.2f}, "
+          f"p99 of chunks {np.percentile(per_call, 99):.2f}, floor {np.min(per_call):.2f} "
+          f"({job.phase}, contact level {job.contact_level:.2f})")
 
 
 if __name__ == "__main__":

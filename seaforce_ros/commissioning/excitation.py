@@ -81,6 +81,7 @@ construction for the whole excitation.
 from __future__ import annotations
 
 import math
+from array import array
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -327,13 +328,17 @@ class FreeAirExcitation(Job):
         self._table: list[float] = []
         # the record, for the whole excitation
         self.capacity = n = int(math.ceil(self._end / dt)) + 2
-        self._cycle = np.zeros(n, dtype=np.int64)
-        self._x, self._v, self._fp = np.zeros(n), np.zeros(n), np.zeros(n)
-        self._applied, self._command, self._exc = np.zeros(n), np.zeros(n), np.zeros(n)
-        # running sums of the contact test, each side of x_0: (F_p - F_p0)(X - x_0), (X - x_0)^2
-        self._cum_fp, self._cum_qp = np.zeros(n + 1), np.zeros(n + 1)
-        self._cum_fn, self._cum_qn = np.zeros(n + 1), np.zeros(n + 1)
-        self._cum_ff = np.zeros(n + 1)    # (F_p - c_F)^2, both sides
+        # (``array``: element access in Python floats, tens of ns, where a numpy element's is
+        # a numpy scalar and costs several times that)
+        self._cycle = array("q", bytes(8 * n))
+        self._x, self._v, self._fp = _zeros(n), _zeros(n), _zeros(n)
+        self._applied, self._command, self._exc = _zeros(n), _zeros(n), _zeros(n)
+        # running sums of the contact test, each side of the motion's centre: (F_p - c_F)
+        # (X - c_X), (X - c_X)^2; and (F_p - c_F)^2 both sides; [i]: over the first i samples
+        self._cum_fp, self._cum_qp = _zeros(n + 1), _zeros(n + 1)
+        self._cum_fn, self._cum_qn = _zeros(n + 1), _zeros(n + 1)
+        self._cum_ff = _zeros(n + 1)
+        self._sums = [0.0, 0.0, 0.0, 0.0, 0.0]     # their latest values: fp, qp, fn, qn, ff
         self._n = 0
         # the state
         self.phase = "rest"
@@ -377,11 +382,11 @@ class FreeAirExcitation(Job):
     def record(self) -> ExcitationRecord:
         """The samples so far, as an :class:`~.record.ExcitationRecord` (copies, trimmed)."""
         n = self._n
-        return ExcitationRecord(dt=self.dt, cycle=self._cycle[:n].copy(), x=self._x[:n].copy(),
-                                v=self._v[:n].copy(), f_p=self._fp[:n].copy(),
-                                applied=self._applied[:n].copy(),
-                                command=self._command[:n].copy(),
-                                excitation=self._exc[:n].copy())
+        return ExcitationRecord(
+            dt=self.dt, cycle=np.frombuffer(self._cycle, np.int64, n).copy(),
+            x=_trimmed(self._x, n), v=_trimmed(self._v, n), f_p=_trimmed(self._fp, n),
+            applied=_trimmed(self._applied, n), command=_trimmed(self._command, n),
+            excitation=_trimmed(self._exc, n))
 
     def __len__(self) -> int:
         """Samples recorded so far."""
@@ -446,19 +451,20 @@ class FreeAirExcitation(Job):
         self._centre_f = cf
         d = x - cx
         g = f_p - cf
-        e = g * d
-        self._cum_ff[n + 1] = self._cum_ff[n] + g * g
-        q = d * d
+        sums = self._sums
+        k = n + 1
         if d > 0.0:
-            self._cum_fp[n + 1] = self._cum_fp[n] + e
-            self._cum_qp[n + 1] = self._cum_qp[n] + q
-            self._cum_fn[n + 1] = self._cum_fn[n]
-            self._cum_qn[n + 1] = self._cum_qn[n]
+            sums[0] += g * d
+            sums[1] += d * d
         else:
-            self._cum_fp[n + 1] = self._cum_fp[n]
-            self._cum_qp[n + 1] = self._cum_qp[n]
-            self._cum_fn[n + 1] = self._cum_fn[n] + e
-            self._cum_qn[n + 1] = self._cum_qn[n] + q
+            sums[2] += g * d
+            sums[3] += d * d
+        sums[4] += g * g
+        self._cum_fp[k] = sums[0]
+        self._cum_qp[k] = sums[1]
+        self._cum_fn[k] = sums[2]
+        self._cum_qn[k] = sums[3]
+        self._cum_ff[k] = sums[4]
         self._n = n + 1
         reason = self._contact(n + 1)
         if reason:
@@ -516,14 +522,15 @@ class FreeAirExcitation(Job):
         if window > n - self._rest_samples:
             return ""                   # the chirp has not run that long yet
         m = n - window
-        qp = self._cum_qp[n] - self._cum_qp[m]
-        qn = self._cum_qn[n] - self._cum_qn[m]
+        fp, qp, fn, qn, ff = self._sums
+        qp -= self._cum_qp[m]
+        qn -= self._cum_qn[m]
         least = window * CONTACT_MOTION * CONTACT_MOTION
         if qp < least or qn < least:
             return ""                   # one side hardly moved (see the module docstring)
-        kp = -(self._cum_fp[n] - self._cum_fp[m]) / qp
-        kn = -(self._cum_fn[n] - self._cum_fn[m]) / qn
-        magnitude = math.sqrt((self._cum_ff[n] - self._cum_ff[m]) / (qp + qn))
+        kp = (self._cum_fp[m] - fp) / qp
+        kn = (self._cum_fn[m] - fn) / qn
+        magnitude = math.sqrt((ff - self._cum_ff[m]) / (qp + qn))
         threshold = CONTACT_STIFFNESS + CONTACT_RATIO * magnitude
         level = abs(kp - kn) / threshold
         if level > self.contact_level:
@@ -617,4 +624,14 @@ class FreeAirExcitation(Job):
 
 
 _LOG_GAIN_RANGE = (math.log(GAIN_RANGE[0]), math.log(GAIN_RANGE[1]))
+
+
+def _zeros(n: int) -> array[float]:
+    """``n`` zeros in an ``array('d')``."""
+    return array("d", bytes(8 * n))
+
+
+def _trimmed(values: array[float], n: int) -> _Array:
+    """The first ``n`` values, copied into a numpy array."""
+    return np.frombuffer(values, np.float64, n).copy()
 _finite = math.isfinite
