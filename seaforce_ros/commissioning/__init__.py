@@ -4,7 +4,10 @@ it gets from that.
 
 Modules (each lists its own public names in ``__all__``): :mod:`.errors` (one root,
 :class:`~.errors.CommissioningError`), :mod:`.record` (one free-air excitation of one channel,
-as the controller saw it; saved and loaded as ``.npz``), :mod:`.free_air`
+as the controller saw it; saved and loaded as ``.npz``), :mod:`.excitation` (the free-air
+excitation job: :class:`~.excitation.FreeAirExcitation`, a motor-torque log chirp with online
+amplitude adaptation and a model-free contact test), :mod:`.experiments` (that job in closed
+loop on the core simulator: :func:`~.experiments.run_free_air_excitation`), :mod:`.free_air`
 (:func:`~.free_air.identify_free_air`: the eight Table I parameters and the Dahl hysteresis,
 each with its 1-sigma or why not, from one free-air excitation), :mod:`.loop_figures` (from
 such a record or a bag: the pressure sensor's noise, the motor encoder's resolution, the
@@ -18,4 +21,4 @@ the loop delay), :mod:`.report` (the report a run ends with: its data model, one
 
 The package imports none of its modules: a caller loads only what it needs.
 """
-__all__ = ["errors", "record", "free_air", "loop_figures", "predictor", "tuning", "report"]
+__all__ = ["errors", "record", "excitation", "experiments", "free_air", "loop_figures", "predictor", "tuning", "report"]

@@ -369,6 +369,8 @@ class ControlCycle:
         for i, ctrl in enumerate(self.controllers):
             j = index[i]
             if self._check_channel(i, j, x, v, f_p, f_a, now):
+                ctrl.cycle = cycle          # what a job records with its sample
+                ctrl.applied = f_a[j]
                 effort[i] = self._run_channel(i, ctrl, x[j], v[j], f_p[j], f_a[j], status[j],
                                               sample, now)
             else:

@@ -116,6 +116,14 @@ class ChannelController:
     passivity_guard : PassivityGuard or None
         The time-domain passivity guard of the DOB's motor port (None when disabled); it runs
         while the DOB does (the DOB modes and a grasp) and restarts at every mode entry.
+
+    Attributes the caller sets before :meth:`update` (passed on to a job's
+    :class:`~.jobs.JobSample`; :class:`~.control_cycle.ControlCycle` sets them)
+    ----------------------------------------------------------------------------------------
+    cycle : int
+        The state's cycle number (-1: not given).
+    applied : float
+        The torque the plant reports it applied in this sample [N m] (NaN: not given).
     """
 
     def __init__(self, config: ControllerConfig | None = None, dt: float = 5e-4) -> None:
@@ -126,6 +134,8 @@ class ChannelController:
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
             raise ValueError(f"dt = {dt!r} must be > 0 and finite")
         self.dt = float(dt)
+        self.cycle = -1
+        self.applied = _NAN
         self._pending: Mailbox[ControllerConfig] = Mailbox()
         self._jobs: Mailbox[Job] = Mailbox(size=None)     # every job requested, in order
         self.job: Job | None = None
@@ -321,6 +331,8 @@ class ChannelController:
         sample.endpoint_velocity = obs.velocity
         sample.torque = self.torque
         sample.steps = steps
+        sample.cycle = self.cycle
+        sample.applied = self.applied
         out = job.step(sample)
         if not job.active:
             self.job = None

@@ -37,6 +37,7 @@ sample (no allocation). Nothing here imports ROS.
 from __future__ import annotations
 
 import abc
+import math
 from typing import TYPE_CHECKING, ClassVar
 
 from .errors import SeaforceError
@@ -84,10 +85,15 @@ class JobSample:
         The channel's last torque F_a [N m] (the one the plant applies now).
     steps : int
         Sample periods since the previous sample (>= 1; 0 never).
+    cycle : int
+        The state's cycle number (``ActuatorState.cycle``; -1 when the caller gave none).
+    applied : float
+        The torque the plant reports it applied in this sample (``motor_effort``) [N m]; NaN
+        when the caller gave none.
     """
 
     __slots__ = ("estimator", "x", "v", "f_p", "endpoint_position", "endpoint_velocity",
-                 "dahl_input", "torque", "steps")
+                 "dahl_input", "torque", "steps", "cycle", "applied")
 
     def __init__(self, estimator: ContactEstimator) -> None:
         self.estimator = estimator
@@ -95,6 +101,8 @@ class JobSample:
         self.endpoint_position = self.endpoint_velocity = self.dahl_input = 0.0
         self.torque = 0.0
         self.steps = 1
+        self.cycle = -1
+        self.applied = math.nan
 
 
 class Job(abc.ABC):

@@ -23,7 +23,7 @@ from .schema import ParameterGroup, Spec, group, param
 __all__ = [
     "MODES", "DOB_MODES", "PlantParams", "DahlParams", "DobParams", "TargetParams",
     "HoldParams", "ForceFeedbackParams", "ChirpParams", "FeedforwardParams", "EstimatorParams",
-    "GraspParams", "FrictionParams", "GUARD_MODES", "GuardParams", "guard_carries",
+    "GraspParams", "FrictionParams", "CommissioningParams", "GUARD_MODES", "GuardParams", "guard_carries",
     "check_dob_passivity", "ControllerConfig", "PARAMETERS", "DEFAULT_CUTOFF",
     "DEFAULT_HOLD_STIFFNESS", "DEFAULT_HOLD_DAMPING", "MIN_CLOSING_VELOCITY", "MODE_RENAMED",
     "GUARD_RENAMED",
@@ -292,6 +292,45 @@ class FrictionParams(ParameterGroup):
                                         f"> friction.position_min = {self.position_min:g} rad")
 
 
+@group("commissioning")
+class CommissioningParams(ParameterGroup):
+    """The free-air excitation of commissioning (:mod:`seaforce_ros.commissioning.excitation`):
+    a motor-torque log chirp with the endpoint free, its band, length and the bounds its
+    online amplitude adaptation keeps."""
+
+    duration: float = param(40.0, "s", "length of the excitation's chirp, fades included (the "
+                            "rest phase comes before it)", ge=2.0, le=600.0)
+    start_frequency: float = param(0.2, "Hz", "chirp start frequency (the start fade covers up "
+                                   "to 1.5 times it)", gt=0.0, le=100.0)
+    end_frequency: float = param(800.0, "Hz", "chirp end frequency (the end fade covers down to "
+                                 "it / 1.5); below the Nyquist frequency", gt=0.0, le=1e4)
+    rest_duration: float = param(0.5, "s", "servo-only rest before the chirp (the pressure "
+                                 "noise and the free-air pressure force are measured there)", ge=0.05, le=10.0)
+    position_min: float = param(-1.5, "rad", "lower end of the joint range the excitation "
+                                "must stay in (beyond it: abort)", ge=-100.0, le=100.0)
+    position_max: float = param(1.5, "rad", "upper end of the joint range the excitation must "
+                                "stay in (> position_min)", ge=-100.0, le=100.0)
+    max_speed: float = param(10.0, "rad/s", "motor speed |V| beyond which the excitation "
+                             "aborts; its amplitude adaptation aims at 60 % of it (keep it "
+                             "below the plant's max_velocity)", gt=0.0, le=100.0)
+    max_torque: float = param(1.0, "N m", "bound of the excitation torque |F_a| (and never more "
+                              "than the channel's max_torque)", gt=0.0, le=100.0)
+    stiffness: float = param(0.1, "N m/rad", "centring servo stiffness on X - x_0 (weak: the "
+                             "finger must move freely)", symbol="K_p", ge=0.0, le=10.0)
+    damping: float = param(0.002, "N m s/rad", "centring servo damping on V", symbol="K_d",
+                           ge=0.0, le=1.0)
+
+    def check_rules(self) -> None:
+        if not self.position_max > self.position_min:
+            raise InvalidParameterError("commissioning.position_max", self.position_max,
+                                        f"> commissioning.position_min = "
+                                        f"{self.position_min:g} rad")
+        if not self.end_frequency > self.start_frequency:
+            raise InvalidParameterError("commissioning.end_frequency", self.end_frequency,
+                                        f"> commissioning.start_frequency = "
+                                        f"{self.start_frequency:g} Hz")
+
+
 @group("passivity")
 class GuardParams(ParameterGroup):
     """Time-domain passivity guard on the DOB's motor port (:mod:`.passivity_guard`)."""
@@ -387,6 +426,7 @@ class ControllerConfig(ParameterGroup):
     estimator: EstimatorParams = field(default_factory=EstimatorParams)
     grasp: GraspParams = field(default_factory=GraspParams)
     friction: FrictionParams = field(default_factory=FrictionParams)
+    commissioning: CommissioningParams = field(default_factory=CommissioningParams)
     passivity: GuardParams = field(default_factory=GuardParams)
     max_torque: float = param(5.0, "N m", "the controller's fault limit: a computed |F_a| above "
                               "it latches a torque_limit fault (zero torque)", gt=0.0, le=1e3)

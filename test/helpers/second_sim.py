@@ -360,3 +360,84 @@ def simulate_motor_excitation(plant, dahl=None, excitation=None, servo=(0.1, 0.0
     out["x_e"] = np.full(n, np.nan)
     out["f_e"] = np.full(n, np.nan)
     return out
+
+
+class MotorTorqueSim:
+    """The same model stepped one sample at a time with a motor torque F_a as the input (the
+    endpoint free, F_e = 0): what a closed loop runs on. The command given to :meth:`step` is
+    applied over the *next* sample (one sample of delay, as the rig's bus), held; the state is
+    integrated by ``substeps`` trapezoidal steps per sample with the Dahl force predicted and
+    corrected (Heun), as :func:`simulate_chirp`. :meth:`measure` gives what the sensors report
+    (quantised motor position, backward-difference velocity, the pressure ADC with noise) and
+    the torque applied over the last sample.
+
+    Parameters: ``plant`` and ``dahl`` dicts as :func:`simulate_chirp`; ``dt`` [s]; ``seed`` of
+    the pressure noise; the sensor settings of :func:`simulate_chirp`.
+    """
+
+    def __init__(self, plant, dahl=None, dt=5e-4, substeps=2, seed=0, pressure_noise=5e-4,
+                 pressure_range=10.0, pressure_bits=16, motor_counts=2 ** 20):
+        h = dt / substeps
+        a, bvec = _matrices(plant)
+        bm = np.array([0.0, 1.0 / plant["motor_inertia"], 0.0, 0.0])
+        eye = np.eye(4)
+        lhs = np.linalg.inv(eye - 0.5 * h * a)
+        self._ad = (lhs @ (eye + 0.5 * h * a)).tolist()
+        self._be = (lhs @ (0.5 * h * bvec)).tolist()     # endpoint force, trapezoid
+        self._bm = (lhs @ (h * bm)).tolist()             # motor torque, held
+        self._ks, self._bs = plant["hose_stiffness"], plant["hose_damping"]
+        self._sigma = dahl["sigma"] if dahl else 0.0
+        self._fc = dahl["coulomb_force"] if dahl else 1.0
+        self._substeps = substeps
+        self._dt = dt
+        self._rng = np.random.default_rng(seed)
+        self._noise = pressure_noise
+        self._range = pressure_range
+        self._qp = 2.0 * pressure_range / 2 ** pressure_bits if pressure_bits else 0.0
+        self._qx = 2.0 * math.pi / motor_counts if motor_counts else 0.0
+        self.state = [0.0, 0.0, 0.0, 0.0]
+        self.dahl_force = 0.0
+        self._pending = 0.0
+        self.applied = 0.0
+        self._xq_prev = 0.0
+
+    def _dahl_after(self, fd, dx):
+        sigma, fc = self._sigma, self._fc
+        if dx == 0.0 or sigma == 0.0:
+            return fd
+        if dx > 0.0:
+            return fc - (fc - fd) * math.exp(-sigma * dx / fc)
+        return -fc + (fc + fd) * math.exp(sigma * dx / fc)
+
+    def measure(self):
+        """``(x, v, f_p, f_a)``: motor position [rad], velocity [rad/s], pressure force [N m],
+        the torque applied over the last sample [N m]."""
+        x0, x1, x2, x3 = self.state
+        xq = round(x0 / self._qx) * self._qx if self._qx else x0
+        v = (xq - self._xq_prev) / self._dt
+        fp = self._ks * (x2 - x0) + self._bs * (x3 - x1) + self._noise * self._rng.standard_normal()
+        fp = min(self._range, max(-self._range, fp))
+        if self._qp:
+            fp = min(round(fp / self._qp) * self._qp, self._range - self._qp)
+        return xq, v, fp, self.applied
+
+    def step(self, command):
+        """Advance one sample: the torque commanded last sample is applied over it."""
+        x0, x1, x2, x3 = self.state
+        self._xq_prev = round(x0 / self._qx) * self._qx if self._qx else x0
+        u = self._pending
+        self._pending = float(command)
+        self.applied = u
+        ad, be, bm = self._ad, self._be, self._bm
+        fd = self.dahl_force
+        for _ in range(self._substeps):
+            def advance(s):
+                return [ad[i][0] * x0 + ad[i][1] * x1 + ad[i][2] * x2 + ad[i][3] * x3
+                        + be[i] * s + bm[i] * u for i in range(4)]
+            predicted = advance(-2.0 * fd)
+            fd1 = self._dahl_after(fd, predicted[2] - x2)
+            y = advance(-fd - fd1)
+            fd = self._dahl_after(fd, y[2] - x2)
+            x0, x1, x2, x3 = y
+        self.state = [x0, x1, x2, x3]
+        self.dahl_force = fd
