@@ -99,7 +99,6 @@ class Stack:
             assert client.wait_for_server(timeout_sec=30.0)
 
     def close(self):
-        print(self.controller.output()[-6000:])
         self.probe.close()
         self.processes.stop_all()
 
