@@ -4,7 +4,9 @@
 # 1. a virtual environment in .venv with the pinned ROS 2 Jazzy wheels and Python deps
 #    (the venv prefix plays the role of /opt/ros/jazzy),
 # 2. the CMake-path repair those wheels need (scripts/fix_cmake_paths.py, idempotent),
-# 3. colcon build of msg_defs/ (seaforce_msgs) and this package into install/,
+# 3. colcon build of msg_defs/ (seaforce_msgs) and this package into install/, with
+#    compat/control_msgs (the gripper actions' interfaces) only when the distribution's
+#    control_msgs cannot be imported (compat/README.md: on a ROS machine it never is built),
 # 4. the environment: install/setup.bash, localhost-only discovery, a ROS_DOMAIN_ID.
 # Each step is skipped when a stamp of its inputs says nothing changed, so a second run takes
 # a few seconds. SEAFORCE_PYTHON selects the interpreter (default python3.11, else python3).
@@ -55,14 +57,24 @@ _sf_setup() {
 
   # 3. colcon build, when an input of the build changed. Python modules are symlinked
   # (--symlink-install), so editing them needs no rebuild; adding or removing one does.
+  # control_msgs: from the underlay when it has one (a ROS machine's /opt/ros), else the
+  # stand-in compat/control_msgs, named by an explicit path (compat/COLCON_IGNORE keeps it out
+  # of every crawl); asked without this workspace's install/ on the path
+  local compat=() underlay_path
+  underlay_path="$(printf '%s' "${PYTHONPATH:-}" | tr ':' '\n' | grep -v -F "$_sf_root/install" | paste -sd:)"
+  if ! PYTHONPATH="$underlay_path" "$_sf_venv/bin/python" -c 'import control_msgs.action' 2>/dev/null; then
+    compat=(--paths compat/control_msgs)
+  elif [ -d "$_sf_root/install/control_msgs" ]; then
+    rm -rf "$_sf_root/install/control_msgs" "$_sf_root/build/control_msgs"   # the underlay's now
+  fi
   local build_stamp
-  build_stamp="$( (cat "$_sf_venv/.seaforce-req"; cd "$_sf_root" && find msg_defs config launch resource package.xml setup.py setup.cfg -type f -print0 | sort -z | xargs -0 sha256sum; find seaforce_ros -name '*.py' | sort) | sha256sum | cut -c1-16)"
+  build_stamp="$( (cat "$_sf_venv/.seaforce-req"; echo "compat: ${compat[*]}"; cd "$_sf_root" && find msg_defs config launch resource package.xml setup.py setup.cfg ${compat[@]:+compat} -type f -print0 | sort -z | xargs -0 sha256sum; find seaforce_ros -name '*.py' | sort) | sha256sum | cut -c1-16)"
   if [ ! -f "$_sf_root/install/setup.bash" ] || [ "$(cat "$_sf_root/install/.seaforce-build" 2>/dev/null)" != "$build_stamp" ]; then
     local t0=$SECONDS
-    _sf_log "building seaforce_msgs and seaforce_ros with colcon"
+    _sf_log "building seaforce_msgs${compat[*]:+, control_msgs (compat)} and seaforce_ros with colcon"
     ( cd "$_sf_root" \
       && export PATH="$_sf_venv/bin:$PATH" AMENT_PREFIX_PATH="$_sf_venv" CMAKE_PREFIX_PATH="$_sf_venv" \
-      && "$_sf_venv/bin/colcon" --log-base log build --base-paths . msg_defs --symlink-install \
+      && "$_sf_venv/bin/colcon" --log-base log build --base-paths . msg_defs ${compat[@]+"${compat[@]}"} --symlink-install \
            --event-handlers console_cohesion- summary- status- \
            --cmake-args -DPython3_EXECUTABLE="$_sf_venv/bin/python" -DBUILD_TESTING=OFF \
            > "$_sf_root/log/seaforce-build.txt" 2>&1 ) \

@@ -21,6 +21,7 @@ controller           ChannelController: the 2 kHz update of one channel, in stag
 estimator            contact detection and object impedance from motor state and pressure
 jobs                 what overrides a channel's mode for a while: the job protocol
 grasp                a grasp: approach, squeeze, probe, hold, release
+gripper              a gripper command: a grasp whose approach stops at a position
 friction_calibration endpoint friction calibration and online adaptation
 handover             hand-over of values between threads at a safe point
 episodes             repeated conditions counted, reported once per episode, throttled

@@ -248,6 +248,7 @@ class Grasp(Job):
         self._touch = min(params.approach_force, self._grip)
         self._amp = (min(params.probe_amplitude * self._grip, 0.5 * (self._max - self._grip))
                      if goal.probe else 0.0)
+        self._max_travel = params.max_travel
         self._timeout = 2.0 * params.max_travel / abs(v) + 1.0
         self._damping = params.contact_damping
         self._give_way = params.give_way_travel
@@ -560,10 +561,9 @@ class Grasp(Job):
         if self._armed and est.contact:
             self._touched(est, s)
             return 0.0
-        p = self.params
-        if travel > p.max_travel or self._t > self._timeout:
+        if travel > self._max_travel or self._t > self._timeout:
             self.release(f"no contact within {travel:.3g} rad of travel in {self._t:.2f} s "
-                         f"(grasp.max_travel {p.max_travel:g} rad)", "aborted")
+                         f"(grasp.max_travel {self._max_travel:g} rad)", "aborted")
             return 0.0
         return self._servo(est, s, steps)
 

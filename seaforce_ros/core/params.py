@@ -253,6 +253,21 @@ class GraspParams(ParameterGroup):
     probe_duration: float = param(0.3, "s", "probe duration", ge=1e-2, le=100.0)
     release_time: float = param(0.05, "s", "ramp of the grasp force to zero on a cancel or an "
                                 "abort", ge=1e-3, le=10.0)
+    gripper_velocity: float = param(0.3, "rad/s", "speed of a gripper command (control_msgs "
+                                    "GripperCommand, or ParallelGripperCommand without a "
+                                    "velocity) towards its position X_e", ge=MIN_CLOSING_VELOCITY,
+                                    le=100.0)
+    gripper_effort: float = param(0.3, "N m", "contact force cap of a gripper command whose "
+                                  "max_effort is 0 (or whose effort is empty)", gt=0.0, le=100.0)
+    gripper_tolerance: float = param(0.01, "rad", "|X_e - position| within which a gripper "
+                                     "command has reached its goal", gt=0.0, le=1.0)
+    gripper_namespace: str = param("", "", "namespace of the channel's control_msgs gripper "
+                                   "actions <ns>/gripper_cmd and <ns>/parallel_gripper_cmd "
+                                   "(empty: <channel>_gripper); read at start",
+                                   read_only=True)
+    gripper_cancel: str = param("hold", "", "what a canceled gripper command leaves: hold (the "
+                                "grip, or the finger where it is) or release (as a grasp's "
+                                "cancel)", choices=("hold", "release"))
 
 
 @group("friction")

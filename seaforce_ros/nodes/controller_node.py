@@ -38,6 +38,12 @@ goal holds, no states arriving -- ends at once ABORTED with ``rejected: <reason>
   ``<channel>.friction.adaptation`` turns the online adaptation on; its state is in
   ``/diagnostics``.
 
+* Gripper commands: per channel, ``<ns>/gripper_cmd`` (``control_msgs/action/GripperCommand``)
+  and ``<ns>/parallel_gripper_cmd`` (``ParallelGripperCommand``), ``<ns>`` =
+  ``grasp.gripper_namespace`` or ``<channel>_gripper``, run a
+  :class:`~seaforce_ros.core.gripper.GripperMove` (:mod:`.gripper_actions`; bad goals are
+  rejected by the goal callback, the reason logged).
+
 Layouts: separate processes (this executable) or composed with the plant in ``bringup`` /
 ``hardware_bringup``; with ``loop:=direct`` there the plant's cycle thread calls
 :meth:`DirectPort.step` instead of going through DDS, and parameters and ``~/reset`` still
@@ -67,6 +73,7 @@ from ..core.friction_calibration import (CalibrationGoal, FrictionCalibration,
 from ..core.grasp import Grasp, GraspGoal, check_goal
 from ..core.params import ControllerConfig, guard_carries
 from ..core.schema import BRINGUP, CONTROLLER
+from .gripper_actions import gripper_job_actions
 from .jobs import JobAction, JobActions
 from .ros_common import (GRAPH_PERIOD, STATUS_QOS, StartupError, control_qos, declare,
                          diagnostic_status, diagnostics_publisher, log_events, node_label,
@@ -159,6 +166,8 @@ class ControllerNode(Node):
         self.jobs = JobActions(self, self.channels, controllers, self.cycle, self._stalled)
         self.jobs.add(self._grasp_action())
         self.jobs.add(self._calibration_action())
+        for action in gripper_job_actions(self):     # control_msgs, per channel
+            self.jobs.add(action)
         self._state_topic = self.resolve_topic_name('actuator_state')
         self.create_timer(GRAPH_PERIOD, self._watch_graph)
         self.add_on_set_parameters_callback(self._validate_parameters)

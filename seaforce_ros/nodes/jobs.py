@@ -24,12 +24,25 @@ new friction as parameters). The rest is the same for every action:
   with the reason; its job ends in the cycle's thread when the cycle runs again.
 * At its end the job's outcome gives the goal's status (``succeeded``, ``canceled``, else
   aborted), the result is built and one line logged.
+
+An action may also declare (the control_msgs gripper actions do):
+
+* ``answered`` -- the goal has its answer while its job goes on holding (a gripper command
+  that reached its position, or stalled on an object and grips it): the goal ends SUCCEEDED
+  and the job stays on the channel, *held*, until the next goal there (of any action), which
+  releases it (:meth:`~seaforce_ros.core.jobs.Job.request_cancel`) and starts once it is done;
+  the answers are looked for at :data:`ANSWER_RATE` (not only at the feedback rate: a gripper
+  command's result comes within 50 ms of the contact; the rclpy events executor has no guard
+  conditions the cycle's thread could wake it with);
+* ``on_cancel`` -- a cancel that leaves the job holding (the goal ends CANCELED now);
+* ``reject_in_callback`` -- a goal that cannot be executed is rejected by the goal callback
+  (its result type has no message field); the reason is logged like every rejection.
 """
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, NamedTuple, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -42,9 +55,10 @@ from ..core.episodes import Episode, EventLog
 from ..core.jobs import InvalidJobGoalError, Job
 from .ros_common import log_events, shutdown_safe
 
-__all__ = ["JobAction", "JobActions", "JOB_FEEDBACK_RATE", "JOB_START_TIMEOUT"]
+__all__ = ["JobAction", "JobActions", "JOB_FEEDBACK_RATE", "JOB_START_TIMEOUT", "ANSWER_RATE"]
 
 JOB_FEEDBACK_RATE = 50.0     # Hz
+ANSWER_RATE = 250.0          # Hz, the look for answered goals (actions that have ``answered``)
 JOB_START_TIMEOUT = 1.0      # s a goal waits for the cycle to take its job over
 
 
@@ -87,15 +101,23 @@ class JobAction:
     busy: Callable[[Job], str]
     cancel_reason: str
     finish: Callable[[int, Job], str] = lambda index, job: job.message
+    channel: Callable[[Any], str] = lambda goal: goal.channel
+    answered: Optional[Callable[[Job], bool]] = None
+    on_cancel: Optional[Callable[[Job], bool]] = None
+    reject_in_callback: bool = False
+    feedback: Optional[Callable[[int, Job], Any]] = None
 
 
-class _Goal(NamedTuple):
-    """A goal whose job is handed to its channel's controller."""
+@dataclass
+class _Goal:
+    """A goal whose job is handed to its channel's controller (once ``after``, the job held
+    on the channel before it, is done)."""
     action: JobAction
     job: Job
     handle: Any                 # rclpy's ServerGoalHandle
     done: Future                # the execute callback's result
-    requested: float            # monotonic time of the request [s]
+    requested: float            # monotonic time of the request [s] (or of the goal, waiting)
+    after: Optional[Job] = None
 
 
 class JobActions:
@@ -124,16 +146,24 @@ class JobActions:
         self._cycle = cycle
         self._stalled = stalled
         self._goals: dict[int, _Goal] = {}   # channel index -> its goal
+        self._held: dict[int, Job] = {}      # channel index -> a job its answered goal left
         self._log = EventLog()
         self._rejections = Episode(self._log)   # logged once per 10 s, with a count
         node.create_timer(1.0 / JOB_FEEDBACK_RATE, self._tick)
+        self._answer_timer = None
 
     def add(self, action: JobAction) -> None:
         """Serve ``action``."""
+        if action.answered is not None and self._answer_timer is None:
+            self._answer_timer = self._node.create_timer(1.0 / ANSWER_RATE, self._answers)
         async def execute(handle: Any) -> Any:
             return await self._execute(action, handle)
+        def accept(goal: Any) -> GoalResponse:
+            if action.reject_in_callback and self._check(action, goal) is None:
+                return GoalResponse.REJECT
+            return GoalResponse.ACCEPT
         ActionServer(self._node, action.action_type, action.name, execute_callback=execute,
-                     goal_callback=lambda goal: GoalResponse.ACCEPT,
+                     goal_callback=accept,
                      cancel_callback=lambda handle: CancelResponse.ACCEPT,
                      callback_group=ReentrantCallbackGroup())
 
@@ -164,35 +194,76 @@ class JobActions:
             raise InvalidJobGoalError(stalled + ': the control cycle is not running')
         return index
 
-    async def _execute(self, action: JobAction, handle: Any) -> Any:
-        """One goal: checked, handed to the cycle, followed by :meth:`_tick` until done."""
-        goal = handle.request
+    def _check(self, action: JobAction, goal: Any) -> tuple[int, Job] | None:
+        """(channel index, job) of a goal that can run now, else None (the reason logged,
+        once per 10 s with a count)."""
+        channel = action.channel(goal)
         try:
-            index = self.channel_for(goal.channel)
+            index = self.channel_for(channel)
             try:
-                job = action.make(index, goal)
+                return index, action.make(index, goal)
             except InvalidJobGoalError as exc:
-                raise InvalidJobGoalError(f'{goal.channel}: {exc}') from None
+                raise InvalidJobGoalError(f'{channel}: {exc}') from None
         except InvalidJobGoalError as exc:
             self._rejections.begin(time.monotonic(), f'{action.label} goal rejected: {exc}')
             self._rejections.end(time.monotonic())
             log_events(self._node.get_logger(), self._log.drain())
+            self.last_rejection = str(exc)
+            return None
+
+    #: The reason of the latest goal turned away (tests and the node's diagnostics).
+    last_rejection = ''
+
+    async def _execute(self, action: JobAction, handle: Any) -> Any:
+        """One goal: checked, handed to the cycle (after the job held on its channel, if any,
+        is released), followed by :meth:`_tick` until answered or done."""
+        goal = handle.request
+        checked = self._check(action, goal)
+        if checked is None:
             handle.abort()
-            return action.result(None, None, f'rejected: {exc}')
+            return action.result(None, None, f'rejected: {self.last_rejection}')
+        index, job = checked
         done = Future()
-        self._goals[index] = _Goal(action, job, handle, done, time.monotonic())
-        self._controllers[index].request_job(job)
-        self._node.get_logger().info(f'{goal.channel}: {action.describe(goal)}')
+        previous = self._held.pop(index, None)
+        if previous is not None and previous.active:
+            previous.request_cancel(f'released for a new {action.label} goal')
+        else:
+            previous = None
+        self._goals[index] = _Goal(action, job, handle, done, time.monotonic(), previous)
+        if previous is None:
+            self._controllers[index].request_job(job)
+        self._node.get_logger().info(f'{action.channel(goal)}: {action.describe(goal)}')
         return await done
 
     @shutdown_safe
     def _tick(self) -> None:
         """Feedback, cancel requests, start time-outs, stalls and ends of the running goals."""
+        for index, job in list(self._held.items()):
+            if not job.active:
+                del self._held[index]
         for index, goal in list(self._goals.items()):
-            job, handle = goal.job, goal.handle
+            job, handle, action = goal.job, goal.handle, goal.action
+            if goal.after is not None:
+                if handle.is_cancel_requested:
+                    job.withdraw('canceled before it started', 'canceled')
+                elif goal.after.active:
+                    continue                  # the job held on the channel is releasing
+                else:
+                    goal.after = None
+                    goal.requested = time.monotonic()
+                    self._controllers[index].request_job(job)
             if handle.is_cancel_requested and job.active:
-                if not job.withdraw('canceled before it started', 'canceled'):
-                    job.request_cancel(goal.action.cancel_reason)
+                if job.withdraw('canceled before it started', 'canceled'):
+                    pass
+                elif action.on_cancel is not None and action.on_cancel(job):
+                    self._end(index, 'canceled')
+                    continue
+                else:
+                    job.request_cancel(action.cancel_reason)
+            if job.active and action.answered is not None and action.answered(job) \
+                    and not handle.is_cancel_requested:
+                self._end(index, 'succeeded')
+                continue
             if job.active and not job.started and \
                     time.monotonic() - goal.requested > JOB_START_TIMEOUT:
                 job.withdraw(f'the control cycle did not take the {goal.action.label} within '
@@ -205,25 +276,41 @@ class JobActions:
             else:
                 self._end(index)
 
+    @shutdown_safe
+    def _answers(self) -> None:
+        """End the goals whose job has answered (it goes on holding the channel)."""
+        for index, goal in list(self._goals.items()):
+            answered = goal.action.answered
+            if answered is not None and goal.job.active and answered(goal.job) \
+                    and not goal.handle.is_cancel_requested:
+                self._end(index, 'succeeded')
+
     def _feedback(self, index: int, goal: _Goal) -> Any:
+        if goal.action.feedback is not None:
+            return goal.action.feedback(index, goal.job)
         feedback = goal.action.action_type.Feedback()
         for name, value in goal.job.feedback(self._controllers[index].estimator).items():
             setattr(feedback, name, value)
         return feedback
 
-    def _end(self, index: int) -> None:
-        """The goal of a job that is done: its status, result and log line."""
-        action, job, handle, done, _ = self._goals.pop(index)
+    def _end(self, index: int, holding: str = '') -> None:
+        """The goal of a job that is done (or, ``holding``: the goal's status, of a job that
+        goes on holding the channel): its status, result and log line."""
+        goal = self._goals.pop(index)
+        action, job, handle, done = goal.action, goal.job, goal.handle, goal.done
+        if holding:
+            self._held[index] = job
+        outcome = holding or job.outcome
         message = action.finish(index, job)
         result = action.result(index, job, message)
-        if job.outcome == 'succeeded':
+        if outcome == 'succeeded':
             handle.succeed()
-        elif job.outcome == 'canceled':
+        elif outcome == 'canceled':
             handle.canceled()
         else:
             handle.abort()
-        self._node.get_logger().info(f'{self._channels[index]}: {action.label} {job.outcome}: '
-                                     f'{message}')
+        self._node.get_logger().info(f'{self._channels[index]}: {action.label} {outcome}: '
+                                     f'{message}' + (' (holding)' if holding else ''))
         done.set_result(result)
 
     def _stall_message(self, job: Job) -> str:
@@ -235,7 +322,8 @@ class JobActions:
     def _end_stalled(self, index: int, message: str) -> None:
         """End the goal on channel ``index`` now; its job ends in the cycle's thread when the
         cycle runs again (re-initialised first: the stall is older than state_timeout)."""
-        action, job, handle, done, _ = self._goals.pop(index)
+        goal = self._goals.pop(index)
+        action, job, handle, done = goal.action, goal.job, goal.handle, goal.done
         job.request_abort(message)
         handle.abort()
         self._node.get_logger().warn(f'{self._channels[index]}: {action.label} aborted: '
