@@ -24,12 +24,17 @@ new friction as parameters). The rest is the same for every action:
   with the reason; its job ends in the cycle's thread when the cycle runs again.
 * At its end the job's outcome gives the goal's status (``succeeded``, ``canceled``, else
   aborted), the result is built and one line logged.
+* An action may go on after its job succeeded with work off the control thread
+  (:attr:`JobAction.follow`: commissioning's identification in a child process). The goal
+  keeps its channel while it runs (a goal for that channel is still turned away), feedback and
+  cancels go to it, and its outcome gives the goal's status. The channel itself is back in its
+  mode from the job's end.
 """
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, NamedTuple, Sequence
+from typing import Any, Callable, Protocol, Sequence
 
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -42,10 +47,31 @@ from ..core.episodes import Episode, EventLog
 from ..core.jobs import InvalidJobGoalError, Job
 from .ros_common import log_events, shutdown_safe
 
-__all__ = ["JobAction", "JobActions", "JOB_FEEDBACK_RATE", "JOB_START_TIMEOUT"]
+__all__ = ["JobAction", "JobActions", "FollowUp", "JOB_FEEDBACK_RATE", "JOB_START_TIMEOUT"]
 
 JOB_FEEDBACK_RATE = 50.0     # Hz
 JOB_START_TIMEOUT = 1.0      # s a goal waits for the cycle to take its job over
+
+
+class FollowUp(Protocol):
+    """Work an action goes on with after its job succeeded, off the control thread (polled at
+    :data:`JOB_FEEDBACK_RATE` from the node's executor; nothing here may block).
+
+    ``outcome`` is None while it runs, then ``succeeded``, ``canceled`` or ``aborted``;
+    ``message`` says what it does or why it ended.
+    """
+
+    outcome: str | None
+    message: str
+
+    def poll(self) -> bool:
+        """Advance (never blocking); True once it has ended."""
+
+    def cancel(self, reason: str) -> None:
+        """The client's cancel: end as soon as it safely can, ``canceled``."""
+
+    def feedback(self) -> dict[str, float | str]:
+        """Its progress now, named as the action's feedback fields."""
 
 
 @dataclass(frozen=True)
@@ -74,8 +100,11 @@ class JobAction:
     cancel_reason : str
         The reason a client's cancel gives the running job.
     finish : callable (channel index, Job) -> str, optional
-        The result's message once the job is done, after what its end does in the node (the
-        default: the job's message).
+        The result's message once the job is done (and its follow-up, if any), after what its
+        end does in the node (the default: the job's message).
+    follow : callable (channel index, Job) -> FollowUp, optional
+        What the goal goes on with once its job has succeeded (module docstring); None (the
+        default): the goal ends with its job.
     """
 
     name: str
@@ -87,15 +116,18 @@ class JobAction:
     busy: Callable[[Job], str]
     cancel_reason: str
     finish: Callable[[int, Job], str] = lambda index, job: job.message
+    follow: Callable[[int, Job], FollowUp] | None = None
 
 
-class _Goal(NamedTuple):
+@dataclass
+class _Goal:
     """A goal whose job is handed to its channel's controller."""
     action: JobAction
     job: Job
     handle: Any                 # rclpy's ServerGoalHandle
     done: Future                # the execute callback's result
     requested: float            # monotonic time of the request [s]
+    after: FollowUp | None = None   # the follow-up, once the job has succeeded
 
 
 class JobActions:
@@ -187,8 +219,12 @@ class JobActions:
 
     @shutdown_safe
     def _tick(self) -> None:
-        """Feedback, cancel requests, start time-outs, stalls and ends of the running goals."""
+        """Feedback, cancel requests, start time-outs, stalls, follow-ups and ends of the
+        running goals."""
         for index, goal in list(self._goals.items()):
+            if goal.after is not None:
+                self._tick_follow_up(index, goal, goal.after)
+                continue
             job, handle = goal.job, goal.handle
             if handle.is_cancel_requested and job.active:
                 if not job.withdraw('canceled before it started', 'canceled'):
@@ -201,30 +237,46 @@ class JobActions:
             if message:
                 self._end_stalled(index, message)
             elif job.active:
-                handle.publish_feedback(self._feedback(index, goal))
+                handle.publish_feedback(self._feedback(goal.action, goal.job.feedback(
+                    self._controllers[index].estimator)))
+            elif goal.action.follow is not None and job.outcome == 'succeeded':
+                goal.after = goal.action.follow(index, job)
+                self._tick_follow_up(index, goal, goal.after)
             else:
-                self._end(index)
+                self._end(index, job.outcome)
 
-    def _feedback(self, index: int, goal: _Goal) -> Any:
-        feedback = goal.action.action_type.Feedback()
-        for name, value in goal.job.feedback(self._controllers[index].estimator).items():
+    def _tick_follow_up(self, index: int, goal: _Goal, after: FollowUp) -> None:
+        """One tick of a goal's follow-up: its cancel, its feedback, its end."""
+        if goal.handle.is_cancel_requested and after.outcome is None:
+            after.cancel(goal.action.cancel_reason)
+        if after.poll():
+            self._end(index, after.outcome)
+        else:
+            goal.handle.publish_feedback(self._feedback(goal.action, after.feedback()))
+
+    @staticmethod
+    def _feedback(action: JobAction, fields: dict[str, float | str]) -> Any:
+        feedback = action.action_type.Feedback()
+        for name, value in fields.items():
             setattr(feedback, name, value)
         return feedback
 
-    def _end(self, index: int) -> None:
-        """The goal of a job that is done: its status, result and log line."""
-        action, job, handle, done, _ = self._goals.pop(index)
+    def _end(self, index: int, outcome: str | None) -> None:
+        """The goal of a job (and follow-up) that is done: its status from ``outcome``, its
+        result and log line."""
+        goal = self._goals.pop(index)
+        action, job, handle = goal.action, goal.job, goal.handle
         message = action.finish(index, job)
         result = action.result(index, job, message)
-        if job.outcome == 'succeeded':
+        if outcome == 'succeeded':
             handle.succeed()
-        elif job.outcome == 'canceled':
+        elif outcome == 'canceled':
             handle.canceled()
         else:
             handle.abort()
-        self._node.get_logger().info(f'{self._channels[index]}: {action.label} {job.outcome}: '
+        self._node.get_logger().info(f'{self._channels[index]}: {action.label} {outcome}: '
                                      f'{message}')
-        done.set_result(result)
+        goal.done.set_result(result)
 
     def _stall_message(self, job: Job) -> str:
         """Why a started, running job's goal must end because the cycle does not run (a plant
@@ -235,9 +287,9 @@ class JobActions:
     def _end_stalled(self, index: int, message: str) -> None:
         """End the goal on channel ``index`` now; its job ends in the cycle's thread when the
         cycle runs again (re-initialised first: the stall is older than state_timeout)."""
-        action, job, handle, done, _ = self._goals.pop(index)
-        job.request_abort(message)
-        handle.abort()
-        self._node.get_logger().warn(f'{self._channels[index]}: {action.label} aborted: '
+        goal = self._goals.pop(index)
+        goal.job.request_abort(message)
+        goal.handle.abort()
+        self._node.get_logger().warn(f'{self._channels[index]}: {goal.action.label} aborted: '
                                      f'{message}')
-        done.set_result(action.result(index, job, message))
+        goal.done.set_result(goal.action.result(index, goal.job, message))
