@@ -23,7 +23,7 @@ import pathlib
 import signal
 import subprocess
 import threading
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 __all__ = ["AnalysisProcess", "pdeathsig"]
 
@@ -53,6 +53,9 @@ class AnalysisProcess:
         The phase the feedback shows until the child says another.
     progress_span : (float, float)
         The child's progress 0..1 is mapped onto this part of the goal's progress.
+    prepare : callable () -> None, optional
+        Run on the follower's thread before the child starts (writing its input files: no
+        file I/O in the caller's thread); an exception from it aborts with its message.
 
     Attributes
     ----------
@@ -66,35 +69,51 @@ class AnalysisProcess:
 
     def __init__(self, argv: Sequence[str], log_path: str | os.PathLike[str],
                  phase: str = "identify",
-                 progress_span: tuple[float, float] = (0.0, 1.0)) -> None:
+                 progress_span: tuple[float, float] = (0.0, 1.0),
+                 prepare: Callable[[], None] | None = None) -> None:
         self.outcome: str | None = None
         self.message = "starting the analysis"
         self.result: dict[str, Any] | None = None
+        self._argv = list(argv)
         self._span = progress_span
+        self._prepare = prepare
         self._lock = threading.Lock()
         self._latest: dict[str, Any] = {"phase": phase, "progress": 0.0,
                                         "measuring": self.message}
         self._error = ""
         self._canceled = ""
         self._log_path = pathlib.Path(log_path)
-        self._log = open(self._log_path, "ab")
-        try:
-            self._proc = subprocess.Popen(list(argv), stdin=subprocess.DEVNULL,
-                                          stdout=subprocess.PIPE, stderr=self._log,
-                                          preexec_fn=pdeathsig, start_new_session=True)
-        except OSError as exc:
-            self._log.close()
-            self._finish("aborted", f"could not start the analysis: {exc}")
-            self._reader: threading.Thread | None = None
-            return
-        self._reader = threading.Thread(target=self._read, name="commission-analysis",
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._started = threading.Event()
+        self._reader = threading.Thread(target=self._run, name="commission-analysis",
                                         daemon=True)
         self._reader.start()
 
     # --- the reader thread -------------------------------------------------------------
-    def _read(self) -> None:
-        assert self._proc.stdout is not None
-        for raw in self._proc.stdout:
+    def _run(self) -> None:
+        """Prepare (write the record: no file I/O in the caller's thread), start the child,
+        read its lines."""
+        try:
+            if self._prepare is not None:
+                self._prepare()
+            with self._lock:
+                if self._canceled:
+                    return
+                with open(self._log_path, "ab") as log:
+                    self._proc = subprocess.Popen(
+                        self._argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                        stderr=log, preexec_fn=pdeathsig, start_new_session=True)
+        except Exception as exc:                # noqa: BLE001 -- any failure is the reason
+            self._error = f"could not start the analysis: {exc}"
+            return
+        finally:
+            self._started.set()
+        self._read(self._proc)
+
+    # --- the reader thread -------------------------------------------------------------
+    def _read(self, proc: subprocess.Popen[bytes]) -> None:
+        assert proc.stdout is not None
+        for raw in proc.stdout:
             try:
                 line = json.loads(raw)
             except ValueError:
@@ -113,18 +132,18 @@ class AnalysisProcess:
     # --- the FollowUp protocol -------------------------------------------------------------
     @property
     def pid(self) -> int | None:
-        """The child's PID (None if it never started)."""
-        proc: subprocess.Popen[bytes] | None = getattr(self, "_proc", None)
+        """The child's PID (None until it started, or if it never did)."""
+        proc = self._proc
         return proc.pid if proc is not None else None
 
     def poll(self) -> bool:
         """True once the child has ended (and its output is read); never blocks."""
         if self.outcome is not None:
             return True
-        if self._proc.poll() is None or (self._reader is not None and self._reader.is_alive()):
+        if self._reader.is_alive():
             return False
-        self._log.close()
-        rc = self._proc.returncode
+        proc = self._proc
+        rc = proc.wait() if proc is not None else None   # the reader saw its end of output
         if self._canceled:
             self._finish("canceled", self._canceled)
         elif rc == 0 and self.result is not None:
@@ -135,23 +154,28 @@ class AnalysisProcess:
 
     def cancel(self, reason: str) -> None:
         """End the child (SIGTERM to its PID); ``canceled`` once it is gone."""
-        if self.outcome is None and not self._canceled:
+        with self._lock:
+            if self.outcome is not None or self._canceled:
+                return
             self._canceled = reason
-            self._signal(signal.SIGTERM)
+        self._signal(signal.SIGTERM)
 
     def close(self) -> None:
         """End the child now if it still runs (SIGKILL after a SIGTERM it ignored for 2 s)."""
-        if self.outcome is not None or not hasattr(self, "_proc"):
+        if self.outcome is not None:
             return
-        self._canceled = self._canceled or "closed"
-        self._signal(signal.SIGTERM)
-        try:
-            self._proc.wait(2.0)
-        except subprocess.TimeoutExpired:
-            self._signal(signal.SIGKILL)
-            self._proc.wait()
-        if self._reader is not None:
-            self._reader.join(2.0)
+        with self._lock:
+            self._canceled = self._canceled or "closed"
+        self._started.wait(10.0)
+        proc = self._proc
+        if proc is not None:
+            self._signal(signal.SIGTERM)
+            try:
+                proc.wait(2.0)
+            except subprocess.TimeoutExpired:
+                self._signal(signal.SIGKILL)
+                proc.wait()
+        self._reader.join(2.0)
         self.poll()
 
     def feedback(self) -> dict[str, float | str]:
@@ -171,9 +195,10 @@ class AnalysisProcess:
 
     # --- helpers -------------------------------------------------------------------------
     def _signal(self, sig: int) -> None:
-        if self._proc.poll() is None:
+        proc = self._proc
+        if proc is not None and proc.poll() is None:
             try:
-                os.kill(self._proc.pid, sig)
+                os.kill(proc.pid, sig)
             except ProcessLookupError:
                 pass
 

@@ -80,6 +80,10 @@ def test_exit_zero_without_a_result_is_not_success(tmp_path):
 def test_cancel_ends_the_child_by_its_pid(tmp_path):
     proc = AnalysisProcess(_child(tmp_path, 'say(phase="tune", progress=0.1)\n'
                                             'time.sleep(60)\n'), tmp_path / 'log.txt')
+    deadline = time.monotonic() + 20.0
+    while proc.feedback()['phase'] != 'tune':
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
     pid = proc.pid
     assert pid is not None and _alive(pid)
     proc.cancel('canceled by the client')
@@ -105,8 +109,35 @@ def test_close_ends_a_child_that_ignores_sigterm(tmp_path):
 
 def test_a_command_that_cannot_start(tmp_path):
     proc = AnalysisProcess([str(tmp_path / 'missing')], tmp_path / 'log.txt')
-    assert proc.poll() and proc.outcome == 'aborted'
+    _wait(proc)
+    assert proc.outcome == 'aborted'
     assert 'could not start' in proc.message
     proc.close()                                        # nothing to end; no error
     proc.cancel('x')
     assert proc.outcome == 'aborted'
+
+
+def test_prepare_runs_first_and_its_failure_is_the_reason(tmp_path):
+    marker = tmp_path / 'input.txt'
+    argv = _child(tmp_path, f'say(result={{"message": open({str(marker)!r}).read()}})\n')
+    proc = AnalysisProcess(argv, tmp_path / 'log.txt', prepare=lambda: marker.write_text('in'))
+    _wait(proc)
+    assert (proc.outcome, proc.message) == ('succeeded', 'in')
+
+    def full_disk():
+        raise OSError(28, 'No space left on device')
+    proc = AnalysisProcess(argv, tmp_path / 'log.txt', prepare=full_disk)
+    _wait(proc)
+    assert proc.outcome == 'aborted' and 'No space left on device' in proc.message
+    assert proc.pid is None                              # the child never started
+
+
+def test_a_cancel_before_the_child_starts_starts_none(tmp_path):
+    import threading
+    gate = threading.Event()
+    proc = AnalysisProcess(_child(tmp_path, 'say(result={})\n'), tmp_path / 'log.txt',
+                           prepare=gate.wait)
+    proc.cancel('canceled early')
+    gate.set()
+    _wait(proc)
+    assert (proc.outcome, proc.message, proc.pid) == ('canceled', 'canceled early', None)
