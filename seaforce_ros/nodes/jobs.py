@@ -105,6 +105,9 @@ class JobAction:
     follow : callable (channel index, Job) -> FollowUp, optional
         What the goal goes on with once its job has succeeded (module docstring); None (the
         default): the goal ends with its job.
+    feedback : callable (dict) -> dict, optional
+        The action's feedback fields from the job's :meth:`~seaforce_ros.core.jobs.Job.feedback`
+        (the default: the job's fields as they are).
     """
 
     name: str
@@ -117,6 +120,7 @@ class JobAction:
     cancel_reason: str
     finish: Callable[[int, Job], str] = lambda index, job: job.message
     follow: Callable[[int, Job], FollowUp] | None = None
+    feedback: Callable[[dict[str, float | str]], dict[str, float | str]] = lambda fields: fields
 
 
 @dataclass
@@ -237,8 +241,8 @@ class JobActions:
             if message:
                 self._end_stalled(index, message)
             elif job.active:
-                handle.publish_feedback(self._feedback(goal.action, goal.job.feedback(
-                    self._controllers[index].estimator)))
+                handle.publish_feedback(self._feedback(goal.action, goal.action.feedback(
+                    job.feedback(self._controllers[index].estimator))))
             elif goal.action.follow is not None and job.outcome == 'succeeded':
                 goal.after = goal.action.follow(index, job)
                 self._tick_follow_up(index, goal, goal.after)
