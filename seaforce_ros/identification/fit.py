@@ -207,7 +207,8 @@ def _ratio_bounds(path: DahlPath) -> Tuple[float, float]:
 def fit_endpoint_with_dahl(bt: BlackmanTukey, s_xe: _Complex, s_input: _Complex,
                            x_e: Union[npt.ArrayLike, DahlPath], lo: float, hi: float,
                            rel_sigma: _Real, dahl_delay: float = 0.0, exponent: float = 1.0,
-                           progress: Optional[Callable[[str, float], object]] = None
+                           progress: Optional[Callable[[str, float], object]] = None,
+                           dahl_spectra: Optional[Dict[float, _Complex]] = None
                            ) -> ParameterFit:
     """Endpoint plant ``X_e/(F_e - F_p - F_d) = 1/(m_e s^2 + b_e s + k_e)`` with Dahl (eq. 14).
 
@@ -253,6 +254,11 @@ def fit_endpoint_with_dahl(bt: BlackmanTukey, s_xe: _Complex, s_input: _Complex,
         force; 0.5: a force held over the step, as the core simulator does).
     exponent : float
         Dahl exponent n (fixed).
+    dahl_spectra : dict, optional
+        Cache of ``S_rf(a)`` in the band per ratio a, filled by the search: fits that share
+        ``bt``, ``x_e``, the band, ``dahl_delay`` and ``exponent`` and differ only in
+        ``s_input`` (two alignments of the external force) pass the same dict and evaluate
+        each a once.
 
     Returns
     -------
@@ -277,7 +283,7 @@ def fit_endpoint_with_dahl(bt: BlackmanTukey, s_xe: _Complex, s_input: _Complex,
     a_lin = np.vstack([design.real * weight[:, None], design.imag * weight[:, None]])
     y = stack(su)
     scale3 = np.sqrt(np.sum(a_lin ** 2, axis=0))
-    cache: Dict[float, _Complex] = {}
+    cache: Dict[float, _Complex] = {} if dahl_spectra is None else dahl_spectra
     calls = [0]
 
     def s_dahl(ratio: float) -> _Complex:

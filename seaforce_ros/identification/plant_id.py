@@ -37,7 +37,8 @@ from .spectral import BlackmanTukey, FrequencyResponse, Spectra
 if TYPE_CHECKING:
     from .timeseries import Series
 
-__all__ = ["PlantIdentification", "identify_plant", "PARAMETERS", "required_fields"]
+__all__ = ["PlantIdentification", "identify_plant", "PARAMETERS", "required_fields",
+           "ExternalForceChoice", "EXTERNAL_FORCE_DELAYS", "CLEAR_MISFIT_RATIO"]
 
 #: The Fig. 4 plant each parameter is identified from: A the motor (X/F_p), B the endpoint
 #: (X_e/(F_e - F_p)), C the hose (F_p/(X_e - X)).
@@ -59,7 +60,8 @@ def required_fields(excitation: str) -> Tuple[str, ...]:
 
 @dataclass
 class PlantIdentification:
-    """Everything :func:`identify_plant` found (see the attributes)."""
+    """Everything :func:`identify_plant` found (see the attributes; ``external_force`` is the
+    external-force convention used and why, None for a motor chirp)."""
 
     params: PlantParams
     sigma: Dict[str, float]
@@ -73,6 +75,7 @@ class PlantIdentification:
     omega: npt.NDArray[np.float64]
     excited_band: Tuple[float, float]
     notes: List[str] = field(default_factory=list)
+    external_force: Optional["ExternalForceChoice"] = None
 
     def model_responses(self) -> Dict[str, npt.NDArray[np.complexfloating]]:
         """Identified linear model on the grid, per plant letter (A-D)."""
@@ -129,9 +132,90 @@ def _excitation(series: Series, excitation: str) -> str:
     return excitation
 
 
+#: External-force conventions: the delay [samples] of the recorded F_e relative to the force
+#: that acted. ``held``: the torque was held over the interval after its sample (a drive's
+#: command, the simulator's environment torque), which acts like the sample delayed by half a
+#: sample; ``instant``: a sampled force sensor (the force at the sample's instant).
+EXTERNAL_FORCE_DELAYS = {"held": 0.5, "instant": 0.0}
+#: Misfit ratio (worse/better convention) from which ``auto`` calls its choice clear.
+#: Measured (bench/identify_external_force.py: Table I and three family draws from the
+#: independent simulator, held and continuous torque, and the core simulator; 30, 60 and 120 s;
+#: fit bands up to 400, 200, 100 and 40 rad/s; 108 fits): on the paper's band the wrong
+#: convention's misfit was 2.6-970x the right one's (median 76; at least 18 from 60 s on);
+#: the ratio falls with the band's top, since half a sample is ``omega T/2`` of phase, and
+#: at band tops of 100 and 40 rad/s ``auto`` took the wrong convention 10 times, each with a
+#: ratio under 1.8.
+#: No ratio of 1.8 or more picked wrong; 3 leaves a margin of 1.7 over that. The two
+#: conventions' parameters differ by 2.7-16 %, so a ratio below it is reported as too close to
+#: tell (force the convention when the sensor is known).
+CLEAR_MISFIT_RATIO = 3.0
+
+
+@dataclass(frozen=True)
+class ExternalForceChoice:
+    """Which external-force convention the endpoint fit used, and why.
+
+    Attributes
+    ----------
+    requested : 'auto', 'held' or 'instant'
+    convention : 'held' or 'instant'
+        The one used (auto: the one with the smaller misfit).
+    misfits : dict
+        Weighted misfit per degree of freedom (chi^2/dof) of the endpoint fit B, per
+        convention fitted (both for auto, one otherwise).
+    """
+
+    requested: str
+    convention: str
+    misfits: Dict[str, float]
+
+    @property
+    def ratio(self) -> float:
+        """Worse over better misfit (>= 1; NaN when one convention was fitted)."""
+        if len(self.misfits) < 2:
+            return math.nan
+        lo, hi = sorted(self.misfits.values())
+        return hi / lo if lo > 0 else math.inf
+
+    @property
+    def clear(self) -> bool:
+        """The misfits differ by at least :data:`CLEAR_MISFIT_RATIO`."""
+        return self.ratio >= CLEAR_MISFIT_RATIO
+
+    def summary(self) -> str:
+        """One line: the convention, how it was chosen, the misfits."""
+        fits = ", ".join(f"{k} {v:.4g}" for k, v in self.misfits.items())
+        if self.requested != "auto":
+            return (f"external force: {self.convention} (as requested; endpoint misfit "
+                    f"chi2/dof {fits})")
+        verdict = (f"ratio {self.ratio:.3g}" if self.clear else
+                   f"ratio {self.ratio:.3g}, below {CLEAR_MISFIT_RATIO:g}: too close to tell, "
+                   "took the smaller; force it with --external-force if the sensor is known")
+        return (f"external force: {self.convention} (auto: endpoint misfit chi2/dof {fits}; "
+                f"{verdict})")
+
+
+@dataclass
+class _Endpoint:
+    """The endpoint (B, D) part of an identification under one external-force alignment."""
+
+    fit: ParameterFit
+    hysteresis: Optional[HysteresisEstimate]
+    responses: Dict[str, FrequencyResponse]
+
+
+def _conventions(external_force: str, excitation: str) -> Tuple[str, ...]:
+    if external_force not in ("auto",) + tuple(EXTERNAL_FORCE_DELAYS):
+        raise IdentificationError(f"external_force must be auto, held or instant, not "
+                                  f"{external_force!r}")
+    if excitation != "external":
+        return ("instant",)           # no external force: the alignment does not enter
+    return tuple(EXTERNAL_FORCE_DELAYS) if external_force == "auto" else (external_force,)
+
+
 def identify_plant(series: Series, band: Tuple[float, float] = (0.5, 400.0),
                    rational_band: Tuple[float, float] = (0.5, 400.0), excitation: str = "auto",
-                   external_force_delay: float = 0.5, motor_effort_delay: float = -0.5,
+                   external_force: str = "auto", motor_effort_delay: float = -0.5,
                    periods: float = 20.0, n_freq: int = 80, dahl: bool = True,
                    dahl_delay: float = 0.0,
                    progress: Optional[Callable[[str, float], object]] = None
@@ -147,10 +231,14 @@ def identify_plant(series: Series, band: Tuple[float, float] = (0.5, 400.0),
     rational_band : (lo, hi) [rad/s]
         Band of the 2-zero/4-pole fit of D (paper: 0-400 rad/s).
     excitation : 'auto', 'external' or 'motor'
-    external_force_delay, motor_effort_delay : float
-        Delay [samples] of the recorded F_e and F_a relative to the force that acted (0.5:
-        held over the next interval -- the sim's environment torque; -0.5: the recorded
-        motor effort was applied during the previous interval).
+    external_force : 'auto', 'held' or 'instant'
+        How the recorded F_e relates to its sample (:data:`EXTERNAL_FORCE_DELAYS`). 'auto'
+        fits the endpoint (B, D) under both and keeps the one with the smaller misfit; what
+        does not depend on the alignment (the spectra, A, C, the Dahl force's spectra) is
+        computed once. The choice is in ``PlantIdentification.external_force``.
+    motor_effort_delay : float
+        Delay [samples] of the recorded F_a relative to the force that acted (-0.5: the
+        recorded motor effort was applied during the previous interval).
     periods : float
         Blackman-Tukey resolution (periods per lag window).
     dahl : bool
@@ -169,6 +257,7 @@ def identify_plant(series: Series, band: Tuple[float, float] = (0.5, 400.0),
     if not (0 < lo < hi):
         raise IdentificationError(f"band must satisfy 0 < lo < hi, got {lo:g}-{hi:g} rad/s")
     excitation = _excitation(series, excitation)
+    conventions = _conventions(external_force, excitation)
     s = series.signals
     missing = [f for f in required_fields(excitation) if f not in s]
     if missing:
@@ -190,8 +279,10 @@ def identify_plant(series: Series, band: Tuple[float, float] = (0.5, 400.0),
     w_lo = min(lo, rational_band[0])
     w_hi = max(hi, rational_band[1])
     omega = np.logspace(math.log10(w_lo), math.log10(w_hi), n_freq)
+    # the external force's alignment is applied to its own spectrum (bt.delayed), so the
+    # estimator and every other spectrum serve both conventions
     if excitation == "external":
-        ref, ref_delay = s["f_e"], external_force_delay
+        ref, ref_delay = s["f_e"], 0.0
     else:
         ref, ref_delay = s["f_a"], motor_effort_delay
     report("Blackman-Tukey spectra", 0.05)
@@ -211,66 +302,57 @@ def identify_plant(series: Series, band: Tuple[float, float] = (0.5, 400.0),
     sxe = bt.signal("x_e", s["x_e"], orders=POSITION_ORDERS)
     sfp = bt.signal("f_p", s["f_p"])
     sfa = bt.signal("f_a", f_a, delay=motor_effort_delay) if excitation == "motor" else None
-    sfe = bt.signal("f_e", f_e, delay=external_force_delay) if excitation == "external" \
-        else None
+    sfe = bt.signal("f_e", f_e) if excitation == "external" else None
     shose = bt.signal("hose", s["x_e"] - s["x"], orders=POSITION_ORDERS)
     report("frequency responses", 0.2)
     # A: X / (F_p + F_a)
     motor_in: Spectra
-    end_in: Spectra
     if sfa is not None:
         motor_in = (sfp[0] + sfa[0], bt.auto(s["f_p"] + f_a))
     else:
         motor_in = sfp
-    # B: X_e / (F_e - F_p)
-    if sfe is not None:
-        end_in = (sfe[0] - sfp[0], bt.auto(f_e - s["f_p"]))
-    else:
-        end_in = (-sfp[0], sfp[1])
     responses = {
         "A": bt.response(sx, motor_in, "X/F_p"),
-        "B": bt.response(sxe, end_in, "X_e/(F_e-F_p)"),
         "C": bt.response(sfp, shose, "F_p/(X_e-X)"),
     }
-    if sfe is not None:
-        responses["D"] = bt.response(sxe, sfe, "X_e/F_e")
     fits: Dict[str, ParameterFit] = {}
     notes: List[str] = []
     report("fitting the motor plant (A) and the hose (C)", 0.3)
     fits["A"] = fit_mass_spring_damper(responses["A"], lo, hi,
                                        ("motor_inertia", "motor_damping", "motor_stiffness"))
     fits["C"] = fit_hose(responses["C"], lo, hi)
-    report("fitting the endpoint plant (B) with Dahl hysteresis", 0.35)
-    hysteresis = None
-    if dahl:
-        def sub(msg: str, frac: float) -> None:
-            report(msg, 0.35 + 0.5 * frac)
-        path = DahlPath(s["x_e"])
-        fb = fit_endpoint_with_dahl(bt, sxe[0], end_in[0], path, lo, hi,
-                                    responses["B"].rel_sigma, progress=sub,
-                                    dahl_delay=dahl_delay)
-        hysteresis = fb.hysteresis
-    else:
-        fb = fit_mass_spring_damper(responses["B"], lo, hi,
-                                    ("endpoint_inertia", "endpoint_damping",
-                                     "endpoint_stiffness"))
-    fits["B"] = fb
-    if hysteresis is not None and hysteresis.model in ("dahl", "coulomb"):
-        fd = hysteresis.coulomb_force * path.normalized(hysteresis.ratio)
-        sfd = bt.cross(fd, delay=dahl_delay)
-        responses["B_corrected"] = FrequencyResponse(
-            omega, sxe[0] / (end_in[0] - sfd), responses["B"].rel_sigma,
-            "X_e/(F_e-F_p-F_d)")
+    path = DahlPath(s["x_e"])
+    # B: X_e / (F_e - F_p); its input's auto-spectrum and the Dahl force's spectra do not
+    # depend on the alignment of F_e
+    auto_in = bt.auto(f_e - s["f_p"]) if sfe is not None else sfp[1]
+    dahl_spectra: Dict[float, npt.NDArray[np.complex128]] = {}
+    endpoints: Dict[str, _Endpoint] = {}
+    share = 0.5 / len(conventions)
+    for i, name in enumerate(conventions):
+        def sub(msg: str, frac: float, base: float = 0.35 + i * share) -> None:
+            report(msg if len(conventions) == 1 else f"{name} external force: {msg}",
+                   base + share * frac)
+        s_fe: Optional[Spectra] = None
         if sfe is not None:
-            responses["D_corrected"] = FrequencyResponse(
-                omega, sxe[0] / (sfe[0] - sfd), responses["D"].rel_sigma, "X_e/(F_e-F_d)")
+            s_fe = (bt.delayed(sfe[0], EXTERNAL_FORCE_DELAYS[name]), sfe[1])
+        endpoints[name] = _fit_endpoint(bt, sxe, sfp, s_fe, auto_in, path, lo, hi, dahl,
+                                        dahl_delay, dahl_spectra, sub)
+    chosen = min(conventions, key=lambda k: endpoints[k].fit.chi2_dof)
+    choice = None
+    if excitation == "external":
+        choice = ExternalForceChoice(external_force, chosen,
+                                     {k: endpoints[k].fit.chi2_dof for k in conventions})
+    endpoint = endpoints[chosen]
+    fits["B"] = endpoint.fit
+    hysteresis = endpoint.hysteresis
+    responses.update(endpoint.responses)
     values: Dict[str, float] = {}
     sigma: Dict[str, float] = {}
     for letter in ("A", "B", "C"):
         f = fits[letter]
-        for name, v, sg in zip(f.names, f.values, f.sigma):
-            values[name] = float(v)
-            sigma[name] = float(sg)
+        for key, v, sg in zip(f.names, f.values, f.sigma):
+            values[key] = float(v)
+            sigma[key] = float(sg)
     for k, sg in sigma.items():
         if not (math.isfinite(sg) and sg > 0):
             notes.append(f"{k}: not identified (degenerate covariance: its 1-sigma is "
@@ -298,4 +380,40 @@ def identify_plant(series: Series, band: Tuple[float, float] = (0.5, 400.0),
         fit_err["D"] = float(np.sqrt(np.mean(np.abs(model_d[sel] - h) ** 2 / np.abs(h) ** 2)))
     report("done", 1.0)
     return PlantIdentification(params, sigma, fit_err, fits, responses, rational, excitation,
-                               (lo, hi), hysteresis, omega, (ex_lo, ex_hi), notes)
+                               (lo, hi), hysteresis, omega, (ex_lo, ex_hi), notes, choice)
+
+
+def _fit_endpoint(bt: BlackmanTukey, sxe: Spectra, sfp: Spectra, s_fe: Optional[Spectra],
+                  auto_in: npt.NDArray[np.float64],
+                  path: DahlPath, lo: float, hi: float, dahl: bool, dahl_delay: float,
+                  dahl_spectra: Dict[float, npt.NDArray[np.complex128]],
+                  report: Callable[[str, float], None]) -> _Endpoint:
+    """The endpoint plant B (and D = X_e/F_e when there is an external force ``s_fe``: its
+    spectra, the cross-spectrum aligned), the Dahl hysteresis removed unless ``dahl`` is
+    False."""
+    end_in: Spectra = (-sfp[0] if s_fe is None else s_fe[0] - sfp[0], auto_in)
+    responses = {"B": bt.response(sxe, end_in, "X_e/(F_e-F_p)")}
+    if s_fe is not None:
+        responses["D"] = bt.response(sxe, s_fe, "X_e/F_e")
+    report("fitting the endpoint plant (B) with Dahl hysteresis" if dahl
+           else "fitting the endpoint plant (B)", 0.0)
+    hysteresis = None
+    if dahl:
+        fb = fit_endpoint_with_dahl(bt, sxe[0], end_in[0], path, lo, hi,
+                                    responses["B"].rel_sigma, progress=report,
+                                    dahl_delay=dahl_delay, dahl_spectra=dahl_spectra)
+        hysteresis = fb.hysteresis
+    else:
+        fb = fit_mass_spring_damper(responses["B"], lo, hi,
+                                    ("endpoint_inertia", "endpoint_damping",
+                                     "endpoint_stiffness"))
+    if hysteresis is not None and hysteresis.model in ("dahl", "coulomb"):
+        fd = hysteresis.coulomb_force * path.normalized(hysteresis.ratio)
+        sfd = bt.cross(fd, delay=dahl_delay)
+        rel = responses["B"].rel_sigma
+        responses["B_corrected"] = FrequencyResponse(
+            bt.omega, sxe[0] / (end_in[0] - sfd), rel, "X_e/(F_e-F_p-F_d)")
+        if s_fe is not None:
+            responses["D_corrected"] = FrequencyResponse(
+                bt.omega, sxe[0] / (s_fe[0] - sfd), responses["D"].rel_sigma, "X_e/(F_e-F_d)")
+    return _Endpoint(fb, hysteresis, responses)

@@ -188,9 +188,17 @@ class BlackmanTukey:
         s = self._spectrum(self._fr, self._fft(y, order))
         if order:
             s = s / self._difference(order)
-        shift = delay * self.dt_full - self._r_delay
+        return self._shifted(s, delay * self.dt_full - self._r_delay)
+
+    def delayed(self, s_ry: _Complex, delay: float) -> _Complex:
+        """``cross(y, delay)`` from ``s_ry = cross(y)``: one estimate serves several alignments
+        of y (an external force held over the sample or sampled at its instant)."""
+        return self._shifted(s_ry, delay * self.dt_full)
+
+    def _shifted(self, s: _Complex, shift: float) -> _Complex:
+        """``s`` delayed by ``shift`` seconds (a phase of ``-omega shift``)."""
         if shift:
-            s = s * np.exp(-1j * self.omega * shift)
+            return s * np.exp(-1j * self.omega * shift)
         return s
 
     def auto(self, y: Samples, order: int = 0) -> _Real:

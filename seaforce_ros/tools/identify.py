@@ -11,6 +11,11 @@ Blackman-Tukey/fit table (parameter, value, 1-sigma, fit error), writes PARAMS.y
 (``/**: ros__parameters: <channel>: plant: {...}`` and, with ``--dahl-bag``, ``dahl: {...}``)
 for ``--ros-args --params-file``, and Fig. 4 / Fig. 6-style PNGs into ``--plots``.
 
+``--external-force auto`` (the default) fits the endpoint with the recorded F_e held over the
+sample (a drive's command, the sim) and sampled at its instant (a force sensor), keeps the
+one with the smaller misfit, and says which and both misfits (table, progress, the params
+file's header).
+
 Exit status: 0 ok, 2 bad input (a one-line reason on stderr, no stack trace).
 """
 
@@ -47,9 +52,12 @@ def build_parser():
                    "(default: --band; the paper: 0-400)")
     p.add_argument("--excitation", choices=("auto", "external", "motor"), default="auto",
                    help="which torque was chirped (auto: the larger of F_e and F_a)")
-    p.add_argument("--external-force", choices=("held", "instant"), default="held",
-                   help="held: F_e was held over the sample interval after its sample (the "
-                        "sim's environment); instant: a sampled force sensor")
+    p.add_argument("--external-force", choices=("auto", "held", "instant"), default="auto",
+                   help="how the recorded F_e relates to its sample. held: held over the "
+                        "sample interval after it (the sim's environment, a drive's "
+                        "command); instant: a sampled force sensor; auto: fit both, keep "
+                        "the one with the smaller endpoint misfit and print both "
+                        "(default: auto)")
     p.add_argument("--dahl-force", choices=("continuous", "held"), default="continuous",
                    help="continuous: the endpoint's friction follows its position (hardware); "
                         "held: held over each sample interval (bags from sim_node or the core "
@@ -84,9 +92,11 @@ def _identify_chirp(args, progress):
         series, band=tuple(args.band),
         rational_band=tuple(args.rational_band or args.band),
         excitation=args.excitation,
-        external_force_delay=0.5 if args.external_force == "held" else 0.0,
+        external_force=args.external_force,
         dahl=not args.no_dahl, dahl_delay=0.5 if args.dahl_force == "held" else 0.0,
         progress=progress.stage(0.25, 0.95))
+    if result.external_force is not None:
+        progress(result.external_force.summary(), None)
     return record, series, result
 
 
@@ -108,6 +118,8 @@ def _print_plant_table(result, truth, series, record):
           f"{result.excited_band[1]:.3g} rad/s; fits over {result.band[0]:g}-"
           f"{result.band[1]:g} rad/s")
     print(format_table(headers, rows, formats))
+    if result.external_force is not None:
+        print(result.external_force.summary())
     for line in hysteresis_lines(result.hysteresis, result.fits["B"].extra):
         print(line)
     if "D" in result.fit_error:
@@ -216,6 +228,8 @@ def run(args):
         comments.append(f"{args.channel}.plant: chirp bag {args.bag} ({series.duration:.1f} s, "
                         f"{result.excitation} excitation, fits over {result.band[0]:g}-"
                         f"{result.band[1]:g} rad/s)")
+        if result.external_force is not None:
+            comments.append(f"{args.channel}.plant: {result.external_force.summary()}")
         if plots is not None:
             from ..identification.plots import bode_fig4
             path = bode_fig4(result, plots / f"{args.channel}_fig4_bode.png",
