@@ -16,6 +16,7 @@ CONSOLE_SCRIPTS = [
     'identify = seaforce_ros.tools.identify:main',
     'zwidth = seaforce_ros.tools.zwidth:main',
     'bag_reindex = seaforce_ros.tools.bag_reindex:main',
+    'commission = seaforce_ros.tools.commission:main',
 ]
 
 setup(

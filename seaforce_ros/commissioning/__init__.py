@@ -17,8 +17,9 @@ its 1-sigma band and the Z-width, the DOB's torque noise, the hold's delay limit
 mode's virtual-wall chart), :mod:`.tuning` (the DOB's lambda and nominal plant and the hold
 gains that widen the predicted Z-width under eq. 28 with a margin, a torque-noise budget and
 the loop delay), :mod:`.report` (the report a run ends with: its data model, one directory with
-``report.json``, the figures and a self-contained ``report.html``, and the plain-text summary).
+``report.json``, the figures and a self-contained ``report.html``, and the plain-text summary),
+:mod:`.worker` (the analysis in a child process the node can cancel, with progress lines).
 
 The package imports none of its modules: a caller loads only what it needs.
 """
-__all__ = ["errors", "record", "excitation", "experiments", "free_air", "loop_figures", "predictor", "tuning", "report"]
+__all__ = ["errors", "record", "excitation", "experiments", "free_air", "loop_figures", "predictor", "tuning", "report", "worker"]

@@ -5,6 +5,8 @@ Motor frame, rotational SI units. Every array has one entry per sample the contr
 """
 from __future__ import annotations
 
+import os
+import pathlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -12,7 +14,10 @@ import numpy.typing as npt
 
 from .errors import CommissioningError
 
-__all__ = ["ExcitationRecord"]
+__all__ = ["ExcitationRecord", "save_record", "load_record"]
+
+#: The arrays of a record, in the order of its fields.
+_ARRAYS = ("cycle", "x", "v", "f_p", "applied", "command", "excitation", "x_e", "f_e")
 
 _Array = npt.NDArray[np.float64]
 
@@ -77,3 +82,26 @@ class ExcitationRecord:
     def duration(self) -> float:
         """Time the record spans [s]."""
         return float(len(self.cycle)) * self.dt
+
+
+def save_record(record: ExcitationRecord, path: str | os.PathLike[str]) -> pathlib.Path:
+    """Write ``record`` to ``path`` (numpy ``.npz``; written under a temporary name and renamed,
+    so a file of that name is always whole). Raises ``OSError`` (a full disk, say)."""
+    target = pathlib.Path(path)
+    tmp = target.with_name(target.name + ".part")
+    with open(tmp, "wb") as f:
+        np.savez(f, dt=np.float64(record.dt), **{k: getattr(record, k) for k in _ARRAYS})
+    os.replace(tmp, target)
+    return target
+
+
+def load_record(path: str | os.PathLike[str]) -> ExcitationRecord:
+    """The record :func:`save_record` wrote; ``CommissioningError`` naming the file if it is
+    not one."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {k: np.asarray(data[k]) for k in _ARRAYS}
+            dt = float(data["dt"])
+    except (OSError, KeyError, ValueError) as exc:
+        raise CommissioningError(f"{path}: not a commissioning record ({exc})") from None
+    return ExcitationRecord(dt=dt, **arrays)

@@ -334,8 +334,20 @@ class CommissioningParams(ParameterGroup):
                              "finger must move freely)", symbol="K_p", ge=0.0, le=10.0)
     damping: float = param(0.002, "N m s/rad", "centring servo damping on V", symbol="K_d",
                            ge=0.0, le=1.0)
+    band_low: float = param(0.3, "rad/s", "lower end of the band the tuning widens the "
+                            "predicted Z-width over", gt=0.0, le=1000.0)
+    band_high: float = param(10.0, "rad/s", "upper end of that band (> band_low, below the "
+                             "Nyquist frequency)", gt=0.0, le=6000.0)
+    noise_budget: float = param(0.01, "N m", "largest RMS motor torque the tuned DOB may add "
+                                "from the pressure and encoder noise", gt=0.0, le=10.0)
+    passivity_margin: float = param(2.0, "-", "1-sigmas of the identified m, b, k against which "
+                                    "the tuned DOB must still satisfy eq. 28", ge=0.0,
+                                    le=10.0)
 
     def check_rules(self) -> None:
+        if not self.band_high > self.band_low:
+            raise InvalidParameterError("commissioning.band_high", self.band_high,
+                                        f"> commissioning.band_low = {self.band_low:g} rad/s")
         if not self.position_max > self.position_min:
             raise InvalidParameterError("commissioning.position_max", self.position_max,
                                         f"> commissioning.position_min = "

@@ -64,6 +64,14 @@ class ControllerSettings(ParameterGroup):
 
     status_rate: float = param(100.0, "Hz", "controller_status rate, 0 = off", ge=0.0,
                                le=20000.0)
+    commissioning_directory: str = param(
+        "", "", "where ~/commission writes a directory per run (report, record, params and "
+        "rollback files) and finds the last run of a channel; default "
+        "seaforce_commissioning in the working directory", key="commissioning.directory")
+    commissioning_params_file: str = param(
+        "", "", "params file ~/commission writes the tuned values into, its comments kept (the "
+        "setup's YAML, say); default params.yaml in the run's directory",
+        key="commissioning.params_file")
 
 
 @group("", nodes=(BRINGUP,), per_channel=False)

@@ -20,6 +20,7 @@ from .params_file import (ALL_NODES, HEADER_MARK, PathLike, channel_groups, load
                           read_text, update_text, where)
 
 __all__ = ["check_output_file", "check_output_dir", "check_params_update", "write_params_file",
+           "write_values_file",
            "format_table", "Progress", "read_params_file", "read_plant", "positive_float",
            "run_cli"]
 
@@ -97,17 +98,25 @@ def write_params_file(path: PathLike, channel: str, plant: Optional[PlantParams]
                       dahl: Optional[Mapping[str, float]] = None, comments: Iterable[str] = (),
                       merge: bool = True, option: Optional[str] = None) -> pathlib.Path:
     """Write ``<channel>.plant.*`` (``plant``: a PlantParams) and ``<channel>.dahl.*``
-    (``dahl``: a dict ``{sigma, coulomb_force, exponent}``) for ``--ros-args --params-file``.
+    (``dahl``: a dict ``{sigma, coulomb_force, exponent}``) for ``--ros-args --params-file``
+    (:func:`write_values_file`)."""
+    return write_values_file(path, _values(channel, plant, dahl), comments, merge, option)
 
-    A new file (or, without ``merge``, any file) becomes ``/**: ros__parameters: <channel>:
-    {plant: ..., dahl: ...}`` under a header of ``comments``. An existing file is updated in
-    place (:func:`~.params_file.update_text`): only these values change; every comment, other
+
+def write_values_file(path: PathLike, values: Mapping[str, float], comments: Iterable[str] = (),
+                      merge: bool = True, option: Optional[str] = None) -> pathlib.Path:
+    """Write ``values`` (``{dotted name: float}``, e.g. ``pinch.dob.cutoff``) as a params file
+    for ``--ros-args --params-file``.
+
+    A new file (or, without ``merge``, any file) becomes ``/**: ros__parameters: ...`` under a
+    header of ``comments``. An existing file is updated in place
+    (:func:`~.params_file.update_text`): only these values change; every comment, other
     parameter and the layout stay. A file whose layout cannot be updated safely is refused
-    (ParamsFileError, naming ``option`` and the file) and left as it is.
+    (ParamsFileError, naming ``option`` and the file) and left as it is. The file is written
+    under a temporary name and renamed: it is never half-written (a full disk).
     """
     p = check_output_file(path)
     w = where(p, option)
-    values = _values(channel, plant, dahl)
     header = [f"{HEADER_MARK} {datetime.datetime.now():%Y-%m-%d %H:%M}",
               "# load with: --ros-args --params-file " + p.name]
     header += [f"# {c}" for c in comments]
@@ -123,9 +132,15 @@ def write_params_file(path: PathLike, channel: str, plant: Optional[PlantParams]
         text = "\n".join(header) + "\n" + yaml.safe_dump(data, sort_keys=False)
     else:
         text = update_text(text, values, w, header=header)
+    tmp = p.with_name(p.name + ".part")
     try:
-        p.write_text(text)
+        tmp.write_text(text)
+        os.replace(tmp, p)
     except OSError as exc:
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
         raise IdentificationError(f"{w}: cannot write it ({exc.strerror})") from None
     return p
 

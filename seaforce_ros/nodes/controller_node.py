@@ -20,7 +20,7 @@ Faults: faults of the data (``latched_faults``) give the channel zero torque unt
 zeroes it until states flow again, then the channel re-arms from the plant's present state
 (its first torque is the torque the plant applies: no step).
 
-Jobs: two actions hand a job (:mod:`seaforce_ros.core.jobs`) to a channel's controller, through
+Jobs: three actions hand a job (:mod:`seaforce_ros.core.jobs`) to a channel's controller, through
 one adapter (:mod:`.jobs`: one goal per channel, whatever its action; a goal that cannot be
 executed -- unknown channel, NaN or out-of-range fields, a faulted channel, a channel another
 goal holds, no states arriving -- ends at once ABORTED with ``rejected: <reason>`` in
@@ -37,7 +37,9 @@ goal holds, no states arriving -- ends at once ABORTED with ``rejected: <reason>
   ``plant.endpoint_stiffness``, ``dahl.coulomb_force`` and ``dahl.sigma`` to them.
   ``<channel>.friction.adaptation`` turns the online adaptation on; its state is in
   ``/diagnostics``.
-
+* Commissioning: the action ``~/commission`` (``seaforce_msgs/action/Commission``,
+  :mod:`.commissioning`) excites the free finger, identifies the plant, predicts the Z-width,
+  tunes, reports, and applies when asked.
 * Gripper commands: per channel, ``<ns>/gripper_cmd`` (``control_msgs/action/GripperCommand``)
   and ``<ns>/parallel_gripper_cmd`` (``ParallelGripperCommand``), ``<ns>`` =
   ``grasp.gripper_namespace`` or ``<channel>_gripper``, run a
@@ -73,6 +75,7 @@ from ..core.friction_calibration import (CalibrationGoal, FrictionCalibration,
 from ..core.grasp import Grasp, GraspGoal, check_goal
 from ..core.params import ControllerConfig, guard_carries
 from ..core.schema import BRINGUP, CONTROLLER
+from .commissioning import CommissionAction
 from .gripper_actions import gripper_job_actions
 from .jobs import JobAction, JobActions
 from .ros_common import (GRAPH_PERIOD, STATUS_QOS, StartupError, control_qos, declare,
@@ -168,6 +171,9 @@ class ControllerNode(Node):
         self.jobs.add(self._calibration_action())
         for action in gripper_job_actions(self):     # control_msgs, per channel
             self.jobs.add(action)
+        self.commissioning = CommissionAction(self, values['commissioning.directory'],
+                                              values['commissioning.params_file'])
+        self.jobs.add(self.commissioning.action())
         self._state_topic = self.resolve_topic_name('actuator_state')
         self.create_timer(GRAPH_PERIOD, self._watch_graph)
         self.add_on_set_parameters_callback(self._validate_parameters)
@@ -403,6 +409,10 @@ class ControllerNode(Node):
                 adaptation.reason, 'adapted_endpoint_damping': be,
                 'adapted_endpoint_stiffness': ke, 'adapted_coulomb_force': fc,
                 'adapted_sigma': sigma, 'friction_adaptation_updates': adaptation.updates}
+
+    def shutdown(self):
+        """(the node is going down) End every commissioning analysis still running."""
+        self.commissioning.close()
 
     # --- faults --------------------------------------------------------------------------
     def _on_reset(self, request, response):

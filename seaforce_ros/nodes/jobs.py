@@ -36,13 +36,17 @@ An action may also declare (the control_msgs gripper actions do):
   conditions the cycle's thread could wake it with);
 * ``on_cancel`` -- a cancel that leaves the job holding (the goal ends CANCELED now);
 * ``reject_in_callback`` -- a goal that cannot be executed is rejected by the goal callback
-  (its result type has no message field); the reason is logged like every rejection.
+  (its result type has no message field); the reason is logged like every rejection;
+* ``follow`` -- work off the control thread after the job succeeded (commissioning's
+  identification in a child process, a :class:`FollowUp`). The goal keeps its channel while it
+  runs (a goal for that channel is still turned away), feedback and cancels go to it, and its
+  outcome gives the goal's status. The channel itself is back in its mode from the job's end.
 """
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Optional, Sequence
+from typing import Any, Callable, Optional, Protocol, Sequence
 
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -55,11 +59,33 @@ from ..core.episodes import Episode, EventLog
 from ..core.jobs import InvalidJobGoalError, Job
 from .ros_common import log_events, shutdown_safe
 
-__all__ = ["JobAction", "JobActions", "JOB_FEEDBACK_RATE", "JOB_START_TIMEOUT", "ANSWER_RATE"]
+__all__ = ["JobAction", "JobActions", "FollowUp", "JOB_FEEDBACK_RATE", "JOB_START_TIMEOUT",
+           "ANSWER_RATE"]
 
 JOB_FEEDBACK_RATE = 50.0     # Hz
 ANSWER_RATE = 250.0          # Hz, the look for answered goals (actions that have ``answered``)
 JOB_START_TIMEOUT = 1.0      # s a goal waits for the cycle to take its job over
+
+
+class FollowUp(Protocol):
+    """Work an action goes on with after its job succeeded, off the control thread (polled at
+    :data:`JOB_FEEDBACK_RATE` from the node's executor; nothing here may block).
+
+    ``outcome`` is None while it runs, then ``succeeded``, ``canceled`` or ``aborted``;
+    ``message`` says what it does or why it ended.
+    """
+
+    outcome: str | None
+    message: str
+
+    def poll(self) -> bool:
+        """Advance (never blocking); True once it has ended."""
+
+    def cancel(self, reason: str) -> None:
+        """The client's cancel: end as soon as it safely can, ``canceled``."""
+
+    def feedback(self) -> dict[str, float | str]:
+        """Its progress now, named as the action's feedback fields."""
 
 
 @dataclass(frozen=True)
@@ -88,8 +114,18 @@ class JobAction:
     cancel_reason : str
         The reason a client's cancel gives the running job.
     finish : callable (channel index, Job) -> str, optional
-        The result's message once the job is done, after what its end does in the node (the
-        default: the job's message).
+        The result's message once the job is done (and its follow-up, if any), after what its
+        end does in the node (the default: the job's message).
+    channel : callable (goal) -> str, optional
+        The goal's channel (the default: its ``channel`` field).
+    answered, on_cancel, reject_in_callback : optional
+        The gripper actions' goals that end while the job holds (module docstring).
+    feedback : callable (channel index, Job) -> the action's Feedback, optional
+        The default: the job's :meth:`~seaforce_ros.core.jobs.Job.feedback` fields set on the
+        action's Feedback by name.
+    follow : callable (channel index, Job) -> FollowUp, optional
+        What the goal goes on with once its job has succeeded (module docstring); None (the
+        default): the goal ends with its job.
     """
 
     name: str
@@ -106,6 +142,7 @@ class JobAction:
     on_cancel: Optional[Callable[[Job], bool]] = None
     reject_in_callback: bool = False
     feedback: Optional[Callable[[int, Job], Any]] = None
+    follow: Optional[Callable[[int, Job], FollowUp]] = None
 
 
 @dataclass
@@ -118,6 +155,7 @@ class _Goal:
     done: Future                # the execute callback's result
     requested: float            # monotonic time of the request [s] (or of the goal, waiting)
     after: Optional[Job] = None
+    follow_up: Optional[FollowUp] = None   # once the job has succeeded (``JobAction.follow``)
 
 
 class JobActions:
@@ -243,6 +281,9 @@ class JobActions:
                 del self._held[index]
         for index, goal in list(self._goals.items()):
             job, handle, action = goal.job, goal.handle, goal.action
+            if goal.follow_up is not None:
+                self._tick_follow_up(index, goal, goal.follow_up)
+                continue
             if goal.after is not None:
                 if handle.is_cancel_requested:
                     job.withdraw('canceled before it started', 'canceled')
@@ -273,8 +314,23 @@ class JobActions:
                 self._end_stalled(index, message)
             elif job.active:
                 handle.publish_feedback(self._feedback(index, goal))
+            elif action.follow is not None and job.outcome == 'succeeded':
+                goal.follow_up = action.follow(index, job)
+                self._tick_follow_up(index, goal, goal.follow_up)
             else:
                 self._end(index)
+
+    def _tick_follow_up(self, index: int, goal: _Goal, follow_up: FollowUp) -> None:
+        """One tick of a goal's follow-up: its cancel, its feedback, its end."""
+        if goal.handle.is_cancel_requested and follow_up.outcome is None:
+            follow_up.cancel(goal.action.cancel_reason)
+        if follow_up.poll():
+            self._end(index)
+        else:
+            feedback = goal.action.action_type.Feedback()
+            for name, value in follow_up.feedback().items():
+                setattr(feedback, name, value)
+            goal.handle.publish_feedback(feedback)
 
     @shutdown_safe
     def _answers(self) -> None:
@@ -300,7 +356,8 @@ class JobActions:
         action, job, handle, done = goal.action, goal.job, goal.handle, goal.done
         if holding:
             self._held[index] = job
-        outcome = holding or job.outcome
+        outcome = holding or (goal.follow_up.outcome if goal.follow_up is not None
+                              else job.outcome)
         message = action.finish(index, job)
         result = action.result(index, job, message)
         if outcome == 'succeeded':

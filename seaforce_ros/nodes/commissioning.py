@@ -1,0 +1,242 @@
+"""controller_node's ``~/commission`` action (``seaforce_msgs/action/Commission``).
+
+One goal commissions one channel, through the node's one job path (:mod:`.jobs`):
+
+1. the goal's checks: its fields (a band with 0 < low < high, budgets >= 0 and finite), the
+   channel (known, not faulted, not held by another goal, not stopped by the plant) and a
+   free finger (no contact on the channel's contact estimator); a goal that fails one ends at
+   once, ABORTED, ``rejected: <reason>``;
+2. the excitation, a core job (:class:`~seaforce_ros.commissioning.excitation.FreeAirExcitation`)
+   in the control cycle: a contact, a tracking error, a fault, a stall or a cancel ends it
+   with zero torque, and the goal with it;
+3. the analysis, a follow-up off the control thread
+   (:class:`~seaforce_ros.commissioning.worker.AnalysisProcess`, a child process: the
+   identification's CPU does not compete with the 2 kHz loop for the interpreter): the record
+   and the request are written to the run's directory, the child identifies, predicts, tunes,
+   writes the report, the params file and the rollback file (none on ``dry_run``);
+4. the end: with ``apply`` (and not ``dry_run``) the tuned values are set as the channel's
+   parameters -- validated like any parameter change and taken at the start of a cycle,
+   bumplessly; the result carries the summary, the paths, the values old and new.
+
+The run's directory is ``<commissioning.directory>/<channel>-<UTC time>``; the newest earlier
+run of the channel there is what the drift is reported against.
+"""
+from __future__ import annotations
+
+import datetime
+import json
+import math
+import pathlib
+import sys
+from dataclasses import dataclass, field
+from typing import Any
+
+from rclpy.parameter import Parameter
+from seaforce_msgs.action import Commission
+
+from ..commissioning.excitation import ExcitationGoal, FreeAirExcitation
+from ..commissioning.record import save_record
+from ..commissioning.worker import AnalysisProcess
+from ..core.jobs import InvalidJobGoalError, Job
+from .jobs import JobAction
+
+__all__ = ["CommissionAction", "DEFAULT_DIRECTORY", "run_directory", "previous_run"]
+
+#: Where runs go when ``commissioning.directory`` is empty (relative to the working directory).
+DEFAULT_DIRECTORY = "seaforce_commissioning"
+
+#: The share of the goal's progress the excitation takes (the analysis takes the rest).
+EXCITATION_SHARE = 0.7
+
+
+def run_directory(base: str, channel: str, now: datetime.datetime | None = None
+                  ) -> pathlib.Path:
+    """A new directory for a run of ``channel`` under ``base`` (created; a suffix when two
+    runs start in the same second)."""
+    now = now or datetime.datetime.now(datetime.timezone.utc)
+    root = pathlib.Path(base or DEFAULT_DIRECTORY).expanduser()
+    stem = f"{channel}-{now.strftime('%Y%m%dT%H%M%SZ')}"
+    for n in range(100):
+        path = root / (stem if n == 0 else f"{stem}-{n}")
+        try:
+            path.mkdir(parents=True)
+            return path
+        except FileExistsError:
+            continue
+    raise OSError(f"{root}: 100 runs of {channel} in one second?")
+
+
+def previous_run(base: str, channel: str, exclude: pathlib.Path | None = None
+                 ) -> pathlib.Path | None:
+    """The newest earlier run of ``channel`` under ``base`` that has a ``report.json``."""
+    root = pathlib.Path(base or DEFAULT_DIRECTORY).expanduser()
+    runs = sorted((p for p in root.glob(f"{channel}-*") if (p / "report.json").is_file()
+                   and p != exclude), key=lambda p: p.name)
+    return runs[-1] if runs else None
+
+
+def _checked(goal: Any, defaults: dict[str, float]) -> dict[str, Any]:
+    """The goal's numbers with the channel's defaults for zeros; InvalidJobGoalError with the
+    field's name for a bad one."""
+    values: dict[str, Any] = {}
+    for name in ("band_low", "band_high", "noise_budget", "passivity_margin"):
+        value = float(getattr(goal, name))
+        if not math.isfinite(value) or value < 0.0:
+            raise InvalidJobGoalError(f"{name} = {value!r}: must be >= 0 and finite (0: the "
+                                      f"channel's commissioning.{name})")
+        values[name] = value if value > 0.0 else defaults[name]
+    if not values["band_low"] < values["band_high"]:
+        raise InvalidJobGoalError(f"band {values['band_low']:g}..{values['band_high']:g} "
+                                  "rad/s: band_low must be below band_high")
+    if values["passivity_margin"] > 10.0:
+        raise InvalidJobGoalError(f"passivity_margin = {values['passivity_margin']:g}: at most "
+                                  "10 (1-sigmas of m, b, k)")
+    values.update(allow_guard=bool(goal.allow_guard), apply=bool(goal.apply) and not
+                  goal.dry_run, dry_run=bool(goal.dry_run))
+    return values
+
+
+@dataclass
+class _Run:
+    """One goal's run: its request, directory, follow-up and outcome."""
+    request: dict[str, Any]
+    directory: pathlib.Path
+    analysis: AnalysisProcess | None = None
+    applied: bool = False
+    result: dict[str, Any] = field(default_factory=dict)
+
+
+class CommissionAction:
+    """The ``~/commission`` action of a controller node (module docstring).
+
+    Parameters
+    ----------
+    node : ControllerNode
+        Its channels, configs, controllers, dt, logger and ``set_parameters``.
+    directory, params_file : str
+        The node's ``commissioning.directory`` and ``commissioning.params_file``.
+    """
+
+    def __init__(self, node: Any, directory: str, params_file: str) -> None:
+        self._node = node
+        self._directory = directory
+        self._params_file = params_file
+        self._runs: dict[int, _Run] = {}
+
+    def action(self) -> JobAction:
+        """The JobAction to register with the node's JobActions."""
+        return JobAction("~/commission", Commission, FreeAirExcitation.kind, self._make,
+                         self._result, self._describe,
+                         busy=lambda job: f"is being commissioned ({job.phase})",
+                         cancel_reason="canceled", finish=self._finish, follow=self._follow,
+                         feedback=self._feedback)
+
+    def _feedback(self, index: int, job: Job) -> Any:
+        """The goal's feedback while the excitation runs (its share of the progress)."""
+        fields = job.feedback(self._node.controllers[index].estimator)
+        feedback = Commission.Feedback()
+        feedback.phase = str(fields["phase"])
+        feedback.progress = EXCITATION_SHARE * float(fields["progress"])
+        frequency = float(fields["frequency"])
+        feedback.frequency = frequency if feedback.phase == "excite" else 0.0
+        feedback.amplitude = float(fields["amplitude"])
+        feedback.measuring = (
+            f"motor port response at {frequency:.3g} Hz (peak |X - x0| "
+            f"{float(fields['peak_position']):.3g} rad, |V| {float(fields['peak_speed']):.3g} "
+            "rad/s)" if feedback.phase == "excite" else
+            "pressure noise and the free-air pressure force, servo only")
+        return feedback
+
+    # --- goal -> job -------------------------------------------------------------------------
+    def _make(self, index: int, goal: Any) -> Job:
+        node = self._node
+        config = node.configs[index]
+        c = config.commissioning
+        request = _checked(goal, {"band_low": c.band_low, "band_high": c.band_high,
+                                  "noise_budget": c.noise_budget,
+                                  "passivity_margin": c.passivity_margin})
+        estimator = node.controllers[index].estimator
+        if estimator.contact:
+            raise InvalidJobGoalError("the finger is not free: the contact estimator reports "
+                                      f"a contact ({estimator.force:.3g} N m); release it into "
+                                      "free air first")
+        job = FreeAirExcitation(ExcitationGoal(goal.channel), config, node.dt)
+        try:
+            directory = run_directory(self._directory, goal.channel)
+        except OSError as exc:
+            raise InvalidJobGoalError(f"cannot create the run's directory: {exc} (set "
+                                      "commissioning.directory)") from None
+        previous = previous_run(self._directory, goal.channel, exclude=directory)
+        request.update(channel=goal.channel, config=config.to_dict(),
+                       params_file=self._params_file or str(directory / "params.yaml"),
+                       previous=str(previous / "report.json") if previous else "",
+                       started=datetime.datetime.now(datetime.timezone.utc).isoformat())
+        self._runs[index] = _Run(request, directory)
+        return job
+
+    def _describe(self, goal: Any) -> str:
+        flags = [f for f, on in (("dry run", goal.dry_run), ("applying", goal.apply and not
+                                                            goal.dry_run)) if on]
+        return "commissioning in free air" + (f" ({', '.join(flags)})" if flags else "")
+
+    # --- the job's end -> the analysis -------------------------------------------------------
+    def _follow(self, index: int, job: Job) -> AnalysisProcess:
+        run = self._runs[index]
+        assert isinstance(job, FreeAirExcitation)
+        record = job.record()
+        run.request["excitation"] = {"message": job.message, "samples": len(record),
+                                     "duration": record.duration}
+
+        def prepare() -> None:
+            save_record(record, run.directory / "record.npz")
+            (run.directory / "request.json").write_text(json.dumps(run.request, indent=1))
+
+        run.analysis = AnalysisProcess(
+            [sys.executable, "-m", "seaforce_ros.commissioning.analyse", str(run.directory)],
+            run.directory / "analysis.log", phase="identify",
+            progress_span=(EXCITATION_SHARE, 1.0), prepare=prepare)
+        return run.analysis
+
+    def _finish(self, index: int, job: Job) -> str:
+        """The result's message; sets the tuned values as parameters when asked."""
+        run = self._runs.get(index)
+        if run is None or run.analysis is None or run.analysis.outcome != "succeeded":
+            return run.analysis.message if run and run.analysis else job.message
+        run.result = run.analysis.result or {}
+        message = str(run.result.get("message", "done"))
+        if not run.request.get("apply"):
+            return message
+        values = run.result.get("apply", {})
+        channel = self._node.channels[index]
+        params = [Parameter(f"{channel}.{key}", value=float(value))
+                  for key, value in values.items()]
+        outcomes = self._node.set_parameters_atomically(params)
+        if not outcomes.successful:
+            return f"{message}; not applied: {outcomes.reason}"
+        run.applied = True
+        return f"{message}; applied"
+
+    def _result(self, index: int | None, job: Job | None, message: str) -> Any:
+        result = Commission.Result()
+        result.message = message
+        run = self._runs.pop(index, None) if index is not None else None
+        if run is None:
+            return result
+        if run.analysis is not None and run.analysis.outcome is None:
+            run.analysis.close()                    # a goal ended while the child ran
+        r = run.result
+        result.summary = str(r.get("summary", ""))
+        result.report_path = str(r.get("report_path", ""))
+        result.params_file = str(r.get("params_file", ""))
+        result.rollback_file = str(r.get("rollback_file", ""))
+        result.names = [str(n) for n in r.get("names", [])]
+        result.old_values = [float(v) for v in r.get("old_values", [])]
+        result.new_values = [float(v) for v in r.get("new_values", [])]
+        result.applied = run.applied
+        return result
+
+    def close(self) -> None:
+        """End every analysis still running (the node is going down)."""
+        for run in self._runs.values():
+            if run.analysis is not None:
+                run.analysis.close()
