@@ -18,8 +18,11 @@ mode's virtual-wall chart), :mod:`.tuning` (the DOB's lambda and nominal plant a
 gains that widen the predicted Z-width under eq. 28 with a margin, a torque-noise budget and
 the loop delay), :mod:`.report` (the report a run ends with: its data model, one directory with
 ``report.json``, the figures and a self-contained ``report.html``, and the plain-text summary),
-:mod:`.worker` (the analysis in a child process the node can cancel, with progress lines).
+:mod:`.worker` (the analysis in a child process the node can cancel, with progress lines),
+:mod:`.analyse` (one run's analysis from its record: identification, loop figures, tuning,
+prediction, report, params and rollback files; run as ``python -m
+seaforce_ros.commissioning.analyse RUN_DIR``).
 
 The package imports none of its modules: a caller loads only what it needs.
 """
-__all__ = ["errors", "record", "excitation", "experiments", "free_air", "loop_figures", "predictor", "tuning", "report", "worker"]
+__all__ = ["errors", "record", "excitation", "experiments", "free_air", "loop_figures", "predictor", "tuning", "report", "worker", "analyse"]

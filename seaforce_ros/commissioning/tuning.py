@@ -329,7 +329,9 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     if points < 2:
         raise CommissioningError(f"points = {points!r}: at least 2 frequencies")
     base = _start_config(config, plant, dahl)
-    model = base.replace(plant=plant, dahl=dahl,
+    # the starting DOB on the identified plant need not satisfy eq. 28 (a plant heavier than
+    # the model it was set for): this config only predicts; every candidate is checked
+    model = base.replace(plant=plant, dahl=dahl, allow_non_passive=True,
                          grasp=dataclasses.replace(base.grasp, contact_damping=min(
                              base.grasp.contact_damping, 10.0 * plant.hose_damping)))
     omega = np.logspace(math.log10(band[0]), math.log10(band[1]), points)

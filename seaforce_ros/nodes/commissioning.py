@@ -96,6 +96,14 @@ def _checked(goal: Any, defaults: dict[str, float]) -> dict[str, Any]:
     return values
 
 
+def _number(value: Any) -> float:
+    """A result value (JSON null: not identified) as a float, NaN for none."""
+    try:
+        return math.nan if value is None else float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
 @dataclass
 class _Run:
     """One goal's run: its request, directory, follow-up and outcome."""
@@ -200,15 +208,18 @@ class CommissionAction:
     def _finish(self, index: int, job: Job) -> str:
         """The result's message; sets the tuned values as parameters when asked."""
         run = self._runs.get(index)
-        if run is None or run.analysis is None or run.analysis.outcome != "succeeded":
-            return run.analysis.message if run and run.analysis else job.message
-        run.result = run.analysis.result or {}
+        if run is None or run.analysis is None:
+            return job.message
+        run.result = run.analysis.result or {}       # an untuned run still has its report
+        if run.analysis.outcome != "succeeded":
+            return run.analysis.message
         message = str(run.result.get("message", "done"))
         if not run.request.get("apply"):
             return message
         values = run.result.get("apply", {})
         channel = self._node.channels[index]
-        params = [Parameter(f"{channel}.{key}", value=float(value))
+        params = [Parameter(f"{channel}.{key}",
+                            value=value if isinstance(value, str) else float(value))
                   for key, value in values.items()]
         outcomes = self._node.set_parameters_atomically(params)
         if not outcomes.successful:
@@ -230,8 +241,8 @@ class CommissionAction:
         result.params_file = str(r.get("params_file", ""))
         result.rollback_file = str(r.get("rollback_file", ""))
         result.names = [str(n) for n in r.get("names", [])]
-        result.old_values = [float(v) for v in r.get("old_values", [])]
-        result.new_values = [float(v) for v in r.get("new_values", [])]
+        result.old_values = [_number(v) for v in r.get("old_values", [])]
+        result.new_values = [_number(v) for v in r.get("new_values", [])]
         result.applied = run.applied
         return result
 

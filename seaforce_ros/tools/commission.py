@@ -41,7 +41,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--noise-budget", type=positive_float,
                    help="RMS motor torque the DOB may add from sensor noise [N m]")
     p.add_argument("--passivity-margin", type=positive_float,
-                   help="relative margin the tuned DOB keeps inside eq. 28")
+                   help="1-sigmas of the identified m, b, k against which the tuned DOB must "
+                        "still satisfy eq. 28")
     p.add_argument("--allow-guard", action="store_true",
                    help="allow settings outside eq. 28 that the passivity guard carries")
     mode = p.add_mutually_exclusive_group()

@@ -169,3 +169,40 @@ def test_bad_input_is_refused(kwargs, match):
         tune(TABLE_I, SIGMA, DahlParams(), FIGURES, **kwargs)
     with pytest.raises(CommissioningError, match="plant_sigma"):
         tune(TABLE_I, {"mass": 1.0}, DahlParams(), FIGURES)
+
+
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cases())
+def test_tuning_from_settings_made_for_another_plant(case):
+    """Started from the Table I defaults (the settings a controller runs before it is
+    commissioned) on a plant 0.5x-2x Table I -- where those settings may violate eq. 28 on the
+    identified plant -- tuning returns settings passive on the worst plant (or carried by the
+    guard where allowed) that load on top of the starting ones, or names the constraint."""
+    plant, sigma, dahl, figures, budget, margin, allow_guard = case
+    start = ControllerConfig()
+    try:
+        result = tune(plant, sigma, dahl, figures, noise_budget=budget,
+                      passivity_margin=margin, allow_guard=allow_guard, config=start)
+    except InfeasibleTuningError as exc:
+        assert exc.constraint in CONSTRAINTS
+        return
+    config = result.config
+    try:
+        check_dob_passivity(worst_plant(plant, sigma, margin), config.dob)
+    except NonPassiveError:
+        assert allow_guard and config.passivity.mode == "active"
+    assert config.plant == plant
+    assert ControllerConfig.from_dict(result.values, base=start) == config
+
+
+def test_tuning_from_settings_that_violate_eq28_on_the_identified_plant():
+    """A plant 1.4x heavier than the model the channel was set for: the starting m_n is below
+    eq. 28's bound there; tuning still tunes (the start is only predicted, never chosen)."""
+    heavy = TABLE_I.scaled(motor_inertia=1.4)
+    with pytest.raises(NonPassiveError):
+        check_dob_passivity(heavy, ControllerConfig().dob)
+    result = tune(heavy, SIGMA, DahlParams(), FIGURES, noise_budget=0.01,
+                  config=ControllerConfig())
+    check_dob_passivity(worst_plant(heavy, SIGMA, 2.0), result.config.dob)
+    assert result.config.dob.nominal_inertia >= heavy.motor_inertia - \
+        heavy.motor_damping / result.config.dob.cutoff

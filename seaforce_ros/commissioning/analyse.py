@@ -1,0 +1,606 @@
+"""One commissioning run's analysis: from the record of a free-air excitation to the tuned
+parameters, the predicted Z-width, the report and the params files.
+
+Stages (each a function over explicit inputs; :func:`analyse` runs them in order and times
+them):
+
+1. :func:`identify_stage` -- the eight Table I parameters and the Dahl hysteresis with their
+   1-sigmas (:func:`~.free_air.identify_free_air`);
+2. :func:`loop_stage` -- the pressure noise, the encoder's quantum and the loop delay
+   (:func:`~.loop_figures.loop_figures`), as the predictor's :class:`~.predictor.LoopModel`.
+   The record's delay counts from a state to the first state whose ``applied`` torque is the
+   command answering it; the torque acted for one sample before it was reported, so the
+   predictor's delay (samples between a state and the sample its command acts from) is one
+   less;
+3. :func:`tune_stage` -- lambda, the nominal plant and the hold gains (:func:`~.tuning.tune`);
+4. :func:`predict_stage` -- |Z| of every mode with the tuned settings and its 1-sigma band,
+   the Z-width chart with impedance mode's virtual-wall boundary, the DOB's torque noise
+   against lambda (:mod:`.predictor`);
+5. :func:`report_stage` -- the :class:`~.report.CommissioningReport` with the drift against the
+   previous run's ``report.json``;
+6. :func:`write_stage` -- the report directory, the params file (an existing one is updated in
+   place, its comments kept) and ``rollback.yaml`` with the values the tuning replaces (none
+   of the files but the report on a dry run).
+
+A stage that cannot finish (nothing identified, no feasible tuning) ends the analysis with its
+reason; the report still shows what the earlier stages found.
+
+Run as a program (``python -m seaforce_ros.commissioning.analyse RUN_DIR``) it reads
+``RUN_DIR/request.json`` and ``RUN_DIR/record.npz`` (what the ``~/commission`` action writes)
+and speaks :mod:`.worker`'s protocol: progress lines, then ``{"result": {...}}``; it exits 0
+when the run was tuned, 1 (after the result and an ``{"error": ...}`` line) when not.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import json
+import math
+import pathlib
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
+
+import numpy as np
+
+from ..core.errors import SeaforceError
+from ..core.params import ControllerConfig, DahlParams, PlantParams
+from ..core.schema import by_key
+from ..identification.errors import IdentificationError
+from ..identification.output import write_values_file
+from .errors import CommissioningError
+from .free_air import DAHL_KEYS, PLANT_KEYS, FreeAirIdentification, identify_free_air
+from .loop_figures import LoopFigures, loop_figures
+from .predictor import (PREDICTED_MODES, ImpedanceBand, LoopModel, predict_band,
+                        torque_noise, wall_limits)
+from .record import ExcitationRecord, load_record
+from .report import (CommissioningReport, LoopFigure, ModeImpedance, NoiseSweep, ParameterRow,
+                     PortResponse, ReportMeta, Tuning, TuningRow, WallBoundary, ZWidthChart,
+                     load_report, summary_table, write_report)
+from .tuning import TUNED_KEYS, InfeasibleTuningError, TuningResult, tune
+
+__all__ = ["AnalysisRequest", "Analysis", "AnalysisError", "Prediction", "analyse", "analyse_directory", "zwidth_at", "identification_rows",
+           "identify_stage", "loop_stage", "tune_stage", "predict_stage", "report_stage",
+           "write_stage", "REQUEST_FILE", "RECORD_FILE", "ROLLBACK_FILE", "HEADLINE_OMEGA",
+           "main"]
+
+REQUEST_FILE = "request.json"
+RECORD_FILE = "record.npz"
+ROLLBACK_FILE = "rollback.yaml"
+#: Frequencies [rad/s] the summary gives the Z-width at.
+HEADLINE_OMEGA = (1.0, 3.0, 10.0)
+#: Plants drawn for the 1-sigma bands of |Z|.
+BAND_DRAWS = 24
+#: Frequencies of the |Z| figure: 0.1 rad/s to a tenth of the Nyquist frequency.
+IMPEDANCE_POINTS = 36
+#: Cut-offs of the torque-noise sweep.
+NOISE_POINTS = 14
+
+Progress = Callable[[str, float, str], None]      # (phase, fraction 0..1, measuring)
+
+
+class AnalysisError(CommissioningError):
+    """A run's files cannot be analysed (a missing or malformed request, a bad record)."""
+
+
+@dataclass(frozen=True)
+class AnalysisRequest:
+    """What the goal asked for (``request.json``).
+
+    Attributes
+    ----------
+    channel : str
+    config : ControllerConfig
+        The channel's settings when the goal started (the tuning starts from them).
+    band : (float, float)
+        Where the tuning widens the Z-width [rad/s].
+    noise_budget : float
+        Largest RMS torque noise of the tuned DOB [N m].
+    passivity_margin : float
+        1-sigmas of m, b, k against which eq. 28 must hold.
+    allow_guard, apply, dry_run : bool
+    params_file : str
+        Where the tuned parameters go.
+    previous : str
+        The previous run's ``report.json`` ('' for none): the drift.
+    started : str
+        When the goal started (ISO 8601, UTC).
+    excitation : dict
+        The excitation's end message, samples and duration [s].
+    seed : int or None
+        A simulated run's seed (the demo); None on hardware.
+    truth : dict
+        A simulated plant's true values by flat key (the demo; empty on hardware).
+    """
+
+    channel: str
+    config: ControllerConfig
+    band: Tuple[float, float] = (0.3, 10.0)
+    noise_budget: float = 0.01
+    passivity_margin: float = 2.0
+    allow_guard: bool = False
+    apply: bool = False
+    dry_run: bool = False
+    params_file: str = ""
+    previous: str = ""
+    started: str = ""
+    excitation: Dict[str, Any] = field(default_factory=dict)
+    seed: Optional[int] = None
+    truth: Dict[str, float] = field(default_factory=dict)
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> "AnalysisRequest":
+        """From ``request.json``'s object; AnalysisError naming the field that is wrong."""
+        if not isinstance(data, Mapping):
+            raise AnalysisError("request: expected a JSON object")
+        try:
+            config = ControllerConfig.from_dict(data.get("config", {}))
+        except (SeaforceError, ValueError, TypeError, AttributeError) as exc:
+            raise AnalysisError(f"request: config: {exc}") from None
+        try:
+            band = (float(data.get("band_low", 0.3)), float(data.get("band_high", 10.0)))
+            seed = data.get("seed")
+            return cls(channel=str(data["channel"]), config=config, band=band,
+                       noise_budget=float(data.get("noise_budget", 0.01)),
+                       passivity_margin=float(data.get("passivity_margin", 2.0)),
+                       allow_guard=bool(data.get("allow_guard", False)),
+                       apply=bool(data.get("apply", False)),
+                       dry_run=bool(data.get("dry_run", False)),
+                       params_file=str(data.get("params_file", "")),
+                       previous=str(data.get("previous", "")),
+                       started=str(data.get("started", "")),
+                       excitation=dict(data.get("excitation", {})),
+                       seed=None if seed is None else int(seed),
+                       truth={str(k): float(v) for k, v in dict(data.get("truth", {})).items()})
+        except KeyError as exc:
+            raise AnalysisError(f"request: {exc.args[0]} is missing") from None
+        except (TypeError, ValueError) as exc:
+            raise AnalysisError(f"request: {exc}") from None
+
+
+@dataclass
+class Analysis:
+    """What :func:`analyse` found and wrote.
+
+    Attributes
+    ----------
+    report : CommissioningReport
+    message : str
+        How it ended, in one line.
+    tuned : bool
+        The tuning succeeded (``apply`` holds the values).
+    identification : FreeAirIdentification or None
+    loop : LoopModel or None
+    tuning : TuningResult or None
+    band : ImpedanceBand or None
+        The tuned settings' |Z| per mode on the identified plant.
+    before_db : dict float -> float
+        Predicted Z-width [dB] at :data:`HEADLINE_OMEGA` with the starting settings
+        (after: ``after_db``).
+    apply : dict key -> float or str
+        The values to set (flat keys relative to ``<channel>.``); empty when not tuned.
+    old_values : dict key -> float or str
+        The channel's values of those keys when the goal started.
+    report_path, params_file, rollback_file : str
+        '' when not written.
+    """
+
+    report: CommissioningReport
+    message: str
+    tuned: bool = False
+    identification: Optional[FreeAirIdentification] = None
+    loop: Optional[LoopModel] = None
+    tuning: Optional[TuningResult] = None
+    band: Optional[ImpedanceBand] = None
+    before_db: Dict[float, float] = field(default_factory=dict)
+    after_db: Dict[float, float] = field(default_factory=dict)
+    apply: Dict[str, Any] = field(default_factory=dict)
+    old_values: Dict[str, Any] = field(default_factory=dict)
+    report_path: str = ""
+    params_file: str = ""
+    rollback_file: str = ""
+
+    def result(self) -> Dict[str, Any]:
+        """The JSON result the action's client gets (numeric keys only in the value arrays;
+        NaN where a parameter is not identified)."""
+        names = [k for k in TUNED_KEYS if not isinstance(self.old_values.get(k, 0.0), str)]
+        new = {r.name: r.value for r in self.report.identification}
+        new.update({k: v for k, v in self.apply.items() if not isinstance(v, str)})
+        return {"message": self.message, "summary": summary_table(self.report),
+                "report_path": self.report_path, "params_file": self.params_file,
+                "rollback_file": self.rollback_file, "names": names,
+                "old_values": [_json_float(self.old_values.get(k, math.nan)) for k in names],
+                "new_values": [_json_float(new.get(k, math.nan)) for k in names],
+                "apply": self.apply, "tuned": self.tuned}
+
+
+def _json_float(v: Any) -> Optional[float]:
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+# --- 1. identification ----------------------------------------------------------------------
+def identify_stage(record: ExcitationRecord, progress: Optional[Progress] = None
+                   ) -> FreeAirIdentification:
+    """The free-air identification, its progress mapped onto ``progress('identify', ...)``."""
+    def step(message: str, fraction: float) -> None:
+        if progress is not None:
+            progress("identify", fraction, message)
+    return identify_free_air(record, progress=step)
+
+
+def _plant_sigma(ident: FreeAirIdentification) -> Dict[str, float]:
+    return {k: e.sigma for k, e in ident.parameters.items()
+            if e.identified and math.isfinite(e.sigma)}
+
+
+# --- 2. sensors and loop --------------------------------------------------------------------
+def loop_stage(record: ExcitationRecord, config: ControllerConfig
+               ) -> Tuple[LoopFigures, LoopModel]:
+    """The measured figures and the predictor's loop model from them (module docstring: the
+    delay is one less than the record's)."""
+    figures = loop_figures(record, torque_limit=config.max_torque)
+    d = figures.delay
+    p50 = 1 if not math.isfinite(d.p50) else max(0, int(round(d.p50)) - 1)
+    p99 = p50 if not math.isfinite(d.p99) else max(p50, int(math.ceil(d.p99)) - 1)
+    model = LoopModel(pressure_noise=figures.pressure.std,
+                      encoder_resolution=figures.encoder.quantum,
+                      delay_p50=p50, delay_p99=p99, dt=record.dt)
+    return figures, model
+
+
+# --- 3. tuning ------------------------------------------------------------------------------
+def tune_stage(ident: FreeAirIdentification, loop: LoopModel, request: AnalysisRequest
+               ) -> TuningResult:
+    """:func:`~.tuning.tune` on the identified model from the channel's settings; raises
+    CommissioningError (naming what is not identified) or InfeasibleTuningError."""
+    return tune(ident.plant(), _plant_sigma(ident), ident.dahl(), loop, band=request.band,
+                noise_budget=request.noise_budget,
+                passivity_margin=request.passivity_margin, allow_guard=request.allow_guard,
+                config=request.config)
+
+
+# --- 4. prediction --------------------------------------------------------------------------
+@dataclass
+class Prediction:
+    """What :func:`predict_stage` predicts for one configuration."""
+    band: ImpedanceBand
+    wall: WallBoundary
+    noise: NoiseSweep
+    zwidth: ZWidthChart
+
+
+def _impedance_grid(dt: float) -> np.ndarray:
+    top = min(300.0, 0.1 * math.pi / dt)
+    return np.logspace(-1.0, math.log10(top), IMPEDANCE_POINTS)
+
+
+def zwidth_at(band: ImpedanceBand, omega: Sequence[float]) -> Dict[float, float]:
+    """The band's nominal Z-width [dB] interpolated (in log w) at ``omega`` [rad/s]."""
+    w = np.log(band.omega)
+    return {float(o): float(np.interp(math.log(o), w, band.zwidth_db)) for o in omega}
+
+
+def predict_stage(plant: PlantParams, plant_sigma: Mapping[str, float],
+                  dahl: Optional[DahlParams], config: ControllerConfig, loop: LoopModel,
+                  noise_budget: float, draws: int = BAND_DRAWS, noise_rel_sigma: float = 0.0,
+                  progress: Optional[Progress] = None) -> Prediction:
+    """|Z| per mode with its band, the Z-width chart and wall, the torque noise vs lambda
+    (``noise_rel_sigma``: the pressure noise's relative 1-sigma)."""
+    omega = _impedance_grid(loop.dt)
+    if progress is not None:
+        progress("predict", 0.0, f"|Z| of {len(PREDICTED_MODES)} modes over {draws} plants "
+                 "drawn from the 1-sigmas")
+    band = predict_band(plant, plant_sigma, dahl, config, omega, PREDICTED_MODES, draws=draws,
+                        delay=loop.delay_p50, dt=loop.dt)
+    if progress is not None:
+        progress("predict", 0.7, "virtual-wall boundary and torque noise against lambda")
+    b_phys = wall_limits(plant, dahl, config, loop, [0.0]).physical_damping
+    damping = np.linspace(0.0, 1.25 * max(b_phys, 1e-4), 26)
+    lim = wall_limits(plant, dahl, config, loop, damping)
+    wall = WallBoundary(damping, lim.passivity, np.full(damping.size, lim.quantisation),
+                        chosen_damping=config.target.damping,
+                        chosen_stiffness=config.target.stiffness)
+    zwidth = ZWidthChart(omega, band.zwidth_db, band.zwidth_lower_db, band.zwidth_upper_db,
+                         wall=wall)
+    return Prediction(band, wall, _noise_sweep(plant, dahl, config, loop, noise_budget,
+                                               noise_rel_sigma), zwidth)
+
+
+def _noise_sweep(plant: PlantParams, dahl: Optional[DahlParams], config: ControllerConfig,
+                 loop: LoopModel, budget: float, rel_sigma: float) -> NoiseSweep:
+    """RMS torque noise of ``dob_full_ff`` against lambda, the rest of the DOB as tuned (the
+    sweep is a prediction: eq. 28 is not enforced along it). Its 1-sigma is the pressure
+    share's relative 1-sigma (the quantum is exact)."""
+    top = min(2.0 * math.pi * 300.0, 0.5 * math.pi / loop.dt)
+    lam = np.logspace(math.log10(2.0 * math.pi), math.log10(top), NOISE_POINTS)
+    lam = np.unique(np.append(lam, config.dob.cutoff))
+    rms = np.full(lam.size, np.nan)
+    pressure = np.full(lam.size, np.nan)
+    for i, cutoff in enumerate(lam):
+        try:
+            trial = config.replace(dob=dataclasses.replace(config.dob, cutoff=float(cutoff)),
+                                   allow_non_passive=True)
+            p, q = torque_noise(plant, dahl, trial, loop)
+        except (CommissioningError, SeaforceError):   # a cut-off the core refuses
+            continue
+        rms[i], pressure[i] = math.hypot(p, q), p
+    return NoiseSweep(lam, rms, pressure * rel_sigma, budget, config.dob.cutoff)
+
+
+# --- 5. the report --------------------------------------------------------------------------
+def _spec(key: str) -> Tuple[str, str]:
+    spec = by_key().get(key)
+    return (spec.symbol or key.split(".")[-1], spec.unit) if spec else (key, "")
+
+
+def _ident_key(name: str) -> str:
+    return f"plant.{name}" if name in PLANT_KEYS else f"dahl.{name}"
+
+
+def _previous_rows(path: str) -> Tuple[Dict[str, float], str]:
+    """The previous run's identified values by key, and a note when it cannot be read."""
+    if not path:
+        return {}, ""
+    try:
+        previous = load_report(path)
+    except CommissioningError as exc:
+        return {}, f"drift: the previous report could not be read ({exc})"
+    return ({r.name: r.value for r in previous.identification},
+            f"drift against the commissioning of {previous.meta.date}")
+
+
+def identification_rows(ident: FreeAirIdentification, previous: Mapping[str, float],
+                        truth: Mapping[str, float]) -> List[ParameterRow]:
+    """One report row per identified (or not) parameter, Table I order then sigma, F_c."""
+    rows = []
+    for name in PLANT_KEYS + DAHL_KEYS:
+        key = _ident_key(name)
+        e = ident.parameters[name]
+        symbol, unit = _spec(key)
+        rows.append(ParameterRow(key, symbol, unit, e.value, e.sigma,
+                                 "identified" if e.identified else
+                                 f"not identified ({e.reason})",
+                                 previous=previous.get(key, math.nan),
+                                 true=truth.get(key, math.nan)))
+    return rows
+
+
+def _responses(ident: FreeAirIdentification) -> List[PortResponse]:
+    out = []
+    for r, unit in ((ident.motor, "rad/(N m)"), (ident.port, "N m/rad")):
+        out.append(PortResponse(r.name, unit, r.omega, r.h, r.sigma, r.coherence, r.model))
+    return out
+
+
+def _loop_rows(figures: LoopFigures, loop: LoopModel) -> List[LoopFigure]:
+    p, e, d = figures.pressure, figures.encoder, figures.delay
+    nan = math.nan
+    return [LoopFigure("pressure noise", p.std, p.std_1s, "N m"),
+            LoopFigure("motor encoder quantum", e.quantum, nan, "rad"),
+            LoopFigure("loop delay p50 (state to command acting)", float(loop.delay_p50), nan,
+                       "samples"),
+            LoopFigure("loop delay p99 (state to command acting)", float(loop.delay_p99), nan,
+                       "samples"),
+            LoopFigure("missed commands", float(d.missed), nan, "commands"),
+            LoopFigure("missed fraction (95 % upper bound)", d.missed_upper, nan, "-")]
+
+
+def _tuning_rows(tuning: TuningResult, old: Mapping[str, Any]) -> Tuning:
+    rows = []
+    for key, new in tuning.values.items():
+        if isinstance(new, str) or isinstance(old.get(key), str):
+            continue
+        rows.append(TuningRow(key, float(old.get(key, math.nan)), float(new), _spec(key)[1],
+                              tuning.bindings.get(key, "")))
+    binding = tuning.bindings.get("dob.cutoff", "")
+    if tuning.guard:
+        binding += f"; passivity guard: {tuning.guard}"
+    return Tuning(rows, binding)
+
+
+def _mode_rows(band: ImpedanceBand) -> List[ModeImpedance]:
+    return [ModeImpedance(m, band.omega, band.nominal[m], band.lower[m], band.upper[m])
+            for m in PREDICTED_MODES if m in band.nominal]
+
+
+def report_stage(request: AnalysisRequest, phases: Mapping[str, float], *,
+                 ident: Optional[FreeAirIdentification] = None,
+                 loop: Optional[Tuple[LoopFigures, LoopModel]] = None,
+                 tuning: Optional[TuningResult] = None,
+                 prediction: Optional[Prediction] = None,
+                 summary: Sequence[str] = ()) -> CommissioningReport:
+    """The report of what the stages reached (None: not reached)."""
+    previous, note = _previous_rows(request.previous)
+    meta = ReportMeta(request.channel, request.started or _now(), dict(phases),
+                      applied=request.apply and not request.dry_run and tuning is not None,
+                      seed=request.seed)
+    data = CommissioningReport(meta, summary=list(summary) + ([note] if note else []))
+    if ident is not None:
+        data.identification = identification_rows(ident, previous, request.truth)
+        data.responses = _responses(ident)
+    if loop is not None:
+        data.loop = _loop_rows(*loop)
+    if tuning is not None:
+        data.tuning = _tuning_rows(tuning, request.config.to_dict())
+    if prediction is not None:
+        data.impedance = _mode_rows(prediction.band)
+        data.zwidth = prediction.zwidth
+        data.noise = prediction.noise
+    return data
+
+
+def _now() -> str:
+    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+
+
+# --- 6. files -------------------------------------------------------------------------------
+def write_stage(directory: pathlib.Path, analysis: Analysis, request: AnalysisRequest) -> None:
+    """Write the report, and unless a dry run (or untuned) the params and rollback files;
+    fills the paths in ``analysis``. A file that cannot be written adds its reason to the
+    message (what was written stays)."""
+    try:
+        analysis.report_path = str(write_report(directory, analysis.report))
+    except CommissioningError as exc:
+        analysis.message += f"; the report was not written: {exc}"
+    if request.dry_run or not analysis.tuned:
+        return
+    channel = request.channel
+    stamp = f"commissioning of {channel}, run {directory.name}"
+    try:
+        analysis.params_file = str(write_values_file(
+            request.params_file or directory / "params.yaml",
+            {f"{channel}.{k}": v for k, v in analysis.apply.items()},
+            comments=[stamp, "tuned: " + ", ".join(analysis.apply)],
+            option="commissioning.params_file"))
+        analysis.rollback_file = str(write_values_file(
+            directory / ROLLBACK_FILE,
+            {f"{channel}.{k}": v for k, v in analysis.old_values.items()},
+            comments=[f"the values {stamp} replaced: load it to roll back"], merge=False))
+    except IdentificationError as exc:
+        analysis.message += f"; params files not written: {exc}"
+
+
+# --- the whole run --------------------------------------------------------------------------
+def _summary(analysis: Analysis, request: AnalysisRequest) -> List[str]:
+    lines = []
+    ident = analysis.identification
+    if ident is not None:
+        missing = ident.not_identified()
+        lines.append(f"identified {len(ident.parameters) - len(missing)} of "
+                     f"{len(ident.parameters)} parameters (misfit motor "
+                     f"{100 * ident.misfit.get('motor', math.nan):.2g} %, port "
+                     f"{100 * ident.misfit.get('port', math.nan):.2g} %)")
+    if analysis.loop is not None:
+        loop = analysis.loop
+        lines.append(f"loop delay {loop.delay_p50} samples (p99 {loop.delay_p99}); pressure "
+                     f"noise {loop.pressure_noise:.3g} N m; encoder {loop.encoder_resolution:.3g}"
+                     " rad")
+    if analysis.before_db and analysis.after_db:
+        lines.append("predicted Z-width at " + ", ".join(f"{w:g}" for w in HEADLINE_OMEGA)
+                     + " rad/s: before " + " / ".join(
+                         f"{analysis.before_db[w]:.1f}" for w in HEADLINE_OMEGA)
+                     + " dB, after " + " / ".join(
+                         f"{analysis.after_db[w]:.1f}" for w in HEADLINE_OMEGA) + " dB")
+    t = analysis.tuning
+    if t is not None:
+        lines.append(f"tuned DOB torque noise {1e3 * t.torque_noise:.3g} mN m rms (budget "
+                     f"{1e3 * request.noise_budget:.3g}); hold stable up to "
+                     f"{t.hold_delay_limit} samples of delay")
+    return lines
+
+
+def analyse(record: ExcitationRecord, request: AnalysisRequest,
+            directory: Optional[pathlib.Path] = None,
+            progress: Optional[Progress] = None) -> Analysis:
+    """Run the stages (module docstring) and, given a ``directory``, write the files."""
+    phases: Dict[str, float] = {}
+    if request.excitation.get("duration"):
+        phases["excitation"] = float(request.excitation["duration"])
+    clock = time.monotonic()
+
+    def lap(name: str) -> None:
+        nonlocal clock
+        now = time.monotonic()
+        phases[name] = now - clock
+        clock = now
+
+    def say(phase: str, fraction: float, what: str) -> None:
+        if progress is not None:
+            span = {"identify": (0.0, 0.55), "loop": (0.55, 0.6), "tune": (0.6, 0.75),
+                    "predict": (0.75, 0.95), "report": (0.95, 1.0)}[phase]
+            progress(phase, span[0] + (span[1] - span[0]) * min(1.0, max(0.0, fraction)),
+                     what)
+
+    analysis = Analysis(CommissioningReport(ReportMeta(request.channel, _now(), {}, False)),
+                        "")
+    old = request.config.to_dict()
+    ident = figures = tuning = prediction = None
+    try:
+        say("identify", 0.0, "the motor plant and the port from the record")
+        ident = analysis.identification = identify_stage(record, say)
+        lap("identify")
+        say("loop", 0.0, "pressure noise, encoder quantum, loop delay")
+        figures, analysis.loop = loop_stage(record, request.config)
+        lap("loop")
+        say("tune", 0.0, "lambda, the nominal plant and the hold gains")
+        tuning = analysis.tuning = tune_stage(ident, analysis.loop, request)
+        lap("tune")
+        prediction = predict_stage(ident.plant(), _plant_sigma(ident), ident.dahl(),
+                                   tuning.config, analysis.loop, request.noise_budget,
+                                   noise_rel_sigma=figures.pressure.std_1s
+                                   / max(figures.pressure.std, 1e-300), progress=say)
+        lap("predict")
+        analysis.band = prediction.band
+        analysis.before_db = {w: float(np.interp(math.log(w), np.log(tuning.omega),
+                                                 tuning.zwidth_before_db))
+                              for w in HEADLINE_OMEGA}
+        analysis.after_db = zwidth_at(prediction.band, HEADLINE_OMEGA)
+        analysis.apply = dict(tuning.values)
+        analysis.old_values = {k: old[k] for k in tuning.values if k in old}
+        analysis.tuned = True
+        analysis.message = (f"tuned: {tuning.bindings.get('dob.cutoff', '')}; predicted "
+                            f"Z-width at 1 rad/s {analysis.after_db[1.0]:.1f} dB (was "
+                            f"{analysis.before_db[1.0]:.1f})")
+    except InfeasibleTuningError as exc:
+        analysis.message = f"not tuned ({exc.constraint}): {exc}"
+    except CommissioningError as exc:
+        analysis.message = f"not tuned: {exc}"
+    say("report", 0.0, "report, params and rollback files")
+    loop_pair = None if figures is None or analysis.loop is None else (figures, analysis.loop)
+    analysis.report = report_stage(request, phases, ident=ident, loop=loop_pair,
+                                   tuning=tuning, prediction=prediction,
+                                   summary=_summary(analysis, request))
+    if directory is not None:
+        write_stage(directory, analysis, request)
+    lap("report")
+    return analysis
+
+
+def analyse_directory(directory: pathlib.Path, progress: Optional[Progress] = None
+                      ) -> Analysis:
+    """:func:`analyse` on a run directory's ``request.json`` and ``record.npz``."""
+    directory = pathlib.Path(directory)
+    try:
+        data = json.loads((directory / REQUEST_FILE).read_text())
+    except OSError as exc:
+        raise AnalysisError(f"{directory / REQUEST_FILE}: {exc.strerror}") from None
+    except ValueError as exc:
+        raise AnalysisError(f"{directory / REQUEST_FILE}: not JSON ({exc})") from None
+    request = AnalysisRequest.from_json(data)
+    record = load_record(directory / RECORD_FILE)
+    return analyse(record, request, directory, progress)
+
+
+def _emit(obj: Mapping[str, Any]) -> None:
+    sys.stdout.write(json.dumps(obj) + "\n")
+    sys.stdout.flush()
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """The child's entry point (:mod:`.worker`'s protocol)."""
+    parser = argparse.ArgumentParser(
+        prog="python -m seaforce_ros.commissioning.analyse",
+        description="Analyse one commissioning run directory (request.json, record.npz).")
+    parser.add_argument("directory", type=pathlib.Path)
+    args = parser.parse_args(argv)
+
+    def progress(phase: str, fraction: float, measuring: str) -> None:
+        _emit({"phase": phase, "progress": fraction, "measuring": measuring})
+
+    try:
+        analysis = analyse_directory(args.directory, progress)
+    except CommissioningError as exc:
+        _emit({"error": str(exc)})
+        return 1
+    _emit({"result": analysis.result()})
+    if not analysis.tuned:
+        _emit({"error": analysis.message})
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,186 @@
+"""Commissioning over ROS: controller_node's ``~/commission`` action on the simulated gripper
+whose true pinch plant is drawn at random (0.7x..1.4x Table I, lockstep, the controller keeps
+Table I).
+
+One stack, in order: goals refused with the reason (unknown channel, a latched fault, a band
+upside down, NaN, a finger that is not free, a second goal while one runs); a cancel
+mid-excitation (CANCELED, zero torque on that channel from the next command on, nothing
+written or applied); a dry run (a report, no params file, the parameters unchanged); a run
+that applies (the channel's parameters become the result's new values, the identified plant
+within 5 % of the sim's truth, the torque continuous across the change, the drift against the
+dry run reported); the rollback file restores every value it replaced.
+"""
+import json
+import math
+import os
+import pathlib
+
+import numpy as np
+import yaml
+from action_msgs.msg import GoalStatus
+from seaforce_msgs.action import Commission
+from seaforce_msgs.msg import ActuatorCommand, ActuatorState, ControllerStatus
+
+from helpers.actions import ActionTestClient
+from helpers.nodes import start_node
+from helpers.states import value
+from seaforce_ros.core import PlantParams
+
+PLANT_KEYS = tuple(f'plant.{k}' for k in ('motor_inertia', 'motor_damping', 'motor_stiffness',
+                                           'endpoint_inertia', 'endpoint_damping',
+                                           'endpoint_stiffness', 'hose_damping',
+                                           'hose_stiffness'))
+#: A short excitation (1..400 Hz over 12 s: the band the free-air fit needs, at the sweep
+#: rate its contact test assumes).
+EXCITATION = {'pinch.commissioning.duration': 12.0, 'pinch.commissioning.start_frequency': 1.0,
+              'pinch.commissioning.end_frequency': 400.0}
+
+
+class CommissionClient(ActionTestClient):
+    """``~/commission`` goals (default: ``pinch``, the channel's band and budgets)."""
+
+    def __init__(self, probe):
+        super().__init__(probe, Commission, '/controller/commission')
+
+    def goal(self, channel='pinch', band=(0.0, 0.0), noise_budget=0.0, passivity_margin=0.0,
+             apply=False, dry_run=False):
+        return Commission.Goal(channel=channel, band_low=float(band[0]),
+                               band_high=float(band[1]), noise_budget=float(noise_budget),
+                               passivity_margin=float(passivity_margin), apply=apply,
+                               dry_run=dry_run)
+
+
+def _efforts_after(probe, cycle, index):
+    return [(m.cycle, m.effort[index]) for m in probe.messages('actuator_command')
+            if m.cycle > cycle]
+
+
+def test_commission_over_ros(processes, tmp_path, probe):
+    seed = int(os.environ.get('SEAFORCE_COMMISSION_SEED',
+                              int.from_bytes(os.urandom(4), 'little')))
+    rng = np.random.default_rng(seed)
+    table = PlantParams.table_i()
+    truth = {k: float(getattr(table, k.split('.')[1]) * math.exp(rng.uniform(
+        math.log(0.7), math.log(1.4)))) for k in PLANT_KEYS}
+    where = f'seed {seed} (SEAFORCE_COMMISSION_SEED), truth {truth}'
+    runs = tmp_path / 'runs'
+    probe.record(ActuatorState, 'actuator_state')
+    probe.record(ActuatorCommand, 'actuator_command')
+    probe.record(ControllerStatus, 'controller_status')
+    start_node(processes, 'sim_node', 'sim', tmp_path, {
+        'clock_mode': 'lockstep', **{f'pinch.sim.{k}': v for k, v in truth.items()}})
+    probe.wait_messages('actuator_state', 1, timeout=60, where=lambda m: m.cycle == 0)
+    start_node(processes, 'controller_node', 'controller', tmp_path, {
+        'state_timeout': 5.0, 'commissioning.directory': str(runs), **EXCITATION,
+        'pinch.mode': 'passive', 'wrist.mode': 'force', 'wrist.target.force': 2.0,
+        'wrist.max_torque': 1.0})
+    probe.wait_messages('controller_status', 5, timeout=60)
+    client = CommissionClient(probe)
+    pinch = 0
+
+    # --- refusals, with the reason --------------------------------------------------------
+    assert 'unknown channel' in client.rejected(channel='thumb')
+    assert 'band_low must be below band_high' in client.rejected(band=(10.0, 1.0))
+    assert 'noise_budget = nan' in client.rejected(noise_budget=math.nan)
+    probe.wait_messages('controller_status', 1, timeout=60,
+                        where=lambda m: 'torque' in value(m, 'wrist', 'fault'))
+    assert 'wrist is faulted' in client.rejected(channel='wrist')
+    ok, reason = probe.set_parameters('/sim', {'pinch.environment.amplitude': 0.3,
+                                               'pinch.environment.frequency': 0.05,
+                                               'pinch.environment.mode': 'torque_sine'})
+    assert ok, reason
+    probe.wait_messages('controller_status', 1, timeout=60,
+                        where=lambda m: value(m, 'pinch', 'contact'))
+    assert 'the finger is not free' in client.rejected()
+    ok, reason = probe.set_parameters('/sim', {'pinch.environment.mode': 'free'})
+    assert ok, reason
+    probe.clear('controller_status')
+
+    def settled():      # free for the last 1 s of statuses (100 Hz)
+        recent = probe.messages('controller_status')[-100:]
+        return len(recent) == 100 and not any(value(m, 'pinch', 'contact') for m in recent)
+    probe.wait_for(settled, timeout=60, what='the finger free again')
+    before = probe.get_parameters('/controller', [f'pinch.{k}' for k in PLANT_KEYS])
+
+    # --- a cancel mid-excitation: zero torque from then on (the channel's mode is passive),
+    # nothing written or applied
+    handle, feedback = client.send()
+    try:
+        probe.wait_for(lambda: feedback and feedback[-1].phase == 'excite'
+                       and feedback[-1].progress > 0.1, timeout=60, what='the excitation')
+    except AssertionError:
+        answer = client.result(handle, timeout=5.0)
+        raise AssertionError(f'no excitation: {answer.status} {answer.result.message}; '
+                             f'feedback {feedback[-3:]}') from None
+    assert 'is being commissioned' in client.rejected()
+    assert all(0.0 <= f.progress <= 0.7 for f in feedback)
+    assert any(abs(e) > 1e-3 for _, e in _efforts_after(probe, 0, pinch)), 'no excitation'
+    answer = client.cancel(handle)
+    assert answer.status == GoalStatus.STATUS_CANCELED, answer.result.message
+    ended = probe.messages('actuator_state')[-1].cycle
+    probe.wait_messages('actuator_command', 200, timeout=60, where=lambda m: m.cycle > ended)
+    after = _efforts_after(probe, ended, pinch)
+    assert after and all(e == 0.0 for _, e in after), after[:5]
+    assert answer.result.params_file == '' and not answer.result.applied
+    assert probe.get_parameters('/controller', [f'pinch.{k}' for k in PLANT_KEYS]) == before
+    assert not list(runs.glob('*/params.yaml'))
+
+    # --- a dry run: a report, no params file, nothing changed -----------------------------
+    ok, reason = probe.set_parameters('/controller', {'pinch.mode': 'dob'})
+    assert ok, reason
+    handle, feedback = client.send(dry_run=True)
+    answer = client.result(handle, timeout=300.0)
+    dry = answer.result
+    assert answer.status == GoalStatus.STATUS_SUCCEEDED, f'{dry.message} ({where})'
+    assert dry.params_file == '' and dry.rollback_file == '' and not dry.applied
+    assert pathlib.Path(dry.report_path).is_file()
+    run_dir = pathlib.Path(dry.report_path).parent
+    assert (run_dir / 'report.json').is_file() and not (run_dir / 'params.yaml').exists()
+    assert probe.get_parameters('/controller', [f'pinch.{k}' for k in PLANT_KEYS]) == before
+    assert 'dry run' in dry.summary and 'identified 10 of 10' in dry.summary, dry.summary
+    phases = [f.phase for f in feedback]
+    assert 'excite' in phases and 'identify' in phases, set(phases)
+    assert all(0.0 <= f.progress <= 1.0 for f in feedback)
+    assert all(b.progress >= a.progress - 1e-9 for a, b in zip(feedback, feedback[1:]))
+    for key, new in zip(dry.names, dry.new_values):
+        if key in truth:
+            assert abs(new / truth[key] - 1.0) < 0.05, f'{key}: {new} vs {truth[key]} ({where})'
+
+    # --- a run that applies: the parameters set, bumplessly; drift against the dry run ----
+    handle, feedback = client.send(apply=True)
+    answer = client.result(handle, timeout=300.0)
+    result = answer.result
+    assert answer.status == GoalStatus.STATUS_SUCCEEDED, f'{result.message} ({where})'
+    assert result.applied and pathlib.Path(result.params_file).is_file()
+    assert 'drift against the commissioning of' in result.summary, result.summary
+    names = list(result.names)
+    params = probe.get_parameters('/controller', [f'pinch.{k}' for k in names])
+    for key, new in zip(names, result.new_values):
+        assert params[f'pinch.{key}'] == new, key
+    done = probe.messages('actuator_state')[-1].cycle
+    probe.wait_messages('actuator_command', 400, timeout=60, where=lambda m: m.cycle > done)
+    efforts = np.array([e for _, e in _efforts_after(probe, done - 400, pinch)])
+    assert np.all(np.isfinite(efforts)) and np.max(np.abs(efforts)) < 0.2, efforts
+    assert np.max(np.abs(np.diff(efforts))) < 0.02, 'a torque step at the apply'
+    written = yaml.safe_load(pathlib.Path(result.params_file).read_text())
+    tuned = written['/**']['ros__parameters']['pinch']
+    assert tuned['dob']['cutoff'] == params['pinch.dob.cutoff']
+
+    # --- the rollback file restores what it replaced --------------------------------------
+    rollback = yaml.safe_load(pathlib.Path(result.rollback_file).read_text())
+    flat = {}
+
+    def flatten(prefix, node):
+        for k, v in node.items():
+            if isinstance(v, dict):
+                flatten(f'{prefix}{k}.', v)
+            else:
+                flat[f'{prefix}{k}'] = v
+    flatten('', rollback['/**']['ros__parameters'])
+    old = dict(zip((f'pinch.{k}' for k in names), result.old_values))
+    assert {k: v for k, v in flat.items() if k in old} == old
+    ok, reason = probe.set_parameters('/controller', flat)
+    assert ok, reason
+    assert probe.get_parameters('/controller', list(old)) == old
+    report = json.loads((pathlib.Path(result.report_path).parent / 'report.json').read_text())
+    assert report['meta']['applied'] is True
