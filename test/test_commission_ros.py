@@ -5,7 +5,8 @@ Table I).
 One stack, in order: goals refused with the reason (unknown channel, a latched fault, a band
 upside down, NaN, a finger that is not free, a second goal while one runs); a cancel
 mid-excitation (CANCELED, zero torque on that channel from the next command on, nothing
-written or applied); a dry run (a report, no params file, the parameters unchanged); a run
+written or applied); a dry run with the ``commission`` tool (a report, no params file, the
+parameters unchanged, the identified plant within 5 % of the truth); a run
 that applies (the channel's parameters become the result's new values, the identified plant
 within 5 % of the sim's truth, the torque continuous across the change, the drift against the
 dry run reported); the rollback file restores every value it replaced.
@@ -14,6 +15,7 @@ import json
 import math
 import os
 import pathlib
+import re
 
 import numpy as np
 import yaml
@@ -23,6 +25,7 @@ from seaforce_msgs.msg import ActuatorCommand, ActuatorState, ControllerStatus
 
 from helpers.actions import ActionTestClient
 from helpers.nodes import start_node
+from helpers.processes import executable
 from helpers.states import value
 from seaforce_ros.core import PlantParams
 
@@ -125,26 +128,30 @@ def test_commission_over_ros(processes, tmp_path, probe):
     assert probe.get_parameters('/controller', [f'pinch.{k}' for k in PLANT_KEYS]) == before
     assert not list(runs.glob('*/params.yaml'))
 
-    # --- a dry run: a report, no params file, nothing changed -----------------------------
+    # --- a dry run with the command-line tool, as a user types it: a report, no params
+    # file, nothing changed; the identified plant within 5 % of the sim's truth
     ok, reason = probe.set_parameters('/controller', {'pinch.mode': 'dob'})
     assert ok, reason
-    handle, feedback = client.send(dry_run=True)
-    answer = client.result(handle, timeout=300.0)
-    dry = answer.result
-    assert answer.status == GoalStatus.STATUS_SUCCEEDED, f'{dry.message} ({where})'
-    assert dry.params_file == '' and dry.rollback_file == '' and not dry.applied
-    assert pathlib.Path(dry.report_path).is_file()
-    run_dir = pathlib.Path(dry.report_path).parent
-    assert (run_dir / 'report.json').is_file() and not (run_dir / 'params.yaml').exists()
+    probe.clear('controller_status')
+    probe.wait_for(settled, timeout=60, what='the finger free in dob')
+    cli = processes.start([str(executable('commission')), '--channel', 'pinch', '--dry-run'],
+                          name='commission')
+    assert cli.wait(timeout=300) == 0, cli.output()
+    text = cli.output()
+    assert 'dry run (nothing applied)' in text and 'identified 10 of 10' in text, text
+    assert 'params file:' not in text and 'rollback file:' not in text, text
+    for phase in ('excite', 'identify', 'predict'):
+        assert f'[commission] {phase}' in text, text
+    report = pathlib.Path(re.search(r'^report: (\S+)$', text, re.M).group(1))
+    run_dir = report.parent
+    assert report.is_file() and (run_dir / 'report.json').is_file()
+    assert not (run_dir / 'params.yaml').exists() and not (run_dir / 'rollback.yaml').exists()
     assert probe.get_parameters('/controller', [f'pinch.{k}' for k in PLANT_KEYS]) == before
-    assert 'dry run' in dry.summary and 'identified 10 of 10' in dry.summary, dry.summary
-    phases = [f.phase for f in feedback]
-    assert 'excite' in phases and 'identify' in phases, set(phases)
-    assert all(0.0 <= f.progress <= 1.0 for f in feedback)
-    assert all(b.progress >= a.progress - 1e-9 for a, b in zip(feedback, feedback[1:]))
-    for key, new in zip(dry.names, dry.new_values):
-        if key in truth:
-            assert abs(new / truth[key] - 1.0) < 0.05, f'{key}: {new} vs {truth[key]} ({where})'
+    for key in PLANT_KEYS:
+        row = re.search(rf'^{re.escape(key)}\s+\S+\s+(\S+) ', text, re.M)
+        assert row, f'{key} not in the summary:\n{text}'
+        new = float(row.group(1))
+        assert abs(new / truth[key] - 1.0) < 0.05, f'{key}: {new} vs {truth[key]} ({where})'
 
     # --- a run that applies: the parameters set, bumplessly; drift against the dry run ----
     handle, feedback = client.send(apply=True)
@@ -153,6 +160,13 @@ def test_commission_over_ros(processes, tmp_path, probe):
     assert answer.status == GoalStatus.STATUS_SUCCEEDED, f'{result.message} ({where})'
     assert result.applied and pathlib.Path(result.params_file).is_file()
     assert 'drift against the commissioning of' in result.summary, result.summary
+    phases = [f.phase for f in feedback]
+    assert {'rest', 'excite', 'identify', 'report'} <= set(phases), set(phases)
+    assert all(0.0 <= f.progress <= 1.0 for f in feedback)
+    assert all(b.progress >= a.progress - 1e-9 for a, b in zip(feedback, feedback[1:]))
+    for key, new in zip(result.names, result.new_values):
+        if key in truth:
+            assert abs(new / truth[key] - 1.0) < 0.05, f'{key}: {new} vs {truth[key]} ({where})'
     names = list(result.names)
     params = probe.get_parameters('/controller', [f'pinch.{k}' for k in names])
     for key, new in zip(names, result.new_values):

@@ -137,7 +137,7 @@ def run(args) -> int:
         def on_feedback(msg) -> None:
             f = msg.feedback
             what = f.measuring
-            if math.isfinite(f.frequency):
+            if f.phase == "excite":
                 what += f" {f.frequency:.2f} Hz, {f.amplitude:.3g} N m"
             bar.show(f.phase, f.progress, what)
 
