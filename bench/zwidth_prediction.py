@@ -22,6 +22,7 @@ Run (from the repository root, environment sourced)::
 """
 
 import math
+import pathlib
 import sys
 import time
 
@@ -30,9 +31,12 @@ import numpy as np
 from seaforce_ros.commissioning.predictor import (PLANT_FIELDS, PREDICTED_MODES, LoopModel,
                                                   hold_delay_limit, predict_modes)
 from seaforce_ros.commissioning.tuning import InfeasibleTuningError, tune
-from seaforce_ros.core import ChannelController, ChannelSimulator, ControllerConfig
+from seaforce_ros.core import ControllerConfig
 from seaforce_ros.core.params import DahlParams, GraspParams, PlantParams, TargetParams
 from seaforce_ros.identification.zwidth_lib import simulate_impedance
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "test"))
+from helpers.delayed_hold import hold_grows  # noqa: E402
 
 DT = 5e-4
 OMEGAS = (1.0, 3.0, 10.0)
@@ -58,38 +62,6 @@ def random_case(rng):
     grasp = GraspParams(contact_damping=min(0.08, 10.0 * model.hose_damping))
     return true, dahl, ControllerConfig(plant=model, dahl=model_dahl, target=target,
                                         grasp=grasp)
-
-
-class DelayedController:
-    """A controller whose commands wait ``extra`` more samples (on top of the simulator's
-    own one-sample delay)."""
-
-    def __init__(self, controller, extra):
-        self.controller = controller
-        self.queue = [0.0] * extra
-
-    def update(self, x, v, f_p):
-        self.queue.append(self.controller.update(x, v, f_p))
-        return self.queue.pop(0)
-
-
-def hold_grows(plant, dahl, config, delay, seconds=1.5):
-    """The simulated hold with a loop delay of ``delay`` >= 1 samples, endpoint free, from a
-    0.01 rad offset: True when the late command envelope exceeds the early one."""
-    sim = ChannelSimulator(plant, dahl, dt=DT, seed=3)
-    sim.reset(state=(0.01, 0.0, 0.01, 0.0))
-    ctl = DelayedController(ChannelController(config.replace(mode="hold"), DT), delay - 1)
-    n = int(seconds / DT)
-    m = sim.measurement()
-    u = np.empty(n)
-    for i in range(n):
-        u[i] = ctl.update(m.x, m.v, m.f_p)
-        if not abs(u[i]) < 1e3:
-            return True
-        m = sim.step(u[i])
-    early = np.max(np.abs(u[n // 10: 3 * n // 10]))
-    late = np.max(np.abs(u[4 * n // 5:]))
-    return bool(late > early)
 
 
 def simulated_delay_limit(plant, dahl, config, max_delay=40):

@@ -12,6 +12,7 @@ import math
 import numpy as np
 import pytest
 
+from helpers.delayed_hold import hold_grows
 from seaforce_ros.commissioning.errors import CommissioningError
 from seaforce_ros.commissioning.predictor import (
     PLANT_FIELDS, PREDICTED_MODES, LoopModel, PredictionError, closed_loop_radius,
@@ -212,32 +213,6 @@ def test_prediction_within_3_db_of_the_simulated_backdrive(seed):
         assert np.all(np.abs(err) <= 3.0), (mode, err)
 
 
-class _Delayed:
-    """The core controller with ``extra`` samples of command delay in front of the
-    simulator's own one."""
-
-    def __init__(self, controller, extra):
-        self.controller, self.queue = controller, [0.0] * extra
-
-    def update(self, x, v, f_p):
-        self.queue.append(self.controller.update(x, v, f_p))
-        return self.queue.pop(0)
-
-
-def _simulated_hold_grows(true, dahl, config, delay, n=3000):
-    sim = ChannelSimulator(true, dahl, dt=DT, seed=5)
-    sim.reset(state=(0.01, 0.0, 0.01, 0.0))
-    ctl = _Delayed(ChannelController(config.replace(mode="hold"), DT), delay - 1)
-    m = sim.measurement()
-    u = np.zeros(n)
-    for i in range(n):
-        u[i] = ctl.update(m.x, m.v, m.f_p)
-        if not abs(u[i]) < 1e3:
-            return True
-        m = sim.step(u[i])
-    return np.max(np.abs(u[-n // 5:])) > np.max(np.abs(u[n // 10: 3 * n // 10]))
-
-
 @pytest.mark.parametrize("seed", [21, 22, 23])
 def test_hold_delay_limit_within_one_sample_of_the_simulated(seed):
     """The first delay at which the simulated hold grows (endpoint free, from an offset) is
@@ -246,7 +221,7 @@ def test_hold_delay_limit_within_one_sample_of_the_simulated(seed):
     kp, kd = config.hold.stiffness, config.hold.damping
     predicted = hold_delay_limit(true, kp, kd)
     first_unstable = next(d for d in range(1, 40)
-                          if _simulated_hold_grows(true, dahl, config, d))
+                          if hold_grows(true, dahl, config, d, seconds=1.5, seed=5))
     assert abs((first_unstable - 1) - predicted) <= 1
     verdict = hold_verdict(true, kp, kd, delay=1)
     assert verdict.delay_limit_free == predicted
