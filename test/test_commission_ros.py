@@ -154,6 +154,8 @@ def test_commission_over_ros(processes, tmp_path, probe):
         assert abs(new / truth[key] - 1.0) < 0.05, f'{key}: {new} vs {truth[key]} ({where})'
 
     # --- a run that applies: the parameters set, bumplessly; drift against the dry run ----
+    probe.clear('controller_status')     # the finger settles from the excitation's fade-out
+    probe.wait_for(settled, timeout=60, what='the finger free after the dry run')
     handle, feedback = client.send(apply=True)
     answer = client.result(handle, timeout=300.0)
     result = answer.result

@@ -261,7 +261,7 @@ class GraspParams(ParameterGroup):
                                   "max_effort is 0 (or whose effort is empty)", gt=0.0, le=100.0)
     gripper_tolerance: float = param(0.01, "rad", "|X_e - position| within which a gripper "
                                      "command has reached its goal", gt=0.0, le=1.0)
-    gripper_namespace: str = param("", "", "namespace of the channel's control_msgs gripper "
+    gripper_namespace: str = param("", "ROS name", "namespace of the channel's control_msgs gripper "
                                    "actions <ns>/gripper_cmd and <ns>/parallel_gripper_cmd "
                                    "(empty: <channel>_gripper); read at start",
                                    read_only=True)
