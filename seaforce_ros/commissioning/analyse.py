@@ -61,7 +61,8 @@ from .report import (CommissioningReport, LoopFigure, ModeImpedance, NoiseSweep,
                      load_report, summary_table, write_report)
 from .tuning import TUNED_KEYS, InfeasibleTuningError, TuningResult, tune
 
-__all__ = ["AnalysisRequest", "Analysis", "AnalysisError", "Prediction", "analyse", "analyse_directory", "zwidth_at", "identification_rows",
+__all__ = ["AnalysisRequest", "Analysis", "AnalysisError", "Prediction", "analyse",
+           "analyse_directory", "zwidth_at", "identification_rows",
            "identify_stage", "loop_stage", "tune_stage", "predict_stage", "report_stage",
            "write_stage", "REQUEST_FILE", "RECORD_FILE", "ROLLBACK_FILE", "HEADLINE_OMEGA",
            "main"]

@@ -23,7 +23,8 @@ from .schema import ParameterGroup, Spec, group, param
 __all__ = [
     "MODES", "DOB_MODES", "PlantParams", "DahlParams", "DobParams", "TargetParams",
     "HoldParams", "ForceFeedbackParams", "ChirpParams", "FeedforwardParams", "EstimatorParams",
-    "GraspParams", "FrictionParams", "CommissioningParams", "GUARD_MODES", "GuardParams", "guard_carries",
+    "GraspParams", "FrictionParams", "CommissioningParams", "GUARD_MODES", "GuardParams",
+    "guard_carries",
     "check_dob_passivity", "ControllerConfig", "PARAMETERS", "DEFAULT_CUTOFF",
     "DEFAULT_HOLD_STIFFNESS", "DEFAULT_HOLD_DAMPING", "MIN_CLOSING_VELOCITY", "MODE_RENAMED",
     "GUARD_RENAMED",
@@ -261,8 +262,8 @@ class GraspParams(ParameterGroup):
                                   "max_effort is 0 (or whose effort is empty)", gt=0.0, le=100.0)
     gripper_tolerance: float = param(0.01, "rad", "|X_e - position| within which a gripper "
                                      "command has reached its goal", gt=0.0, le=1.0)
-    gripper_namespace: str = param("", "ROS name", "namespace of the channel's control_msgs gripper "
-                                   "actions <ns>/gripper_cmd and <ns>/parallel_gripper_cmd "
+    gripper_namespace: str = param("", "ROS name", "namespace of the channel's control_msgs "
+                                   "gripper actions <ns>/gripper_cmd and <ns>/parallel_gripper_cmd "
                                    "(empty: <channel>_gripper); read at start",
                                    read_only=True)
     gripper_cancel: str = param("hold", "", "what a canceled gripper command leaves: hold (the "
@@ -320,7 +321,8 @@ class CommissioningParams(ParameterGroup):
     end_frequency: float = param(800.0, "Hz", "chirp end frequency (the end fade covers down to "
                                  "it / 1.5); below the Nyquist frequency", gt=0.0, le=1e4)
     rest_duration: float = param(0.5, "s", "servo-only rest before the chirp (the pressure "
-                                 "noise and the free-air pressure force are measured there)", ge=0.05, le=10.0)
+                                 "noise and the free-air pressure force are measured there)",
+                                 ge=0.05, le=10.0)
     position_min: float = param(-1.5, "rad", "lower end of the joint range the excitation "
                                 "must stay in (beyond it: abort)", ge=-100.0, le=100.0)
     position_max: float = param(1.5, "rad", "upper end of the joint range the excitation must "
