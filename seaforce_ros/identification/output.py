@@ -10,7 +10,7 @@ import pathlib
 import sys
 import time
 from typing import (Any, Callable, Dict, Iterable, Mapping, Optional, Sequence, TextIO, Tuple,
-                    TypeVar)
+                    TypeVar, Union)
 
 import yaml
 
@@ -103,10 +103,11 @@ def write_params_file(path: PathLike, channel: str, plant: Optional[PlantParams]
     return write_values_file(path, _values(channel, plant, dahl), comments, merge, option)
 
 
-def write_values_file(path: PathLike, values: Mapping[str, float], comments: Iterable[str] = (),
-                      merge: bool = True, option: Optional[str] = None) -> pathlib.Path:
-    """Write ``values`` (``{dotted name: float}``, e.g. ``pinch.dob.cutoff``) as a params file
-    for ``--ros-args --params-file``.
+def write_values_file(path: PathLike, values: Mapping[str, Union[float, str]],
+                      comments: Iterable[str] = (), merge: bool = True,
+                      option: Optional[str] = None) -> pathlib.Path:
+    """Write ``values`` (``{dotted name: float or str}``, e.g. ``pinch.dob.cutoff``) as a
+    params file for ``--ros-args --params-file``.
 
     A new file (or, without ``merge``, any file) becomes ``/**: ros__parameters: ...`` under a
     header of ``comments``. An existing file is updated in place

@@ -21,6 +21,7 @@ exactly the new values, else it is refused too.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import os
 import pathlib
@@ -251,9 +252,16 @@ def dahl_params(values: Mapping[str, Any], w: str, channel: str,
         raise ParamsFileError(f"{w}: channel {channel}: {exc}") from None
 
 
-def format_value(value: float) -> str:
-    """A float as YAML writes it (always read back as a float, by PyYAML as by ROS)."""
+def format_value(value: Union[float, str]) -> str:
+    """A float as YAML writes it (always read back as a float, by PyYAML as by ROS); a string
+    double-quoted (read back as that string, never as a number or a bool)."""
+    if isinstance(value, str):
+        return json.dumps(value)
     return yaml.representer.SafeRepresenter().represent_float(float(value)).value
+
+
+def _scalar(value: Union[float, str]) -> Union[float, str]:
+    return value if isinstance(value, str) else float(value)
 
 
 # --- in-place update ---------------------------------------------------------------------
@@ -445,7 +453,7 @@ def _child_indent(lines: Sequence[str], k: _KeyLine) -> Optional[int]:
     return None
 
 
-def update_text(text: str, values: Mapping[str, float], w: str,
+def update_text(text: str, values: Mapping[str, Union[float, str]], w: str,
                 header: Optional[Sequence[str]] = None) -> str:
     """``text`` (a params file) with the parameters ``values`` (``{dotted name: float}``, e.g.
     ``pinch.plant.motor_inertia``) set, everything else as it was.
@@ -464,7 +472,7 @@ def update_text(text: str, values: Mapping[str, float], w: str,
                               "new file (--out NEW.yaml) and copy them over by hand") from None
 
 
-def _update(text: str, values: Mapping[str, float], w: str,
+def _update(text: str, values: Mapping[str, Union[float, str]], w: str,
             header: Optional[Sequence[str]]) -> str:
     data = _safe_load(text, w)
     if data is None:
@@ -500,7 +508,7 @@ def _update(text: str, values: Mapping[str, float], w: str,
             raise ParamsFileError(f"{w}: line {k.index + 1}: could not follow the file's layout "
                                   f"there ({name}; a key given twice?)")
         edits[k.index] = _replace_value(lines[k.index], k, format_value(values[name]))
-        expected[(section, name)] = float(values[name])
+        expected[(section, name)] = _scalar(values[name])
         found.add(name)
     out = [edits.get(i, line) for i, line in enumerate(lines)]
 
@@ -514,7 +522,7 @@ def _update(text: str, values: Mapping[str, float], w: str,
             if k.path[:1] != (ALL_NODES,):
                 continue
             (leaves if k.value else blocks)[k.path] = k     # the last one wins, as in YAML
-        groups: Dict[KeyPath, List[Tuple[KeyPath, float]]] = {}
+        groups: Dict[KeyPath, List[Tuple[KeyPath, Union[float, str]]]] = {}
         for name in missing:
             full = (ALL_NODES, "ros__parameters") + tuple(name.split("."))
             depth = max((d for d in range(1, len(full)) if full[:d] in blocks), default=0)
@@ -525,7 +533,7 @@ def _update(text: str, values: Mapping[str, float], w: str,
                         f"{w}: line {leaves[full[:d]].index + 1}: {label} is written on one "
                         f"line; cannot set {name} in it")
             groups.setdefault(full[:depth], []).append((full[depth:], values[name]))
-            expected[((ALL_NODES, "ros__parameters"), name)] = float(values[name])
+            expected[((ALL_NODES, "ros__parameters"), name)] = _scalar(values[name])
             for d in range(1, len(full)):       # an empty block becomes a mapping
                 prefix = full[:d]
                 key: Tuple[KeyPath, Any]

@@ -1,0 +1,156 @@
+"""One commissioning run's analysis (commissioning/analyse.py), as the action's child runs it:
+a record of the core simulator's free-air excitation of a plant off the controller's model.
+
+A run tunes, writes the report, a params file that keeps an existing file's comments and a
+rollback file holding exactly the values it replaces; the result is JSON with names, old and
+new values in step; a dry run writes no params; the second run reports the drift against the
+first; a run directory with a missing, malformed or wrong request ends with one error line and
+exit status 1, never a traceback."""
+import io
+import json
+import math
+from contextlib import redirect_stdout
+
+import numpy as np
+import pytest
+import yaml
+
+from seaforce_ros.commissioning.analyse import (RECORD_FILE, REQUEST_FILE, AnalysisError,
+                                                AnalysisRequest, analyse, analyse_directory,
+                                                main)
+from seaforce_ros.commissioning.experiments import run_free_air_excitation
+from seaforce_ros.commissioning.record import save_record
+from seaforce_ros.commissioning.report import load_report
+from seaforce_ros.core.params import ControllerConfig, DahlParams, PlantParams
+
+CHANNEL = 'pinch'
+TRUE = PlantParams.table_i().scaled(motor_inertia=1.3, hose_stiffness=0.8, endpoint_damping=1.4)
+TRUE_DAHL = DahlParams(sigma=16.0, coulomb_force=0.025)
+
+
+@pytest.fixture(scope='module')
+def record():
+    """12 s of excitation, 1..400 Hz (the band the fit needs)."""
+    return run_free_air_excitation(TRUE, TRUE_DAHL, ControllerConfig(), seed=4, duration=12.0,
+                                   band=(1.0, 400.0))
+
+
+def flatten(node, prefix=''):
+    out = {}
+    for key, value in node.items():
+        if isinstance(value, dict):
+            out.update(flatten(value, f'{prefix}{key}.'))
+        else:
+            out[f'{prefix}{key}'] = value
+    return out
+
+
+def test_a_run_tunes_and_writes_its_files(record, tmp_path):
+    params = tmp_path / 'setup.yaml'
+    params.write_text('# my gripper\n/**:\n  ros__parameters:\n    pinch:\n      dob:\n'
+                      '        cutoff: 125.0  # the old lambda\n    other: 3\n')
+    run = tmp_path / 'run1'
+    run.mkdir()
+    config = ControllerConfig()
+    steps = []
+    a = analyse(record, AnalysisRequest(CHANNEL, config, params_file=str(params), apply=True),
+                run, progress=lambda *step: steps.append(step))
+    assert a.tuned, a.message
+    # progress: known phases, fractions rising within 0..1
+    assert [s[0] for s in steps][0] == 'identify' and steps[-1][0] == 'report'
+    fractions = [s[1] for s in steps]
+    assert all(0.0 <= f <= 1.0 for f in fractions) and fractions == sorted(fractions)
+    # the identified plant is the truth (within the family goals)
+    for row in a.report.identification:
+        if row.name.startswith('plant.'):
+            true = getattr(TRUE, row.name.split('.')[1])
+            assert abs(row.value / true - 1.0) < 0.15, (row.name, row.value, true)
+    # the params file: updated in place, its comments and other keys kept
+    text = params.read_text()
+    assert '# my gripper' in text and 'other: 3' in text
+    written = flatten(yaml.safe_load(text)['/**']['ros__parameters'])
+    for key, value in a.apply.items():
+        assert written[f'{CHANNEL}.{key}'] == value, key
+    # the rollback file: exactly the values replaced
+    rollback = flatten(yaml.safe_load((run / 'rollback.yaml').read_text())['/**']
+                       ['ros__parameters'])
+    old = config.to_dict()
+    assert rollback == {f'{CHANNEL}.{k}': old[k] for k in a.apply}
+    # the result: JSON, names / old / new in step, NaN as null
+    result = json.loads(json.dumps(a.result()))
+    assert len(result['names']) == len(result['old_values']) == len(result['new_values'])
+    for name, o, n in zip(result['names'], result['old_values'], result['new_values']):
+        assert o == old[name]
+        assert n == a.apply[name]
+    assert result['report_path'] == str(run / 'report.html')
+    loaded = load_report(run / 'report.json')
+    assert loaded.tuning is not None and loaded.zwidth is not None
+    assert {m.mode for m in loaded.impedance} >= {'hold', 'dob_full_ff', 'impedance'}
+    # the tuned settings are a valid whole configuration
+    assert ControllerConfig.from_dict(a.apply, base=config) == a.tuning.config
+    assert a.after_db[1.0] >= a.before_db[1.0] - 3.0
+
+
+def test_a_dry_run_writes_no_params_and_the_next_run_reports_drift(record, tmp_path):
+    first, second = tmp_path / 'a', tmp_path / 'b'
+    first.mkdir()
+    second.mkdir()
+    dry = analyse(record, AnalysisRequest(CHANNEL, ControllerConfig(), dry_run=True), first)
+    assert dry.tuned and dry.params_file == '' and dry.rollback_file == ''
+    assert sorted(p.name for p in first.iterdir() if p.suffix == '.yaml') == []
+    again = analyse(record, AnalysisRequest(CHANNEL, ControllerConfig(), dry_run=True,
+                                            previous=str(first / 'report.json')), second)
+    rows = {r.name: r for r in again.report.identification}
+    assert rows['plant.hose_stiffness'].previous == rows['plant.hose_stiffness'].value
+    assert any('drift against the commissioning of' in line for line in again.report.summary)
+
+
+def _main(directory):
+    out = io.StringIO()
+    with redirect_stdout(out):
+        code = main([str(directory)])
+    return code, [json.loads(line) for line in out.getvalue().splitlines()]
+
+
+def test_bad_run_directories_end_with_one_error_line(record, tmp_path):
+    code, lines = _main(tmp_path / 'missing')
+    assert code == 1 and 'request.json' in lines[-1]['error']
+    bad = tmp_path / 'bad'
+    bad.mkdir()
+    (bad / REQUEST_FILE).write_text('{not json')
+    code, lines = _main(bad)
+    assert code == 1 and 'not JSON' in lines[-1]['error']
+    (bad / REQUEST_FILE).write_text(json.dumps({'channel': 'pinch',
+                                                'config': {'dob.cutoff': 'fast'}}))
+    with pytest.raises(AnalysisError, match='config'):
+        analyse_directory(bad)
+    (bad / REQUEST_FILE).write_text(json.dumps({'config': {}}))
+    with pytest.raises(AnalysisError, match='channel'):
+        analyse_directory(bad)
+    (bad / REQUEST_FILE).write_text(json.dumps({'channel': 'pinch', 'config': {}}))
+    (bad / RECORD_FILE).write_bytes(b'garbage')
+    code, lines = _main(bad)
+    assert code == 1 and 'not a commissioning record' in lines[-1]['error']
+
+
+def test_a_record_that_identifies_nothing_still_reports(tmp_path):
+    """A finger that did not move (no excitation): no tuning, the reason, exit status 1 after
+    the result; the report says what it could."""
+    n = 24000
+    quiet = run_free_air_excitation(TRUE, TRUE_DAHL, ControllerConfig(), seed=4, duration=12.0,
+                                    band=(1.0, 400.0))
+    from seaforce_ros.commissioning.record import ExcitationRecord
+    flat = ExcitationRecord(dt=quiet.dt, cycle=quiet.cycle[:n], x=np.zeros(n), v=np.zeros(n),
+                            f_p=np.zeros(n), applied=np.zeros(n), command=np.zeros(n),
+                            excitation=np.zeros(n))
+    run = tmp_path / 'run'
+    run.mkdir()
+    save_record(flat, run / RECORD_FILE)
+    (run / REQUEST_FILE).write_text(json.dumps({'channel': 'pinch', 'config': {}}))
+    code, lines = _main(run)
+    assert code == 1
+    result = next(line['result'] for line in lines if 'result' in line)
+    assert 'not tuned' in result['message'] and not result['tuned']
+    assert result['params_file'] == '' and result['apply'] == {}
+    assert 'error' in lines[-1]
+    assert all(v is None or math.isfinite(v) for v in result['new_values'])
