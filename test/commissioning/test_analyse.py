@@ -154,3 +154,20 @@ def test_a_record_that_identifies_nothing_still_reports(tmp_path):
     assert result['params_file'] == '' and result['apply'] == {}
     assert 'error' in lines[-1]
     assert all(v is None or math.isfinite(v) for v in result['new_values'])
+
+
+def test_params_files_keep_strings_strings(tmp_path):
+    """An existing file updated in place, and a new one: strings that look like numbers or
+    bools read back as the strings, floats as floats."""
+    from seaforce_ros.identification.output import write_values_file
+    values = {'pinch.passivity_guard': 'active', 'pinch.a': 'true', 'pinch.b': '1.5',
+              'pinch.dob.cutoff': 300.0}
+    existing = tmp_path / 'old.yaml'
+    existing.write_text('# kept\n/**:\n  ros__parameters:\n    pinch:\n'
+                        '      passivity_guard: disabled  # was\n      a: x\n')
+    for path in (existing, tmp_path / 'new.yaml'):
+        write_values_file(path, values)
+        back = flatten(yaml.safe_load(path.read_text())['/**']['ros__parameters'])
+        assert {k: back[k] for k in values} == values
+        assert all(type(back[k]) is type(v) for k, v in values.items())
+    assert '# kept' in existing.read_text() and '# was' in existing.read_text()
