@@ -349,6 +349,8 @@ class FreeAirExcitation(Job):
         self.gain = 1.0
         self.peak_position = 0.0
         self.peak_speed = 0.0
+        self.touched = False         # the contact test ended it: something is in the way
+        self._rearmed = False
         self._t = 0.0
         self._x0 = math.nan
         self._bias = 0.0
@@ -398,9 +400,19 @@ class FreeAirExcitation(Job):
 
     # --- per sample --------------------------------------------------------------------------
     def step(self, sample: JobSample) -> float:
-        """(cycle thread) :meth:`update` on the channel's sample: F_a [N m]."""
-        return self.update(sample.x, sample.v, sample.f_p, sample.torque, sample.applied,
-                           sample.cycle, sample.steps)
+        """(cycle thread) :meth:`update` on the channel's sample: F_a [N m]. On the sample it
+        ends on -- unless its contact test ended it -- the channel's contact estimator is
+        re-armed (:meth:`~..core.estimator.ContactEstimator.rearm`): under the chirp that
+        estimator's residual (the model's error times large accelerations) starts contacts
+        that are none, and one left standing at the end would stay (its residual's offset at
+        rest keeps it from ending) and turn the next grasp or commissioning away."""
+        u = self.update(sample.x, sample.v, sample.f_p, sample.torque, sample.applied,
+                        sample.cycle, sample.steps)
+        if self.phase == "done" and not self._rearmed:
+            self._rearmed = True
+            if not self.touched:
+                sample.estimator.rearm()
+        return u
 
     def update(self, x: float, v: float, f_p: float, u_prev: float, applied: float,
                cycle: int = -1, steps: int = 1) -> float:
@@ -468,6 +480,7 @@ class FreeAirExcitation(Job):
         self._n = n + 1
         reason = self._contact(n + 1)
         if reason:
+            self.touched = True
             return self._abort(reason)
         if self._t >= self._end:
             self.progress = 1.0

@@ -45,12 +45,15 @@ class ExcitationRun:
         the one it ended on, then ``settle`` samples of the mode).
     ended : int
         Index in ``output`` of the sample the job ended on.
+    contact_after : bool
+        The channel's contact estimator sees a contact after the ``settle`` samples.
     """
 
     record: ExcitationRecord
     job: FreeAirExcitation
     output: np.ndarray
     ended: int
+    contact_after: bool = False
 
     @property
     def outcome(self) -> Optional[str]:
@@ -138,7 +141,7 @@ def simulate_excitation(true_plant: PlantParams, true_dahl: Optional[DahlParams]
         m = step(u)
         k += 1
     record = replace(job.record(), x_e=x_e[:recorded], f_e=f_e[:recorded])
-    return ExcitationRun(record, job, output[:k].copy(), ended)
+    return ExcitationRun(record, job, output[:k].copy(), ended, ctrl.estimator.contact)
 
 
 def run_free_air_excitation(true_plant: PlantParams, true_dahl: Optional[DahlParams],
