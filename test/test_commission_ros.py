@@ -105,6 +105,13 @@ def test_commission_over_ros(processes, tmp_path, probe):
     def settled():      # free for the last 1 s of statuses (100 Hz)
         recent = probe.messages('controller_status')[-100:]
         return len(recent) == 100 and not any(value(m, 'pinch', 'contact') for m in recent)
+
+    def contact_history():
+        statuses = probe.messages('controller_status')
+        flags = [bool(value(m, 'pinch', 'contact')) for m in statuses]
+        forces = [value(m, 'pinch', 'contact_force') for m in statuses[-5:]]
+        return (f'{len(statuses)} statuses, {sum(flags)} with a contact, the last at '
+                f'{max((i for i, f in enumerate(flags) if f), default=-1)}; last forces {forces}')
     probe.wait_for(settled, timeout=60, what='the finger free again')
     before = probe.get_parameters('/controller', [f'pinch.{k}' for k in PLANT_KEYS])
 
@@ -161,7 +168,10 @@ def test_commission_over_ros(processes, tmp_path, probe):
 
     # --- a run that applies: the parameters set, bumplessly; drift against the dry run ----
     probe.clear('controller_status')     # the finger settles from the excitation's fade-out
-    probe.wait_for(settled, timeout=60, what='the finger free after the dry run')
+    try:
+        probe.wait_for(settled, timeout=60, what='the finger free after the dry run')
+    except AssertionError as exc:
+        raise AssertionError(f'{exc}: {contact_history()}') from None
     handle, feedback = client.send(apply=True)
     answer = client.result(handle, timeout=300.0)
     result = answer.result
