@@ -7,8 +7,12 @@
   torque_limit.
 * Without nodes: a parameter file that leaves the limits out gives the schema's defaults
   (sim and hardware), one with three channels and its own limits gives those; the installed
-  copy is the source (what display.launch.xml runs).
+  copy is the source (what display.launch.xml runs); the MoveIt controller snippet of
+  docs/gripper-actions.md commands a finger joint of the URDF through the action the
+  controller serves.
 """
+import re
+
 import pytest
 import yaml
 import xacro
@@ -16,6 +20,7 @@ from sensor_msgs.msg import JointState
 from urdf_parser_py.urdf import URDF
 
 from seaforce_ros.nodes import hardware_node, param_specs, sim_node
+from seaforce_ros.nodes.gripper_actions import action_namespace
 
 from helpers.nodes import CONFIG
 from helpers.processes import ROOT
@@ -110,3 +115,18 @@ def test_channels_and_limits_follow_the_parameter_file(tmp_path):
 def test_installed_copy_is_the_source():
     assert (INSTALLED / XACRO.name).read_bytes() == XACRO.read_bytes(), \
         'rebuild: source scripts/setup.sh'
+
+
+def test_the_moveit_snippet_commands_a_urdf_finger_joint():
+    text = (ROOT / 'docs' / 'gripper-actions.md').read_text()
+    blocks = [yaml.safe_load(b) for b in re.findall(r'```yaml\n(.*?)```', text, re.S)]
+    (snippet,) = [b['moveit_simple_controller_manager'] for b in blocks
+                  if 'moveit_simple_controller_manager' in b]
+    joints = {j.name for j in urdf().joints}
+    for name in snippet['controller_names']:
+        controller = snippet[name]
+        assert controller['type'] == 'GripperCommand' and controller['default'] is True
+        assert controller['action_ns'] == 'gripper_cmd'
+        (joint,) = controller['joints']
+        assert joint in joints and joint.endswith('_endpoint'), joint
+        assert name == action_namespace(joint[:-len('_endpoint')], '')
