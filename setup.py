@@ -26,7 +26,9 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
-        ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
+        ('share/' + PACKAGE + '/config', glob('config/*.yaml') + glob('config/*.json')
+         + glob('config/*.xml')),
+        ('share/' + PACKAGE + '/config/urdf', glob('config/urdf/*.xacro')),
         ('share/' + PACKAGE + '/launch', glob('launch/*.launch.xml')),
     ],
     install_requires=['setuptools'],

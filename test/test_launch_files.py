@@ -4,7 +4,9 @@ every $(find-pkg-share seaforce_ros)/... file is installed, every $(var X) is a 
 <arg>, every <include> exists and gets only arguments it declares, every parameter a node is
 given is one that node declares, with the declared type and allowed values (the schema
 tables of the node modules), the hardware files require `interface`, and the installed
-copies are the sources.
+copies are the sources. Nodes of other packages (robot_state_publisher, from a ROS
+installation) must be exec_depends of package.xml; a $(command 'xacro FILE name:=value ...')
+must name an installed xacro file and only arguments it declares.
 
 Each check is a function returning a list of problems; the tests expect none for the shipped
 files and, on small broken samples, the problem each check exists for.
@@ -26,11 +28,15 @@ PACKAGE = 'seaforce_ros'
 LAUNCH_DIR = ROOT / 'launch'
 SHARE = ROOT / 'install' / PACKAGE / 'share' / PACKAGE
 SOURCES = sorted(LAUNCH_DIR.glob('*.launch.xml'))
-EXPECTED = {'sim', 'bringup', 'hardware', 'hardware_bringup', 'record'}
+EXPECTED = {'sim', 'bringup', 'hardware', 'hardware_bringup', 'record', 'display'}
 DEFAULT_PARAMS = '$(find-pkg-share seaforce_ros)/config/gripper.yaml'
 #: YAML 1.1 reads these as booleans (launch_ros reads untyped <param> values as YAML).
 YAML11_BOOLS = {'y', 'yes', 'n', 'no', 'true', 'false', 'on', 'off'}
 SUBST = re.compile(r'\$\(([\w-]+)((?:\s+[^)\s]+)*)\s*\)')
+#: $(command 'xacro ...'): the whole substitution and the command line inside it.
+XACRO_COMMAND = re.compile(r"\$\(command '(xacro\s[^']*)'\)")
+#: one word of a command line, a $(...) inside it kept whole
+COMMAND_WORD = re.compile(r'(?:\$\([^)]*\)|[^\s$])+')
 
 # --- what each executable runs -------------------------------------------------------------
 #: executable -> nodes it creates (the composed ones have two: no `name` remap allowed).
@@ -41,6 +47,14 @@ PLANT_EXECS = {'sim_node', 'hardware_node', 'bringup', 'hardware_bringup'}
 CONTROLLER_EXECS = {'controller_node', 'bringup', 'hardware_bringup'}
 HARDWARE_EXECS = {'hardware_node', 'hardware_bringup'}
 COMPOSED_EXECS = {'bringup', 'hardware_bringup'}
+#: nodes of other packages, from the ROS installation: (pkg, exec) -> node name.
+FOREIGN_NODES = {('robot_state_publisher', 'robot_state_publisher'): 'robot_state_publisher'}
+
+
+def exec_depends():
+    """The <exec_depend> packages of package.xml."""
+    root = ET.parse(ROOT / 'package.xml').getroot()
+    return {e.text.strip() for e in root.iter('exec_depend')}
 
 
 def default_channels():
@@ -132,6 +146,13 @@ def check_nodes(root, installed=INSTALL_LIB, scripts=None):
     nodes = root.iter('node')
     for node in nodes:
         pkg, exe = node.get('pkg'), node.get('exec')
+        if (pkg, exe) in FOREIGN_NODES:
+            if pkg not in exec_depends():
+                problems.append(f'node pkg={pkg!r}: not an exec_depend of package.xml')
+            if node.get('name') not in (None, FOREIGN_NODES[pkg, exe]):
+                problems.append(f'{exe}: name={node.get("name")!r}, the node calls itself '
+                                f'{FOREIGN_NODES[pkg, exe]!r}')
+            continue
         if pkg != PACKAGE:
             problems.append(f'node pkg={pkg!r}: not {PACKAGE}')
         if exe not in scripts:
@@ -150,11 +171,42 @@ def check_nodes(root, installed=INSTALL_LIB, scripts=None):
     return problems
 
 
+def xacro_args(path):
+    """Names of the <xacro:arg>s a xacro file declares."""
+    namespace = '{http://www.ros.org/wiki/xacro}'
+    return {a.get('name') for a in ET.parse(path).getroot().iter(namespace + 'arg')}
+
+
+def check_xacro_command(command, args):
+    """``xacro FILE name:=value ...``: FILE installed, each name a <xacro:arg> of it, each
+    value a plain word or a $(var X) of a declared launch argument."""
+    words = COMMAND_WORD.findall(command)
+    path = resolve_share(words[1]) if len(words) > 1 else None
+    if path is None or not path.is_file():
+        return [f'$(command {command!r}): not an installed $(find-pkg-share {PACKAGE}) file']
+    problems = []
+    declared = xacro_args(path)
+    for word in words[2:]:
+        name, sep, value = word.partition(':=')
+        if not sep or name not in declared:
+            problems.append(f'$(command ...): {word!r} is no argument of {path.name} '
+                            f'({sorted(declared)})')
+        for kind, arguments in substitutions(value):
+            if kind != 'var' or arguments[0] not in args:
+                problems.append(f'$(command ...): {value!r} is not a $(var X) of a declared '
+                                '<arg>')
+    return problems
+
+
 def check_substitutions(root):
-    """Only $(var X) of declared args and $(find-pkg-share seaforce_ros) of existing files."""
+    """Only $(var X) of declared args, $(find-pkg-share seaforce_ros) of existing files and
+    $(command 'xacro ...') of an installed xacro file (:func:`check_xacro_command`)."""
     problems = []
     args = declared_args(root)
     for element, key, value in all_attribute_values(root):
+        for command in XACRO_COMMAND.findall(value):
+            problems += check_xacro_command(command, args)
+        value = XACRO_COMMAND.sub('', value)
         for kind, arguments in substitutions(value):
             if kind == 'var':
                 if arguments[0] not in args:
@@ -514,3 +566,43 @@ def test_checks_catch_a_defaulted_interface_and_a_node_outside_the_namespace(cha
 def test_word_check_finds_the_old_mode_name():
     assert check_words('<arg name="pinch_mode" default="OFF"/>') != []
     assert check_words('<node on_exit="shutdown" offset="1"/>') == []
+
+
+def test_display_publishes_the_xacro_urdf_with_the_gripper_parameters():
+    """robot_state_publisher gets robot_description from the installed xacro, with the
+    launch file's params_file and plant; plant offers the plant nodes (sim, hardware)."""
+    root = parse(LAUNCH_DIR / 'display.launch.xml')
+    (node,) = root.iter('node')
+    assert (node.get('pkg'), node.get('exec')) in FOREIGN_NODES
+    (param,) = node.findall('param')
+    assert param.get('name') == 'robot_description' and param.get('type') == 'str'
+    (command,) = XACRO_COMMAND.findall(param.get('value'))
+    words = COMMAND_WORD.findall(command)
+    assert words[1] == (f'$(find-pkg-share {PACKAGE})/config/urdf/'
+                        'seaforce_gripper.urdf.xacro'), words
+    assert set(words[2:]) == {'params_file:=$(var params_file)', 'plant:=$(var plant)'}
+    assert {c.get('value') for c in declared_args(root)['plant'].findall('choice')} == \
+        {n for e in PLANT_EXECS - COMPOSED_EXECS for n in NODES[e]}
+    includes = root.findall('include')
+    assert [i.get('file') for i in includes] == \
+        [f'$(find-pkg-share {PACKAGE})/launch/sim.launch.xml']
+    assert includes[0].get('if') == '$(var sim)'
+
+
+def test_checks_catch_a_foreign_node_not_depended_on_and_a_bad_xacro_command():
+    root = _sample('<node pkg="robot_state_publisher" exec="robot_state_publisher" name="rsp">'
+                   '<param name="robot_description" type="str" value="$(command \'xacro '
+                   f'$(find-pkg-share {PACKAGE})/config/urdf/seaforce_gripper.urdf.xacro '
+                   'params_file:=$(var params_file) plants:=sim\')"/></node>'
+                   '<node pkg="rviz2" exec="rviz2"/>', _ARGS)
+    problems = check_nodes(root)
+    assert any("name='rsp'" in p for p in problems), problems
+    assert any("pkg='rviz2'" in p for p in problems), problems
+    problems = check_substitutions(root)
+    assert len(problems) == 1 and "'plants:=sim' is no argument" in problems[0], problems
+    missing = _sample('<node pkg="robot_state_publisher" exec="robot_state_publisher">'
+                      '<param name="robot_description" type="str" value="$(command \'xacro '
+                      f'$(find-pkg-share {PACKAGE})/config/urdf/gripper.urdf.xacro '
+                      'plant:=$(var plants)\')"/></node>', _ARGS)
+    problems = check_substitutions(missing)
+    assert any('not an installed' in p for p in problems), problems

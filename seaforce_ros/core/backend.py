@@ -186,12 +186,15 @@ class PlantBackend(abc.ABC):
         Name of the node-level ``/diagnostics`` status, also before configure.
     hardware_id : str
         The device of that status.
+    channel_prefix : str
+        Prefix of the per-channel ``/diagnostics`` status names (``<prefix>: <channel>``).
     """
 
     channels: Tuple[str, ...]
     units_per_nm: Optional[Tuple[float, ...]] = None
     status_name: str = ""
     hardware_id: str = ""
+    channel_prefix: str = ""
 
     # --- lifecycle ------------------------------------------------------------------------------
     @abc.abstractmethod

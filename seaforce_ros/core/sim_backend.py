@@ -37,6 +37,7 @@ class SimBackend(PlantBackend):
 
     status_name = "sim: cycle"
     hardware_id = "seaforce_sim"
+    channel_prefix = "sim"
 
     def __init__(self, channels: Sequence[str], simulators: Sequence[ChannelSimulator],
                  clock_mode: str = "realtime") -> None:
@@ -110,6 +111,6 @@ class SimBackend(PlantBackend):
             warning = "command timeout: zero torque on " + ", ".join(waiting)
         return BackendReport(
             name=self.status_name, hardware_id=self.hardware_id, running=f"running ({mode})",
-            warning=warning, values={"clock_mode": mode}, channel_prefix="sim",
+            warning=warning, values={"clock_mode": mode}, channel_prefix=self.channel_prefix,
             channels=[ChannelReport(f"seaforce_sim/{c}", {"environment": sim.environment.mode})
                       for c, sim in zip(self.channels, self.sims)])

@@ -103,6 +103,7 @@ class EthercatBackend(PlantBackend):
     """
 
     status_name = 'hardware: bus'
+    channel_prefix = 'hardware'
 
     def __init__(self, config: BusConfig, channels: Sequence[str], interface: str, dt: float,
                  receive_timeout: float = 4e-4, drive_watchdog: float = 0.1) -> None:
@@ -302,7 +303,7 @@ class EthercatBackend(PlantBackend):
             name=self.status_name, hardware_id=self.interface, running='OP',
             values={'wkc_errors_total': self.wkc_errors_total,
                     'expected_wkc': self.bus.expected_wkc},
-            channel_prefix='hardware',
+            channel_prefix=self.channel_prefix,
             channels=[ChannelReport(c.cfg.drive, {'state': c.sequencer.state.value,
                                                   'drive_state': c.sequencer.state.value})
                       for c in self.ch])

@@ -454,6 +454,7 @@ class ControllerNode(Node):
                  'passivity_guard': ctrl.config.passivity.mode,
                  **dict(zip(_GUARD_FIELDS, _guard_values(ctrl))),
                  **self._friction_diagnostics(ctrl)}))
+            statuses += [_passivity_status(channel, ctrl), _grasp_status(channel, ctrl)]
         publish_diagnostics(self, self.diag_pub, statuses)
 
 
@@ -491,6 +492,38 @@ def _guard_values(ctrl):
     damping it adds (``monitor``: would add) [N m s/rad]; NaN when it is disabled."""
     g = ctrl.passivity_guard
     return (math.nan,) * 3 if g is None else (g.energy, g.dissipated, g.damping)
+
+
+#: Prefixes of the controller's ``/diagnostics`` status names: ``<prefix>: <channel>`` (the
+#: loop's own status is ``controller: loop``); config/diagnostics_analyzers.yaml groups by them.
+STATUS_PREFIXES = ('controller', 'passivity', 'grasp')
+
+
+def _passivity_status(channel, ctrl):
+    """``passivity: <channel>``: the guard's mode and figures; WARN while it adds damping."""
+    mode = ctrl.config.passivity.mode
+    energy, dissipated, damping = _guard_values(ctrl)
+    acting = mode != 'disabled' and damping > 0.0
+    return diagnostic_status(
+        f'passivity: {channel}', 'seaforce_controller',
+        DiagnosticStatus.WARN if acting else DiagnosticStatus.OK,
+        f'{mode}: adding {damping:.3g} N m s/rad' if acting else mode,
+        {'passivity_guard': mode, **dict(zip(_GUARD_FIELDS, (energy, dissipated, damping)))})
+
+
+def _grasp_status(channel, ctrl):
+    """``grasp: <channel>``: the running grasp's phase, the contact and the latest object
+    estimate (stiffness k_o, damping b_o with their 1-sigma)."""
+    estimator = ctrl.estimator
+    estimate = estimator.estimate()
+    phase = ctrl.grasp_phase or 'none'
+    return diagnostic_status(
+        f'grasp: {channel}', 'seaforce_controller', DiagnosticStatus.OK,
+        f'{phase}, contact' if estimator.contact else phase,
+        {'grasp': phase, 'contact': estimator.contact, 'contact_force': estimator.force,
+         'contact_position': estimate.contact_position,
+         'object_stiffness': estimate.stiffness, 'object_stiffness_sigma': estimate.stiffness_sigma,
+         'object_damping': estimate.damping, 'object_damping_sigma': estimate.damping_sigma})
 
 
 def _guard_status(ctrls):

@@ -1,0 +1,132 @@
+"""config/urdf/seaforce_gripper.urdf.xacro: xacro (PyPI) -> URDF text -> urdf_parser_py (PyPI).
+
+* Against one running sim_node + controller_node (module-scoped): the URDF's joints are
+  exactly the names on joint_states (<channel>_motor, <channel>_endpoint), and every joint's
+  limits are the parameters the nodes run with: lower / upper the controller's
+  <channel>.friction.position_min / max, velocity the sim's max_velocity, effort its
+  torque_limit.
+* Without nodes: a parameter file that leaves the limits out gives the schema's defaults
+  (sim and hardware), one with three channels and its own limits gives those; the installed
+  copy is the source (what display.launch.xml runs); the MoveIt controller snippet of
+  docs/gripper-actions.md commands a finger joint of the URDF through the action the
+  controller serves.
+"""
+import re
+
+import pytest
+import yaml
+import xacro
+from sensor_msgs.msg import JointState
+from urdf_parser_py.urdf import URDF
+
+from seaforce_ros.nodes import hardware_node, param_specs, sim_node
+from seaforce_ros.nodes.gripper_actions import action_namespace
+
+from helpers.nodes import CONFIG
+from helpers.processes import ROOT
+from helpers.sim_stack import SimStack
+
+XACRO = ROOT / 'config' / 'urdf' / 'seaforce_gripper.urdf.xacro'
+INSTALLED = ROOT / 'install' / 'seaforce_ros' / 'share' / 'seaforce_ros' / 'config' / 'urdf'
+
+
+def urdf(**mappings):
+    """The xacro's URDF text with these arguments, parsed by urdf_parser_py."""
+    text = xacro.process_file(str(XACRO), mappings={k: str(v) for k, v in mappings.items()})
+    return URDF.from_xml_string(text.toxml())
+
+
+def limits(robot):
+    """joint name -> (lower, upper, velocity, effort)."""
+    return {j.name: (j.limit.lower, j.limit.upper, j.limit.velocity, j.limit.effort)
+            for j in robot.joints}
+
+
+@pytest.fixture(scope='module')
+def live(tmp_path_factory):
+    """(joint_states names, the limits the running nodes use per joint)."""
+    stack = SimStack(tmp_path_factory.mktemp('urdf'), 'urdf')
+    try:
+        stack.probe.record(JointState, 'joint_states')
+        names = list(stack.probe.wait_messages('joint_states', 1, timeout=30)[-1].name)
+        plant = stack.probe.get_parameters('/sim', ['channels', 'max_velocity', 'torque_limit'])
+        expected = {}
+        for channel in plant['channels']:
+            keys = [f'{channel}.friction.position_min', f'{channel}.friction.position_max']
+            ranges = stack.probe.get_parameters('/controller', keys)
+            for joint in ('motor', 'endpoint'):
+                expected[f'{channel}_{joint}'] = (ranges[keys[0]], ranges[keys[1]],
+                                                  plant['max_velocity'], plant['torque_limit'])
+    finally:
+        stack.close()
+    return names, expected
+
+
+def test_joint_names_are_those_on_joint_states(live):
+    names, _ = live
+    robot = urdf()
+    assert sorted(j.name for j in robot.joints) == sorted(names), names
+    assert all(j.type == 'revolute' for j in robot.joints)
+    # each channel's finger is the endpoint joint; its motor the motor joint
+    for joint in robot.joints:
+        assert joint.parent == 'base_link'
+        assert joint.child == joint.name.replace('_endpoint', '_finger_link').replace(
+            '_motor', '_motor_link')
+
+
+def test_limits_are_the_running_parameters(live):
+    _, expected = live
+    assert limits(urdf()) == expected     # the values pass through text exactly
+
+
+def _defaults(specs):
+    return {s.name: s.default for s in specs}
+
+
+@pytest.mark.parametrize('plant, node', [('sim', sim_node), ('hardware', hardware_node)])
+def test_limits_default_to_the_schema(tmp_path, plant, node):
+    """A parameter file without the plant section or the friction keys."""
+    params = tmp_path / 'bare.yaml'
+    params.write_text(yaml.safe_dump({'/**': {'ros__parameters': {'channels': ['pinch']}}}))
+    node_defaults = _defaults(node.node_specs())
+    channel = _defaults(param_specs.controller_channel_specs('pinch'))
+    row = (channel['pinch.friction.position_min'], channel['pinch.friction.position_max'],
+           node_defaults['max_velocity'], node_defaults['torque_limit'])
+    assert limits(urdf(params_file=params, plant=plant)) == \
+        {'pinch_motor': row, 'pinch_endpoint': row}
+
+
+def test_channels_and_limits_follow_the_parameter_file(tmp_path):
+    data = yaml.safe_load(CONFIG.read_text())
+    data['/**']['ros__parameters']['channels'] = ['a', 'b', 'c']
+    for i, channel in enumerate('abc'):
+        data['/**']['ros__parameters'][channel] = {
+            'friction': {'position_min': -0.5 - i, 'position_max': 0.25 + i}}
+    data['/**/hardware'] = {'ros__parameters': {'torque_limit': 3.5, 'max_velocity': 12.0}}
+    params = tmp_path / 'three.yaml'
+    params.write_text(yaml.safe_dump(data))
+    found = limits(urdf(params_file=params, plant='hardware'))
+    assert found == {f'{c}_{j}': (-0.5 - i, 0.25 + i, 12.0, 3.5)
+                     for i, c in enumerate('abc') for j in ('motor', 'endpoint')}
+    # the sim's section of the same file
+    assert {v[2:] for v in limits(urdf(params_file=params)).values()} == {(100.0, 20.0)}
+
+
+def test_installed_copy_is_the_source():
+    assert (INSTALLED / XACRO.name).read_bytes() == XACRO.read_bytes(), \
+        'rebuild: source scripts/setup.sh'
+
+
+def test_the_moveit_snippet_commands_a_urdf_finger_joint():
+    text = (ROOT / 'docs' / 'gripper-actions.md').read_text()
+    blocks = [yaml.safe_load(b) for b in re.findall(r'```yaml\n(.*?)```', text, re.S)]
+    (snippet,) = [b['moveit_simple_controller_manager'] for b in blocks
+                  if 'moveit_simple_controller_manager' in b]
+    joints = {j.name for j in urdf().joints}
+    for name in snippet['controller_names']:
+        controller = snippet[name]
+        assert controller['type'] == 'GripperCommand' and controller['default'] is True
+        assert controller['action_ns'] == 'gripper_cmd'
+        (joint,) = controller['joints']
+        assert joint in joints and joint.endswith('_endpoint'), joint
+        assert name == action_namespace(joint[:-len('_endpoint')], '')
