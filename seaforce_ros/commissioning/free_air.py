@@ -102,7 +102,7 @@ from .record import ExcitationRecord
 __all__ = ["FreeAirIdentification", "Estimate", "Response", "identify_free_air",
            "RecordTooShortError", "NotExcitedError", "NonFiniteRecordError",
            "LowCoherenceError", "PLANT_KEYS", "DAHL_KEYS", "REQUIRED_BAND", "MOTOR_TOP",
-           "PERIODS", "FORCE_ORDERS", "PORT_TOP", "ALIAS_IMAGES", "PORT_SEARCH",
+           "PERIODS", "FORCE_ORDERS", "PORT_TOP", "ALIAS_IMAGES", "PORT_SEARCH", "PORT_RESTARTS",
            "SK_ITERATIONS", "N_FREQ", "FILTER_CUTOFF", "DECIMATE", "RATIO_RANGE",
            "MAX_ITERATIONS", "CONVERGED", "MIN_COHERENCE", "SETTLE_TIME", "DAHL_INPUT_CUTOFF",
            "PATH_CUTOFF"]
@@ -136,6 +136,8 @@ PORT_TOP = 2000.0
 ALIAS_IMAGES = 3
 #: The port's nonlinear fit searches within this factor of its linear start.
 PORT_SEARCH = 100.0
+#: Restarts of a port fit that ended on its search bound (from where it ended).
+PORT_RESTARTS = 2
 #: Sanathanan-Koerner iterations of the port's linear start.
 SK_ITERATIONS = 8
 #: Frequencies of the spectral grid.
@@ -454,11 +456,18 @@ def _fit_port(w: _Real, s_x: _Complex, s_fp: _Complex, s_fd: Optional[_Complex],
 
     z0 = np.log([start[k] for k in free])
     # within a factor PORT_SEARCH of the start (the linear start is within a few 10 % on
-    # every record seen; Levenberg-Marquardt unbounded once ran off to overflow)
+    # most records; Levenberg-Marquardt unbounded once ran off to overflow). A fit that ends
+    # on that bound is started again from where it ended (at most PORT_RESTARTS times): a
+    # linear start 100x off in m_e and b_e ended on the bound with a 14 % misfit
     span = math.log(PORT_SEARCH)
-    sol = scipy.optimize.least_squares(resid, z0, method="trf", bounds=(z0 - span, z0 + span),
-                                       x_scale=1.0, xtol=1e-12, ftol=1e-12,
-                                       max_nfev=400 * (len(free) + 1))
+    for _ in range(1 + PORT_RESTARTS):
+        sol = scipy.optimize.least_squares(resid, z0, method="trf",
+                                           bounds=(z0 - span, z0 + span), x_scale=1.0,
+                                           xtol=1e-12, ftol=1e-12,
+                                           max_nfev=400 * (len(free) + 1))
+        if not np.any(np.abs(sol.x - z0) > span * (1.0 - 1e-6)):
+            break
+        z0 = sol.x
     th = theta_of(sol.x)
     r = sol.fun
     dof = max(1, r.size - len(free))

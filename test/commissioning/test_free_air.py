@@ -201,3 +201,18 @@ def test_gaps_in_the_cycle_are_filled_and_progress_is_reported():
         assert abs(errors(result, TABLE_I, DAHL)[key]) <= tol, key
     with pytest.raises(TypeError):
         identify_free_air(object())  # type: ignore[arg-type]
+
+
+def test_a_linear_start_100x_off_is_fitted_again_from_the_bound():
+    """A plant whose port's linear start put m_e and b_e 100x too high (the second simulator,
+    found by the family test): the bounded fit ended on its bound with a 14 % misfit and m_e not
+    identified; restarted from there it identifies every parameter within its goal."""
+    plant = {'motor_inertia': 0.0020449796752801857, 'motor_damping': 0.04026317676999222,
+             'motor_stiffness': 0.1820090219803304, 'endpoint_inertia': 0.0004856862864079033,
+             'endpoint_damping': 0.05281901559937108, 'endpoint_stiffness': 0.049446437780530796,
+             'hose_damping': 0.014419142539178042, 'hose_stiffness': 11.24523398337605}
+    dahl = {'sigma': 21.182857253431, 'coulomb_force': 0.05058845948374867}
+    result = identify_free_air(second_sim_record(plant, dahl, seed=2833222416 + 8))
+    err = errors(result, plant, dahl)
+    assert {k: e for k, e in err.items() if not abs(e) <= GOALS[k]} == {}, err
+    assert result.misfit["port"] < 0.05
