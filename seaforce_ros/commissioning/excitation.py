@@ -402,16 +402,18 @@ class FreeAirExcitation(Job):
     def step(self, sample: JobSample) -> float:
         """(cycle thread) :meth:`update` on the channel's sample: F_a [N m]. On the sample it
         ends on -- unless its contact test ended it -- the channel's contact estimator is
-        re-armed (:meth:`~..core.estimator.ContactEstimator.rearm`): under the chirp that
+        re-armed once the finger is at rest
+        (:meth:`~..core.estimator.ContactEstimator.rearm_at_rest`): under the chirp that
         estimator's residual (the model's error times large accelerations) starts contacts
         that are none, and one left standing at the end would stay (its residual's offset at
-        rest keeps it from ending) and turn the next grasp or commissioning away."""
+        rest keeps it from ending) and turn the next grasp or commissioning away; re-armed at
+        once, a canceled chirp's coasting finger started one as it stopped."""
         u = self.update(sample.x, sample.v, sample.f_p, sample.torque, sample.applied,
                         sample.cycle, sample.steps)
         if self.phase == "done" and not self._rearmed:
             self._rearmed = True
             if not self.touched:
-                sample.estimator.rearm()
+                sample.estimator.rearm_at_rest()
         return u
 
     def update(self, x: float, v: float, f_p: float, u_prev: float, applied: float,

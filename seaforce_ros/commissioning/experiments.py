@@ -78,6 +78,7 @@ def simulate_excitation(true_plant: PlantParams, true_dahl: Optional[DahlParams]
                         environment: Optional[Environment] = None,
                         start: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0),
                         mode: str = "passive", settle: int = 0,
+                        cancel_after: Optional[int] = None,
                         dt: float = 5e-4) -> ExcitationRun:
     """Run one free-air excitation in closed loop (module docstring).
 
@@ -100,6 +101,9 @@ def simulate_excitation(true_plant: PlantParams, true_dahl: Optional[DahlParams]
         The simulator's initial state [rad, rad/s].
     settle : int
         Samples to run the mode after the job ends.
+    cancel_after : int, optional
+        Cancel the job (:meth:`~.excitation.FreeAirExcitation.request_cancel`) after this many
+        samples.
     dt : float
         Sample period [s].
     """
@@ -120,6 +124,8 @@ def simulate_excitation(true_plant: PlantParams, true_dahl: Optional[DahlParams]
     k = 0
     recorded = 0
     while job.active and k < n + 1:
+        if k == cancel_after:
+            job.request_cancel()
         ctrl.cycle = k
         ctrl.applied = m.f_a
         u = update(m.x, m.v, m.f_p)

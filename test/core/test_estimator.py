@@ -9,6 +9,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from seaforce_ros.core.estimator import (FLOOR_FRACTION, LOSS_TIME, QUIET_GAP, QUIET_TIME,
+                                         REST_SPEED, REST_TIME, REST_TIMEOUT,
                                          ContactEstimator, _hose_sensitivity, _spd_inverse)
 from seaforce_ros.core.params import EstimatorParams, PlantParams
 
@@ -257,6 +258,70 @@ def test_rearm_drops_a_contact_that_was_the_model_starting_to_move():
         est.update(0.0, -0.05, 0.0)
     assert not est.contact and abs(est.force) < 1e-3
     assert all(math.isnan(v) for v in est.estimate()[:5])
+
+
+def test_rearm_at_rest_waits_for_the_finger_to_stop():
+    """A finger moving at 2 rad/s (declared free: :meth:`rearm`) that coasts to rest from
+    t0 = 0.5 s on (``x0 + v0 tau (1 - exp(-(t - t0)/tau))``), seen through a model whose b_e
+    and k_e are 40 % high: the residual falls from the damping's error in motion to the
+    stiffness's at rest. :meth:`rearm_at_rest` at t0 is quiet while the finger moves and for
+    REST_TIME after it is slower than REST_SPEED, then takes the residual at rest as the bias:
+    no contact stands at rest, and a real force after it is found. A plain :meth:`rearm` at t0
+    leaves a contact standing."""
+    model = TABLE_I.scaled(endpoint_damping=1.4, endpoint_stiffness=1.4)
+    v0, t0, tau = 2.0, 0.5, 0.05
+
+    def motion(t):
+        if t < t0:
+            return v0 * t, v0, 0.0
+        e = math.exp(-(t - t0) / tau)
+        return v0 * t0 + v0 * tau * (1.0 - e), v0 * e, -v0 * e / tau
+
+    results = {}
+    for rearm in ('rearm', 'rearm_at_rest'):
+        est = ContactEstimator(EstimatorParams(), model, DT)
+        quiet_until = None
+        for i in range(int(round((t0 + 2.0) / DT))):
+            t = i * DT
+            if i == int(round(0.4 / DT)):
+                est.rearm()                             # steady motion declared free
+            if i == int(round(t0 / DT)):
+                getattr(est, rearm)()
+            x, v, a = motion(t)
+            fp, _ = pressure(TABLE_I, x, v, a, 0.0, 0.0, 10.0)
+            est.update(x, fp, 0.0)
+            if rearm == 'rearm_at_rest' and t >= t0 and quiet_until is None:
+                assert not est.contact, t
+                if not est.quiet:
+                    quiet_until = t
+        results[rearm] = est.contact
+        if rearm == 'rearm_at_rest':
+            stopped = t0 + tau * math.log(v0 / REST_SPEED)      # |v| < REST_SPEED from here
+            assert quiet_until is not None, 'never re-armed'
+            assert stopped + REST_TIME <= quiet_until < stopped + REST_TIME + 0.1, quiet_until
+            assert not est.contact and abs(est.force) < 1e-3
+            x, _, _ = motion(t0 + 10.0)
+            fp, _ = pressure(TABLE_I, x, 0.0, 0.0, 0.0, 0.0, 10.0)
+            for _ in range(200):                                 # a real force at rest
+                est.update(x, fp - 0.03, 0.0)
+            assert est.contact
+    assert results['rearm'], 'a plain re-arm at t0 left no contact: the case tests nothing'
+
+
+def test_rearm_at_rest_times_out_on_a_finger_that_keeps_moving():
+    est = ContactEstimator(EstimatorParams(), TABLE_I, DT)
+    est.update(0.0, 0.0, 0.0)
+    est.rearm_at_rest()
+    n = int(round(REST_TIMEOUT / DT))
+    for i in range(1, n + 2):                       # 1 rad/s, the model exact: F_p follows
+        x, v = i * DT, 1.0
+        fp, _ = pressure(TABLE_I, x, v, 0.0, 0.0, 0.0, 10.0)
+        est.update(x, fp, 0.0)
+        if i < n:
+            assert est.quiet, i
+    assert not est.quiet and not est.contact
+    est.reset()
+    assert not est.quiet
 
 
 def test_estimate_is_cached_until_a_block_is_added():
