@@ -87,6 +87,19 @@ def ros_context():
 _session = {}
 
 
+def pytest_terminal_summary(terminalreporter):
+    """Process stops that were slow (time every run pays in teardown), grouped."""
+    from helpers.processes import SLOW_STOP, slow_stops
+    if slow_stops:
+        groups = {}
+        for name, took, how in slow_stops:
+            groups.setdefault((name, how), []).append(took)
+        terminalreporter.write_sep('-', f'process stops slower than {SLOW_STOP:g} s')
+        for (name, how), took in sorted(groups.items(), key=lambda kv: -sum(kv[1])):
+            terminalreporter.write_line(f'{len(took):3d} x {name}: {sum(took):.1f} s in all '
+                                        f'(max {max(took):.1f} s), {how}')
+
+
 def pytest_sessionfinish(session, exitstatus):
     _session['status'] = int(exitstatus)
 

@@ -146,7 +146,10 @@ def test_commission_over_ros(processes, tmp_path, probe):
     ok, reason = probe.set_parameters('/controller', {'pinch.mode': 'hold'})
     assert ok, reason
     probe.clear('controller_status')
-    probe.wait_for(settled, timeout=60, what='the finger free in hold')
+    try:
+        probe.wait_for(settled, timeout=60, what='the finger free in hold')
+    except AssertionError as exc:
+        raise AssertionError(f'{exc}: {contact_history()} ({where})') from None
     cli = processes.start([str(executable('commission')), '--channel', 'pinch', '--dry-run'],
                           name='commission')
     assert cli.wait(timeout=300) == 0, cli.output()

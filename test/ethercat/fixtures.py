@@ -16,11 +16,13 @@
 
 import functools
 import subprocess
+import time
 import warnings
 
 import pytest
 
 from ethercat.harness import EmulatorHarness, open_master
+from helpers.processes import SLOW_STOP, slow_stops
 
 # The emulator is a slave line: like an ESC it must answer every frame within the master's
 # timeout, whatever else the host runs.  SOEM's blocking calls give it 2 ms per try, and
@@ -67,7 +69,11 @@ def ecat_emulator(tmp_path):
             except Exception as exc:          # e.g. the emulator died: its log says why
                 events = ["(no events: %s)" % exc]
             log = h.log()
+            started = time.monotonic()
             h.stop()
+            took = time.monotonic() - started
+            if took > SLOW_STOP:
+                slow_stops.append(("EtherCAT emulator harness", round(took, 1), "stop()"))
             print("---- emulator %s log ----\n%s" % (h.master_interface, log))
             print("---- emulator %s events (last 40) ----" % h.master_interface)
             for event in events[-40:]:

@@ -12,6 +12,20 @@ ROOT = pathlib.Path(__file__).resolve().parents[2]
 INSTALL_LIB = ROOT / 'install' / 'seaforce_ros' / 'lib' / 'seaforce_ros'
 _log_counter = itertools.count()
 _live: 'set[ManagedProcess]' = set()   # started and not yet stopped: see stop_leftovers()
+#: Stops that took longer than SLOW_STOP s: (what, seconds, how it ended), for the session's
+#: summary (a slow teardown is time every run pays; conftest prints them).
+slow_stops: List[tuple] = []
+SLOW_STOP = 2.0
+
+
+def _signal_masks(pid: int) -> str:
+    """The blocked and ignored signal masks of a running process ('' when unreadable)."""
+    try:
+        lines = pathlib.Path(f'/proc/{pid}/status').read_text().splitlines()
+    except OSError:
+        return ''
+    return ' '.join(line.replace('\t', '') for line in lines
+                    if line.startswith(('SigBlk', 'SigIgn')))
 
 
 def stop_leftovers() -> int:
@@ -72,13 +86,21 @@ class ManagedProcess:
 
     def stop(self, timeout: float = 5.0) -> Optional[int]:
         """SIGINT, then SIGKILL after `timeout`; returns the exit code."""
+        started = time.monotonic()
+        how = 'had exited'
         if self.popen.poll() is None:
+            masks = _signal_masks(self.popen.pid)
             self.send_signal(signal.SIGINT)
+            how = 'SIGINT'
             if self.wait(timeout) is None:
                 self.send_signal(signal.SIGKILL)
+                how = f'SIGKILL after SIGINT was not enough ({masks})'
                 self.wait(5.0)
         self._log.close()
         _live.discard(self)
+        took = time.monotonic() - started
+        if took > SLOW_STOP:
+            slow_stops.append((pathlib.Path(self.argv[0]).name, round(took, 1), how))
         return self.popen.returncode
 
 
