@@ -5,8 +5,8 @@ joint), one lockstep sim + controller stack shared by the tests of this module.
 * free air: SUCCEEDED, reached_goal, within grasp.gripper_tolerance, feedback with a finite
   effort;
 * a soft and a stiff object in the way (the sim's ``object`` environment), the goal beyond it:
-  SUCCEEDED with stalled and not reached_goal, the result at most 50 ms of sim time (100
-  cycles) after the true touch, the grip then held at the effort cap (10 %), the true force
+  SUCCEEDED with stalled and not reached_goal, the stall decided at most 50 ms of sim time
+  (100 cycles) after the true touch (the wall-clock way of the result: bench/gripper_actions.py), the grip then held at the effort cap (10 %), the true force
   beyond it by at most 5 % (soft) or 20 % (stiff: it rings while it settles); the next goal (MoveIt's "open") releases it and moves away;
 * a cancel (grasp.gripper_cancel = hold): CANCELED, the finger held where it stopped;
 * bad goals: NaN, outside the joint range, negative effort, a second goal on a busy channel,
@@ -109,9 +109,8 @@ class Stack:
         return value(self.probe.messages('actuator_state')[-1], 'pinch', 'endpoint_position')
 
     def send(self, goal, client=None):
-        """(handle, feedback list, result future); the future's ``cycle`` attribute is set to
-        the newest state cycle the probe had when the result arrived (its spin thread). The
-        handle may be a rejected one (then no future)."""
+        """(handle, feedback list, result future). The handle may be a rejected one (then no
+        future)."""
         if client is None:
             client = GripperCommand if isinstance(goal, GripperCommand.Goal) \
                 else ParallelGripperCommand
@@ -123,11 +122,7 @@ class Stack:
         if not handle.accepted:
             return handle, feedback, None
 
-        def request():
-            future = handle.get_result_async()
-            future.add_done_callback(lambda f: setattr(f, 'cycle', self.cycle()))
-            return future
-        return handle, feedback, self.call(request)
+        return handle, feedback, self.call(handle.get_result_async)
 
     def result(self, future, timeout=60.0):
         return wait_future(future, timeout, 'result')
@@ -196,6 +191,7 @@ def test_free_air_reaches_the_position(stack):
                                                (10.0, ParallelGripperCommand)])
 def test_an_object_in_the_way_stalls_and_is_gripped_at_the_cap(stack, stiffness, action):
     cap = 0.3
+    stack.probe.record(ControllerStatus, 'controller_status')
     start = stack.cycle()
     surface = stack.place(0.15, stiffness)
     beyond = min(surface + 0.3, 1.4)
@@ -209,11 +205,19 @@ def test_an_object_in_the_way_stalls_and_is_gripped_at_the_cap(stack, stiffness,
     stalled, reached = result.stalled, result.reached_goal
     assert stalled and not reached, result
     touched = contact_cycle(stack, start)
-    assert 0 < future.cycle - touched <= 100, (touched, future.cycle)   # 50 ms of sim time
+    # the stall is decided (the job's answer, at the sample it happens: the grasp phase
+    # 'contact') within 50 ms of sim time of the true touch; the status comes at 100 Hz. (The
+    # answer's way to the client is wall time -- bench/gripper_actions.py measures it: the
+    # probe's arrival cycle on a loaded host was 0.8 s of lockstep time late)
+    statuses = stack.probe.messages('controller_status')
+    stack.probe.stop_recording('controller_status')
+    decided = next((m.cycle for m in statuses if m.cycle > start
+                    and value(m, 'pinch', 'grasp_phase') in ('contact', 'squeeze', 'hold')), None)
+    assert decided is not None and 0 < decided - touched <= 100 + 20, (touched, decided)
     # the grip goes on after the goal: settled at the cap
     settle = max(0.4, 6.0 * (0.06 + 0.08) / stiffness)
     stack.probe.wait_messages('actuator_state', 1, timeout=120,
-                              where=lambda m: m.cycle > future.cycle + int(settle / DT))
+                              where=lambda m: m.cycle > decided + int(settle / DT))
     forces = true_forces(stack, touched)
     # the commanded contact force never exceeds the cap; the true one overshoots it while a
     # stiff object settles (measured: 12 % at 10 N m/rad, none at 0.5)
