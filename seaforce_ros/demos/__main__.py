@@ -1,5 +1,6 @@
-"""``python -m seaforce_ros.demos [grasp] [options]``: the impedance demo (the README's main
-job, :mod:`.impedance`) or, with ``grasp``, the grasping demo (:mod:`.grasp`)."""
+"""``python -m seaforce_ros.demos [grasp | commission] [options]``: the impedance demo (the
+README's main job, :mod:`.impedance`), the grasping demo (``grasp``, :mod:`.grasp`) or the
+commissioning demo (``commission``, :mod:`.commission`)."""
 import sys
 
 
@@ -8,6 +9,9 @@ def main(argv=None):
     if argv[:1] == ['grasp']:
         from .grasp import main as grasp_main
         return grasp_main(argv[1:])
+    if argv[:1] == ['commission']:
+        from .commission import main as commission_main
+        return commission_main(argv[1:])
     from .impedance import main as impedance_main
     return impedance_main(argv)
 

@@ -148,7 +148,6 @@ def run_friction_calibration(observer, children, args):
     """Release the finger into free air and run ~/calibrate_friction; its result. The
     controller's ``state_timeout`` and the channel's mode are left as the calibration set them
     (``hold``): the caller restores them."""
-    from rclpy.action import ActionClient
     from seaforce_msgs.action import CalibrateFriction
     node = observer.node
     # held where the drive left it, then released (in dob_full_ff a model that
@@ -159,34 +158,45 @@ def run_friction_calibration(observer, children, args):
         f'{CHANNEL}.mode': 'hold', 'state_timeout': CALIBRATION_STATE_TIMEOUT,
         f'{CHANNEL}.friction.calibration_duration': float(args.calibration_time)})
     set_parameters(node, '/sim', {f'{CHANNEL}.environment.mode': 'free'})
-    client = ActionClient(node, CalibrateFriction, '/controller/calibrate_friction')
-    if not client.wait_for_server(timeout_sec=20.0):
-        raise RuntimeError('the ~/calibrate_friction action server did not come up')
     time.sleep(0.5)                                  # the released finger settles
     goal = CalibrateFriction.Goal(channel=CHANNEL, amplitude=0.4, speed=1.0, apply=True)
     for attempt in range(1, CALIBRATION_ATTEMPTS + 1):
         print(f'[demo] friction calibration: the finger in free air, '
               f'{args.calibration_time:g} s of motion ...', flush=True)
-        deadline = time.monotonic() + 3.0 * args.calibration_time + 60.0
-        # (requests from the spin thread: from this one rclpy can drop the answer)
-        future = observer.background.call(lambda: client.send_goal_async(goal))
-        while not future.done():
-            children.check()
-            if time.monotonic() > deadline:
-                raise RuntimeError('the calibration goal was not answered')
-            time.sleep(0.05)
-        result_future = observer.background.call(future.result().get_result_async)
-        while not result_future.done():
-            children.check()
-            if time.monotonic() > deadline:
-                raise RuntimeError('the friction calibration did not end in time')
-            time.sleep(0.1)
-        result = result_future.result().result
+        result = run_action(observer, children, CalibrateFriction,
+                            '/controller/calibrate_friction', goal,
+                            3.0 * args.calibration_time + 60.0)
         if result.applied or attempt == CALIBRATION_ATTEMPTS:
             return result
         # a real-time loop on a loaded host stalls now and then: the stall zeroes the torque
         # and aborts the calibration (nothing applied); try again
         print(f'[demo]   aborted: {result.message}', flush=True)
+
+
+def run_action(observer, children, kind, name, goal, timeout, on_feedback=None):
+    """Send ``goal`` to the action server ``name`` (type ``kind``) and wait for its result
+    (``on_feedback(feedback)`` for each feedback); RuntimeError when a node exits, the server
+    is missing, the goal is rejected or nothing ends within ``timeout`` s."""
+    from rclpy.action import ActionClient
+    client = ActionClient(observer.node, kind, name)
+    if not client.wait_for_server(timeout_sec=20.0):
+        raise RuntimeError(f'the {name} action server did not come up')
+    deadline = time.monotonic() + timeout
+    callback = (lambda m: on_feedback(m.feedback)) if on_feedback else None
+
+    def wait(future, what):
+        while not future.done():
+            children.check()
+            if time.monotonic() > deadline:
+                raise RuntimeError(f'{name}: {what} within {timeout:g} s')
+            time.sleep(0.05)
+        return future.result()
+    # (requests from the spin thread: from this one rclpy can drop the answer)
+    handle = wait(observer.background.call(
+        lambda: client.send_goal_async(goal, feedback_callback=callback)), 'no answer')
+    if not handle.accepted:
+        raise RuntimeError(f'{name} rejected the goal (the node\'s log says why)')
+    return wait(observer.background.call(handle.get_result_async), 'no result').result
 
 
 def print_calibration(result, truth, seconds):
@@ -203,15 +213,29 @@ def print_calibration(result, truth, seconds):
               f'{100.0 * (new / true - 1.0):+8.1f}%')
 
 
-def true_plant(seed):
-    """The sim's plant: Table I and the Dahl fit with every parameter 10-20 % off, signs at
-    random; returns ``{'<ch>.sim.<key>': value}`` and ``{key: factor}``."""
+def _plant_values(factors):
+    """``{'<ch>.sim.<key>': value}`` of Table I and the Dahl fit scaled by ``factors``."""
     from ..core.params import DahlParams, PlantParams
-    rng = np.random.default_rng(seed)
     table, dahl = PlantParams.table_i(), DahlParams()
-    factors = {key: float(1.0 + rng.choice((-1.0, 1.0)) * rng.uniform(0.10, 0.20))
-               for key in PLANT_KEYS + ('sigma', 'coulomb_force')}
     values = {f'{CHANNEL}.sim.plant.{k}': getattr(table, k) * factors[k] for k in PLANT_KEYS}
     values.update({f'{CHANNEL}.sim.dahl.{k}': getattr(dahl, k) * factors[k]
                    for k in ('sigma', 'coulomb_force')})
-    return values, factors
+    return values
+
+
+def true_plant(seed):
+    """The sim's plant: Table I and the Dahl fit with every parameter 10-20 % off, signs at
+    random; returns ``{'<ch>.sim.<key>': value}`` and ``{key: factor}``."""
+    rng = np.random.default_rng(seed)
+    factors = {key: float(1.0 + rng.choice((-1.0, 1.0)) * rng.uniform(0.10, 0.20))
+               for key in PLANT_KEYS + ('sigma', 'coulomb_force')}
+    return _plant_values(factors), factors
+
+
+def drawn_plant(seed, low, high):
+    """The sim's plant: Table I and the Dahl fit with every parameter log-uniform in [low x,
+    high x]; returns ``{'<ch>.sim.<key>': value}`` and ``{key: factor}``."""
+    rng = np.random.default_rng(seed)
+    factors = {key: float(np.exp(rng.uniform(np.log(low), np.log(high))))
+               for key in PLANT_KEYS + ('sigma', 'coulomb_force')}
+    return _plant_values(factors), factors

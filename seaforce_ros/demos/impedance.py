@@ -86,6 +86,15 @@ class Observer:
         with self.lock:
             self.modes[msg.cycle] = msg.mode[i]
 
+    def wait_until_live(self, children, timeout=60.0):
+        """Until both topics arrive; RuntimeError if a node exits or ``timeout`` s pass."""
+        deadline = time.monotonic() + timeout
+        while self.latest_cycle() is None or not self.modes:
+            children.check()
+            if time.monotonic() > deadline:
+                raise RuntimeError(f'no actuator_state/controller_status within {timeout:g} s')
+            time.sleep(0.1)
+
     def latest_cycle(self):
         with self.lock:
             return self.states[-1][0] if self.states else None
@@ -219,13 +228,7 @@ def main(argv=None):
         observer = Observer()
         children.observers.append(observer)
         print('[demo] waiting for the closed loop to come up ...', flush=True)
-        deadline = time.monotonic() + 60
-        while observer.latest_cycle() is None or not observer.modes:
-            children.check()
-            if time.monotonic() > deadline:
-                raise RuntimeError('no actuator_state/controller_status within 60 s')
-            time.sleep(0.1)
-
+        observer.wait_until_live(children)
         observer.set_mode('passive')  # also connects the parameter client before measuring
         results = {}
         settle = int(round(1.0 / DT))

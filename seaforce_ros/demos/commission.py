@@ -1,0 +1,335 @@
+"""``scripts/demo commission``: commission a gripper whose plant nobody told the controller.
+
+The sim's true plant is drawn with ``--seed``: every Table I parameter and the Dahl sigma and
+F_c log-uniform in [0.5x, 2x] (``pinch.sim.plant.*``, ``pinch.sim.dahl.*``), hidden from the
+controller, which starts from the default configuration (``config/gripper.yaml``). Lockstep:
+the plant steps on the controller's answers, so every figure is the loop's own on any host.
+
+1. **before**: each mode's |Z(j omega)| = |F_e/V_e| measured with the sim's position drive
+   (``position_sine``, amplitude ``min(0.5, 0.5/omega)`` rad: 0.5 rad/s peak) at each
+   ``--frequencies`` value, one period after a settling second;
+2. **commission**: the finger released into free air (hold, then the drive off), the
+   ``~/commission`` action with ``apply`` (excitation, identification, tuning, report; the run
+   directory under ``<--out>/runs``);
+3. **after**: every mode measured again on the applied parameters;
+4. **ideal**: the controller given the sim's true plant and Dahl parameters (the rest as
+   before commissioning), ``dob_full_ff`` measured at the lowest frequency: what model error
+   costs.
+
+Predictions (:func:`~..commissioning.predictor.predict_modes`, on the *identified* plant from
+the run's report, with its loop delay): before with the starting configuration, after with
+the applied one. Prints measured vs predicted per mode and frequency, the Z-width (hold less
+the softest other mode) before and after, ``dob_full_ff`` after vs ideal and the rig time;
+writes ``zwidth_commission.png`` and ``results.json`` to ``--out``.
+
+Usage: python -m seaforce_ros.demos commission [--seed N] [--out DIR]
+       [--frequencies 1,3,10] [--modes passive,hold,...] [--controller-params FILE]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import pathlib
+import sys
+import time
+from typing import Dict, List, Sequence, Tuple
+
+import numpy as np
+
+from .common import (CHANNEL, DT, drawn_plant, prepare, run_action, run_guarded,
+                     set_parameters)
+from .impedance import Observer, measure, status_note
+
+MODES = ('passive', 'hold', 'dob', 'dob_linear_ff', 'dob_full_ff', 'impedance')
+SETTLE = 1.0            # s of drive before a mode's measured period
+PEAK_SPEED = 0.5        # rad/s of the drive: amplitude min(0.5, PEAK_SPEED/omega)
+COMMISSION_TIMEOUT = 600.0
+
+
+def amplitude(omega: float) -> float:
+    """The drive's amplitude at ``omega`` [rad]."""
+    return min(0.5, PEAK_SPEED / omega)
+
+
+class CommissionObserver(Observer):
+    """The demo's observer, which also keeps the channel's contact flag."""
+
+    def __init__(self):
+        super().__init__()
+        self.contact: Dict[int, bool] = {}
+
+    def _on_status(self, msg):
+        super()._on_status(msg)
+        i = list(msg.name).index(CHANNEL)
+        with self.lock:
+            self.contact[msg.cycle] = bool(msg.contact[i])
+
+    def free_for(self, cycles: int) -> bool:
+        """No contact in the statuses of the last ``cycles`` cycles (and some seen)."""
+        with self.lock:
+            if not self.contact:
+                return False
+            last = max(self.contact)
+            recent = [c for k, c in self.contact.items() if k > last - cycles]
+        return len(recent) > 10 and not any(recent)
+
+
+def _wait_cycle(observer, children, cycle: int) -> None:
+    while (observer.latest_cycle() or 0) < cycle:
+        children.check()
+        time.sleep(0.05)
+
+
+def measure_modes(observer, children, modes: Sequence[str], frequencies: Sequence[float],
+                  label: str) -> Dict[Tuple[str, float], float]:
+    """|Z| [dB] of each mode at each frequency with the sim's position drive."""
+    node = observer.node
+    out: Dict[Tuple[str, float], float] = {}
+    for omega in frequencies:
+        a = amplitude(omega)
+        observer.set_mode('passive')        # the drive changes under the softest mode
+        set_parameters(node, '/sim', {f'{CHANNEL}.environment.mode': 'position_sine',
+                                      f'{CHANNEL}.environment.amplitude': a,
+                                      f'{CHANNEL}.environment.frequency': float(omega)})
+        period = int(math.ceil(2.0 * math.pi / omega / DT)) + 1
+        for mode in modes:
+            before = observer.latest_cycle()
+            observer.set_mode(mode)
+            deadline = time.monotonic() + 30.0
+            while (start := observer.first_cycle_in_mode(mode, before)) is None:
+                children.check()
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f'controller_status never showed mode {mode}')
+                time.sleep(0.05)
+            first = start + int(round(SETTLE / DT))
+            last = first + period - 1
+            _wait_cycle(observer, children, last)
+            window = observer.window(first, last)
+            out[(mode, omega)] = measure(window, omega, a)['z_db']
+            print(f'[commission] {label:6s} {mode:14s} {omega:5.3g} rad/s ({a:.3g} rad): '
+                  f'|Z| {out[(mode, omega)]:6.1f} dB{status_note(window)}', flush=True)
+    return out
+
+
+def release(observer, children) -> None:
+    """Hold, the drive off, and wait until the contact estimator has seen 1 s free."""
+    observer.set_mode('hold')
+    set_parameters(observer.node, '/sim', {f'{CHANNEL}.environment.mode': 'free'})
+    deadline = time.monotonic() + 60.0
+    while not observer.free_for(int(round(1.0 / DT))):
+        children.check()
+        if time.monotonic() > deadline:
+            raise RuntimeError('the released finger did not come free (the contact estimator '
+                               'still sees a contact after 60 s)')
+        time.sleep(0.1)
+
+
+def commission(observer, children):
+    """The ``~/commission`` goal with apply; its result (progress lines on the way)."""
+    from seaforce_msgs.action import Commission
+    goal = Commission.Goal(channel=CHANNEL, apply=True)
+    shown = {'phase': None, 'at': 0.0}
+
+    def on_feedback(feedback):
+        now = time.monotonic()
+        if feedback.phase != shown['phase'] or now - shown['at'] > 2.0:
+            shown.update(phase=feedback.phase, at=now)
+            print(f'[commission]   {feedback.phase:9s} {100.0 * feedback.progress:5.1f} %  '
+                  f'{feedback.measuring}', flush=True)
+    return run_action(observer, children, Commission, '/controller/commission', goal,
+                      COMMISSION_TIMEOUT, on_feedback)
+
+
+def predictions(run_dir: pathlib.Path, result, modes, frequencies):
+    """Predicted |Z| [dB] before and after, on the identified plant with the run's delay;
+    also the configurations (flat dicts) before and after."""
+    from ..commissioning.predictor import predict_modes
+    from ..commissioning.report import load_report
+    from ..core.params import ControllerConfig
+    request = json.loads((run_dir / 'request.json').read_text())
+    before_values = dict(request['config'])
+    applied = {k: float(v) for k, v in zip(result.names, result.new_values)
+               if math.isfinite(v)}
+    after_values = {**before_values, **applied}
+    report = load_report(run_dir / 'report.json')
+    identified = ControllerConfig.from_dict(
+        {r.name: r.value for r in report.identification if math.isfinite(r.value)},
+        base=ControllerConfig.from_dict(before_values))
+    delay = next((int(f.value) for f in report.loop if f.name.startswith('loop delay p50')), 1)
+    out = {}
+    for label, values in (('before', before_values), ('after', after_values)):
+        config = ControllerConfig.from_dict(values).replace(allow_non_passive=True)
+        for omega in frequencies:
+            z = predict_modes(identified.plant, identified.dahl, config, modes, [omega],
+                              delay=delay, amplitude=amplitude(omega))
+            for mode in modes:
+                out[(label, mode, omega)] = 20.0 * math.log10(abs(complex(z[mode][0])))
+    return out, before_values, applied, report, delay
+
+
+def zwidth(z: Dict[Tuple[str, float], float], omega: float) -> float:
+    soft = [v for (m, w), v in z.items() if w == omega and m != 'hold']
+    return z[('hold', omega)] - min(soft) if ('hold', omega) in z and soft else math.nan
+
+
+def print_table(measured, predicted, modes, frequencies) -> float:
+    """The measured vs predicted table; returns the largest |difference| [dB]."""
+    print(f'\n{"mode":15s}{"omega":>7s} | {"before: meas.":>13s}{"pred.":>8s}{"diff":>7s} | '
+          f'{"after: meas.":>12s}{"pred.":>8s}{"diff":>7s}')
+    print(f'{"":15s}{"rad/s":>7s} | {"[dB re 1 N m s/rad]":>28s} | {"[dB]":>27s}')
+    worst = 0.0
+    for omega in frequencies:
+        for mode in modes:
+            cells = []
+            for label in ('before', 'after'):
+                m, p = measured[label][(mode, omega)], predicted[(label, mode, omega)]
+                worst = max(worst, abs(m - p))
+                cells.append(f'{m:13.1f}{p:8.1f}{m - p:+7.1f}' if label == 'before'
+                             else f'{m:12.1f}{p:8.1f}{m - p:+7.1f}')
+            print(f'{mode:15s}{omega:7.3g} | {cells[0]} | {cells[1]}')
+    return worst
+
+
+def plot(measured, predicted_curves, modes, path: pathlib.Path) -> None:
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 2, figsize=(14, 5.5), sharey=True)
+    colours = dict(zip(MODES, ('#f2b705', '#d62728', '#17becf', '#c51b8a', '#1f77b4',
+                               '#2ca02c')))
+    for ax, label in zip(axes, ('before', 'after')):
+        for mode in modes:
+            w, db = predicted_curves[(label, mode)]
+            ax.semilogx(w, db, color=colours.get(mode), lw=1.2, label=f'{mode} predicted')
+            pts = sorted((o, v) for (m, o), v in measured[label].items() if m == mode)
+            ax.semilogx([p[0] for p in pts], [p[1] for p in pts], 'o',
+                        color=colours.get(mode), ms=6)
+        ax.set_title(f'{label} commissioning (lines: predicted; dots: measured)')
+        ax.set_xlabel('omega [rad/s]')
+        ax.grid(True, which='both', alpha=0.3)
+    axes[0].set_ylabel('|Z| [dB re 1 N m s/rad]')
+    axes[1].legend(fontsize=8)
+    fig.suptitle('pinch finger: |F_e/V_e| per mode, the plant drawn 0.5x..2x and unknown '
+                 'to the controller')
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def predicted_curves(run_dir, result, modes) -> Dict[Tuple[str, str], Tuple[np.ndarray,
+                                                                              List[float]]]:
+    grid = np.logspace(-0.3, 1.3, 17)
+    table, *_ = predictions(run_dir, result, modes, list(grid))
+    return {(label, mode): (grid, [table[(label, mode, w)] for w in grid])
+            for label in ('before', 'after') for mode in modes}
+
+
+def main(argv=None):
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--out', default='out/demo-commission', help='output directory')
+    parser.add_argument('--seed', type=int, default=1, help="the sim's drawn plant")
+    parser.add_argument('--frequencies', default='1,3,10',
+                        help='drive frequencies [rad/s], comma-separated')
+    parser.add_argument('--modes', default=','.join(MODES), help='modes measured')
+    parser.add_argument('--controller-params', default=None,
+                        help='a params file for controller_node after the defaults (e.g. a '
+                             'shorter commissioning.duration)')
+    args = parser.parse_args(argv)
+    extra = pathlib.Path(args.controller_params) if args.controller_params else None
+    if extra is not None and not extra.is_file():
+        parser.error(f'--controller-params {extra}: no such file')
+    try:
+        frequencies = sorted(float(f) for f in args.frequencies.split(','))
+    except ValueError:
+        parser.error(f'--frequencies {args.frequencies!r}: numbers separated by commas')
+    if not frequencies or not all(0.1 <= f <= 100.0 for f in frequencies):
+        parser.error('--frequencies: each within 0.1..100 rad/s')
+    modes = tuple(args.modes.split(','))
+    if 'hold' not in modes or not set(modes) <= set(MODES) or len(modes) < 2:
+        parser.error(f'--modes: hold and at least one other of {", ".join(MODES)}')
+
+    out, lib, config = prepare(args.out)
+    truth, factors = drawn_plant(args.seed, 0.5, 2.0)
+    sim_overrides = out / 'sim-overrides.yaml'
+    sim_overrides.write_text('sim:\n  ros__parameters:\n    clock_mode: lockstep\n'
+                             + ''.join(f'    {k}: {v!r}\n' for k, v in truth.items()))
+    ctl_overrides = out / 'controller-overrides.yaml'
+    runs = (out / 'runs').resolve()
+    ctl_overrides.write_text('controller:\n  ros__parameters:\n'
+                             f'    commissioning.directory: "{runs}"\n    state_timeout: 5.0\n')
+
+    def work(children):
+        started = time.monotonic()
+        for name, files in (('sim_node', [sim_overrides]),
+                            ('controller_node', [ctl_overrides] + ([extra] if extra else []))):
+            children.start([str(lib / name), '--ros-args', '--params-file', str(config)]
+                           + [a for f in files for a in ('--params-file', str(f))], name)
+        observer = CommissionObserver()
+        children.observers.append(observer)
+        print(f'[commission] seed {args.seed}: the true plant, x Table I / the Dahl fit: '
+              + ', '.join(f'{k} {f:.2f}' for k, f in factors.items()), flush=True)
+        observer.wait_until_live(children)
+        measured = {'before': measure_modes(observer, children, modes, frequencies, 'before')}
+        release(observer, children)
+        t0 = time.monotonic()
+        result = commission(observer, children)
+        commission_wall = time.monotonic() - t0
+        print(f'\n{result.summary}\n[commission] {result.message}', flush=True)
+        if not result.applied:
+            raise RuntimeError(f'the commissioning applied nothing: {result.message}')
+        run_dir = pathlib.Path(result.report_path).parent
+        measured['after'] = measure_modes(observer, children, modes, frequencies, 'after')
+        predicted, before_values, applied, report, delay = predictions(
+            run_dir, result, modes, frequencies)
+        # ideal: the true model, the rest of the configuration as before commissioning
+        ideal_values = {f'{CHANNEL}.{k}': before_values[k] for k in applied
+                        if not k.startswith(('plant.', 'dahl.'))}
+        ideal_values.update({k.replace('.sim.', '.', 1): v for k, v in truth.items()})
+        observer.set_mode('passive')
+        set_parameters(observer.node, '/controller', ideal_values, atomically=True)
+        low = frequencies[0]
+        ideal = measure_modes(observer, children, ('dob_full_ff',), [low], 'ideal')
+        worst = print_table(measured, predicted, modes, frequencies)
+        phases = report.meta.phases
+        rig = sum(phases.values())
+        lines = [f'\nZ-width (hold vs the softest other mode), predictor delay {delay} '
+                 'sample(s):']
+        for omega in frequencies:
+            lines.append(f'  {omega:5.3g} rad/s: before {zwidth(measured["before"], omega):5.1f}'
+                         f' dB, after {zwidth(measured["after"], omega):5.1f} dB')
+        z_after = measured['after'][('dob_full_ff', low)]
+        z_ideal = ideal[('dob_full_ff', low)]
+        lines += [f'dob_full_ff at {low:g} rad/s: {measured["before"][("dob_full_ff", low)]:.1f}'
+                  f' dB before, {z_after:.1f} dB after, {z_ideal:.1f} dB with the true model '
+                  f'({z_after - z_ideal:+.1f} dB)',
+                  f'predicted vs measured: largest difference {worst:.1f} dB',
+                  'rig time: ' + ', '.join(f'{k} {v:.1f} s' for k, v in phases.items())
+                  + f' = {rig:.1f} s (goal {commission_wall:.1f} s wall)',
+                  f'report: {result.report_path}']
+        print('\n'.join(lines))
+        curves = predicted_curves(run_dir, result, modes)
+        png = out / 'zwidth_commission.png'
+        plot(measured, curves, modes, png)
+        results = {'seed': args.seed, 'factors': factors, 'frequencies': frequencies,
+                   'measured': {label: {f'{m}@{w:g}': v for (m, w), v in z.items()}
+                                for label, z in measured.items()},
+                   'predicted': {f'{label}:{m}@{w:g}': v for (label, m, w), v in
+                                 predicted.items()},
+                   'ideal_dob_full_ff_db': z_ideal,
+                   'zwidth_db': {label: {f'{w:g}': zwidth(measured[label], w)
+                                         for w in frequencies} for label in measured},
+                   'worst_prediction_error_db': worst, 'phases': phases, 'rig_time': rig,
+                   'identified': {r.name: r.value for r in report.identification},
+                   'truth': truth, 'report': result.report_path,
+                   'wall_time': time.monotonic() - started}
+        (out / 'results.json').write_text(json.dumps(results, indent=1))
+        print(f'plot: {png}\nresults: {out / "results.json"}')
+        return 0
+
+    return run_guarded('commission', out, work)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
