@@ -8,13 +8,13 @@ the plant steps on the controller's answers, so every figure is the loop's own o
 1. **before**: each mode's |Z(j omega)| = |F_e/V_e| measured with the sim's position drive
    (``position_sine``, amplitude ``min(0.5, 0.5/omega)`` rad: 0.5 rad/s peak) at each
    ``--frequencies`` value, one period after a settling second;
-2. **commission**: the finger released into free air (hold, then the drive off), the
+2. **commission**: the finger released into free air (passive, the drive off), the
    ``~/commission`` action with ``apply`` (excitation, identification, tuning, report; the run
    directory under ``<--out>/runs``);
 3. **after**: every mode measured again on the applied parameters;
-4. **ideal**: the controller given the sim's true plant and Dahl parameters (the rest as
-   before commissioning), ``dob_full_ff`` measured at the lowest frequency: what model error
-   costs.
+4. **ideal**: the controller given the sim's true plant and Dahl parameters (the tuned
+   settings kept; refused when eq. 28 does not hold for them), ``dob_full_ff`` measured at the
+   lowest frequency: what the identification's error costs.
 
 Predictions (:func:`~..commissioning.predictor.predict_modes`, on the *identified* plant from
 the run's report, with its loop delay): before with the starting configuration, after with
@@ -113,15 +113,20 @@ def measure_modes(observer, children, modes: Sequence[str], frequencies: Sequenc
 
 
 def release(observer, children) -> None:
-    """Hold, the drive off, and wait until the contact estimator has seen 1 s free."""
-    observer.set_mode('hold')
+    """Passive, the drive off, and wait until the contact estimator has seen 1 s free -- at
+    most 10 s: with the model this far off, the drive's contact can stand at rest (the model's
+    error times the finger's deflection), and ``~/commission`` takes a contact that stands
+    with the finger still for its ``STANDING_TIME`` for the model's error (the excitation's
+    contact test aborts at a real one); a goal it turns away says why."""
+    observer.set_mode('passive')
     set_parameters(observer.node, '/sim', {f'{CHANNEL}.environment.mode': 'free'})
-    deadline = time.monotonic() + 60.0
+    deadline = time.monotonic() + 10.0
     while not observer.free_for(int(round(1.0 / DT))):
         children.check()
         if time.monotonic() > deadline:
-            raise RuntimeError('the released finger did not come free (the contact estimator '
-                               'still sees a contact after 60 s)')
+            print('[commission] the contact estimator still reports a contact with the finger '
+                  'released (the model\'s error at rest)', flush=True)
+            return
         time.sleep(0.1)
 
 
@@ -281,16 +286,23 @@ def main(argv=None):
             raise RuntimeError(f'the commissioning applied nothing: {result.message}')
         run_dir = pathlib.Path(result.report_path).parent
         measured['after'] = measure_modes(observer, children, modes, frequencies, 'after')
-        predicted, before_values, applied, report, delay = predictions(
+        predicted, _, applied, report, delay = predictions(
             run_dir, result, modes, frequencies)
-        # ideal: the true model, the rest of the configuration as before commissioning
-        ideal_values = {f'{CHANNEL}.{k}': before_values[k] for k in applied
-                        if not k.startswith(('plant.', 'dahl.'))}
-        ideal_values.update({k.replace('.sim.', '.', 1): v for k, v in truth.items()})
-        observer.set_mode('passive')
-        set_parameters(observer.node, '/controller', ideal_values, atomically=True)
+        # ideal: the tuned settings with the true model (what the identification's error
+        # costs); the controller refuses it when eq. 28 does not hold for the true plant
         low = frequencies[0]
-        ideal = measure_modes(observer, children, ('dob_full_ff',), [low], 'ideal')
+        observer.set_mode('passive')
+        ideal_values = {k.replace('.sim.', '.', 1): v for k, v in truth.items()}
+        # (the contact damping's bound follows the true hose: at most 10 b_s)
+        ideal_values[f'{CHANNEL}.grasp.contact_damping'] = min(
+            applied.get('grasp.contact_damping', math.inf),
+            10.0 * truth[f'{CHANNEL}.sim.plant.hose_damping'])
+        try:
+            set_parameters(observer.node, '/controller', ideal_values, atomically=True)
+            ideal = measure_modes(observer, children, ('dob_full_ff',), [low], 'ideal')
+        except RuntimeError as exc:
+            print(f'[commission] ideal model not measured: {exc}', flush=True)
+            ideal = {('dob_full_ff', low): math.nan}
         worst = print_table(measured, predicted, modes, frequencies)
         phases = report.meta.phases
         rig = sum(phases.values())
