@@ -20,10 +20,18 @@ signs at random), objects drawn at random. Prints:
 ``friction.calibration_duration``; objects sit 0.15 rad or more away), as a user would run
 ``~/calibrate_friction`` before grasping; the rest of the model stays ``--error`` off.
 
+``--commission``: before each grasp the controller's model is the free-air self-identification's
+(:mod:`seaforce_ros.commissioning.free_air`, a 12 s chirp 1..400 Hz of the same plant, as
+``~/commission`` runs it; the plant, the Dahl sigma and F_c, the DOB's nominal inertia set to
+the identified m, the contact damping within 10 b_s; the rest of the configuration is the
+default) -- the grasps on a commissioned
+model. ``--estimates-only`` prints the object estimates and grip figures only.
+
 Run:  PYTHONPATH=. python bench/grasp_accuracy.py [--draws N] [--error 0.15] [--seed S]
-      [--calibrate]
+      [--calibrate | --commission] [--estimates-only]
 """
 import argparse
+import dataclasses
 import math
 import sys
 
@@ -50,12 +58,32 @@ def wrong_plant(rng, error):
 
 #: set by ``--calibrate``: a friction calibration before each grasp
 CALIBRATE = False
+#: set by ``--commission``: the model self-identified in free air before each grasp
+COMMISSION = False
 
 
-def controller_on(sim):
-    """The controller on ``sim`` and its first measurement, friction recalibrated in free air
-    first when ``CALIBRATE`` (it must succeed): (controller, config, measurement)."""
+def commissioned(plant, dahl, seed):
+    """The default configuration with the model the free-air identification gives for
+    ``plant``/``dahl`` (module docstring)."""
+    from seaforce_ros.commissioning.experiments import run_free_air_excitation
+    from seaforce_ros.commissioning.free_air import identify_free_air
     config = ControllerConfig()
+    ident = identify_free_air(run_free_air_excitation(plant, dahl, config, seed=seed,
+                                                      duration=12.0, band=(1.0, 400.0)))
+    model = ident.plant()
+    return config.replace(
+        plant=model, dahl=ident.dahl(),
+        dob=dataclasses.replace(config.dob, nominal_inertia=model.motor_inertia),
+        # (as the tuning does: at most 10 b_s)
+        grasp=dataclasses.replace(config.grasp, contact_damping=min(
+            config.grasp.contact_damping, 10.0 * model.hose_damping)))
+
+
+def controller_on(sim, plant=None, dahl=None, seed=0):
+    """The controller on ``sim`` and its first measurement, friction recalibrated in free air
+    first when ``CALIBRATE`` (it must succeed), its model commissioned on ``plant``/``dahl``
+    when ``COMMISSION``: (controller, config, measurement)."""
+    config = commissioned(plant, dahl, seed) if COMMISSION else ControllerConfig()
     ctl = ChannelController(config, dt=DT)
     m = sim.measurement()
     if CALIBRATE:
@@ -115,9 +143,9 @@ def grasp(k, b, position, v, grip, rng, error, hold=True, ideal=False):
     """One grasp; returns the measured figures (None where it did not get there), with the
     :func:`ideal_delay` on the same plant and object if ``ideal``."""
     plant, dahl = wrong_plant(rng, error)
-    sim = ChannelSimulator(plant, dahl, seed=int(rng.integers(1 << 30)),
-                           environment=contact_object(position, k, b))
-    ctl, config, m = controller_on(sim)
+    seed = int(rng.integers(1 << 30))
+    sim = ChannelSimulator(plant, dahl, seed=seed, environment=contact_object(position, k, b))
+    ctl, config, m = controller_on(sim, plant, dahl, seed)
     max_force = 2.0 * grip
     g = Grasp(GraspGoal('pinch', v, grip, max_force, True), config, DT)
     ctl.request_job(g)
@@ -231,15 +259,26 @@ def main():
     parser.add_argument('--free', type=int, default=10, help='plants per free-motion speed')
     parser.add_argument('--calibrate', action='store_true',
                         help='recalibrate the endpoint friction before each grasp')
+    parser.add_argument('--commission', action='store_true',
+                        help='the model self-identified in free air before each grasp')
+    parser.add_argument('--estimates-only', action='store_true',
+                        help='only the object estimates and grip figures')
     args = parser.parse_args()
-    global CALIBRATE
-    CALIBRATE = args.calibrate
+    global CALIBRATE, COMMISSION
+    if args.calibrate and args.commission:
+        parser.error('--calibrate or --commission, not both')
+    if args.commission and not args.estimates_only:
+        parser.error('--commission needs --estimates-only (the detection and free-motion '
+                     'tables do not commission)')
+    CALIBRATE, COMMISSION = args.calibrate, args.commission
     rng = np.random.default_rng(args.seed)
     print(f'the sim\'s plant {100 * args.error:.0f} % off the controller\'s model (each '
           f'parameter, random signs); {args.draws} objects: k log-uniform 0.2..20 N m/rad, '
           'b 0.04..0.1 N m s/rad, at 0.15..0.3 rad, closed at 0.05..0.3 rad/s, grip '
           '0.2..0.5 N m (at most k x 1 rad), max_force 2 grip'
-          + ('; friction recalibrated in free air before each grasp' if CALIBRATE else ''))
+          + ('; friction recalibrated in free air before each grasp' if CALIBRATE else '')
+          + ('; the model self-identified in free air before each grasp' if COMMISSION
+             else ''))
     rows = []
     for _ in range(args.draws):
         k = float(np.exp(rng.uniform(np.log(0.2), np.log(20.0))))
@@ -258,6 +297,8 @@ def main():
     ended = [r['ended'] for r in rows if r['ended'] not in ('holding', 'probing')]
     print(f'grasps that did not reach a settled hold: {len(ended)} {ended if ended else ""}')
     print(f'contacts detected before the true contact: {sum(r["early"] for r in rows)}')
+    if args.estimates_only:
+        return 0
     for b in (0.04, 0.1):
         table_contact(rng, args.error, (0.05, 0.1, 0.2, 0.3, 0.6, 1.0), (0.2, 1.0, 5.0, 20.0),
                       b, args.worst_of)

@@ -126,7 +126,8 @@ def test_commission_demo_identifies_tunes_and_predicts_what_it_measures(processe
     a 12 s excitation (1..400 Hz, as test_commission_ros) and two frequencies, three modes
     (short): exit 0; the table and the files; the identified plant within twice the family's
     goals (m, m_e, k_s 5 %, the other five 15 %, sigma and F_c 25 %); every mode's predicted |Z|
-    within 3 dB of the measured, before and after; the Z-width at 1 rad/s wider after than
+    within 3 dB of the measured, before (where the mode held) and after (every one); the
+    Z-width at 1 rad/s wider after than
     before and dob_full_ff within 3 dB of the true model's figure (the tuned settings with the
     true plant) or below it; every process ended."""
     seed = int.from_bytes(os.urandom(4), 'little') % 100_000
@@ -162,7 +163,9 @@ def test_commission_demo_identifies_tunes_and_predicts_what_it_measures(processe
         assert abs(found / true - 1.0) <= 2.0 * goal, (name, found, true, where)
     for label, measured in results['measured'].items():
         for point, z in measured.items():
-            if label in ('before', 'after'):
+            # before, a mode may be unstable on a plant this far off (NaN: the demo says so);
+            # after commissioning every mode holds
+            if label == 'after' or label == 'before' and not math.isnan(z):
                 predicted = results['predicted'][f'{label}:{point}']
                 assert abs(z - predicted) <= 3.0, (label, point, z, predicted, where)
     width = results['zwidth_db']
