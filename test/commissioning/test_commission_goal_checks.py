@@ -1,0 +1,100 @@
+"""The ``~/commission`` goal's free-finger check (seaforce_ros.nodes.commissioning), without a
+running node: a contact the estimator reports while the finger moves turns the goal away; one
+that has stood with the finger still for STANDING_TIME is logged and the goal accepted (the
+model's error at rest; the excitation's contact test aborts at a real one)."""
+import math
+import types
+
+import pytest
+from seaforce_msgs.action import Commission
+
+from seaforce_ros.commissioning.excitation import FreeAirExcitation
+from seaforce_ros.core.estimator import REST_SPEED
+from seaforce_ros.core.jobs import InvalidJobGoalError
+from seaforce_ros.core.params import ControllerConfig
+from seaforce_ros.nodes.commissioning import STANDING_TIME, CommissionAction
+
+DT = 5e-4
+
+
+class Logger:
+    def __init__(self):
+        self.warnings = []
+
+    def warning(self, text):
+        self.warnings.append(text)
+
+
+class FakeNode:
+    """What CommissionAction reads of a controller node: channels, configs, controllers'
+    estimators, dt, the logger."""
+
+    def __init__(self):
+        self.channels = ['pinch']
+        self.configs = [ControllerConfig()]
+        self.estimator = types.SimpleNamespace(contact=False, force=0.0, velocity=0.0)
+        self.controllers = [types.SimpleNamespace(estimator=self.estimator)]
+        self.dt = DT
+        self.logger = Logger()
+
+    def get_logger(self):
+        return self.logger
+
+
+def status_stream(action, velocities, start=0, every=20):
+    """The status loop (every 20 cycles: 100 Hz) seeing these endpoint velocities."""
+    cycle = start
+    for v in velocities:
+        action.observe(cycle, [v])
+        cycle += every
+    return cycle
+
+
+@pytest.fixture
+def setup(tmp_path):
+    node = FakeNode()
+    return node, CommissionAction(node, str(tmp_path / 'runs'), '')
+
+
+def test_a_contact_while_the_finger_moves_is_refused(setup):
+    node, action = setup
+    node.estimator.contact, node.estimator.force = True, -0.02
+    # a finger swinging at 0.4 rad/s amplitude, 0.05 Hz: never still for 2 s
+    status_stream(action, [0.4 * math.sin(2 * math.pi * 0.05 * k / 100.0) for k in range(3000)])
+    with pytest.raises(InvalidJobGoalError, match='the finger is not free'):
+        action._make(0, Commission.Goal(channel='pinch'))
+    assert not node.logger.warnings
+
+
+def test_a_contact_standing_still_is_logged_and_the_goal_accepted(setup):
+    node, action = setup
+    node.estimator.contact, node.estimator.force = True, -0.005
+    n = int(math.ceil(STANDING_TIME / (20 * DT))) + 2
+    cycle = status_stream(action, [0.5] * 50)                 # moving, then still
+    status_stream(action, [0.5 * REST_SPEED] * (n - 5), start=cycle)
+    with pytest.raises(InvalidJobGoalError):                 # still, but not yet long enough
+        action._make(0, Commission.Goal(channel='pinch'))
+    status_stream(action, [0.5 * REST_SPEED] * n, start=cycle + 20 * (n - 5))
+    job = action._make(0, Commission.Goal(channel='pinch'))
+    assert isinstance(job, FreeAirExcitation)
+    assert node.logger.warnings and 'taken for the model' in node.logger.warnings[0]
+    # a motion again restarts the clock
+    action.observe(10 ** 6, [2.0 * REST_SPEED])
+    with pytest.raises(InvalidJobGoalError):
+        action._make(0, Commission.Goal(channel='pinch'))
+
+
+def test_no_contact_is_accepted_at_once(setup):
+    node, action = setup
+    assert isinstance(action._make(0, Commission.Goal(channel='pinch')), FreeAirExcitation)
+    node.estimator.contact = True                            # no status seen yet: moving
+    with pytest.raises(InvalidJobGoalError):
+        action._make(0, Commission.Goal(channel='pinch'))
+
+
+def test_a_non_finite_velocity_counts_as_moving(setup):
+    node, action = setup
+    node.estimator.contact = True
+    status_stream(action, [math.nan] * 1000)
+    with pytest.raises(InvalidJobGoalError):
+        action._make(0, Commission.Goal(channel='pinch'))
