@@ -67,6 +67,7 @@ def commissioned(plant, dahl, seed):
     ``plant``/``dahl`` (module docstring)."""
     from seaforce_ros.commissioning.experiments import run_free_air_excitation
     from seaforce_ros.commissioning.free_air import identify_free_air
+    from seaforce_ros.commissioning.tuning import contact_damping_within
     config = ControllerConfig()
     ident = identify_free_air(run_free_air_excitation(plant, dahl, config, seed=seed,
                                                       duration=12.0, band=(1.0, 400.0)))
@@ -74,9 +75,8 @@ def commissioned(plant, dahl, seed):
     return config.replace(
         plant=model, dahl=ident.dahl(),
         dob=dataclasses.replace(config.dob, nominal_inertia=model.motor_inertia),
-        # (as the tuning does: at most 10 b_s)
-        grasp=dataclasses.replace(config.grasp, contact_damping=min(
-            config.grasp.contact_damping, 10.0 * model.hose_damping)))
+        grasp=dataclasses.replace(config.grasp, contact_damping=contact_damping_within(
+            config.grasp.contact_damping, model.hose_damping)))
 
 
 def controller_on(sim, plant=None, dahl=None, seed=0):

@@ -47,7 +47,7 @@ from .predictor import (PLANT_FIELDS, LoopModel, closed_loop_radius, hold_verdic
                         predict_modes, torque_noise)
 
 __all__ = ["TuningResult", "InfeasibleTuningError", "tune", "worst_plant", "TUNED_KEYS",
-           "HOLD_MODULUS_MARGIN", "DELAY_RESERVE"]
+           "HOLD_MODULUS_MARGIN", "DELAY_RESERVE", "contact_damping_within"]
 
 _Float = npt.NDArray[np.float64]
 
@@ -156,14 +156,20 @@ def _check_inputs(plant: PlantParams, plant_sigma: Mapping[str, float], figures:
         raise CommissioningError(f"passivity_margin = {passivity_margin!r} sigma: 0..100")
 
 
+def contact_damping_within(contact_damping: float, hose_damping: float) -> float:
+    """The grasp's contact damping a hose of ``hose_damping`` allows: at most 10 b_s (the
+    configuration's rule; the defaults exceed it for soft hoses) [N m s/rad]."""
+    return min(contact_damping, 10.0 * hose_damping)
+
+
 def _start_config(config: Optional[ControllerConfig], plant: PlantParams,
                   dahl: DahlParams) -> ControllerConfig:
     """The settings tuning starts from: ``config``, or the defaults on the identified model
     (the grasp's contact damping within 10 b_s, which the defaults exceed for soft hoses)."""
     if config is not None:
         return config
-    b_max = 10.0 * plant.hose_damping
-    grasp = GraspParams(contact_damping=min(GraspParams().contact_damping, b_max))
+    grasp = GraspParams(contact_damping=contact_damping_within(GraspParams().contact_damping,
+                                                               plant.hose_damping))
     return ControllerConfig(plant=plant, dahl=dahl, grasp=grasp)
 
 
@@ -171,7 +177,8 @@ def _model_values(plant: PlantParams, dahl: DahlParams, base: ControllerConfig) 
     values: Dict[str, Any] = {f"plant.{n}": float(getattr(plant, n)) for n in PLANT_FIELDS}
     values["dahl.sigma"] = float(dahl.sigma)
     values["dahl.coulomb_force"] = float(dahl.coulomb_force)
-    values["grasp.contact_damping"] = min(base.grasp.contact_damping, 10.0 * plant.hose_damping)
+    values["grasp.contact_damping"] = contact_damping_within(base.grasp.contact_damping,
+                                                            plant.hose_damping)
     return values
 
 
@@ -332,8 +339,9 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     # the starting DOB on the identified plant need not satisfy eq. 28 (a plant heavier than
     # the model it was set for): this config only predicts; every candidate is checked
     model = base.replace(plant=plant, dahl=dahl, allow_non_passive=True,
-                         grasp=dataclasses.replace(base.grasp, contact_damping=min(
-                             base.grasp.contact_damping, 10.0 * plant.hose_damping)))
+                         grasp=dataclasses.replace(base.grasp, contact_damping=(
+                             contact_damping_within(base.grasp.contact_damping,
+                                                    plant.hose_damping))))
     omega = np.logspace(math.log10(band[0]), math.log10(band[1]), points)
     dt = figures.dt
     before = predict_modes(plant, dahl, base, ("hold", "dob_full_ff"), omega,

@@ -37,6 +37,7 @@ from typing import Dict, List, Sequence, Tuple
 
 import numpy as np
 
+from ..commissioning.tuning import contact_damping_within
 from ..core.plant_cycle import STATUS_FAULT
 from .common import (CHANNEL, DT, drawn_plant, prepare, run_action, run_guarded,
                      set_parameters)
@@ -76,12 +77,6 @@ class CommissionObserver(Observer):
         return len(recent) > 10 and not any(recent)
 
 
-def _wait_cycle(observer, children, cycle: int) -> None:
-    while (observer.latest_cycle() or 0) < cycle:
-        children.check()
-        time.sleep(0.05)
-
-
 def measure_modes(observer, children, modes: Sequence[str], frequencies: Sequence[float],
                   label: str) -> Dict[Tuple[str, float], float]:
     """|Z| [dB] of each mode at each frequency with the sim's position drive."""
@@ -97,15 +92,9 @@ def measure_modes(observer, children, modes: Sequence[str], frequencies: Sequenc
         for mode in modes:
             before = observer.latest_cycle()
             observer.set_mode(mode)
-            deadline = time.monotonic() + 30.0
-            while (start := observer.first_cycle_in_mode(mode, before)) is None:
-                children.check()
-                if time.monotonic() > deadline:
-                    raise RuntimeError(f'controller_status never showed mode {mode}')
-                time.sleep(0.05)
-            first = start + int(round(SETTLE / DT))
+            first = observer.wait_mode(mode, before, children, 30.0) + int(round(SETTLE / DT))
             last = first + period - 1
-            _wait_cycle(observer, children, last)
+            observer.wait_cycle(children, last)
             window = observer.window(first, last)
             if window['status'] & STATUS_FAULT:
                 # the mode does not hold on this plant (a 2x model error can make dob_full_ff
@@ -125,20 +114,20 @@ def measure_modes(observer, children, modes: Sequence[str], frequencies: Sequenc
 
 def reset_plant(observer) -> None:
     """Clear the sim's latched fault (``/sim/reset``) and the controller's (``/controller/
-    reset``); RuntimeError when one refuses or does not answer."""
+    reset``); RuntimeError when the sim refuses or one does not answer."""
     from std_srvs.srv import Trigger
+
+    from ..nodes.ros_common import request_until_answered
     for target in ('/sim/reset', '/controller/reset'):
         client = observer.node.create_client(Trigger, target)
         try:
             if not client.wait_for_service(timeout_sec=20.0):
                 raise RuntimeError(f'{target} is not offered')
-            future = observer.background.call(lambda: client.call_async(Trigger.Request()))
-            deadline = time.monotonic() + 20.0
-            while not future.done():
-                if time.monotonic() > deadline:
-                    raise RuntimeError(f'{target} did not answer')
-                time.sleep(0.05)
-            answer = future.result()
+            try:
+                answer = request_until_answered(lambda: observer.background.call(
+                    lambda: client.call_async(Trigger.Request())), 20.0)
+            except TimeoutError:
+                raise RuntimeError(f'{target} did not answer') from None
             if target == '/sim/reset' and not answer.success:
                 raise RuntimeError(f'{target}: {answer.message}')
         finally:
@@ -260,11 +249,13 @@ def plot(measured, predicted_curves, modes, path: pathlib.Path) -> None:
     plt.close(fig)
 
 
-def predicted_curves(run_dir, result, modes) -> Dict[Tuple[str, str], Tuple[np.ndarray,
-                                                                              List[float]]]:
-    grid = np.logspace(-0.3, 1.3, 17)
-    table, *_ = predictions(run_dir, result, modes, list(grid))
-    return {(label, mode): (grid, [table[(label, mode, w)] for w in grid])
+#: The plot's frequencies [rad/s] (predicted lines).
+CURVE_OMEGA = tuple(float(w) for w in np.logspace(-0.3, 1.3, 17))
+
+
+def curves(predicted, modes) -> Dict[Tuple[str, str], Tuple[Sequence[float], List[float]]]:
+    """The predicted |Z| [dB] on :data:`CURVE_OMEGA` per (before/after, mode)."""
+    return {(label, mode): (CURVE_OMEGA, [predicted[(label, mode, w)] for w in CURVE_OMEGA])
             for label in ('before', 'after') for mode in modes}
 
 
@@ -325,16 +316,16 @@ def main(argv=None):
         run_dir = pathlib.Path(result.report_path).parent
         measured['after'] = measure_modes(observer, children, modes, frequencies, 'after')
         predicted, _, applied, report, delay = predictions(
-            run_dir, result, modes, frequencies)
+            run_dir, result, modes, sorted(set(frequencies) | set(CURVE_OMEGA)))
         # ideal: the tuned settings with the true model (what the identification's error
         # costs); the controller refuses it when eq. 28 does not hold for the true plant
         low = frequencies[0]
         observer.set_mode('passive')
         ideal_values = {k.replace('.sim.', '.', 1): v for k, v in truth.items()}
-        # (the contact damping's bound follows the true hose: at most 10 b_s)
-        ideal_values[f'{CHANNEL}.grasp.contact_damping'] = min(
+        # (the contact damping's bound follows the true hose)
+        ideal_values[f'{CHANNEL}.grasp.contact_damping'] = contact_damping_within(
             applied.get('grasp.contact_damping', math.inf),
-            10.0 * truth[f'{CHANNEL}.sim.plant.hose_damping'])
+            truth[f'{CHANNEL}.sim.plant.hose_damping'])
         try:
             set_parameters(observer.node, '/controller', ideal_values, atomically=True)
             ideal = measure_modes(observer, children, ('dob_full_ff',), [low], 'ideal')
@@ -359,14 +350,13 @@ def main(argv=None):
                   + f' = {rig:.1f} s (goal {commission_wall:.1f} s wall)',
                   f'report: {result.report_path}']
         print('\n'.join(lines))
-        curves = predicted_curves(run_dir, result, modes)
         png = out / 'zwidth_commission.png'
-        plot(measured, curves, modes, png)
+        plot(measured, curves(predicted, modes), modes, png)
         results = {'seed': args.seed, 'factors': factors, 'frequencies': frequencies,
                    'measured': {label: {f'{m}@{w:g}': v for (m, w), v in z.items()}
                                 for label, z in measured.items()},
                    'predicted': {f'{label}:{m}@{w:g}': v for (label, m, w), v in
-                                 predicted.items()},
+                                 predicted.items() if w in frequencies},
                    'ideal_dob_full_ff_db': z_ideal,
                    'zwidth_db': {label: {f'{w:g}': zwidth(measured[label], w)
                                          for w in frequencies} for label in measured},

@@ -173,6 +173,17 @@ def run_friction_calibration(observer, children, args):
         print(f'[demo]   aborted: {result.message}', flush=True)
 
 
+def wait_until(children, done, timeout, what, poll=0.05):
+    """Poll ``done()`` until it is true; RuntimeError when a node exits or after ``timeout`` s
+    (``inf``: none), saying ``<what> within <timeout> s``."""
+    deadline = time.monotonic() + timeout
+    while not done():
+        children.check()
+        if time.monotonic() > deadline:
+            raise RuntimeError(f'{what} within {timeout:g} s')
+        time.sleep(poll)
+
+
 def run_action(observer, children, kind, name, goal, timeout, on_feedback=None):
     """Send ``goal`` to the action server ``name`` (type ``kind``) and wait for its result
     (``on_feedback(feedback)`` for each feedback); RuntimeError when a node exits, the server
@@ -185,11 +196,8 @@ def run_action(observer, children, kind, name, goal, timeout, on_feedback=None):
     callback = (lambda m: on_feedback(m.feedback)) if on_feedback else None
 
     def wait(future, what):
-        while not future.done():
-            children.check()
-            if time.monotonic() > deadline:
-                raise RuntimeError(f'{name}: {what} within {timeout:g} s')
-            time.sleep(0.05)
+        wait_until(children, future.done, max(0.0, deadline - time.monotonic()),
+                   f'{name}: {what}')
         return future.result()
     # (requests from the spin thread: from this one rclpy can drop the answer)
     handle = wait(observer.background.call(

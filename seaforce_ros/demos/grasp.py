@@ -28,7 +28,8 @@ import numpy as np
 import yaml
 
 from .common import (CHANNEL, DT, PLANT_KEYS, get_parameter, prepare, print_calibration,
-                     run_friction_calibration, run_guarded, set_parameters, true_plant)
+                     run_friction_calibration, run_guarded, set_parameters, true_plant,
+                     wait_until)
 
 #: name, stiffness k_o [N m/rad], damping b_o [N m s/rad]
 OBJECTS = (('soft', 0.5, 0.05), ('medium', 3.0, 0.06), ('stiff', 12.0, 0.08))
@@ -77,24 +78,15 @@ class Observer:
             return cycle, (self.states[cycle] if cycle is not None else None)
 
     def wait_cycle(self, cycle, children, timeout=120.0):
-        deadline = time.monotonic() + timeout
-        while (self.latest()[0] or 0) < cycle:
-            children.check()
-            if time.monotonic() > deadline:
-                raise RuntimeError(f'the simulation did not reach cycle {cycle}')
-            time.sleep(0.05)
+        wait_until(children, lambda: (self.latest()[0] or 0) >= cycle, timeout,
+                   f'the simulation did not reach cycle {cycle}')
 
     def set_sim(self, values, timeout=20.0):
         """The sim's parameters ``values``, all at once (an object moves with its spring)."""
         set_parameters(self.node, '/sim', values, timeout, atomically=True)
 
     def wait(self, future, what, children, timeout=120.0):
-        deadline = time.monotonic() + timeout
-        while not future.done():
-            children.check()
-            if time.monotonic() > deadline:
-                raise RuntimeError(f'no {what} within {timeout:g} s')
-            time.sleep(0.02)
+        wait_until(children, future.done, timeout, f'no {what}', poll=0.02)
         return future.result()
 
     def close(self):

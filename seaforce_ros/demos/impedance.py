@@ -46,7 +46,8 @@ import numpy as np
 from ..core.plant_cycle import STATUS_COMMAND_TIMEOUT, STATUS_FAULT, STATUS_LIMIT
 from ..identification.zwidth_lib import DEFAULT_MODES as MODES  # the paper's Fig. 5 modes
 from .common import (CHANNEL, DT, get_parameter, prepare, print_calibration,
-                     run_friction_calibration, run_guarded, set_parameters, true_plant)
+                     run_friction_calibration, run_guarded, set_parameters, true_plant,
+                     wait_until)
 
 #: measurements of a mode at most, when the controller's answers came late (real time only)
 ATTEMPTS = 3
@@ -88,12 +89,19 @@ class Observer:
 
     def wait_until_live(self, children, timeout=60.0):
         """Until both topics arrive; RuntimeError if a node exits or ``timeout`` s pass."""
-        deadline = time.monotonic() + timeout
-        while self.latest_cycle() is None or not self.modes:
-            children.check()
-            if time.monotonic() > deadline:
-                raise RuntimeError(f'no actuator_state/controller_status within {timeout:g} s')
-            time.sleep(0.1)
+        wait_until(children, lambda: self.latest_cycle() is not None and bool(self.modes),
+                   timeout, 'no actuator_state/controller_status', poll=0.1)
+
+    def wait_cycle(self, children, cycle):
+        """Until a state of ``cycle`` or later arrived (RuntimeError if a node exits)."""
+        wait_until(children, lambda: (self.latest_cycle() or 0) >= cycle, math.inf,
+                   f'no state of cycle {cycle}', poll=0.1)
+
+    def wait_mode(self, mode, after, children, timeout=20.0):
+        """The first status cycle after ``after`` in ``mode``, once there is one."""
+        wait_until(children, lambda: self.first_cycle_in_mode(mode, after) is not None,
+                   timeout, f'controller_status did not show mode {mode}')
+        return self.first_cycle_in_mode(mode, after)
 
     def latest_cycle(self):
         with self.lock:
@@ -235,19 +243,12 @@ def main(argv=None):
         for mode in MODES:
             before = observer.latest_cycle()
             observer.set_mode(mode)
-            deadline = time.monotonic() + 20
-            while (start := observer.first_cycle_in_mode(mode, before)) is None:
-                if time.monotonic() > deadline:
-                    raise RuntimeError(f'controller_status never showed mode {mode}')
-                time.sleep(0.05)
-            first = start + settle
+            first = observer.wait_mode(mode, before, children) + settle
             for attempt in range(1, ATTEMPTS + 1):
                 last = first + args.periods * period_cycles - 1
                 print(f'[demo] {mode:14s} measuring cycles {first}..{last} '
                       f'({(last - first + 1) * DT:.1f} s of drive)', flush=True)
-                while (observer.latest_cycle() or 0) < last:
-                    children.check()
-                    time.sleep(0.1)
+                observer.wait_cycle(children, last)
                 window = observer.window(first, last)
                 if not window['timeouts'] or attempt == ATTEMPTS:
                     break
@@ -332,9 +333,7 @@ def recalibrate(observer, children, args, z_before):
     set_parameters(observer.node, '/sim', {f'{CHANNEL}.environment.mode': 'position_sine'})
     first = before + int(round(1.0 / DT))
     last = first + args.periods * (int(math.ceil(2 * math.pi / args.frequency / DT)) + 1) - 1
-    while (observer.latest_cycle() or 0) < last:
-        children.check()
-        time.sleep(0.1)
+    observer.wait_cycle(children, last)
     z_after = measure(observer.window(first, last), args.frequency, args.amplitude)['z_db']
     print_calibration(result, model_error(args), args.calibration_time)
     print(f'recalibrated dob_full_ff |Z| at {args.frequency} rad/s: {z_after:.1f} dB '
