@@ -17,7 +17,8 @@ stages per sample (:meth:`ChannelController.update`):
    refused as busy) overrides the mode while it runs. A :data:`~.jobs.TORQUE` job (a friction
    calibration, :mod:`.friction_calibration`) commands F_a itself and the stages below pause;
    an :data:`~.jobs.ENDPOINT_FORCE` job (a grasp, :mod:`.grasp`: ``F_j = F_g``) runs the DOB
-   with ``F_ref = F_cmp + F_d + F_j`` (minimum impedance plus the job's endpoint force). When a
+   with ``F_ref = F_cmp + F_d + F_j`` (minimum impedance plus the job's endpoint force; the
+   model's friction in full: a grasp closes its own loop around the endpoint). When a
    job is done the channel enters its mode again, bumplessly from the torque then, with the
    configuration the job leaves (a calibration's new friction; a grasp's release has ramped
    F_g to zero, the grip is not carried over into ``hold``). Selecting ``passive`` ends a job
@@ -485,8 +486,11 @@ class ChannelController:
             self.torque = u
             return u
         w = self._walls(x, v, obs)
-        if job is not None:         # the job's endpoint force on minimum impedance
-            f_ref = obs.feedforward + self._run_job(job, x, v, f_p, steps) + w
+        if job is not None:
+            # the job's endpoint force on minimum impedance: a grasp closes its own loop
+            # around the endpoint (a speed servo, then the object and the contact damping), so
+            # it takes the model's friction in full, without the margin
+            f_ref = obs.model_feedforward() + self._run_job(job, x, v, f_p, steps) + w
         else:
             ref = self._reference_mode
             assert ref is not None

@@ -130,6 +130,13 @@ class EndpointObserver:
         self._kb, self._kk = sb * damping, sk * stiffness
         self.dahl.set_params(dahl)
 
+    def model_feedforward(self) -> float:
+        """``b_e V_e_hat + k_e (X_e_hat - rest) + F_d`` [N m]: the model's friction in full,
+        without the margin (what a grasp, which closes its own loop around the endpoint, adds
+        to its force)."""
+        return (self.damping * self.velocity + self.stiffness * (self.position - self._rest)
+                + self.dahl_force)
+
     def reset(self) -> None:
         """Forget the state: the next :meth:`update` starts the hose inversion at rest (``delta
         = F_p/k_s``) and the Dahl state at F_d = 0 where X_e_hat is."""

@@ -423,7 +423,7 @@ class MonitorParams(ParameterGroup):
     """The runaway monitor (:mod:`.safety`): a finger the controller drives away, in a mode
     that runs the DOB, falls back to a safe mode until ``~/reset``."""
 
-    max_speed: float = param(5.0, "rad/s", "speed of the motor or of the estimated endpoint "
+    max_speed: float = param(10.0, "rad/s", "speed of the motor or of the estimated endpoint "
                              "beyond which, in a mode that runs the DOB, the finger counts as "
                              "driven away", gt=0.0, le=1000.0)
     trip_time: float = param(0.005, "s", "how long the speed must stay beyond max_speed before "
@@ -594,6 +594,16 @@ class ControllerConfig(ParameterGroup):
             raise NonPassiveError("force_feedback.gain", gain,
                                   "-1 <= K_f <= 1 (Section III-A, internal force feedback of "
                                   "a series-elastic system)")
+
+    def feedforward_friction(self) -> Tuple[float, float, DahlParams]:
+        """What the feed-forward cancels: ``(b_e, k_e, Dahl)`` of the model each times its
+        margin's scale (:meth:`FeedforwardParams.scales`; sigma and F_c scaled alike scale
+        F_d by the same factor)."""
+        sb, sk, sd = self.feedforward.scales()
+        d = self.dahl
+        dahl = d if sd == 1.0 else dataclasses.replace(
+            d, sigma=sd * d.sigma, coulomb_force=max(sd, 1e-12) * d.coulomb_force)
+        return sb * self.plant.endpoint_damping, sk * self.plant.endpoint_stiffness, dahl
 
     def _check_ranges(self) -> None:
         """The motions of a calibration and of commissioning stay inside the joint range

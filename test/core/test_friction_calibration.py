@@ -22,6 +22,8 @@ from seaforce_ros.core.friction_calibration import (
 from seaforce_ros.core.grasp import Grasp, GraspGoal
 from seaforce_ros.identification.dahl_model import dahl_force
 
+from helpers.configs import exact_feedforward, unlimited
+
 DT = 5e-4
 PLANT = PlantParams.table_i()
 DAHL = DahlParams()
@@ -30,7 +32,11 @@ FAST = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
 def config(**friction):
-    return CONFIG.replace(friction=dataclasses.replace(CONFIG.friction, **friction))
+    """CONFIG with these ``friction.*``; a calibration range beyond +-1.5 rad widens the joint
+    range (``limits``) to +-100 rad with it."""
+    wide = friction.get("position_min", 0.0) < -1.5 or friction.get("position_max", 0.0) > 1.5
+    base = unlimited(CONFIG) if wide else CONFIG
+    return base.replace(friction=dataclasses.replace(CONFIG.friction, **friction))
 
 
 def free_endpoint(be, ke, fc, sigma, seconds=8.0, amp=0.4, w=2.5, me=PLANT.endpoint_inertia):
@@ -130,11 +136,14 @@ def test_reference_starts_and_ends_at_rest_within_the_amplitude():
 
 # --- calibration in the simulator -------------------------------------------------------
 def z_db(model_cfg, plant, dahl, omega=1.0, amp=0.5):
+    """|Z| [dB] of dob_full_ff with the model of ``model_cfg`` and the paper's exact
+    feed-forward (no margin: what the model's accuracy buys, which the margin would hide)."""
     period = 2.0 * math.pi / omega
     settle = 3.0
     n = int((settle + period) / DT) + 1
     sim = ChannelSimulator(plant, dahl, dt=DT, seed=1, environment=position_sine(amp, omega))
-    rec = run_closed_loop(sim, ChannelController(model_cfg.replace(mode="dob_full_ff"), DT), n)
+    rec = run_closed_loop(sim, ChannelController(exact_feedforward(model_cfg,
+                                                                   mode="dob_full_ff"), DT), n)
     return magnitude_db(impedance_from_position(rec["f_e"], rec["x_e"], omega, DT, settle))
 
 
@@ -254,10 +263,8 @@ values = st.one_of(st.floats(allow_nan=True, allow_infinity=True),
 def test_calibration_torque_bounded_and_non_finite_aborts(samples, limit, max_torque):
     """Invariants: |F_a| <= min(torque_limit, max_torque) always; a non-finite input ends the
     calibration (aborted, with the reason) and every later output is 0."""
-    cfg = CONFIG.replace(max_torque=max_torque,
-                         friction=dataclasses.replace(CONFIG.friction, torque_limit=limit,
-                                                      position_min=-100.0,
-                                                      position_max=100.0))
+    cfg = config(torque_limit=limit, position_min=-100.0,
+                 position_max=100.0).replace(max_torque=max_torque)
     cal = FrictionCalibration(CalibrationGoal("p", 0.5, 1.0, True), cfg, DT)
     assert cal.claim()
     bound = min(limit, max_torque)
