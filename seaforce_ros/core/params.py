@@ -399,10 +399,10 @@ class LimitParams(ParameterGroup):
                                 "wall_band)", ge=-100.0, le=100.0)
     wall_band: float = param(0.15, "rad", "width of the soft virtual wall inside each end of "
                              "the joint range", gt=0.0, le=10.0)
-    wall_stiffness: float = param(2.0, "N m/rad", "stiffness of the walls (their spring force "
+    wall_stiffness: float = param(4.0, "N m/rad", "stiffness of the walls (their spring force "
                                   "at the end of the range is wall_stiffness x wall_band)",
                                   symbol="K_w", ge=0.0, le=1e4)
-    wall_damping: float = param(0.05, "N m s/rad", "damping of the walls, full from a quarter "
+    wall_damping: float = param(0.1, "N m s/rad", "damping of the walls, full from a quarter "
                                 "of the band in (it must exceed the friction a feed-forward "
                                 "could over-compensate)", symbol="B_w", ge=0.0, le=100.0)
 

@@ -31,7 +31,10 @@ Two stages of :meth:`ChannelController.update <seaforce_ros.core.controller.Chan
   something drives it. The channel then falls back, in the same sample, to
   ``monitor.fallback`` (``dob``: the DOB without feed-forward, passive by eq. 28; a trip in
   ``dob`` itself, or in the fall-back, goes on to ``passive``) and stays there until
-  ``~/reset``. Reaction time: ``trip_time`` plus one sample (the command's delay).
+  ``~/reset``. Reaction time: ``trip_time`` plus one sample (the command's delay). After a
+  trip the finger is still fast: the monitor counts again once the speed has been back within
+  ``max_speed`` (a new excursion), or at once while it is beyond twice ``max_speed`` (a
+  fall-back that does not stop the finger goes on to ``passive``).
 
 What the monitor cannot see: a finger that drifts slowly (a negative net stiffness or damping
 small enough to stay below ``max_speed``) -- the walls keep that one in range; and it cannot
@@ -131,7 +134,7 @@ class RunawayMonitor:
         Why it tripped (set on the sample it trips), or ''.
     """
 
-    __slots__ = ("dt", "_vmax", "_trip", "over", "reason")
+    __slots__ = ("dt", "_vmax", "_trip", "over", "reason", "armed")
 
     def __init__(self, monitor: MonitorParams, dt: float) -> None:
         self.dt = float(dt)
@@ -145,9 +148,17 @@ class RunawayMonitor:
         self._trip = max(1, int(round(monitor.trip_time / self.dt)) + 1)
 
     def reset(self) -> None:
-        """Forget the count."""
+        """Forget the count; armed."""
         self.over = 0
         self.reason = ""
+        self.armed = True
+
+    def disarm(self) -> None:
+        """After a trip: the finger the fall-back has to stop is still fast. Count again once
+        the speed has been within ``max_speed`` (a new excursion), or at once beyond twice it
+        (the fall-back does not stop it)."""
+        self.over = 0
+        self.armed = False
 
     def update(self, v: float, ve: float, steps: int = 1) -> bool:
         """One sample: V, V_e_hat [rad/s], ``steps`` periods since the previous; True on the
@@ -156,7 +167,13 @@ class RunawayMonitor:
         if -vmax <= v <= vmax and -vmax <= ve <= vmax:
             if self.over:
                 self.over = 0
+            if not self.armed:
+                self.armed = True
             return False
+        if not self.armed:
+            twice = vmax + vmax
+            if -twice <= v <= twice and -twice <= ve <= twice:
+                return False
         self.over += steps
         if self.over < self._trip:
             return False
@@ -164,5 +181,5 @@ class RunawayMonitor:
         self.reason = (f"finger driven away: {what} speed {abs(speed):.3g} rad/s beyond "
                        f"monitor.max_speed = {vmax:g} rad/s for "
                        f"{1e3 * (self.over - 1) * self.dt:.3g} ms")
-        self.over = 0
+        self.disarm()
         return True
