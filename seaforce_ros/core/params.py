@@ -317,6 +317,10 @@ class FrictionParams(ParameterGroup):
     position_max: float = param(1.5, "rad", "upper end of the joint range a friction "
                                 "calibration motion must stay in (> position_min)",
                                 ge=-100.0, le=100.0)
+    plausible_ratio: float = param(2.0, "-", "a calibration whose b_e, k_e, F_c or sigma "
+                                   "leaves [v/r, v r] of the present value v is refused, "
+                                   "nothing applied (a finger that was not free)", gt=1.0,
+                                   le=100.0)
     adaptation: bool = param(False, "", "adapt b_e, k_e, F_c, sigma (eq. 14, 29) slowly while "
                              "the contact estimator says the finger is free")
     adaptation_time: float = param(30.0, "s", "time constant with which adapted values follow "
