@@ -1,6 +1,7 @@
 """A free finger in ``dob_full_ff`` on random plants: does it stay in its joint range?
 
-The controller has the Table I model (and the paper's Dahl fit) with the shipped defaults --
+Also, with every parameter off by 20 % (signs drawn), whether the free finger comes to rest
+(no limit cycle). The controller has the Table I model (and the paper's Dahl fit) with the shipped defaults --
 the feed-forward's margin (``feedforward.margin`` 2 x 10 %), the joint walls (``limits.*``),
 the runaway monitor (``monitor.*``). The true plant has every Table I and Dahl parameter drawn
 log-uniform in 0.5x..2x of the model (seeded). The finger starts free, with a flick of
@@ -50,7 +51,9 @@ def run(plant, dahl, config, seconds, flick, seed=0):
     peak_x = peak_v = 0.0
     trip_at = trip_x = None
     in_range = True
-    for _ in range(n):
+    last = []                       # |V_e| over the last second: at rest, or a limit cycle?
+    tail = n - int(round(1.0 / sim.dt))
+    for i in range(n):
         rig.step()
         z = sim._z
         xe, ve = abs(z[2]), abs(z[3])
@@ -60,7 +63,10 @@ def run(plant, dahl, config, seconds, flick, seed=0):
             in_range = False
         if trip_at is None and ctl.fallback:
             trip_at, trip_x = rig.k * sim.dt, peak_x
+        if i >= tail:
+            last.append(z[3] * z[3])
     return {"peak_x": peak_x, "peak_v": peak_v, "in_range": in_range, "trip_at": trip_at,
+            "rest_v": math.sqrt(sum(last) / max(1, len(last))),
             "trip_x": trip_x, "fallback": ctl.fallback, "fault": rig.cycle.latched(0),
             "faults": rig.cycle.faults_latched}
 
@@ -71,6 +77,16 @@ def family_run(args):
     return seed, run(plant, dahl, ControllerConfig(mode="dob_full_ff"), seconds, flick, seed)
 
 
+def band_run(args):
+    """Every parameter 20 % off the model, signs drawn: inside the default uncertainty."""
+    seed, seconds, flick = args
+    rng = np.random.default_rng(10_000 + seed)
+    f = 1.0 + 0.2 * rng.choice((-1.0, 1.0), size=len(FIELDS) + 2)
+    plant = TABLE_I.scaled(**dict(zip(FIELDS, f[:len(FIELDS)])))
+    dahl = DahlParams(sigma=DAHL.sigma * f[-2], coulomb_force=DAHL.coulomb_force * f[-1])
+    return seed, run(plant, dahl, ControllerConfig(mode="dob_full_ff"), seconds, flick, seed)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--plants", type=int, default=200)
@@ -78,10 +94,11 @@ def main():
     ap.add_argument("--flick", type=float, default=1.0, help="initial speed [rad/s]")
     ap.add_argument("--seed", type=int, default=1, help="first plant's seed")
     ap.add_argument("--quick", action="store_true", help="8 plants of 5 s (a smoke test)")
+    ap.add_argument("--band", type=int, default=40, help="plants 20 % off")
     ap.add_argument("--jobs", type=int, default=2)
     args = ap.parse_args()
     if args.quick:
-        args.plants, args.seconds = 8, 5.0
+        args.plants, args.seconds, args.band = 8, 5.0, 4
     t0 = time.monotonic()
 
     print("the measured runaways (Table I model, true plant off), free finger, "
@@ -92,7 +109,8 @@ def main():
              ("true k_e 0.75x model", TABLE_I.scaled(endpoint_stiffness=0.75)),
              ("model b_e 1.5x truth", TABLE_I.scaled(endpoint_damping=1 / 1.5)))
     exact = ControllerConfig(mode="dob_full_ff", allow_non_passive=True)
-    exact = exact.replace(feedforward=exact.feedforward.__class__(margin=0.0))
+    exact = exact.replace(feedforward=exact.feedforward.__class__(margin=0.0,
+                                                                  dahl_stiffness_share=1.0))
     for name, plant in cases:
         for label, config in (("margin (default)", ControllerConfig(mode="dob_full_ff")),
                               ("exact (paper)", exact)):
@@ -103,6 +121,16 @@ def main():
                 what += f"; fault: {r['fault']}"
             print(f"{name:<24}{label:<16}{r['peak_x']:>11.3f}{r['peak_v']:>11.3f}"
                   f"{'yes' if r['in_range'] else 'NO':>9}  {what}")
+
+    print(f"\n{args.band} plants with every parameter 20 % off (inside the default band), "
+          f"dob_full_ff, free, flick {args.flick:g} rad/s, 6 s each:")
+    with multiprocessing.Pool(args.jobs) as pool:
+        band = list(pool.imap(band_run, [(i, 6.0, args.flick) for i in range(args.band)]))
+    moving = [(s, r) for s, r in band if r["rest_v"] >= 0.01]
+    print(f"at rest in the last second: {len(band) - len(moving)}/{len(band)}; largest rms "
+          f"|V_e| then {max(r['rest_v'] for _, r in band):.4f} rad/s; peak |X_e| "
+          f"{max(r['peak_x'] for _, r in band):.3f} rad; trips "
+          f"{sum(r['trip_at'] is not None for _, r in band)}")
 
     print(f"\n{args.plants} plants 0.5x..2x (seeds {args.seed}..{args.seed + args.plants - 1}), "
           f"dob_full_ff, free, flick {args.flick:g} rad/s, {args.seconds:g} s each:")
@@ -121,7 +149,11 @@ def main():
     print(f"in range: {inside}/{len(results)}; peak |V_e| {peak_v:.3f} rad/s "
           f"(median {np.median([r['peak_v'] for _, r in results]):.3f}); peak |X_e| "
           f"{peak_x:.3f} rad")
-    print(f"monitor trips: {len(trips)}; latched faults: {len(faults)}")
+    moving = [(s, r) for s, r in results if r["rest_v"] >= 0.01]
+    print(f"monitor trips: {len(trips)}; latched faults: {len(faults)}; still moving in the "
+          f"last second (rms |V_e| >= 0.01 rad/s): {len(moving)}")
+    for s, r in moving[:10]:
+        print(f"  seed {s}: rms |V_e| {r['rest_v']:.3f} rad/s over the last second")
     for s, r in trips[:10]:
         print(f"  seed {s}: fell back to {r['fallback']} at {r['trip_at']:.3f} s, "
               f"|X_e| {r['trip_x']:.3f} rad then, peak |V_e| {r['peak_v']:.2f}")

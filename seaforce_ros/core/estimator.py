@@ -126,6 +126,11 @@ REST_TIME = 0.1
 #: ... or, at the latest, this long after the call [s] (a finger that does not come to rest:
 #: re-armed on its motion then).
 REST_TIMEOUT = 2.0
+#: Outside a job a contact that has stood this long [s] with the finger still (filtered
+#: endpoint speed below :data:`REST_SPEED`) is the model's error at rest, not an object: the
+#: controller re-arms the estimator (:meth:`ChannelController.update
+#: <seaforce_ros.core.controller.ChannelController.update>`).
+STANDING_TIME = 2.0
 #: Samples accumulated per block of the fit (one numpy outer product per block).
 BLOCK = 128
 _BLOCK_VALUES = 6 * BLOCK
@@ -293,7 +298,11 @@ class ContactEstimator:
         """Declare the present motion free: the residual of the last :data:`RECENT` s becomes
         the free-motion bias and a contact the residual may have started is dropped with its
         fit (a finger that has just started moving: its model error changes faster than the
-        baseline tracks)."""
+        baseline tracks). It ends a :meth:`rearm_at_rest` still waiting for rest: the caller
+        says the motion is free now."""
+        if self._settling:
+            self._settling = False
+            self._quiet = 0
         if self.contact:
             self.contact = False
             self.direction = 0

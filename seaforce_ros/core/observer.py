@@ -16,11 +16,15 @@ Inputs per sample: motor position X [rad], motor velocity V [rad/s], pressure fo
   which at slow speeds (0.3 rad/s) biased F_d by ~5 mN m rms in simulation (0.15 mN m with
   the play).
 * The margin: ``s = 1 - margin u`` per term (:meth:`~.params.FeedforwardParams.scales`) puts
-  the feed-forward's b_e, k_e and Dahl force at the low edge of the model's uncertainty, so
-  that it never cancels more friction than the finger may have (a finger whose friction is
-  over-compensated has negative net stiffness, damping or hysteresis and runs away). F_d
-  itself (what the contact estimator and the friction adaptation see) is the model's: sigma
-  and F_c scaled alike scale the Dahl force by the same factor.
+  the feed-forward's b_e, k_e and Dahl F_c at the low edge of the model's uncertainty, so that
+  it never cancels more friction than the finger may have (a finger whose friction is
+  over-compensated has negative net stiffness, damping or hysteresis and runs away). The Dahl
+  feed-forward's sigma is also only ``dahl_stiffness_share`` (0.5) of the model's: sigma is the
+  finger's pre-sliding stiffness, about 200 times k_e, and cancelling it through the loop's
+  lag (the DOB, the hose) is negative damping -- at the low edge of a 20 % band it made a free
+  finger oscillate (0.14-0.19 rad/s rms limit cycles in 24 of 40 plants 20 % off; none at half
+  the stiffness). So the feed-forward's Dahl force has its own state (:attr:`dahl_feedforward`);
+  F_d itself (what the contact estimator and the friction adaptation see) is the model's.
 
 A plant that skipped samples (``steps`` > 1) is integrated over the real elapsed time: the
 first-order hold spans ``steps * dt``. Plain Python floats, no allocation per sample.
@@ -88,8 +92,10 @@ class EndpointObserver:
         F_d [N m].
     compensation : float
         F_cmp [N m] (eq. 29, with the margin).
+    dahl_feedforward : float
+        The feed-forward's Dahl force [N m] (the margin's F_c, a share of sigma).
     feedforward : float
-        ``F_cmp + s_d F_d`` [N m]: the full feed-forward, with the margin.
+        ``F_cmp + dahl_feedforward`` [N m]: the full feed-forward, with the margin.
     damping, stiffness : float
         The model's b_e [N m s/rad] and k_e [N m/rad] (the friction adaptation moves them);
         F_cmp takes them times the margin's scales.
@@ -100,12 +106,13 @@ class EndpointObserver:
     __slots__ = ("dt", "_ks", "_inv_bs", "_a", "_c0", "_c1", "damping", "stiffness", "_rest",
                  "_half_width", "dahl", "_first", "_delta", "_fp_prev", "dahl_input",
                  "position", "velocity", "dahl_force", "compensation", "feedforward",
-                 "_scales", "_kb", "_kk", "_sd")
+                 "_scales", "_kb", "_kk", "_ff", "dahl_ff", "dahl_feedforward")
 
     def __init__(self, plant: PlantParams, feedforward: FeedforwardParams, dahl: DahlParams,
                  dt: float = 5e-4) -> None:
         self.dt = float(dt)
         self.dahl = DahlState(dahl)
+        self.dahl_ff = DahlState(dahl)
         self.configure(plant, feedforward, dahl)
         self.reset()
 
@@ -119,6 +126,7 @@ class EndpointObserver:
         self._rest = feedforward.rest_position
         self._half_width = 0.5 * feedforward.dahl_deadband
         self._scales = feedforward.scales()
+        self._ff = feedforward
         self.set_friction(plant.endpoint_damping, plant.endpoint_stiffness, dahl)
 
     def set_friction(self, damping: float, stiffness: float, dahl: DahlParams) -> None:
@@ -126,9 +134,10 @@ class EndpointObserver:
         friction adaptation's values); the Dahl state is kept (its force within the new
         F_c)."""
         self.damping, self.stiffness = damping, stiffness
-        sb, sk, self._sd = self._scales
+        sb, sk, _ = self._scales
         self._kb, self._kk = sb * damping, sk * stiffness
         self.dahl.set_params(dahl)
+        self.dahl_ff.set_params(self._ff.dahl(dahl))
 
     def model_feedforward(self) -> float:
         """``b_e V_e_hat + k_e (X_e_hat - rest) + F_d`` [N m]: the model's friction in full,
@@ -144,9 +153,10 @@ class EndpointObserver:
         self._delta = 0.0
         self._fp_prev = 0.0
         self.dahl.reset(0.0, 0.0)
+        self.dahl_ff.reset(0.0, 0.0)
         self.dahl_input = 0.0
         self.position = self.velocity = 0.0
-        self.dahl_force = self.compensation = self.feedforward = 0.0
+        self.dahl_force = self.compensation = self.feedforward = self.dahl_feedforward = 0.0
 
     def update(self, x: float, v: float, f_p: float, steps: int = 1) -> None:
         """One sample: X [rad], V [rad/s], F_p [N m]; ``steps`` sample periods since the
@@ -156,6 +166,7 @@ class EndpointObserver:
             delta = f_p / self._ks
             self.dahl_input = x + delta
             self.dahl.reset(x + delta, 0.0)
+            self.dahl_ff.reset(x + delta, 0.0)
         elif steps == 1:
             delta = self._a * self._delta + self._c0 * self._fp_prev + self._c1 * f_p
         else:
@@ -174,6 +185,7 @@ class EndpointObserver:
             xd = self.dahl_input = xe + hw
         self.position = xe
         self.velocity = ve
-        fd = self.dahl_force = self.dahl.update(xd)
+        self.dahl_force = self.dahl.update(xd)
+        fdf = self.dahl_feedforward = self.dahl_ff.update(xd)
         fc = self.compensation = self._kb * ve + self._kk * (xe - self._rest)
-        self.feedforward = fc + self._sd * fd
+        self.feedforward = fc + fdf

@@ -40,16 +40,12 @@ from seaforce_msgs.action import Commission
 from ..commissioning.excitation import ExcitationGoal, FreeAirExcitation
 from ..commissioning.record import save_record
 from ..commissioning.worker import AnalysisProcess
-from ..core.estimator import REST_SPEED
+from ..core.estimator import REST_SPEED, STANDING_TIME
 from ..core.jobs import InvalidJobGoalError, Job
 from .jobs import JobAction
 
 __all__ = ["CommissionAction", "DEFAULT_DIRECTORY", "run_directory", "previous_run"]
 
-#: A contact the estimator reports with the finger still this long [s] does not turn a goal
-#: away (the model's error at rest can keep one standing; the excitation's contact test
-#: aborts at a real one).
-STANDING_TIME = 2.0
 #: Where runs go when ``commissioning.directory`` is empty (relative to the working directory).
 DEFAULT_DIRECTORY = "seaforce_commissioning"
 

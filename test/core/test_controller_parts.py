@@ -67,7 +67,12 @@ def test_observer_at_rest_and_the_reference_modes():
         mode = MODE_TYPES[name](CONFIG, DT)
         assert isinstance(mode, ReferenceMode)
         refs[name] = mode.enter(obs)
-    ff = obs.compensation + s_d * obs.dahl_force
+    # the feed-forward's Dahl force: F_c at the margin, half the model's sigma (a state of its
+    # own; the model's F_d is what the estimator sees)
+    ff_dahl = CONFIG.feedforward.dahl(CONFIG.dahl)
+    assert ff_dahl.coulomb_force == pytest.approx(s_d * CONFIG.dahl.coulomb_force)
+    assert ff_dahl.sigma == pytest.approx(0.5 * s_d * CONFIG.dahl.sigma)
+    ff = obs.compensation + obs.dahl_feedforward
     assert obs.feedforward == pytest.approx(ff, rel=1e-15)
     assert refs == {"dob": 0.0, "dob_linear_ff": obs.compensation, "dob_full_ff": ff,
                     "impedance": ff - 0.01 * obs.velocity, "force": 0.1}

@@ -1,7 +1,8 @@
 """Controller configurations the tests build on (core only).
 
 * :func:`exact_feedforward`: the paper's feed-forward, which cancels the model's endpoint
-  friction exactly (``feedforward.margin`` 0, so ``allow_non_passive``). Tests that reproduce
+  friction exactly (``feedforward.margin`` 0 and ``dahl_stiffness_share`` 1, so
+  ``allow_non_passive``). Tests that reproduce
   the paper's figures on a simulated plant equal to the model use it; everything a user runs
   keeps the margin (docs/safety-and-layouts.md).
 * :func:`unlimited`: a joint range of +-100 rad and a runaway monitor that never trips, for
@@ -17,7 +18,8 @@ from seaforce_ros.core.params import ControllerConfig, LimitParams, MonitorParam
 def exact_feedforward(config=None, **changes):
     """``config`` (default ``ControllerConfig(**changes)``) without the feed-forward's margin."""
     config = ControllerConfig(**changes) if config is None else config.replace(**changes)
-    return config.replace(feedforward=dataclasses.replace(config.feedforward, margin=0.0),
+    return config.replace(feedforward=dataclasses.replace(config.feedforward, margin=0.0,
+                                                          dahl_stiffness_share=1.0),
                           allow_non_passive=True)
 
 
