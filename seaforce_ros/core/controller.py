@@ -538,6 +538,9 @@ class ChannelController:
         walls = self.walls
         w = self._wall = walls.update(x, v, obs.position, obs.velocity)
         self.beyond = walls.beyond
+        monitor = self.monitor
+        if w != 0.0 or monitor.wall_work != 0.0:
+            monitor.walls(-w * v)
         return w
 
     def _no_walls(self) -> float:

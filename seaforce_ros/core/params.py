@@ -446,6 +446,9 @@ class MonitorParams(ParameterGroup):
     trip_time: float = param(0.005, "s", "how long the speed must stay beyond max_speed before "
                              "the fall-back (the reaction time is this plus one sample)",
                              ge=0.0, le=1.0)
+    wall_energy: float = param(0.02, "J", "energy the joint walls may take out of the finger "
+                               "within about 2 s (forgotten with that time constant) before "
+                               "the finger counts as driven into them", gt=0.0, le=100.0)
     fallback: str = param("dob", "", "what a channel the monitor trips on runs until ~/reset: "
                           "dob (the DOB without feed-forward; a trip in it falls back to "
                           "passive) or passive (zero torque)", choices=FALLBACK_MODES)

@@ -34,7 +34,12 @@ Two stages of :meth:`ChannelController.update <seaforce_ros.core.controller.Chan
   ``~/reset``. Reaction time: ``trip_time`` plus one sample (the command's delay). After a
   trip the finger is still fast: the monitor counts again once the speed has been back within
   ``max_speed`` (a new excursion), or at once while it is beyond twice ``max_speed`` (a
-  fall-back that does not stop the finger goes on to ``passive``).
+  fall-back that does not stop the finger goes on to ``passive``). It trips too when the
+  walls have taken more than ``wall_energy`` out of the finger within about
+  :data:`WALL_MEMORY` (the energy their force dissipates, ``-F_w V``, forgotten with that time
+  constant): a finger that keeps coming back into the walls is driven by something -- a
+  feed-forward with negative net damping bounced a free finger between them at 3.5 rad/s rms,
+  below ``max_speed``.
 
 What the monitor cannot see: a finger that drifts slowly (a negative net stiffness or damping
 small enough to stay below ``max_speed``) -- the walls keep that one in range; and it cannot
@@ -44,9 +49,14 @@ then too: the conservative side).
 
 from __future__ import annotations
 
+import math
+
 from .params import LimitParams, MonitorParams
 
-__all__ = ["JointWalls", "RunawayMonitor"]
+__all__ = ["JointWalls", "RunawayMonitor", "WALL_MEMORY"]
+
+#: Time constant [s] with which the monitor forgets the energy the walls dissipated.
+WALL_MEMORY = 2.0
 
 
 class JointWalls:
@@ -132,9 +142,14 @@ class RunawayMonitor:
         Sample periods the speed has been beyond ``max_speed`` without a break.
     reason : str
         Why it tripped (set on the sample it trips), or ''.
+    armed : bool
+        False after a trip until the speed was back within ``max_speed``.
+    wall_work : float
+        The energy the walls took out of the finger, forgotten with :data:`WALL_MEMORY` [J].
     """
 
-    __slots__ = ("dt", "_vmax", "_trip", "over", "reason", "armed")
+    __slots__ = ("dt", "_vmax", "_trip", "over", "reason", "armed", "wall_work", "_budget",
+                 "_forget")
 
     def __init__(self, monitor: MonitorParams, dt: float) -> None:
         self.dt = float(dt)
@@ -144,6 +159,8 @@ class RunawayMonitor:
     def configure(self, monitor: MonitorParams) -> None:
         """New (validated) settings; the count goes on."""
         self._vmax = monitor.max_speed
+        self._budget = monitor.wall_energy
+        self._forget = math.exp(-self.dt / WALL_MEMORY)
         # beyond for more than trip_time: the count reaches this (at least one sample)
         self._trip = max(1, int(round(monitor.trip_time / self.dt)) + 1)
 
@@ -152,6 +169,7 @@ class RunawayMonitor:
         self.over = 0
         self.reason = ""
         self.armed = True
+        self.wall_work = 0.0
 
     def disarm(self) -> None:
         """After a trip: the finger the fall-back has to stop is still fast. Count again once
@@ -159,6 +177,15 @@ class RunawayMonitor:
         (the fall-back does not stop it)."""
         self.over = 0
         self.armed = False
+        self.wall_work = 0.0
+
+    def walls(self, power: float, steps: int = 1) -> None:
+        """The power the walls take out of the finger this sample, ``-F_w V`` [W] (counted
+        when positive), into the ledger :attr:`wall_work` [J]."""
+        w = self.wall_work * (self._forget if steps == 1 else self._forget ** steps)
+        if power > 0.0:
+            w += power * self.dt * steps
+        self.wall_work = w
 
     def update(self, v: float, ve: float, steps: int = 1) -> bool:
         """One sample: V, V_e_hat [rad/s], ``steps`` periods since the previous; True on the
@@ -169,6 +196,13 @@ class RunawayMonitor:
                 self.over = 0
             if not self.armed:
                 self.armed = True
+            if self.wall_work > self._budget:
+                self.reason = (f"finger driven into the joint walls: they took "
+                               f"{1e3 * self.wall_work:.3g} mJ out of it within about "
+                               f"{WALL_MEMORY:g} s, beyond monitor.wall_energy = "
+                               f"{1e3 * self._budget:g} mJ")
+                self.disarm()
+                return True
             return False
         if not self.armed:
             twice = vmax + vmax
