@@ -87,6 +87,26 @@ def test_monitor_trips_after_trip_time_once_per_excursion():
     assert any(m.update(12.0, 0.0) for _ in range(beyond))
 
 
+def test_monitor_trips_on_the_energy_the_walls_take_out():
+    """The walls' dissipated power is counted (forgotten over WALL_MEMORY): a finger that keeps
+    coming back into them trips the monitor; power they give (a spring relaxing) is not."""
+    from seaforce_ros.core.safety import WALL_MEMORY
+    m = RunawayMonitor(MonitorParams(wall_energy=0.02), DT)
+    for _ in range(1000):
+        m.walls(-5.0)                       # negative: not counted, only forgotten
+    assert m.wall_work == 0.0 and not m.update(0.0, 0.0)
+    for _ in range(int(0.015 / (0.05 * DT))):
+        m.walls(0.05)                       # 15 mJ
+    assert not m.update(0.0, 0.0)
+    assert m.wall_work == pytest.approx(0.015, rel=0.01)
+    for _ in range(int(WALL_MEMORY / DT)):
+        m.walls(0.0)                        # forgotten by e
+    assert m.wall_work == pytest.approx(0.015 / math.e, rel=0.01)
+    for _ in range(int(0.02 / (0.05 * DT))):
+        m.walls(0.05)
+    assert m.update(0.0, 0.0) and "joint walls" in m.reason and m.wall_work == 0.0
+
+
 # --- the configuration's rules -----------------------------------------------------------------
 def test_a_feed_forward_without_its_margin_is_refused_unless_allowed():
     for changes, name in (({"margin": 0.9}, "feedforward.margin"),
@@ -170,11 +190,13 @@ def test_without_the_margin_the_walls_and_the_monitor_keep_them_in_range(name, p
     assert np.max(np.abs(xe)) > 1.0, name                 # it does run away
     assert np.max(np.abs(xe)) <= LIMITS.position_max, name
     assert not rig.cycle.faults_latched, rig.cycle.latched(0)
-    if any(fb):
+    limit = config.monitor.max_speed
+    if any(fb) and "speed" in rig.controller.fallback_reason:
         first = fb.index(next(f for f in fb if f))
-        limit = config.monitor.max_speed
         crossed = int(np.argmax(np.abs(ve) > limit))
         assert first - crossed <= round(config.monitor.trip_time / DT) + 2, (first, crossed)
+    elif any(fb):                   # the walls' energy: the finger kept coming back into them
+        assert "joint walls" in rig.controller.fallback_reason
 
 
 def test_the_fallback_is_latched_refuses_grasps_and_ends_with_clear_fallback():
@@ -230,7 +252,7 @@ def test_beyond_the_range_latches_joint_limit_and_the_trip_is_reported_once():
     """A force that overpowers the walls: the finger reaches the end of the range, the cycle
     latches joint_limit (zero torque), ~/reset clears it. A trip is an error event, once."""
     config = ControllerConfig(mode="force", target=TargetParams(force=1.0),
-                              monitor=MonitorParams(max_speed=50.0))
+                              monitor=MonitorParams(max_speed=50.0, wall_energy=100.0))
     sim = ChannelSimulator(TABLE_I, DAHL, seed=2)
     rig = CycleRig(sim, config)
     for _ in range(8000):
