@@ -95,15 +95,15 @@ def test_monitor_trips_on_the_energy_the_walls_take_out():
     for _ in range(1000):
         m.walls(-5.0)                       # negative: not counted, only forgotten
     assert m.wall_work == 0.0 and not m.update(0.0, 0.0)
-    for _ in range(int(0.015 / (0.05 * DT))):
-        m.walls(0.05)                       # 15 mJ
+    for _ in range(6):
+        m.walls(5.0)                        # 15 mJ in 3 ms
     assert not m.update(0.0, 0.0)
     assert m.wall_work == pytest.approx(0.015, rel=0.01)
     for _ in range(int(WALL_MEMORY / DT)):
         m.walls(0.0)                        # forgotten by e
     assert m.wall_work == pytest.approx(0.015 / math.e, rel=0.01)
-    for _ in range(int(0.02 / (0.05 * DT))):
-        m.walls(0.05)
+    for _ in range(8):
+        m.walls(5.0)                        # 20 mJ more
     assert m.update(0.0, 0.0) and "joint walls" in m.reason and m.wall_work == 0.0
 
 
