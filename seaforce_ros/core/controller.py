@@ -370,6 +370,7 @@ class ChannelController:
             self._modes[self.mode].interrupt()
             self.job = job
             self._entry = _ENTER
+            self.estimator.stop_settling()      # (after a grasp's release)
 
     def _run_job(self, job: Job, x: float, v: float, f_p: float, steps: int) -> float:
         """One sample of the running ``job`` (X, V, F_p, steps): its output, which is the

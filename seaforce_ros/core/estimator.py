@@ -300,9 +300,7 @@ class ContactEstimator:
         fit (a finger that has just started moving: its model error changes faster than the
         baseline tracks). It ends a :meth:`rearm_at_rest` still waiting for rest: the caller
         says the motion is free now."""
-        if self._settling:
-            self._settling = False
-            self._quiet = 0
+        self.stop_settling()
         if self.contact:
             self.contact = False
             self.direction = 0
@@ -356,6 +354,13 @@ class ContactEstimator:
         self._at_rest = 0
         self._quiet = max(self._quiet, self._rest_timeout)
         self.quiet = True
+
+    def stop_settling(self) -> None:
+        """End a :meth:`rearm_at_rest` still waiting for rest (a new job takes the channel:
+        its own arming declares the motion free); the estimator works again at once."""
+        if self._settling:
+            self._settling = False
+            self._quiet = 0
 
     def disturb(self) -> None:
         """The plant replaced the torque for a while (a command timeout, its fault): the
