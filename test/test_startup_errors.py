@@ -295,3 +295,81 @@ def test_unquoted_modes_load_and_dump_load_round_trip(processes, tmp_path, probe
     assert probe.get_parameters('/controller', list(modes)) == modes
     for channel, mode in MODE_CHANNELS.items():
         assert loaded['/controller']['ros__parameters'][channel]['mode'] == mode
+
+
+# --- -p after the shipped params file ----------------------------------------------------
+#: Keys the shipped file set in node sections before (its `/**/sim:` and `/**/controller:`)
+#: and the safety limits a user types: each must be the value `-p` gives after the file.
+COMMAND_LINE_KEYS = ('torque_limit', 'max_velocity', 'command_timeout', 'clock_mode', 'rate',
+                     'joint_state_rate', 'state_timeout', 'status_rate')
+
+
+def _other_value(spec):
+    """A valid value of ``spec`` other than its default (what a user would type)."""
+    default = spec.default
+    if spec.type is bool:
+        return not default
+    if spec.name == 'channels':
+        return list(reversed(default))
+    if spec.type is list:
+        return list(spec.choices[:1]) if spec.choices else ['actuator_state']
+    if spec.choices:
+        return next(c for c in spec.choices if c != default)
+    if spec.type is str:
+        return 'eth7' if spec.name == 'interface' else 'run1'
+    step = 1 if spec.type is int else 0.5 * abs(default or 1.0)
+    for value in (default + step, default - step, default + 2 * step):
+        value = spec.type(value)
+        if spec.reason(value) is None and value != default:
+            return value
+    raise AssertionError(f'no other value for {spec.name}')
+
+
+def _yaml(value):
+    """``value`` as `-p NAME:=VALUE` writes it."""
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, list):
+        return '[' + ', '.join(value) + ']'
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+def _node_specs(node, channels):
+    if node == 'sim':
+        return sim_node.node_specs() + [s for c in channels
+                                        for s in param_specs.sim_channel_specs(c)]
+    if node == 'controller':
+        return controller_node.node_specs() + [s for c in channels
+                                               for s in param_specs.controller_channel_specs(c)]
+    return {'hardware': hardware_node.node_specs, 'bag_recorder': bag_recorder.node_specs}[node]()
+
+
+@pytest.mark.parametrize('node', ['sim', 'controller', 'hardware', 'bag_recorder'])
+def test_command_line_wins_over_the_shipped_params_file(node):
+    """Every read-only key of every node, and the limits and modes a user types, set with
+    ``-p`` after ``--params-file config/gripper.yaml`` (the README's command lines) are the
+    values the node declares: rcl applies a node's own section of a file after the ``/**``
+    one the ``-p`` values join, so the shipped file has none."""
+    import rclpy
+    from rclpy.context import Context
+    from seaforce_ros.nodes.ros_common import declare
+
+    channels = yaml.safe_load(CONFIG.read_text())['/**']['ros__parameters']['channels']
+    specs = _node_specs(node, channels)
+    wanted = {s.name: _other_value(s) for s in specs
+              if s.read_only or s.name in COMMAND_LINE_KEYS}
+    assert len(wanted) > 3, wanted
+    argv = ['node', '--ros-args', '--params-file', str(CONFIG)]
+    for name, value in wanted.items():
+        argv += ['-p', f'{name}:={_yaml(value)}']
+    context = Context()
+    rclpy.init(args=argv, context=context)
+    try:
+        ros_node = rclpy.create_node(node, context=context)
+        try:
+            values = declare(ros_node, specs)
+        finally:
+            ros_node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+    assert {name: values[name] for name in wanted} == wanted
