@@ -28,11 +28,12 @@ from seaforce_ros.ethercat.master import IFF_PROMISC, interface_flags
 YAML_BOOLEAN_WORDS = {'y', 'n', 'yes', 'no', 'on', 'off', 'true', 'false'}
 
 
-def run_until_exit(argv, timeout=60):
+def run_until_exit(argv, timeout=60, cwd=None):
     """Run an installed executable to its end; (exit code, stdout + stderr). Ended by its own
     PID if it outlives ``timeout`` (it must not: a bad configuration stops it at once)."""
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            stdin=subprocess.DEVNULL, start_new_session=True, text=True)
+                            stdin=subprocess.DEVNULL, start_new_session=True, text=True,
+                            cwd=cwd)
     try:
         out, _ = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
@@ -181,6 +182,53 @@ def test_unknown_interface_is_refused():
     code, out = run_until_exit([str(executable('hardware_node')), '--ros-args',
                                 '--params-file', str(CONFIG), '-p', 'interface:=nosuch7'])
     assert_refused(code, out, "no network interface 'nosuch7'")
+
+
+# --- arguments a node does not take -----------------------------------------------------
+UNKNOWN_ARGUMENTS = [
+    ('bag_recorder', ['--bogus']),
+    ('bag_recorder', ['run1']),                          # a stray positional
+    ('bag_recorder', ['--output', 'run1']),              # a parameter without -p
+    ('sim_node', ['--bogus']),
+    ('controller_node', ['--ros-args', '-p', 'status_rate:=50.0', '--', '--bogus']),
+    ('bringup', ['--bogus']),
+    ('hardware_node', ['--bogus']),
+]
+
+
+@pytest.fixture(scope='module')
+def unknown_argument_runs(tmp_path_factory):
+    """Every UNKNOWN_ARGUMENTS case run to its end in a directory of its own, four at a time:
+    [(directory, exit code, output)]."""
+    directories = [tmp_path_factory.mktemp(f'args{i}') for i in range(len(UNKNOWN_ARGUMENTS))]
+
+    def run(case):
+        directory, (exe, args) = case
+        argv = [str(executable(exe)), *args]
+        if '--ros-args' not in args:
+            argv += ['--ros-args', '--params-file', str(CONFIG)]
+        return (directory, *run_until_exit(argv, cwd=directory))
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        return list(pool.map(run, zip(directories, UNKNOWN_ARGUMENTS)))
+
+
+@pytest.mark.parametrize('case', range(len(UNKNOWN_ARGUMENTS)),
+                         ids=[f'{e}-{"_".join(a)}' for e, a in UNKNOWN_ARGUMENTS])
+def test_unknown_arguments_are_refused(unknown_argument_runs, case):
+    """A node takes ROS arguments only: anything else is named in one line, exit 2, before
+    the node does anything (bag_recorder records nothing)."""
+    directory, code, out = unknown_argument_runs[case]
+    exe, args = UNKNOWN_ARGUMENTS[case]
+    assert_refused(code, out, 'unknown argument', exe)
+    extra = args[args.index('--') + 1:] if '--' in args else args
+    assert f'unknown argument(s) {" ".join(extra)}:' in out, out
+    assert len(out.strip().splitlines()) == 1, out
+    assert not list(directory.iterdir()), list(directory.iterdir())
+
+
+def test_help_is_no_unknown_argument():
+    code, out = run_until_exit([str(executable('sim_node')), '--help'])
+    assert code == 0 and out.startswith('usage: sim_node [--ros-args'), out
 
 
 # --- integers for float parameters -----------------------------------------------------
