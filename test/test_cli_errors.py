@@ -164,6 +164,15 @@ def test_zwidth_simulation_options_without_simulate(processes, tmp_path):
               naming=["--params", "--simulate"])
 
 
+# --- commission ----------------------------------------------------------------------------
+@pytest.mark.parametrize("name, reason", [("bad//name", "repeated '/'"),
+                                          ("/1ctl", "must not start with a number")])
+def test_commission_controller_must_be_a_node_name(processes, name, reason):
+    out = _rejected(processes, "commission", "--channel", "pinch", "--controller", name,
+                    naming=("--controller", name, reason))
+    assert len(out.strip().splitlines()) == 1, out
+
+
 # --- bag_recorder: start-up parameters ------------------------------------------------------
 def _recorder(tmp_path, *params, params_file=None):
     """bag_recorder arguments: ``--ros-args [--params-file FILE] -p NAME:=VALUE ...``."""

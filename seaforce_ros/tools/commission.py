@@ -103,6 +103,21 @@ def _goal(args, action_type):
     return goal
 
 
+def _name_problem(controller: str) -> str:
+    """Why ``controller`` names no node whose ``<controller>/commission`` action a client can
+    reach (rcl's own words, one line), or ''."""
+    from rclpy.exceptions import InvalidTopicNameException
+    from rclpy.expand_topic_name import expand_topic_name
+    from rclpy.validate_full_topic_name import validate_full_topic_name
+    try:
+        validate_full_topic_name(expand_topic_name(controller.rstrip("/") + "/commission",
+                                                   "commission_cli", "/"))
+    except (InvalidTopicNameException, ValueError) as exc:
+        reason = str(exc).split(", at /")[0].splitlines()[0]
+        return f"not a ROS node name ({reason.split(': ', 1)[-1].rstrip(':')})"
+    return ""
+
+
 def _spin_until(executor, future, deadline) -> bool:
     while not future.done():
         if time.monotonic() > deadline:
@@ -120,6 +135,10 @@ def run(args) -> int:
     if args.band and not args.band[0] < args.band[1]:
         print(f"commission: error: --band {args.band[0]:g} {args.band[1]:g}: LOW must be "
               "below HIGH", file=sys.stderr)
+        return 2
+    problem = _name_problem(args.controller)
+    if problem:
+        print(f"commission: error: --controller {args.controller}: {problem}", file=sys.stderr)
         return 2
     rclpy.init()
     node = rclpy.create_node("commission_cli")
