@@ -5,7 +5,7 @@ Table I).
 One stack, in order: goals refused with the reason (unknown channel, a latched fault, a band
 upside down, NaN, a finger that is not free, a second goal while one runs); a cancel
 mid-excitation (CANCELED, zero torque on that channel from the next command on, nothing
-written or applied); a dry run with the ``commission`` tool (a report, no params file, the
+written or applied, no run directory left); a dry run with the ``commission`` tool (a report, no params file, the
 parameters unchanged, the identified plant within the goals); a run
 that applies (the channel's parameters become the result's new values, the identified plant
 within 5 % of the sim's truth, the torque continuous across the change, the drift against the
@@ -136,7 +136,7 @@ def test_commission_over_ros(processes, tmp_path, probe):
     assert after and all(e == 0.0 for _, e in after), after[:5]
     assert answer.result.params_file == '' and not answer.result.applied
     assert probe.get_parameters('/controller', [f'pinch.{k}' for k in PLANT_KEYS]) == before
-    assert not list(runs.glob('*/params.yaml'))
+    assert not list(runs.glob('*')), list(runs.glob('*'))    # nothing written: no directory
 
     # --- a dry run with the command-line tool, as a user types it: a report, no params
     # file, nothing changed; the identified plant within the goals of the sim's truth

@@ -171,8 +171,7 @@ class ControllerNode(Node):
         self.jobs.add(self._calibration_action())
         for action in gripper_job_actions(self):     # control_msgs, per channel
             self.jobs.add(action)
-        self.commissioning = CommissionAction(self, values['commissioning.directory'],
-                                              values['commissioning.params_file'])
+        self.commissioning = CommissionAction(self)
         self.jobs.add(self.commissioning.action())
         self._state_topic = self.resolve_topic_name('actuator_state')
         self.create_timer(GRAPH_PERIOD, self._watch_graph)
