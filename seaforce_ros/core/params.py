@@ -15,16 +15,16 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import field
-from typing import Any, Dict, Mapping, Optional, Tuple
+from typing import Any, Dict, List, Mapping, Optional, Tuple
 
-from .errors import InvalidParameterError, NonPassiveError
+from .errors import InvalidParameterError, NonPassiveError, SeaforceError
 from .schema import ParameterGroup, Spec, group, param
 
 __all__ = [
     "MODES", "DOB_MODES", "PlantParams", "DahlParams", "DobParams", "TargetParams",
     "HoldParams", "ForceFeedbackParams", "ChirpParams", "FeedforwardParams", "EstimatorParams",
     "GraspParams", "FrictionParams", "CommissioningParams", "GUARD_MODES", "GuardParams",
-    "guard_carries",
+    "guard_carries", "settable_order",
     "check_dob_passivity", "ControllerConfig", "PARAMETERS", "DEFAULT_CUTOFF",
     "DEFAULT_HOLD_STIFFNESS", "DEFAULT_HOLD_DAMPING", "MIN_CLOSING_VELOCITY", "MODE_RENAMED",
     "GUARD_RENAMED",
@@ -553,6 +553,31 @@ class ControllerConfig(ParameterGroup):
                     for name, _ in _NESTED if nested[name]}
         return dataclasses.replace(base, **replaced, **own)
 
+
+
+def settable_order(base: ControllerConfig, values: Mapping[str, Any]) -> Optional[List[str]]:
+    """An order of ``values``' keys (flat, as :meth:`ControllerConfig.from_dict` takes them)
+    in which setting them one at a time from ``base`` passes the channel's checks at every
+    step -- what ``ros2 param load`` does: one set per value, each validated as a whole
+    configuration (eq. 28 between ``plant.*`` and ``dob.*``) -- or None when there is none
+    and only an atomic set of all of them gets there.
+
+    Greedy: at each step the first key (in ``values``' order) whose set is accepted."""
+    order: List[str] = []
+    left = dict(values)
+    current = base
+    while left:
+        for key, value in left.items():
+            try:
+                current = ControllerConfig.from_dict({key: value}, base=current)
+            except SeaforceError:
+                continue
+            order.append(key)
+            del left[key]
+            break
+        else:
+            return None
+    return order
 
 #: ``(attribute, class)`` of ControllerConfig's nested groups, in field order.
 _NESTED = tuple((f.name, type(f.default_factory())) for f in dataclasses.fields(ControllerConfig)
