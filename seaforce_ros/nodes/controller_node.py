@@ -228,8 +228,10 @@ class ControllerNode(Node):
         configs, checks = self._new_configs(params)
         if checks is not None:
             self.cycle.configure(checks)
-        if configs:
-            self.cycle.configure_channels(configs)   # all of them at the next cycle's start
+        if configs:     # all of them at the next cycle's start; a set mode ends a job
+            names = {p.name for p in params}
+            self.cycle.configure_channels(configs, (i for i, c in enumerate(self.channels)
+                                                    if f'{c}.mode' in names))
         for index, config in configs.items():
             old = self.configs[index]
             self.configs[index] = config
