@@ -8,9 +8,9 @@
   the sim's torque_limit.
 * Without nodes: a parameter file that leaves the limits out gives the schema's defaults
   (sim and hardware), one with three channels and its own limits gives those; the installed
-  copy is the source (what display.launch.xml runs); the MoveIt controller snippet of
-  docs/gripper-actions.md commands a finger joint of the URDF through the action the
-  controller serves.
+  copy is the source (what display.launch.xml runs); the MoveIt snippets of
+  docs/gripper-actions.md command a finger joint of the URDF through the action the
+  controller serves, with an effort cap, at the URDF's speed.
 """
 import re
 
@@ -23,6 +23,7 @@ from urdf_parser_py.urdf import URDF
 from seaforce_ros.nodes import hardware_node, param_specs, sim_node
 from seaforce_ros.nodes.gripper_actions import action_namespace
 
+from helpers import moveit
 from helpers.nodes import CONFIG
 from helpers.processes import ROOT
 from helpers.sim_stack import SimStack
@@ -126,15 +127,26 @@ def test_installed_copy_is_the_source():
 
 
 def test_the_moveit_snippet_commands_a_urdf_finger_joint():
-    text = (ROOT / 'docs' / 'gripper-actions.md').read_text()
-    blocks = [yaml.safe_load(b) for b in re.findall(r'```yaml\n(.*?)```', text, re.S)]
-    (snippet,) = [b['moveit_simple_controller_manager'] for b in blocks
-                  if 'moveit_simple_controller_manager' in b]
-    joints = {j.name for j in urdf().joints}
-    for name in snippet['controller_names']:
-        controller = snippet[name]
+    """The MoveIt snippets of docs/gripper-actions.md: a GripperCommand controller per
+    channel on the action the controller serves, with a max_effort MoveIt sends (0 is
+    refused) within the channel's limits; joint limits for the URDF's finger joint at the
+    speed a gripper command moves (the URDF's limit, grasp.gripper_velocity) with an
+    acceleration limit (MoveIt's time parameterisation needs both)."""
+    controllers, joint_limits = moveit.snippets()
+    robot = urdf()
+    joints = {j.name: j for j in robot.joints}
+    defaults = {s.name: s.default for s in param_specs.controller_channel_specs('pinch')}
+    for name in controllers['controller_names']:
+        controller = controllers[name]
         assert controller['type'] == 'GripperCommand' and controller['default'] is True
         assert controller['action_ns'] == 'gripper_cmd'
         (joint,) = controller['joints']
         assert joint in joints and joint.endswith('_endpoint'), joint
         assert name == action_namespace(joint[:-len('_endpoint')], '')
+        assert defaults['pinch.grasp.approach_force'] < controller['max_effort'] \
+            <= defaults['pinch.max_torque']
+        limits = joint_limits[joint]
+        assert limits['has_velocity_limits'] and limits['has_acceleration_limits']
+        assert limits['max_velocity'] == joints[joint].limit.velocity \
+            == defaults['pinch.grasp.gripper_velocity']
+        assert limits['max_acceleration'] > 0.0

@@ -256,16 +256,22 @@ class GraspParams(ParameterGroup):
                                 "abort", ge=1e-3, le=10.0)
     gripper_velocity: float = param(0.3, "rad/s", "speed of a gripper command (control_msgs "
                                     "GripperCommand, or ParallelGripperCommand without a "
-                                    "velocity) towards its position X_e", ge=MIN_CLOSING_VELOCITY,
-                                    le=100.0)
-    gripper_effort: float = param(0.3, "N m", "contact force cap of a gripper command whose "
-                                  "max_effort is 0 (or whose effort is empty)", gt=0.0, le=100.0)
+                                    "velocity) towards its position X_e; the finger joint's "
+                                    "velocity limit in the URDF, which MoveIt plans with",
+                                    ge=MIN_CLOSING_VELOCITY, le=100.0)
+    gripper_effort: float = param(0.3, "N m", "contact force cap of a ParallelGripperCommand "
+                                  "without an effort (a max_effort or effort of 0 is refused: "
+                                  "no force)", gt=0.0, le=100.0)
     gripper_tolerance: float = param(0.01, "rad", "|X_e - position| within which a gripper "
                                      "command has reached its goal", gt=0.0, le=1.0)
     gripper_namespace: str = param("", "ROS name", "namespace of the channel's control_msgs "
                                    "gripper actions <ns>/gripper_cmd and <ns>/parallel_gripper_cmd "
                                    "(empty: <channel>_gripper); read at start",
                                    read_only=True)
+    gripper_allow_stalling: bool = param(False, "", "a gripper command an object stopped "
+                                         "(stalled: gripping at its effort cap) ends SUCCEEDED; "
+                                         "false, as ros2_controllers' allow_stalling: ABORTED "
+                                         "(the grip goes on either way)")
     gripper_cancel: str = param("hold", "", "what a canceled gripper command leaves: hold (the "
                                 "grip, or the finger where it is) or release (as a grasp's "
                                 "cancel)", choices=("hold", "release"))
