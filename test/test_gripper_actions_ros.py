@@ -5,8 +5,7 @@ module.
 
 * free air: SUCCEEDED, reached_goal, within grasp.gripper_tolerance, feedback with a finite
   effort; the motion of a 0.6 rad move (in sim time) within what MoveIt allows for the
-  duration it plans from the URDF's finger limit and the docs' joint_limits.yaml; a set of
-  pinch.mode to the mode it has ends the job holding the finger;
+  duration it plans from the URDF's finger limit and the docs' joint_limits.yaml;
 * a soft and a stiff object in the way (the sim's ``object`` environment), the goal beyond it:
   stalled and not reached_goal, ABORTED (grasp.gripper_allow_stalling false, the default, as
   ros2_controllers) or SUCCEEDED (true), the result's effort the grip at the cap; the contact
@@ -22,7 +21,8 @@ module.
 * bad goals: NaN, outside the joint range, negative effort, max_effort 0 (MoveIt's default),
   a parallel velocity or effort of 0, two joints, a faulted channel -- rejected (not
   accepted), the first reason in the node's log; a ~/grasp goal on a channel a gripper
-  command holds is turned away.
+  command holds is turned away;
+* a set of pinch.mode to the mode it has ends the job holding the finger.
 """
 import math
 
@@ -120,6 +120,13 @@ class Stack:
         self.probe.close()
         self.processes.stop_all()
 
+    def fresh(self):
+        """Forget what was recorded (a long record costs every wait a scan of it, and a
+        CPU-starved probe then loses statuses); the newest state after."""
+        for topic in ('actuator_state', 'controller_status'):
+            self.probe.clear(topic)
+        self.probe.wait_messages('actuator_state', 1, timeout=30)
+
     def cycle(self):
         return self.probe.messages('actuator_state')[-1].cycle
 
@@ -176,6 +183,11 @@ class Stack:
             'controller_status', 1, timeout=30, where=lambda m: m.cycle > after and
             value(m, 'pinch', 'grasp_phase') in phases)[0].cycle
 
+    def phases(self, after, until):
+        """(cycle, pinch's grasp_phase) of the statuses got with cycles in (after, until]."""
+        return [(m.cycle, value(m, 'pinch', 'grasp_phase'))
+                for m in self.probe.messages('controller_status') if after < m.cycle <= until]
+
     def endpoint(self, after):
         """(cycle, X_e) of the states after cycle ``after``."""
         return [(m.cycle, value(m, 'pinch', 'endpoint_position'))
@@ -183,12 +195,18 @@ class Stack:
 
 
 @pytest.fixture(scope='module')
-def stack(tmp_path_factory):
+def shared_stack(tmp_path_factory):
     s = Stack(tmp_path_factory.mktemp('gripper_actions'))
     try:
         yield s
     finally:
         s.close()
+
+
+@pytest.fixture
+def stack(shared_stack):
+    shared_stack.fresh()
+    return shared_stack
 
 
 def contact_cycle(stack, after):
@@ -228,11 +246,14 @@ def test_free_air_reaches_the_position_in_the_time_moveit_allows(stack):
     assert abs(result.position - target) <= TOLERANCE, (result.position, target)
     assert feedback and all(math.isfinite(f.effort) for f in feedback)
     assert abs(result.effort) < 0.01, result.effort          # nothing in the way
-    # the motion in sim time, from the job's start to the target, against what MoveIt allows
-    # for the duration it plans with the URDF's limit and the docs' acceleration limit (less
-    # 0.1 s for the goal's and the result's ways over ROS)
-    began = stack.phase_cycle(start, 'approach')
-    reached = stack.phase_cycle(began, 'at_target')
+    # the motion in sim time, from the job's start (its first status, or the finger's first
+    # move if that status was lost) to the finger within the tolerance, against what MoveIt
+    # allows for the duration it plans with the URDF's limit and the docs' acceleration limit
+    # (less 0.1 s for the goal's and the result's ways over ROS)
+    samples = stack.endpoint(start)
+    moving = next(c for c, x in samples if abs(x - samples[0][1]) > 0.005)
+    began = min(stack.phase_cycle(start, 'approach'), moving)
+    reached = next(c for c, x in samples if abs(x - target) <= TOLERANCE)
     limits = moveit.snippets()[1]['pinch_endpoint']
     planned = moveit.planned_duration(distance, finger_velocity_limit(),
                                       limits['max_acceleration'])
@@ -243,12 +264,6 @@ def test_free_air_reaches_the_position_in_the_time_moveit_allows(stack):
     stack.probe.wait_messages('actuator_state', 1, where=lambda m: m.cycle > held_from + 600)
     assert abs(stack.position() - target) <= 2 * TOLERANCE
     stack.phase_cycle(held_from, 'at_target')
-    # pinch.mode set to the mode it has (passive): the job ends, as at a change of mode
-    stack.set('/controller', {'pinch.mode': 'passive'})
-    now = stack.cycle()
-    stack.probe.wait_messages('controller_status', 1, timeout=30,
-                              where=lambda m: m.cycle > now and not value(m, 'pinch',
-                                                                          'grasp_phase'))
 
 
 @pytest.mark.parametrize('stiffness, action, allow', [(0.5, GripperCommand, False),
@@ -276,11 +291,18 @@ def test_an_object_in_the_way_stalls_and_is_gripped_at_the_cap(stack, stiffness,
     assert abs(effort - cap) <= 0.25 * cap, effort
     touched = contact_cycle(stack, start)
     # the contact is detected (the job's grasp phase 'contact', at the sample it happens)
-    # within 50 ms of sim time of the true touch; the status comes at 100 Hz. (The answer's
-    # way to the client is wall time -- bench/gripper_actions.py measures it: the probe's
-    # arrival cycle on a loaded host was 0.8 s of lockstep time late)
+    # within 50 ms of sim time of the true touch; the status comes at 100 Hz (every 20
+    # cycles). Judged on the statuses the probe got (a starved probe loses some): none shows
+    # a contact phase before the touch, none the approach later than 120 cycles after it.
+    # (The answer's way to the client is wall time -- bench/gripper_actions.py measures it:
+    # the probe's arrival cycle on a loaded host was 0.8 s of lockstep time late)
     decided = stack.phase_cycle(start, 'contact', 'squeeze', 'hold')
-    assert 0 < decided - touched <= 100 + 20, (touched, decided)
+    phases = stack.phases(start, decided)
+    near = [(c, p) for c, p in phases if c > touched - 100]
+    assert not [c for c, p in phases if c <= touched and p in ('contact', 'squeeze', 'hold')], \
+        (touched, near)
+    assert not [c for c, p in phases if p == 'approach' and c > touched + 100 + 20], \
+        (touched, near)
     # the grip goes on after the goal: settled at the cap
     settle = max(0.4, 6.0 * (0.06 + 0.08) / stiffness)
     stack.probe.wait_messages('actuator_state', 1, timeout=120,
@@ -393,3 +415,16 @@ def test_bad_goals_are_rejected(stack):
         log_from:], timeout=10, what='the rejection logged')
     log = stack.controller.output()[log_from:]
     assert 'position = nan: must be a finite number' in log
+
+
+def test_setting_the_mode_in_force_ends_the_job_holding_the_finger(stack):
+    """pinch.mode set to the mode it has (passive) while a gripper command's job holds the
+    finger: the job ends, as at a change of mode."""
+    handle, _, future = stack.send(gripper_goal(trajectory(away(stack, 0.1))))
+    assert handle.accepted
+    assert stack.result(future).status == GoalStatus.STATUS_SUCCEEDED
+    held = stack.phase_cycle(stack.cycle(), 'at_target')
+    stack.set('/controller', {'pinch.mode': 'passive'})
+    stack.probe.wait_messages('controller_status', 1, timeout=30,
+                              where=lambda m: m.cycle > held and not value(m, 'pinch',
+                                                                           'grasp_phase'))
