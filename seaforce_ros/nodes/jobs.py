@@ -303,6 +303,8 @@ class JobActions:
         if after is None and not job.started:
             self._controllers[index].request_job(job)
         self._node.get_logger().info(f'{action.channel(goal)}: {action.describe(goal)}')
+        if action.on_cancel is not None and handle.is_cancel_requested:
+            self._give_up(handle)          # canceled before this coroutine ran
         return await done
 
     def _preempt(self, index: int, goal: _Goal, held: Optional[Job]) -> Optional[Job]:
