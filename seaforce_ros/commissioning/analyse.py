@@ -260,7 +260,7 @@ def tune_stage(ident: FreeAirIdentification, loop: LoopModel, request: AnalysisR
     return tune(ident.plant(), _plant_sigma(ident), ident.dahl(), loop, band=request.band,
                 noise_budget=request.noise_budget,
                 passivity_margin=request.passivity_margin, allow_guard=request.allow_guard,
-                config=request.config)
+                config=request.config, class_error=ident.misfit.get("port", 0.0))
 
 
 # --- 4. prediction --------------------------------------------------------------------------

@@ -13,7 +13,8 @@ drive of :func:`~seaforce_ros.core.environment.position_sine` at one frequency w
   differ from the true plant): the drive's backward-difference velocity ``(x_k - x_{k-1})/T``;
   the hose inversion of eq. 29 with its first-order-hold coefficients
   (:func:`~seaforce_ros.core.observer.hose_coefficients`); ``F_cmp = b_e V_e_hat + k_e
-  X_e_hat``; the DOB of eq. 19 with its trapezoidal integrator
+  X_e_hat`` and the feed-forward's Dahl force, each with the margin of
+  ``feedforward.margin`` (:meth:`~seaforce_ros.core.params.ControllerConfig.feedforward_friction`); the DOB of eq. 19 with its trapezoidal integrator
   ``I = (lambda T/2)(1 + z^-1)/(1 - z^-1) (F_ref + F_p - k_n X)``,
   ``F_a = F_ref + I - lambda m_n V - lambda b_n X``; hold ``F_a = -K_p X - K_d V``;
   force feedback ``F_a = K_f F_p``; impedance ``F_ref = F_cmp + F_d - K_t X_e_hat - B_t
@@ -234,8 +235,9 @@ def controller_polynomials(config: ControllerConfig, mode: str, dt: float,
     ve_x, ve_p = v_x, _P.polysub(d_h, p.hose_stiffness * delta) / p.hose_damping
     ref_x, ref_p = 0 * one, 0 * one
     if mode != "dob":
-        ref_x = _P.polyadd(p.endpoint_damping * ve_x, p.endpoint_stiffness * xe_x)
-        ref_p = _P.polyadd(p.endpoint_damping * ve_p, p.endpoint_stiffness * xe_p)
+        b_ff, k_ff, _ = config.feedforward_friction()       # with the margin
+        ref_x = _P.polyadd(b_ff * ve_x, k_ff * xe_x)
+        ref_p = _P.polyadd(b_ff * ve_p, k_ff * xe_p)
     if mode in ("dob_full_ff", "impedance"):
         ref_x = _P.polyadd(ref_x, dahl_gain * xe_x)
         ref_p = _P.polyadd(ref_p, dahl_gain * xe_p)
@@ -381,7 +383,8 @@ def predict_modes(true_plant: PlantParams, true_dahl: Optional[DahlParams],
         gx1, gp1 = controller_gains(config, mode, z, dt, 1.0 + 0j)
         gains[mode] = (gx0, gp0, gx1 - gx0, gp1 - gp0)
     n_plant0 = dahl_describing_function(true_dahl, amplitude)
-    n_ff0 = dahl_describing_function(config.dahl, amplitude, play)
+    dahl_ff = config.feedforward_friction()[2]          # the feed-forward's, with the margin
+    n_ff0 = dahl_describing_function(dahl_ff, amplitude, play)
     for i, wi in enumerate(w):
         phi6, gam6 = _discretised(true_plant, dt, ken, ben, float(wi))
         phi, gam_m, gam_e = phi6[:4, :4], gam6[:4, 0], gam6[:4, 1]
@@ -399,7 +402,7 @@ def predict_modes(true_plant: PlantParams, true_dahl: Optional[DahlParams],
                 n_plant = dahl_describing_function(true_dahl, abs(s[2]) * amplitude)
                 xe_hat = s[0] + deflection[i] * (hose @ s)
                 if dk_x != 0 or dk_p != 0:
-                    n_ff = dahl_describing_function(config.dahl, abs(xe_hat) * amplitude, play)
+                    n_ff = dahl_describing_function(dahl_ff, abs(xe_hat) * amplitude, play)
             f_e = ken * (1.0 - s[2]) + ben * (1j * wi - s[3])
             out[mode][i] = f_e / (1j * wi * s[2])
     return out

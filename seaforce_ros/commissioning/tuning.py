@@ -39,15 +39,17 @@ import numpy.typing as npt
 from ..core.analysis import HoldMargins
 from ..core.environment import DRIVE_DAMPING, DRIVE_STIFFNESS
 from ..core.errors import NonPassiveError
-from ..core.params import (ControllerConfig, DahlParams, DobParams, GraspParams, GuardParams,
-                           HoldParams, PlantParams, check_dob_passivity, guard_carries)
+from ..core.params import (MIN_UNCERTAINTY, ControllerConfig, DahlParams, DobParams,
+                           GraspParams, GuardParams, HoldParams, PlantParams,
+                           check_dob_passivity, guard_carries)
 from ..core.simulator import discretise
 from .errors import CommissioningError
 from .predictor import (PLANT_FIELDS, LoopModel, closed_loop_radius, hold_verdict,
                         predict_modes, torque_noise)
 
 __all__ = ["TuningResult", "InfeasibleTuningError", "tune", "worst_plant", "TUNED_KEYS",
-           "HOLD_MODULUS_MARGIN", "DELAY_RESERVE", "contact_damping_within"]
+           "HOLD_MODULUS_MARGIN", "DELAY_RESERVE", "contact_damping_within",
+           "feedforward_uncertainties"]
 
 _Float = npt.NDArray[np.float64]
 
@@ -55,7 +57,8 @@ _Float = npt.NDArray[np.float64]
 TUNED_KEYS = tuple(f"plant.{n}" for n in PLANT_FIELDS) + (
     "dahl.sigma", "dahl.coulomb_force", "dob.cutoff", "dob.nominal_inertia",
     "dob.nominal_damping", "dob.nominal_stiffness", "hold.stiffness", "hold.damping",
-    "passivity_guard", "grasp.contact_damping")
+    "passivity_guard", "grasp.contact_damping", "feedforward.damping_uncertainty",
+    "feedforward.stiffness_uncertainty", "feedforward.dahl_uncertainty")
 #: Smallest ``min |1 + L|`` of the hold loop at the p99 delay (gain margin >= 6 dB, phase
 #: margin >= 29 deg).
 HOLD_MODULUS_MARGIN = 0.5
@@ -102,6 +105,9 @@ class TuningResult:
         The tuned hold's margins at the p99 delay.
     guard : str
         Why the passivity guard is needed ('' when eq. 28 holds without it).
+    margin_cost_db : float array
+        What the feed-forward's margin costs over ``omega``: predicted ``|Z|`` of
+        ``dob_full_ff`` with the tuned settings less the same without the margin [dB].
     """
 
     values: Dict[str, Any]
@@ -114,6 +120,7 @@ class TuningResult:
     hold_delay_limit: int
     hold_margins: HoldMargins
     guard: str
+    margin_cost_db: _Float
 
     @property
     def gain_db(self) -> float:
@@ -289,7 +296,7 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
          figures: LoopModel, *, band: Tuple[float, float] = (0.3, 10.0),
          noise_budget: float = 0.01, passivity_margin: float = 2.0,
          allow_guard: bool = False, config: Optional[ControllerConfig] = None,
-         amplitude: float = 0.5, points: int = 8) -> TuningResult:
+         amplitude: float = 0.5, points: int = 8, class_error: float = 0.0) -> TuningResult:
     """Choose the DOB and hold settings that widen the predicted Z-width (module docstring).
 
     Parameters
@@ -319,6 +326,10 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
         Drive amplitude of the predicted Z [rad].
     points : int >= 2
         Frequencies of the band's log grid.
+    class_error : float >= 0
+        The model class's relative error as the fit's misfit shows it (the port response's
+        rms relative misfit): with each endpoint term's relative 1-sigma it makes the
+        feed-forward's uncertainty (:func:`feedforward_uncertainties`).
 
     Returns
     -------
@@ -333,15 +344,20 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
         Bad input.
     """
     _check_inputs(plant, plant_sigma, figures, band, noise_budget, passivity_margin)
+    if not (math.isfinite(class_error) and class_error >= 0.0):
+        raise CommissioningError(f"class_error = {class_error!r}: the misfit, >= 0 and finite")
     if points < 2:
         raise CommissioningError(f"points = {points!r}: at least 2 frequencies")
     base = _start_config(config, plant, dahl)
     # the starting DOB on the identified plant need not satisfy eq. 28 (a plant heavier than
     # the model it was set for): this config only predicts; every candidate is checked
-    model = base.replace(plant=plant, dahl=dahl, allow_non_passive=True,
-                         grasp=dataclasses.replace(base.grasp, contact_damping=(
-                             contact_damping_within(base.grasp.contact_damping,
-                                                    plant.hose_damping))))
+    # (and the feed-forward's uncertainties from the identification: its margin sets the
+    # feed-forward's gains, hence the torque noise of every candidate)
+    uncertainties = feedforward_uncertainties(plant, plant_sigma, dahl, class_error)
+    model = ControllerConfig.from_dict(uncertainties, base=base.replace(
+        plant=plant, dahl=dahl, allow_non_passive=True,
+        grasp=dataclasses.replace(base.grasp, contact_damping=(
+            contact_damping_within(base.grasp.contact_damping, plant.hose_damping)))))
     omega = np.logspace(math.log10(band[0]), math.log10(band[1]), points)
     dt = figures.dt
     before = predict_modes(plant, dahl, base, ("hold", "dob_full_ff"), omega,
@@ -431,6 +447,7 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
 
     # --- the result ------------------------------------------------------------------------
     values = _model_values(plant, dahl, base)
+    values.update(uncertainties)
     m_n = best.dob.nominal_inertia
     assert m_n is not None
     values.update({"dob.cutoff": best.dob.cutoff, "dob.nominal_inertia": m_n,
@@ -443,12 +460,46 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     bindings.setdefault("grasp.contact_damping", "range: at most 10 b_s")
     bindings.setdefault("passivity_guard", "passivity guard carries m_n below eq. 28"
                         if best.guard else "kept")
+    for key in TUNED_KEYS[-3:]:
+        bindings.setdefault(key, "the identified 1-sigma and the fit's misfit")
     tuned = ControllerConfig.from_dict(values, base=base)
     after = predict_modes(plant, dahl, tuned, ("hold", "dob_full_ff"), omega,
                           delay=figures.delay_p50, dt=dt, amplitude=amplitude)
+    exact = tuned.replace(feedforward=dataclasses.replace(tuned.feedforward, margin=0.0),
+                          allow_non_passive=True)
+    unmargined = predict_modes(plant, dahl, exact, ("dob_full_ff",), omega,
+                               delay=figures.delay_p50, dt=dt, amplitude=amplitude)
+    margin_cost = np.asarray(20.0 * np.log10(np.abs(after["dob_full_ff"])
+                                             / np.abs(unmargined["dob_full_ff"])), float)
     verdict = hold_verdict(plant, kp, kd, delay=figures.delay_p99, dt=dt)
     return TuningResult(values, tuned, omega, _zwidth(before), _zwidth(after), bindings,
-                        best.noise, verdict.delay_limit, verdict.margins, guard_carries(tuned))
+                        best.noise, verdict.delay_limit, verdict.margins, guard_carries(tuned),
+                        margin_cost)
+
+
+def feedforward_uncertainties(plant: PlantParams, plant_sigma: Mapping[str, float],
+                              dahl: DahlParams, class_error: float) -> Dict[str, float]:
+    """The feed-forward's relative uncertainties (``feedforward.*_uncertainty``) after an
+    identification: per term ``hypot(sigma_rel, class_error)`` -- the fit's statistical
+    1-sigma, relative, and the model class's error the misfit shows (a parameter whose
+    effect the fit cannot match is off by about that much: on a plant with the hose and
+    finger nonlinearities of the paper's Section IV, k_e's statistical 1-sigma was 1.1 %
+    and its error 7.4 %, the port misfit 8.5 %). The Dahl term takes the larger of sigma's
+    and F_c's. Each at least :data:`~seaforce_ros.core.params.MIN_UNCERTAINTY`, at most 1."""
+    def rel(name: str, value: float) -> float:      # (missing: 0, as for eq. 28's margin)
+        sd = float(plant_sigma.get(name, 0.0))
+        return sd / value if value > 0.0 and math.isfinite(sd) else 1.0
+
+    def term(r: float) -> float:
+        return min(1.0, max(MIN_UNCERTAINTY, math.hypot(r, class_error)))
+
+    return {"feedforward.damping_uncertainty": term(rel("endpoint_damping",
+                                                        plant.endpoint_damping)),
+            "feedforward.stiffness_uncertainty": term(rel("endpoint_stiffness",
+                                                          plant.endpoint_stiffness)),
+            "feedforward.dahl_uncertainty": term(max(rel("sigma", dahl.sigma),
+                                                     rel("coulomb_force",
+                                                         dahl.coulomb_force)))}
 
 
 def _guard(config: ControllerConfig, active: bool) -> GuardParams:

@@ -24,7 +24,15 @@ kind                 condition                                              defa
 ``implausible_state`` a value beyond the plausibility limits                 latches
 ``torque_limit``     computed torque beyond the channel's ``max_torque``    latches
 ``non_finite_torque`` computed torque NaN/inf (an intermediate overflowed)   latches
+``joint_limit``      the motor or the estimated endpoint beyond the joint   latches
+                     range ``limits.position_min..position_max`` in a mode
+                     that commands torque (:mod:`.safety`)
 ==================== ====================================================== ===========
+
+The runaway monitor (:mod:`.safety`) is the controller's: when it trips, the channel falls
+back to ``monitor.fallback`` by itself (no zero torque from here); this cycle reports it once,
+as an error, and shows it as the channel's fault until :meth:`ControlCycle.request_reset`
+clears it with the latched faults.
 
 A state older than the newest answered, by less than ``state_timeout``, arrived out of order:
 it is dropped unanswered (answering it would look like a second command source to the
@@ -67,7 +75,7 @@ __all__ = ["StateChecks", "ControlCycle", "ControlOutput", "FAULT_KINDS",
            "DEFAULT_LATCHED", "STALE_STATE", "STATE_GAP", "STATE_SOURCES", "FUTURE_STAMP",
            "MALFORMED_STATE",
            "MISSING_CHANNEL", "NON_FINITE_STATE", "IMPLAUSIBLE_STATE", "TORQUE_LIMIT",
-           "NON_FINITE_TORQUE"]
+           "NON_FINITE_TORQUE", "JOINT_LIMIT"]
 
 STALE_STATE = "stale_state"
 STATE_GAP = "state_gap"
@@ -79,11 +87,12 @@ NON_FINITE_STATE = "non_finite_state"
 IMPLAUSIBLE_STATE = "implausible_state"
 TORQUE_LIMIT = "torque_limit"
 NON_FINITE_TORQUE = "non_finite_torque"
+JOINT_LIMIT = "joint_limit"
 
 #: Every condition kind, in the order of the table above.
 FAULT_KINDS = (STALE_STATE, STATE_GAP, STATE_SOURCES, FUTURE_STAMP, MALFORMED_STATE,
                MISSING_CHANNEL, NON_FINITE_STATE, IMPLAUSIBLE_STATE, TORQUE_LIMIT,
-               NON_FINITE_TORQUE)
+               NON_FINITE_TORQUE, JOINT_LIMIT)
 
 #: Kinds that latch by default: faults of the data itself. A stall or a restart of the plant
 #: is not one: the plant's own watchdog has already zeroed the torque.
@@ -282,9 +291,11 @@ class ControlCycle:
         self._stream.publishers = tuple(names)
 
     def request_reset(self) -> str:
-        """Clear every latched fault at the start of the next step; returns what it clears."""
+        """Clear every latched fault and the runaway monitor's fall-backs at the start of the
+        next step; returns what it clears."""
         self._reset_box.put(True)
-        cleared = [c for c, ch in zip(self.channels, self._ch) if ch.latched]
+        cleared = [c for c, ch, ctrl in zip(self.channels, self._ch, self.controllers)
+                   if ch.latched or ctrl.fallback]
         return ("cleared faults on " + ", ".join(cleared)) if cleared else "no fault was latched"
 
     # --- status ----------------------------------------------------------------------------
@@ -294,12 +305,16 @@ class ControlCycle:
         return self._checks
 
     def fault(self, i: int) -> str:
-        """Channel ``i``'s latched fault, or its re-arming condition, or ''."""
+        """Channel ``i``'s latched fault, or its re-arming condition, or the runaway monitor's
+        fall-back, or ''."""
         ch = self._ch[i]
         if ch.latched:
             return ch.latched
         if ch.rearming:
             return "re-arming: " + ch.rearming
+        ctrl = self.controllers[i]
+        if ctrl.fallback:
+            return f"fallback to {ctrl.fallback}: {ctrl.fallback_reason}"
         return ""
 
     def latched(self, i: int) -> str:
@@ -396,7 +411,8 @@ class ControlCycle:
             for i, config in changed.items():
                 self.controllers[i].configure(config, i in mode_set)
         if self._reset_box.take():
-            for ch in self._ch:
+            for ch, ctrl in zip(self._ch, self.controllers):
+                ctrl.clear_fallback()
                 if ch.latched:
                     ch.latched = ""
                     ch.needs_reset = True
@@ -532,6 +548,14 @@ class ControlCycle:
             u = ctrl.update(x, v, f_p, sample.steps)
         except ArithmeticError:        # an overflow the checks above did not foresee
             u = math.nan
+        if ctrl.tripped:
+            self.events.add(ERROR, f"{self.channels[i]}: runaway monitor: {ctrl.tripped}; call "
+                                   "~/reset (std_srvs/Trigger) to clear")
+            ctrl.tripped = ""
+        if ctrl.beyond:
+            self.counts[JOINT_LIMIT] += 1
+            self._condition(i, now, JOINT_LIMIT, ctrl.beyond)
+            return 0.0
         limit = ctrl.config.max_torque
         if -limit <= u <= limit:
             return u
@@ -554,10 +578,13 @@ class ControlCycle:
         if ctrl.job is not None:
             ctrl.abort_job(f"fault latched: {ch.latched}" if ch.latched else sample.reason)
         ctrl.reenter(f_a)
+        fallback, reason = ctrl.fallback, ctrl.fallback_reason
         try:
             ctrl.update(x, v, f_p, sample.steps)
         except ArithmeticError:
             pass
+        if ctrl.tripped:        # its torque was not applied: the motion is not its doing
+            ctrl.restore_fallback(fallback, reason)
 
     def _take_over(self, i: int, ch: _ChannelState, ctrl: ChannelController, f_a: float,
                    status: int, steps: int, now: float) -> None:

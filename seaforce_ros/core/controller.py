@@ -17,7 +17,8 @@ stages per sample (:meth:`ChannelController.update`):
    refused as busy) overrides the mode while it runs. A :data:`~.jobs.TORQUE` job (a friction
    calibration, :mod:`.friction_calibration`) commands F_a itself and the stages below pause;
    an :data:`~.jobs.ENDPOINT_FORCE` job (a grasp, :mod:`.grasp`: ``F_j = F_g``) runs the DOB
-   with ``F_ref = F_cmp + F_d + F_j`` (minimum impedance plus the job's endpoint force). When a
+   with ``F_ref = F_cmp + F_d + F_j`` (minimum impedance plus the job's endpoint force; the
+   model's friction in full: a grasp closes its own loop around the endpoint). When a
    job is done the channel enters its mode again, bumplessly from the torque then, with the
    configuration the job leaves (a calibration's new friction; a grasp's release has ramped
    F_g to zero, the grip is not carried over into ``hold``). Selecting ``passive`` ends a job
@@ -63,10 +64,11 @@ from .friction_calibration import FrictionAdaptation
 from .grasp import Grasp
 from .handover import Mailbox
 from .jobs import TORQUE, Job, JobSample, busy_reason
-from .modes import MODE_TYPES, Mode, ReferenceMode, TorqueMode
+from .modes import MODE_TYPES, Dob, Mode, Passive, ReferenceMode, TorqueMode
 from .observer import EndpointObserver
 from .params import ControllerConfig, DahlParams
 from .passivity_guard import PassivityGuard
+from .safety import JointWalls, RunawayMonitor
 
 __all__ = ["ChannelController"]
 
@@ -153,6 +155,10 @@ class ChannelController:
                                           config.feedforward.rest_position)
         self._job_sample = JobSample(self.estimator)
         self.adaptation = FrictionAdaptation(config, self.dt)
+        self.walls = JointWalls(config.limits, config.max_torque)
+        self.monitor = RunawayMonitor(config.monitor, self.dt)
+        self.fallback = self.fallback_reason = self.tripped = self.beyond = ""
+        self._wall = 0.0
         self._apply_config(config)
         self.reset()
 
@@ -185,15 +191,25 @@ class ChannelController:
         self.mode = c.mode
         for m in self._modes.values():
             m.configure(c)
-        mode = self._modes[c.mode]
-        self._torque_mode = mode if isinstance(mode, TorqueMode) else None
-        self._reference_mode = mode if isinstance(mode, ReferenceMode) else None
-        self._uses_feedforward = mode.uses_feedforward
+        self.walls.configure(c.limits, c.max_torque)
+        self.monitor.configure(c.monitor)
+        self._use_mode(c.mode)
         self._adapting = c.friction.adaptation
         self.observer.configure(c.plant, c.feedforward, c.dahl)
         self._dob.configure(c.dob)
         self.estimator.configure(c.estimator, c.plant, c.feedforward.rest_position)
         self._configure_guard(c)
+
+    def _use_mode(self, name: str) -> None:
+        """Run the mode ``name`` from now on -- or, while the runaway monitor's fall-back is
+        latched and ``name`` runs the DOB, the fall-back (``dob`` or ``passive``)."""
+        mode = self._modes[name]
+        if self.fallback and isinstance(mode, ReferenceMode):
+            mode = self._modes[self.fallback]
+        self._torque_mode = mode if isinstance(mode, TorqueMode) else None
+        self._reference_mode = mode if isinstance(mode, ReferenceMode) else None
+        self._uses_feedforward = mode.uses_feedforward
+        self._walled = not isinstance(mode, Passive)
 
     def _select(self, c: ControllerConfig) -> None:
         """Apply a configuration handed to :meth:`configure`: its mode is selected (anew)."""
@@ -231,7 +247,9 @@ class ChannelController:
         if self.passivity_guard is not None:
             self.passivity_guard.reset()
         self.torque = float(applied_torque)
+        self._wall = 0.0
         self.disturbance = _NAN
+        self.monitor.reset()
         self.observer.reset()
         self._dob.reset()
         for m in self._modes.values():
@@ -276,9 +294,8 @@ class ChannelController:
 
     @property
     def feedforward(self) -> float:
-        """``F_cmp + F_d`` [N m]."""
-        obs = self.observer
-        return obs.compensation + obs.dahl_force
+        """``F_cmp + F_d`` [N m], with the margin (what the feed-forward modes add)."""
+        return self.observer.feedforward
 
     @property
     def grasp_phase(self) -> str:
@@ -301,6 +318,38 @@ class ChannelController:
         fault, a stall). Same thread as :meth:`update`."""
         self._end_job(reason)
 
+    # --- the runaway monitor's fall-back (:mod:`.safety`) ----------------------------------
+    def _trip(self, reason: str) -> None:
+        """The monitor tripped: end a running job, fall back (``monitor.fallback``; from the
+        DOB without feed-forward on to ``passive``) and enter it in this sample."""
+        target = self._config.monitor.fallback
+        if self.job is not None:
+            self._end_job("runaway monitor: " + reason)
+        elif isinstance(self._reference_mode, Dob):
+            target = "passive"
+        self.fallback = target
+        self.fallback_reason = reason
+        self.tripped = f"{reason}: fell back to {target}"
+        self._use_mode(self.mode)
+        self._entry = _ENTER
+
+    def clear_fallback(self) -> bool:
+        """(cycle thread, ``~/reset``) Leave the fall-back: the configured mode is entered again,
+        bumplessly, at the next :meth:`update`. Returns whether one was latched."""
+        if not self.fallback:
+            return False
+        self.restore_fallback("", "")
+        return True
+
+    def restore_fallback(self, fallback: str, reason: str) -> None:
+        """(cycle thread) Set the fall-back to ``fallback`` ('' for none) with ``reason``, as it
+        was before a trip that does not count (the plant did not apply this controller's
+        torque: :class:`~.control_cycle.ControlCycle` while the channel is faulted)."""
+        self.fallback, self.fallback_reason, self.tripped = fallback, reason, ""
+        self.monitor.reset()
+        self._use_mode(self.mode)
+        self._entry = _ENTER
+
     def _end_job(self, reason: str) -> None:
         job = self.job
         if job is not None:
@@ -317,6 +366,10 @@ class ChannelController:
                 continue                    # withdrawn before it started
             if self.job is not None:
                 job.abort_now(busy_reason(job, self.job))
+                continue
+            if self.fallback and job.output != TORQUE:
+                job.abort_now(f"the runaway monitor keeps the channel in {self.fallback} "
+                              f"({self.fallback_reason}): call ~/reset first")
                 continue
             self._modes[self.mode].interrupt()
             self.job = job
@@ -335,7 +388,7 @@ class ChannelController:
         sample.dahl_input = obs.dahl_input
         sample.endpoint_position = obs.position
         sample.endpoint_velocity = obs.velocity
-        sample.torque = self.torque
+        sample.torque = self.torque - self._wall     # the job's own last output
         sample.steps = steps
         sample.cycle = self.cycle
         sample.applied = self.applied
@@ -410,11 +463,20 @@ class ChannelController:
         # the job, or the friction adaptation
         job = self.job
         if job is not None and job.output == TORQUE:
-            return self._run_job(job, x, v, f_p, steps)
+            w = self._walls(x, v, obs)
+            u = self._run_job(job, x, v, f_p, steps) + w
+            self.torque = u
+            return u
         if self._adapting and (self._uses_feedforward or job is not None):
             self._adapt(f_p, steps)
 
-        # the mode: F_a itself, or the DOB's reference
+        # the runaway monitor, wherever the DOB runs: a trip falls back in this sample
+        if (job is not None or self._torque_mode is None) and \
+                self.monitor.update(v, obs.velocity, steps):
+            self._trip(self.monitor.reason)
+            job = None
+
+        # the mode: F_a itself, or the DOB's reference; the walls add to either
         entry = self._entry
         self._entry = 0
         u_prev = self.torque
@@ -424,16 +486,22 @@ class ChannelController:
         mode = self._torque_mode
         if job is None and mode is not None:
             self.disturbance = _NAN
-            u = mode.enter(x, v, f_p, steps, u_prev, entry == _ENTER) if entry else \
-                mode.update(x, v, f_p, steps)
+            w = self._walls(x, v, obs) if self._walled else self._no_walls()
+            # the mode's own part of the last torque: entries stay bumpless in the walls
+            u = (mode.enter(x, v, f_p, steps, u_prev - w, entry == _ENTER) if entry else
+                 mode.update(x, v, f_p, steps)) + w
             self.torque = u
             return u
-        if job is not None:         # the job's endpoint force on minimum impedance
-            f_ref = obs.compensation + obs.dahl_force + self._run_job(job, x, v, f_p, steps)
+        w = self._walls(x, v, obs)
+        if job is not None:
+            # the job's endpoint force on minimum impedance: a grasp closes its own loop
+            # around the endpoint (a speed servo, then the object and the contact damping), so
+            # it takes the model's friction in full, without the margin
+            f_ref = obs.model_feedforward() + self._run_job(job, x, v, f_p, steps) + w
         else:
             ref = self._reference_mode
             assert ref is not None
-            f_ref = ref.enter(obs) if entry == _ENTER else ref.update(obs)
+            f_ref = (ref.enter(obs) if entry == _ENTER else ref.update(obs)) + w
 
         # the guard: damping on the DOB's port (F_p + F_ref, V), Z -> Z + alpha
         if guard is not None:
@@ -447,3 +515,17 @@ class ChannelController:
         self.disturbance = u - f_ref
         self.torque = u
         return u
+
+    def _walls(self, x: float, v: float, obs: EndpointObserver) -> float:
+        """The walls' force this sample [N m] (:class:`~.safety.JointWalls`) and whether the
+        finger is beyond the range (:attr:`beyond`)."""
+        walls = self.walls
+        w = self._wall = walls.update(x, v, obs.position, obs.velocity)
+        self.beyond = walls.beyond
+        return w
+
+    def _no_walls(self) -> float:
+        """``passive``: no torque, no walls, no limit to judge."""
+        self._wall = 0.0
+        self.beyond = ""
+        return 0.0

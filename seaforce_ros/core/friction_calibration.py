@@ -36,14 +36,21 @@ timeout) the reference waits. The fit takes the samples after the fade-in (the D
 forgotten their start by then), and ramps its inputs over samples it never saw. Then it holds
 ``x_0`` while it solves one candidate per sample, reports the new values with their 1-sigma and
 the change, and the controller applies them (bumplessly, at the start of the next sample) if
-the goal asked for it. It aborts with the reason, commanding zero torque from then on, on a
+the goal asked for it and they are plausible: within ``friction.plausible_ratio`` of the
+present values. Before it learns, it makes sure the finger is free: the model-free contact test
+of :mod:`.sided` (the two sides' stiffness about the motion's centre, judged at every whole
+period between the fades) aborts it when something is in reach, nothing applied. It aborts with the reason, commanding zero torque from then on, on a
 non-finite input, a tracking error beyond ``friction.max_tracking_error`` (the finger is
 blocked: not free) or an endpoint outside the joint range; a fit that cannot tell the
 parameters apart is reported, not applied.
 
 :class:`FrictionAdaptation` (``friction.adaptation``): the same fit with three candidate ratios
 around the present one and forgetting (``friction.adaptation_time``, only while the finger
-moves), fed only while the contact estimator reports no contact. At each block it moves b_e,
+moves), fed only while the contact estimator reports no contact. (The calibration's
+model-free contact test needs a motion about a known centre, judged at whole periods; over
+windows of the adaptation's unstructured motion it took a free endpoint moved at two
+frequencies, not symmetric about its mean, for a contact four times in 12 s. The adaptation
+relies on the estimator, its bounds and the runaway monitor.) At each block it moves b_e,
 k_e, F_c, sigma a step ``BLOCK dt / adaptation_time`` towards the fit (solving one candidate
 per sample after it), clipped to ``[v/(1+r), v(1+r)]`` of the configured ``v`` (``r =
 friction.adaptation_bound``), and only when the motion excites every term: the velocity only
@@ -72,6 +79,7 @@ from .dahl import dahl_step
 from .estimator import BLOCK, svf_coefficients
 from .jobs import TORQUE, InvalidJobGoalError, Job, JobSample
 from .params import ControllerConfig, FrictionParams, PlantParams
+from .sided import SidedStiffness
 
 if TYPE_CHECKING:
     from .estimator import ContactEstimator
@@ -83,7 +91,8 @@ __all__ = ["FrictionFit", "FrictionEstimate", "FrictionCalibration", "Calibratio
            "InvalidCalibrationError", "check_calibration_goal", "FrictionAdaptation",
            "with_friction", "ratio_grid",
            "CALIBRATION_PHASES", "RATIO_SPAN", "RATIOS_PER_DECADE", "ADAPTATION_STEP",
-           "MIN_DAHL_EXCITATION", "FLAT_MISFIT", "SETTLE_SAMPLES"]
+           "MIN_DAHL_EXCITATION", "FLAT_MISFIT", "SETTLE_SAMPLES", "CONTACT_STIFFNESS",
+           "CONTACT_RATIO", "CONTACT_MOTION"]
 
 #: Phases of a calibration, in order.
 CALIBRATION_PHASES = ("move", "solve", "done")
@@ -100,6 +109,16 @@ MIN_DAHL_EXCITATION = 0.2
 FLAT_MISFIT = "the misfit is flat in sigma/F_c: sigma not identified"
 #: Samples after a contact ends before the adaptation fits again (the filter's memory).
 SETTLE_SAMPLES = 64
+#: The calibration's contact test (:mod:`.sided`): ``|k_+ - k_-|`` beyond this stiffness
+#: [N m/rad] ...
+CONTACT_STIFFNESS = 0.005
+#: ... plus this fraction of ``|Z|`` (a real finger's stroke-dependent stiffness is not quite
+#: symmetric) is contact. Measured (Table I model, 0.5 rad at 1 rad/s, 0.3 at 1.5, 0.2 at 0.5):
+#: free air over plants 0.5x..2x at most 0.0018 N m/rad; an object 0.2..5 N m/rad reached by
+#: 0.05..0.4 rad 0.018..1.6.
+CONTACT_RATIO = 0.05
+#: The rms motion [rad] each side of the centre needs before the test judges.
+CONTACT_MOTION = 0.01
 
 FrictionEstimate = namedtuple(
     "FrictionEstimate", "endpoint_damping endpoint_stiffness coulomb_force sigma "
@@ -385,11 +404,12 @@ def check_calibration_goal(goal: CalibrationGoal, params: FrictionParams,
     if position is not None:
         _check_range(goal.amplitude, position, params)
     period = 2.0 * math.pi * goal.amplitude / goal.speed
-    if params.calibration_duration < 2.0 * period:
+    if params.calibration_duration < 3.0 * period:
         raise InvalidCalibrationError(
             f"speed = {goal.speed!r} rad/s with amplitude = {goal.amplitude!r} rad: a period of "
-            f"{period:.3g} s, more than half of friction.calibration_duration = "
-            f"{params.calibration_duration:g} s (no reversal left to fit)")
+            f"{period:.3g} s, more than a third of friction.calibration_duration = "
+            f"{params.calibration_duration:g} s (the contact test needs a whole period at "
+            "full amplitude between the fades)")
 
 
 def _check_range(amplitude: float, position: float, params: FrictionParams) -> None:
@@ -454,7 +474,10 @@ class FrictionCalibration(Job):
         self._amp = float(goal.amplitude)
         self._w = goal.speed / goal.amplitude
         self._duration = fp.calibration_duration
-        self._fade = min(2.0 * math.pi / self._w, self._duration / 3.0)
+        self._period = 2.0 * math.pi / self._w
+        self._fade = min(self._period, self._duration / 3.0)
+        self.contact_test = SidedStiffness(CONTACT_STIFFNESS, CONTACT_RATIO, CONTACT_MOTION)
+        self._judge_at = math.inf
         self.phase = "move"
         self.outcome = None
         self.message = "waiting for the control cycle"
@@ -542,6 +565,8 @@ class FrictionCalibration(Job):
             self._bias = max(-self._limit, min(self._limit, u_prev)) + kd * v
             self.message = "moving"
             self.fit.reset()
+            self.contact_test.reset(x)
+            self._judge_at = self._fade + self._period
         t = self._t
         r, rd = self.reference(t) if self.phase == "move" else (0.0, 0.0)
         error = self._x0 + r - x
@@ -565,6 +590,11 @@ class FrictionCalibration(Job):
             self._finish("canceled", self._cancel + ", nothing applied")
             return u
         if self.phase == "move":
+            if self._fade <= t <= self._duration - self._fade:
+                reason = self._contact(x, fp, t)
+                if reason:
+                    self._finish("aborted", reason)
+                    return 0.0
             self.fit.update(xe, xd, fp, record=t >= self._fade, steps=steps)
             if self._hold:
                 self._hold = False
@@ -583,16 +613,49 @@ class FrictionCalibration(Job):
                 self._conclude()
         return u
 
+    def _contact(self, x: float, fp: float, t: float) -> str:
+        """The model-free contact test (:mod:`.sided`) at full amplitude, judged at every whole
+        period: the reason to abort, or ''."""
+        test = self.contact_test
+        test.update(x, fp)
+        if t < self._judge_at:
+            return ""
+        self._judge_at += self._period
+        if test.judge() <= 1.0:
+            return ""
+        side = "above" if test.upper > test.lower else "below"
+        return (f"contact {side} the motion's centre {test.x0:.4g} rad: the pressure force's "
+                f"apparent stiffness is {test.upper:.3g} N m/rad above it and "
+                f"{test.lower:.3g} below (a free finger's is the same both sides): something "
+                "is in reach of the finger, nothing applied")
+
     def _conclude(self) -> None:
         new = self.fit.estimate(self._solutions)
         self.new = new
         self.progress = 1.0
+        implausible = _implausible(new, self.old, self.params.plausible_ratio)
         if new.reason or new.sigma_reason:
             self._finish("aborted", f"not identified: {new.reason or new.sigma_reason}; "
                                     "nothing applied")
+        elif implausible:
+            self._finish("aborted", f"implausible: {implausible} (friction.plausible_ratio = "
+                                    f"{self.params.plausible_ratio:g}): was the finger free? "
+                                    "Nothing applied")
         else:
             self._finish("succeeded", "identified" + ("" if self.goal.apply else
                                                       " (not applied: apply is false)"))
+
+
+def _implausible(new: FrictionEstimate, old: FrictionEstimate, ratio: float) -> str:
+    """Which of b_e, k_e, F_c, sigma left ``[old/ratio, old ratio]``, in words, or ''."""
+    out = []
+    for name, a, b in (("b_e", new.endpoint_damping, old.endpoint_damping),
+                       ("k_e", new.endpoint_stiffness, old.endpoint_stiffness),
+                       ("F_c", new.coulomb_force, old.coulomb_force),
+                       ("sigma", new.sigma, old.sigma)):
+        if b > 0.0 and not b / ratio <= a <= b * ratio:
+            out.append(f"{name} {a:.4g} against {b:.4g} ({100.0 * (a / b - 1.0):+.0f} %)")
+    return ", ".join(out)
 
 
 def with_friction(config: ControllerConfig,

@@ -24,6 +24,9 @@ What each one does:
 * dob_full_ff: ``F_ref = F_cmp + F_d`` (eq. 29 and 14: minimum impedance).
 * impedance: ``F_ref = F_cmp + F_d - K_t (X_e_hat - X_e0) - B_t V_e_hat``, X_e0 captured at mode
   entry: the endpoint renders the target stiffness/damping (plus the endpoint inertia).
+
+The feed-forward terms carry the margin of :mod:`.observer` (``feedforward.margin``: the low
+edge of the model's uncertainty): the friction left uncompensated is at least zero.
 * force: ``F_ref = target.force`` (eq. 19 with a reference): at rest the hose pushes the motor
   with ``F_p = -F_ref``.
 
@@ -270,7 +273,7 @@ class DobFullFeedforward(ReferenceMode):
     __slots__ = ()
 
     def update(self, obs: EndpointObserver) -> float:
-        return obs.compensation + obs.dahl_force
+        return obs.feedforward
 
 
 class Impedance(ReferenceMode):
@@ -291,7 +294,7 @@ class Impedance(ReferenceMode):
         return self.update(obs)
 
     def update(self, obs: EndpointObserver) -> float:
-        return (obs.compensation + obs.dahl_force - self._kt * (obs.position - self._x0)
+        return (obs.feedforward - self._kt * (obs.position - self._x0)
                 - self._bt * obs.velocity)
 
 

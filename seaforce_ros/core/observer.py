@@ -8,12 +8,19 @@ Inputs per sample: motor position X [rad], motor velocity V [rad/s], pressure fo
   pole ``k_s/b_s`` (1414 rad/s for Table I), discretised exactly for a piecewise-*linear* F_p
   (first-order hold: no lag at the sample instants). Then ``X_e_hat = X + delta`` and
   ``V_e_hat = V + (F_p - k_s delta)/b_s`` (= V + d(delta)/dt exactly).
-* Feed-forward: ``F_cmp = b_e V_e_hat + k_e (X_e_hat - rest_position)`` (eq. 29) and the Dahl
-  force ``F_d`` (eq. 14, exact per-sample update, :mod:`.dahl`) driven by X_e_hat through a
-  play operator (dead zone) of width ``dahl_deadband`` (default 1e-4 rad, about 3-4 sigma of
-  the X_e_hat noise from the pressure sensor): without it, sample-to-sample noise on X_e_hat
-  makes the Dahl state relax at every spurious reversal, which at slow speeds (0.3 rad/s)
-  biased F_d by ~5 mN m rms in simulation (0.15 mN m with the play).
+* Feed-forward: ``F_cmp = s_b b_e V_e_hat + s_k k_e (X_e_hat - rest_position)`` (eq. 29) and
+  ``s_d F_d``, the Dahl force ``F_d`` (eq. 14, exact per-sample update, :mod:`.dahl`) driven
+  by X_e_hat through a play operator (dead zone) of width ``dahl_deadband`` (default 1e-4 rad,
+  about 3-4 sigma of the X_e_hat noise from the pressure sensor): without it,
+  sample-to-sample noise on X_e_hat makes the Dahl state relax at every spurious reversal,
+  which at slow speeds (0.3 rad/s) biased F_d by ~5 mN m rms in simulation (0.15 mN m with
+  the play).
+* The margin: ``s = 1 - margin u`` per term (:meth:`~.params.FeedforwardParams.scales`) puts
+  the feed-forward's b_e, k_e and Dahl force at the low edge of the model's uncertainty, so
+  that it never cancels more friction than the finger may have (a finger whose friction is
+  over-compensated has negative net stiffness, damping or hysteresis and runs away). F_d
+  itself (what the contact estimator and the friction adaptation see) is the model's: sigma
+  and F_c scaled alike scale the Dahl force by the same factor.
 
 A plant that skipped samples (``steps`` > 1) is integrated over the real elapsed time: the
 first-order hold spans ``steps * dt``. Plain Python floats, no allocation per sample.
@@ -80,16 +87,20 @@ class EndpointObserver:
     dahl_force : float
         F_d [N m].
     compensation : float
-        F_cmp [N m] (eq. 29).
+        F_cmp [N m] (eq. 29, with the margin).
+    feedforward : float
+        ``F_cmp + s_d F_d`` [N m]: the full feed-forward, with the margin.
     damping, stiffness : float
-        b_e [N m s/rad] and k_e [N m/rad] of F_cmp (the friction adaptation moves them).
+        The model's b_e [N m s/rad] and k_e [N m/rad] (the friction adaptation moves them);
+        F_cmp takes them times the margin's scales.
     dahl : DahlState
         The Dahl state behind F_d.
     """
 
     __slots__ = ("dt", "_ks", "_inv_bs", "_a", "_c0", "_c1", "damping", "stiffness", "_rest",
                  "_half_width", "dahl", "_first", "_delta", "_fp_prev", "dahl_input",
-                 "position", "velocity", "dahl_force", "compensation")
+                 "position", "velocity", "dahl_force", "compensation", "feedforward",
+                 "_scales", "_kb", "_kk", "_sd")
 
     def __init__(self, plant: PlantParams, feedforward: FeedforwardParams, dahl: DahlParams,
                  dt: float = 5e-4) -> None:
@@ -107,6 +118,7 @@ class EndpointObserver:
         self._a, self._c0, self._c1 = hose_coefficients(ks, self._inv_bs, self.dt)
         self._rest = feedforward.rest_position
         self._half_width = 0.5 * feedforward.dahl_deadband
+        self._scales = feedforward.scales()
         self.set_friction(plant.endpoint_damping, plant.endpoint_stiffness, dahl)
 
     def set_friction(self, damping: float, stiffness: float, dahl: DahlParams) -> None:
@@ -114,7 +126,16 @@ class EndpointObserver:
         friction adaptation's values); the Dahl state is kept (its force within the new
         F_c)."""
         self.damping, self.stiffness = damping, stiffness
+        sb, sk, self._sd = self._scales
+        self._kb, self._kk = sb * damping, sk * stiffness
         self.dahl.set_params(dahl)
+
+    def model_feedforward(self) -> float:
+        """``b_e V_e_hat + k_e (X_e_hat - rest) + F_d`` [N m]: the model's friction in full,
+        without the margin (what a grasp, which closes its own loop around the endpoint, adds
+        to its force)."""
+        return (self.damping * self.velocity + self.stiffness * (self.position - self._rest)
+                + self.dahl_force)
 
     def reset(self) -> None:
         """Forget the state: the next :meth:`update` starts the hose inversion at rest (``delta
@@ -125,7 +146,7 @@ class EndpointObserver:
         self.dahl.reset(0.0, 0.0)
         self.dahl_input = 0.0
         self.position = self.velocity = 0.0
-        self.dahl_force = self.compensation = 0.0
+        self.dahl_force = self.compensation = self.feedforward = 0.0
 
     def update(self, x: float, v: float, f_p: float, steps: int = 1) -> None:
         """One sample: X [rad], V [rad/s], F_p [N m]; ``steps`` sample periods since the
@@ -153,5 +174,6 @@ class EndpointObserver:
             xd = self.dahl_input = xe + hw
         self.position = xe
         self.velocity = ve
-        self.dahl_force = self.dahl.update(xd)
-        self.compensation = self.damping * ve + self.stiffness * (xe - self._rest)
+        fd = self.dahl_force = self.dahl.update(xd)
+        fc = self.compensation = self._kb * ve + self._kk * (xe - self._rest)
+        self.feedforward = fc + self._sd * fd

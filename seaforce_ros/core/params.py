@@ -24,6 +24,7 @@ __all__ = [
     "MODES", "DOB_MODES", "PlantParams", "DahlParams", "DobParams", "TargetParams",
     "HoldParams", "ForceFeedbackParams", "ChirpParams", "FeedforwardParams", "EstimatorParams",
     "GraspParams", "FrictionParams", "CommissioningParams", "GUARD_MODES", "GuardParams",
+    "LimitParams", "MonitorParams", "FALLBACK_MODES", "MIN_UNCERTAINTY",
     "guard_carries", "settable_order",
     "check_dob_passivity", "ControllerConfig", "PARAMETERS", "DEFAULT_CUTOFF",
     "DEFAULT_HOLD_STIFFNESS", "DEFAULT_HOLD_DAMPING", "MIN_CLOSING_VELOCITY", "MODE_RENAMED",
@@ -57,6 +58,11 @@ DEFAULT_CUTOFF = 2.0 * math.pi * 20.0
 #: with the endpoint both free and clamped (see core/README.md).
 DEFAULT_HOLD_STIFFNESS = 150.0
 DEFAULT_HOLD_DAMPING = 0.5
+
+#: The smallest relative uncertainty of a feed-forward term accepted without
+#: ``allow_non_passive``: no identified value is exact (the fit's 1-sigma is not the model
+#: class's error).
+MIN_UNCERTAINTY = 0.01
 
 #: The slowest approach a grasp goal may ask for [rad/s] (slower, the approach's arming
 #: cannot tell the speed from the friction model's error).
@@ -185,6 +191,27 @@ class FeedforwardParams(ParameterGroup):
     dahl_deadband: float = param(1e-4, "rad", "width of the dead zone (play) on the estimated "
                                  "endpoint position driving the Dahl feed-forward (3-4 sigma "
                                  "of its noise from the pressure sensor)", ge=0.0, le=1.0)
+    margin: float = param(2.0, "-", "how many uncertainties (1-sigma) below the model the "
+                          "feed-forward takes b_e, k_e, sigma and F_c: the free finger stays "
+                          "passive for every plant within margin x uncertainty; at least 1 "
+                          "unless allow_non_passive", ge=0.0, le=10.0)
+    damping_uncertainty: float = param(0.1, "-", "relative 1-sigma of the model's b_e, the "
+                                       "fit's and the model class's (commissioning writes it; "
+                                       "0.1 stands for hand-typed values); at least "
+                                       "0.01 unless allow_non_passive", ge=0.0, le=1.0)
+    stiffness_uncertainty: float = param(0.1, "-", "relative 1-sigma of the model's k_e, as "
+                                         "damping_uncertainty", ge=0.0, le=1.0)
+    dahl_uncertainty: float = param(0.1, "-", "relative 1-sigma of the model's sigma and F_c "
+                                    "(eq. 14), as damping_uncertainty", ge=0.0, le=1.0)
+
+    def scales(self) -> Tuple[float, float, float]:
+        """The factors ``1 - margin u`` (at least 0) the feed-forward applies to b_e, k_e and
+        the Dahl force (sigma and F_c scaled alike scale F_d): the low edge of each term's
+        uncertainty."""
+        m = self.margin
+        return (max(0.0, 1.0 - m * self.damping_uncertainty),
+                max(0.0, 1.0 - m * self.stiffness_uncertainty),
+                max(0.0, 1.0 - m * self.dahl_uncertainty))
 
 
 @group("estimator")
@@ -296,6 +323,10 @@ class FrictionParams(ParameterGroup):
     position_max: float = param(1.5, "rad", "upper end of the joint range a friction "
                                 "calibration motion must stay in (> position_min)",
                                 ge=-100.0, le=100.0)
+    plausible_ratio: float = param(2.0, "-", "a calibration whose b_e, k_e, F_c or sigma "
+                                   "leaves [v/r, v r] of the present value v is refused, "
+                                   "nothing applied (a finger that was not free)", gt=1.0,
+                                   le=100.0)
     adaptation: bool = param(False, "", "adapt b_e, k_e, F_c, sigma (eq. 14, 29) slowly while "
                              "the contact estimator says the finger is free")
     adaptation_time: float = param(30.0, "s", "time constant with which adapted values follow "
@@ -364,6 +395,53 @@ class CommissioningParams(ParameterGroup):
             raise InvalidParameterError("commissioning.end_frequency", self.end_frequency,
                                         f"> commissioning.start_frequency = "
                                         f"{self.start_frequency:g} Hz")
+
+
+@group("limits")
+class LimitParams(ParameterGroup):
+    """The joint range the controller keeps the finger in, in every mode that commands torque
+    (:mod:`.safety`): a soft virtual wall inside each end, a latched fault beyond it."""
+
+    position_min: float = param(-1.5, "rad", "lower end of the joint range (motor position X and "
+                                "estimated endpoint X_e_hat); beyond it a mode that commands "
+                                "torque latches a joint_limit fault", ge=-100.0, le=100.0)
+    position_max: float = param(1.5, "rad", "upper end of the joint range (> position_min + 2 "
+                                "wall_band)", ge=-100.0, le=100.0)
+    wall_band: float = param(0.15, "rad", "width of the soft virtual wall inside each end of "
+                             "the joint range", gt=0.0, le=10.0)
+    wall_stiffness: float = param(4.0, "N m/rad", "stiffness of the walls (their spring force "
+                                  "at the end of the range is wall_stiffness x wall_band)",
+                                  symbol="K_w", ge=0.0, le=1e4)
+    wall_damping: float = param(0.1, "N m s/rad", "damping of the walls, full from a quarter "
+                                "of the band in (it must exceed the friction a feed-forward "
+                                "could over-compensate)", symbol="B_w", ge=0.0, le=100.0)
+
+    def check_rules(self) -> None:
+        if not self.position_max - self.position_min > 2.0 * self.wall_band:
+            raise InvalidParameterError(
+                "limits.position_max", self.position_max,
+                f"> limits.position_min + 2 limits.wall_band = "
+                f"{self.position_min + 2.0 * self.wall_band:g} rad")
+
+
+#: What a channel falls back to when the runaway monitor trips (``monitor.fallback``).
+FALLBACK_MODES = ("dob", "passive")
+
+
+@group("monitor")
+class MonitorParams(ParameterGroup):
+    """The runaway monitor (:mod:`.safety`): a finger the controller drives away, in a mode
+    that runs the DOB, falls back to a safe mode until ``~/reset``."""
+
+    max_speed: float = param(10.0, "rad/s", "speed of the motor or of the estimated endpoint "
+                             "beyond which, in a mode that runs the DOB, the finger counts as "
+                             "driven away", gt=0.0, le=1000.0)
+    trip_time: float = param(0.005, "s", "how long the speed must stay beyond max_speed before "
+                             "the fall-back (the reaction time is this plus one sample)",
+                             ge=0.0, le=1.0)
+    fallback: str = param("dob", "", "what a channel the monitor trips on runs until ~/reset: "
+                          "dob (the DOB without feed-forward; a trip in it falls back to "
+                          "passive) or passive (zero torque)", choices=FALLBACK_MODES)
 
 
 @group("passivity")
@@ -463,10 +541,13 @@ class ControllerConfig(ParameterGroup):
     friction: FrictionParams = field(default_factory=FrictionParams)
     commissioning: CommissioningParams = field(default_factory=CommissioningParams)
     passivity: GuardParams = field(default_factory=GuardParams)
+    limits: LimitParams = field(default_factory=LimitParams)
+    monitor: MonitorParams = field(default_factory=MonitorParams)
     max_torque: float = param(5.0, "N m", "the controller's fault limit: a computed |F_a| above "
                               "it latches a torque_limit fault (zero torque)", gt=0.0, le=1e3)
     allow_non_passive: bool = param(False, "", "accept DOB / force-feedback / impedance "
-                                    "settings outside the passivity bounds (eq. 28)")
+                                    "settings outside the passivity bounds (eq. 28), and a "
+                                    "feed-forward without its margin")
 
     def __post_init__(self) -> None:
         if isinstance(self.dob, DobParams) and self.dob.nominal_inertia is None \
@@ -497,8 +578,10 @@ class ControllerConfig(ParameterGroup):
             value = getattr(self.plant, name)
             if not value > 0.0:
                 raise InvalidParameterError("plant." + name, value, "> 0 and finite")
+        self._check_ranges()
         if self.allow_non_passive:
             return
+        self._check_feedforward_margin()
         if self.passivity.mode != "active":     # an active guard carries eq. 28
             check_dob_passivity(self.plant, self.dob)
         # impedance mode: ranges verified stable in simulation (Table I, endpoint free and
@@ -521,6 +604,60 @@ class ControllerConfig(ParameterGroup):
             raise NonPassiveError("force_feedback.gain", gain,
                                   "-1 <= K_f <= 1 (Section III-A, internal force feedback of "
                                   "a series-elastic system)")
+
+    def feedforward_friction(self) -> Tuple[float, float, DahlParams]:
+        """What the feed-forward cancels: ``(b_e, k_e, Dahl)`` of the model each times its
+        margin's scale (:meth:`FeedforwardParams.scales`; sigma and F_c scaled alike scale
+        F_d by the same factor)."""
+        sb, sk, sd = self.feedforward.scales()
+        d = self.dahl
+        dahl = d if sd == 1.0 else dataclasses.replace(
+            d, sigma=sd * d.sigma, coulomb_force=max(sd, 1e-12) * d.coulomb_force)
+        return sb * self.plant.endpoint_damping, sk * self.plant.endpoint_stiffness, dahl
+
+    def _check_ranges(self) -> None:
+        """The motions of a calibration and of commissioning stay inside the joint range
+        (``limits``), and the speeds a grasp or a gripper command asks for below the runaway
+        monitor's ``monitor.max_speed``."""
+        lim = self.limits
+        for group in ("friction", "commissioning"):
+            params = getattr(self, group)
+            if params.position_min < lim.position_min:
+                raise InvalidParameterError(
+                    f"{group}.position_min", params.position_min,
+                    f">= limits.position_min = {lim.position_min:g} rad (inside the joint "
+                    "range)")
+            if params.position_max > lim.position_max:
+                raise InvalidParameterError(
+                    f"{group}.position_max", params.position_max,
+                    f"<= limits.position_max = {lim.position_max:g} rad (inside the joint "
+                    "range)")
+        speed = self.monitor.max_speed
+        for name in ("max_closing_velocity", "gripper_velocity"):
+            value = getattr(self.grasp, name)
+            if not value < speed:
+                raise InvalidParameterError(
+                    f"grasp.{name}", value, f"< monitor.max_speed = {speed:g} rad/s (the "
+                    "runaway monitor would stop the motion)")
+
+    def _check_feedforward_margin(self) -> None:
+        """The feed-forward's terms lie at least one uncertainty below the model, and no
+        uncertainty claims an exact model: else a free finger whose friction is within the
+        model's uncertainty may be active (net negative stiffness, damping or hysteresis)."""
+        ff = self.feedforward
+        if ff.margin < 1.0:
+            raise NonPassiveError(
+                "feedforward.margin", ff.margin,
+                ">= 1 (the feed-forward's b_e, k_e, sigma, F_c at least one uncertainty "
+                "below the model: a free finger within it is not made active)")
+        for name in ("damping_uncertainty", "stiffness_uncertainty", "dahl_uncertainty"):
+            value = getattr(ff, name)
+            if value < MIN_UNCERTAINTY:
+                raise NonPassiveError(
+                    f"feedforward.{name}", value,
+                    f">= {MIN_UNCERTAINTY:g} (no identified model is exact; an uncertainty "
+                    "below it lets the feed-forward cancel more friction than the finger may "
+                    "have)")
 
     def replace(self, **changes: Any) -> "ControllerConfig":
         """Validated copy with some fields changed (``dataclasses.replace``)."""

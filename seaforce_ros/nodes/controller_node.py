@@ -427,7 +427,8 @@ class ControllerNode(Node):
     def _publish_diagnostics(self):
         s = self.stats.summary()
         cycle = self.cycle
-        n_faults = sum(1 for i in range(len(self.channels)) if cycle.latched(i))
+        n_faults = sum(1 for i, c in enumerate(self.controllers)
+                       if cycle.latched(i) or c.fallback)
         level = DiagnosticStatus.OK if s.cycles else DiagnosticStatus.WARN
         message = 'running' if s.cycles else 'no actuator_state received'
         if n_faults:
@@ -445,12 +446,15 @@ class ControllerNode(Node):
         self._compute_sum = self._compute_max = 0.0
         for i, (channel, ctrl) in enumerate(zip(self.channels, self.controllers)):
             fault = cycle.fault(i)
+            # a latched fault, or the runaway monitor's fall-back (latched until ~/reset too)
+            stopped = bool(cycle.latched(i) or ctrl.fallback)
             statuses.append(diagnostic_status(
                 f'controller: {channel}', 'seaforce_controller',
-                DiagnosticStatus.ERROR if cycle.latched(i) else (
+                DiagnosticStatus.ERROR if stopped else (
                     DiagnosticStatus.WARN if fault else DiagnosticStatus.OK),
-                f'FAULT: {fault}' if cycle.latched(i) else (fault or ctrl.mode),
+                f'FAULT: {fault}' if stopped else (fault or ctrl.mode),
                 {'mode': ctrl.mode, 'fault': fault or 'none', 'torque': ctrl.torque,
+                 'fallback': ctrl.fallback or 'none', 'wall_force': ctrl.walls.force,
                  'disturbance': ctrl.disturbance, 'feedforward': ctrl.feedforward,
                  'grasp': ctrl.grasp_phase or 'none', 'contact': ctrl.estimator.contact,
                  'passivity_guard': ctrl.config.passivity.mode,

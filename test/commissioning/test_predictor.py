@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from helpers.delayed_hold import hold_grows
+from helpers.configs import exact_feedforward
 from seaforce_ros.commissioning.errors import CommissioningError
 from seaforce_ros.commissioning.predictor import (
     PLANT_FIELDS, PREDICTED_MODES, LoopModel, PredictionError, closed_loop_radius,
@@ -71,8 +72,9 @@ def test_stiff_and_soft_motor_limits_are_eq23_and_eq24():
 @pytest.mark.parametrize("linear_ff", [False, True])
 def test_dob_approaches_the_continuous_model_without_delay(linear_ff):
     """Sampled at 20 kHz with no loop delay, the predicted DOB impedance is the continuous
-    eq. 19 one (PlantModel) within 0.05 dB; at 2 kHz with one sample of delay it differs."""
-    config = ControllerConfig()
+    eq. 19 one (PlantModel, the paper's exact feed-forward) within 0.05 dB; at 2 kHz with one
+    sample of delay it differs."""
+    config = exact_feedforward()
     mode = "dob_linear_ff" if linear_ff else "dob"
     omega = np.array([1.0, 3.0, 10.0, 30.0])
     z = predict_impedance(TABLE_I, None, config, mode, omega, delay=0, dt=5e-5)

@@ -50,20 +50,25 @@ def test_passive_is_zero_at_once():
 
 
 def test_observer_at_rest_and_the_reference_modes():
-    """A constant F_p: the hose deflects by F_p/k_s, V_e_hat is V; F_cmp is eq. 29 on them."""
+    """A constant F_p: the hose deflects by F_p/k_s, V_e_hat is V; F_cmp is eq. 29 on them,
+    each term times its margin's scale ``1 - margin u`` (0.8 at the defaults)."""
     obs = EndpointObserver(PLANT, CONFIG.feedforward, CONFIG.dahl, DT)
     for _ in range(50):
         obs.update(0.1, 0.0, 0.02)
     delta = 0.02 / PLANT.hose_stiffness
     assert obs.position == pytest.approx(0.1 + delta, rel=1e-12)
     assert obs.velocity == pytest.approx(0.0, abs=1e-12)
-    assert obs.compensation == pytest.approx(PLANT.endpoint_stiffness * (0.1 + delta), rel=1e-9)
+    s_b, s_k, s_d = CONFIG.feedforward.scales()
+    assert (s_b, s_k, s_d) == pytest.approx((0.8, 0.8, 0.8))
+    assert obs.compensation == pytest.approx(s_k * PLANT.endpoint_stiffness * (0.1 + delta),
+                                             rel=1e-9)
     refs = {}
     for name in DOB_MODES:
         mode = MODE_TYPES[name](CONFIG, DT)
         assert isinstance(mode, ReferenceMode)
         refs[name] = mode.enter(obs)
-    ff = obs.compensation + obs.dahl_force
+    ff = obs.compensation + s_d * obs.dahl_force
+    assert obs.feedforward == pytest.approx(ff, rel=1e-15)
     assert refs == {"dob": 0.0, "dob_linear_ff": obs.compensation, "dob_full_ff": ff,
                     "impedance": ff - 0.01 * obs.velocity, "force": 0.1}
 

@@ -22,6 +22,8 @@ from seaforce_ros.core.friction_calibration import (
 from seaforce_ros.core.grasp import Grasp, GraspGoal
 from seaforce_ros.identification.dahl_model import dahl_force
 
+from helpers.configs import exact_feedforward, unlimited
+
 DT = 5e-4
 PLANT = PlantParams.table_i()
 DAHL = DahlParams()
@@ -30,7 +32,11 @@ FAST = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
 def config(**friction):
-    return CONFIG.replace(friction=dataclasses.replace(CONFIG.friction, **friction))
+    """CONFIG with these ``friction.*``; a calibration range beyond +-1.5 rad widens the joint
+    range (``limits``) to +-100 rad with it."""
+    wide = friction.get("position_min", 0.0) < -1.5 or friction.get("position_max", 0.0) > 1.5
+    base = unlimited(CONFIG) if wide else CONFIG
+    return base.replace(friction=dataclasses.replace(CONFIG.friction, **friction))
 
 
 def free_endpoint(be, ke, fc, sigma, seconds=8.0, amp=0.4, w=2.5, me=PLANT.endpoint_inertia):
@@ -130,11 +136,14 @@ def test_reference_starts_and_ends_at_rest_within_the_amplitude():
 
 # --- calibration in the simulator -------------------------------------------------------
 def z_db(model_cfg, plant, dahl, omega=1.0, amp=0.5):
+    """|Z| [dB] of dob_full_ff with the model of ``model_cfg`` and the paper's exact
+    feed-forward (no margin: what the model's accuracy buys, which the margin would hide)."""
     period = 2.0 * math.pi / omega
     settle = 3.0
     n = int((settle + period) / DT) + 1
     sim = ChannelSimulator(plant, dahl, dt=DT, seed=1, environment=position_sine(amp, omega))
-    rec = run_closed_loop(sim, ChannelController(model_cfg.replace(mode="dob_full_ff"), DT), n)
+    rec = run_closed_loop(sim, ChannelController(exact_feedforward(model_cfg,
+                                                                   mode="dob_full_ff"), DT), n)
     return magnitude_db(impedance_from_position(rec["f_e"], rec["x_e"], omega, DT, settle))
 
 
@@ -192,6 +201,45 @@ def test_calibration_is_bumpless_and_apply_false_keeps_the_model():
     assert jumps[n0 - 1] < 1e-6                      # entry: the first output = the last
     # the end and the mode's re-entry: no step beyond the servo's own sample-to-sample noise
     assert np.max(jumps[end - 5:end + 40]) <= np.max(jumps[n0:end - 100])
+
+
+@pytest.mark.parametrize("position, stiffness", [(0.2, 0.5), (0.4, 0.2), (0.3, 5.0),
+                                                  (0.1, 1.0)])
+def test_an_object_in_reach_aborts_the_calibration_nothing_applied(position, stiffness):
+    """The model-free contact test: 0.5 N m/rad at 0.2 rad was applied as k_e +109 % before;
+    objects 0.2..5 N m/rad reached by 0.1..0.4 rad now abort, with the reason, nothing
+    applied, the channel back in its mode."""
+    cal, ctl, rec = calibrate(PLANT, DAHL, env=contact_object(position, stiffness, 0.05))
+    assert cal.outcome == "aborted" and "in reach of the finger" in cal.message, cal.message
+    assert cal.contact_test.upper > cal.contact_test.lower      # the object is above
+    assert not cal.applied and ctl.config == CONFIG
+
+
+def test_free_air_calibrations_pass_the_contact_test_with_room():
+    """Free air, plants 0.5x..2x: the contact test stays far below its threshold."""
+    rng = np.random.default_rng(4)
+    for i in range(3):
+        f = np.exp(rng.uniform(-math.log(2.0), math.log(2.0), size=6))
+        plant = PLANT.scaled(endpoint_damping=f[0], endpoint_stiffness=f[1],
+                             endpoint_inertia=f[2], hose_stiffness=f[3])
+        dahl = DahlParams(sigma=DAHL.sigma * f[4], coulomb_force=DAHL.coulomb_force * f[5])
+        cal, ctl, rec = calibrate(plant, dahl, seed=i)
+        assert 0.0 < cal.contact_test.peak < 0.2, (i, cal.contact_test.peak, cal.message)
+        assert "in reach" not in cal.message
+
+
+def test_an_implausible_result_is_refused_nothing_applied():
+    """k_e 0.4x and F_c 2.5x of the model: outside friction.plausible_ratio (2), refused with
+    the values named; a wider ratio applies them."""
+    plant = PLANT.scaled(endpoint_stiffness=0.4)
+    dahl = DahlParams(sigma=DAHL.sigma * 2.5, coulomb_force=DAHL.coulomb_force * 2.5)
+    cal, ctl, rec = calibrate(plant, dahl)
+    assert cal.outcome == "aborted" and "implausible" in cal.message, cal.message
+    assert "k_e" in cal.message and "F_c" in cal.message
+    assert not cal.applied and ctl.config == CONFIG
+    wide = config(plausible_ratio=3.0)
+    cal, ctl, rec = calibrate(plant, dahl, cfg=wide)
+    assert cal.outcome == "succeeded" and cal.applied, cal.message
 
 
 def test_calibration_aborts_on_a_blocked_finger():
@@ -254,10 +302,8 @@ values = st.one_of(st.floats(allow_nan=True, allow_infinity=True),
 def test_calibration_torque_bounded_and_non_finite_aborts(samples, limit, max_torque):
     """Invariants: |F_a| <= min(torque_limit, max_torque) always; a non-finite input ends the
     calibration (aborted, with the reason) and every later output is 0."""
-    cfg = CONFIG.replace(max_torque=max_torque,
-                         friction=dataclasses.replace(CONFIG.friction, torque_limit=limit,
-                                                      position_min=-100.0,
-                                                      position_max=100.0))
+    cfg = config(torque_limit=limit, position_min=-100.0,
+                 position_max=100.0).replace(max_torque=max_torque)
     cal = FrictionCalibration(CalibrationGoal("p", 0.5, 1.0, True), cfg, DT)
     assert cal.claim()
     bound = min(limit, max_torque)
@@ -469,3 +515,38 @@ def test_a_grasp_and_a_calibration_never_share_a_channel():
     ctl.request_job(other)
     ctl.update(0.0, 0.0, 0.0)
     assert ctl.job is grasp and other.outcome == "aborted" and "busy" in other.message
+
+
+# --- the model-free contact test (core/sided.py) ------------------------------------------------
+def sided_run(force, periods=2, amp=0.4, w=2.0):
+    """SidedStiffness over ``periods`` whole periods of ``X = amp sin(w t)`` with
+    ``F_p = force(x, v)``."""
+    from seaforce_ros.core.sided import SidedStiffness
+    test = SidedStiffness(0.005, 0.05, 0.01)
+    test.reset(0.0)
+    n = int(round(periods * 2 * math.pi / w / DT))
+    for k in range(n):
+        t = k * DT
+        x, v = amp * math.sin(w * t), amp * w * math.cos(w * t)
+        test.update(x, force(x, v))
+    return test, test.judge()
+
+
+def test_sided_stiffness_against_analytic_forces():
+    """A spring, a damper, Coulomb friction and an offset alike on both sides: k_+ = k_- (the
+    quadrature terms cancel over whole periods); a one-sided spring beyond 0.1 rad: k_+ - k_-
+    is about its in-phase share (the one offset for both sides takes the rest); a side that
+    hardly moved is not judged."""
+    symmetric = lambda x, v: 0.02 - 0.06 * x - 0.03 * v - 0.03 * math.copysign(1.0, v)  # noqa
+    test, level = sided_run(symmetric)
+    assert test.upper == pytest.approx(0.06, abs=1e-3)
+    assert test.lower == pytest.approx(0.06, abs=1e-3) and level < 0.05
+    one_sided = lambda x, v: symmetric(x, v) - 1.0 * max(0.0, x - 0.1)   # noqa: E731
+    test, level = sided_run(one_sided)
+    assert test.upper - test.lower > 0.3 and level > 1.0
+    from seaforce_ros.core.sided import SidedStiffness
+    idle = SidedStiffness(0.005, 0.05, 0.01)
+    idle.reset(0.0)
+    for k in range(1000):
+        idle.update(1e-4 * math.sin(k * 0.01), 0.0)
+    assert idle.judge() == 0.0 and math.isnan(idle.upper)

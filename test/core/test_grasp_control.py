@@ -15,7 +15,7 @@ from seaforce_ros.core.control_cycle import ControlCycle
 from seaforce_ros.core.environment import contact_object, free
 from seaforce_ros.core.estimator import FLOOR_FRACTION, SPREAD_TIME
 from seaforce_ros.core.grasp import Grasp, GraspGoal, check_goal
-from seaforce_ros.core.params import TargetParams
+from seaforce_ros.core.params import LimitParams, TargetParams
 from seaforce_ros.core.plant_cycle import STATUS_COMMAND_TIMEOUT, STATUS_FAULT
 
 DT = 5e-4
@@ -272,8 +272,11 @@ def test_an_object_nearer_than_the_arming_distance_is_grasped(seed):
 
 def test_an_object_too_soft_for_the_grip_aborts():
     """0.2 N m/rad gripped with 0.45 N m: 2.25 rad of squeeze, beyond grasp.give_way_travel (1.5
-    rad) past the contact -- the grasp gives up, never beyond max_force, and lets go."""
-    g = Grasping(contact_object(0.2, 0.2, 0.05))
+    rad) past the contact -- the grasp gives up, never beyond max_force, and lets go. (A joint
+    range wide enough for that travel: within the default +-1.5 rad the walls stop the
+    finger first, and the cycle's joint_limit fault ends the grasp: test_safety.py.)"""
+    g = Grasping(contact_object(0.2, 0.2, 0.05),
+                 limits=LimitParams(position_min=-5.0, position_max=5.0))
     grasp = g.start(0.2, 0.45, 0.9, probe=False)
     g.until(lambda: not grasp.active, limit=30.0).step(2)
     assert grasp.outcome == 'aborted' and grasp.contact

@@ -32,6 +32,8 @@ from seaforce_ros.core.passivity import guard_carries
 from seaforce_ros.core.passivity_guard import PassivityGuard
 from seaforce_ros.core.simulator import run_closed_loop
 
+from helpers.configs import unlimited
+
 TABLE_I = PlantParams.table_i()
 M, B, K = TABLE_I.motor_inertia, TABLE_I.motor_damping, TABLE_I.motor_stiffness
 DT = 5e-4
@@ -349,11 +351,12 @@ DRIVE_AMPLITUDE = {1.0: 0.3, 10.0: 0.05, 30.0: 0.017}   # ~0.3-0.5 rad/s at the 
 
 def simulate(dob, guard_mode, environment, state, seconds, dahl=None, max_torque=5.0):
     """Closed loop, ``dob`` mode; stops at the first torque beyond ``max_torque`` (the cycle
-    would latch a fault). Returns (completed, record)."""
+    would latch a fault). Returns (completed, record). The guard alone: no runaway monitor
+    and no walls (they would stop some unguarded instabilities; test_safety.py)."""
     sim = ChannelSimulator(TABLE_I, dahl, dt=DT, seed=3, environment=environment)
     sim.reset(state=state, environment=environment)
-    cfg = ControllerConfig(mode="dob", dob=dob, allow_non_passive=True, max_torque=max_torque,
-                           passivity=GuardParams(mode=guard_mode))
+    cfg = unlimited(mode="dob", dob=dob, allow_non_passive=True, max_torque=max_torque,
+                    passivity=GuardParams(mode=guard_mode))
     n = int(round(seconds / DT))
     r = run_closed_loop(sim, ChannelController(cfg, dt=DT), n, max_torque=max_torque)
     none = np.zeros(r["u"].size)

@@ -1,0 +1,185 @@
+"""What keeps a finger in its joint range and stops a finger the controller drives away.
+
+Two stages of :meth:`ChannelController.update <seaforce_ros.core.controller.ChannelController
+.update>`, each plain Python over explicit state, no allocation per sample:
+
+* :class:`JointWalls` (``limits.*``) -- in every mode that commands torque (all but
+  ``passive``; jobs included). Inside each end of the joint range ``position_min..
+  position_max`` a soft virtual wall of width ``wall_band`` pushes back: with the penetration
+  ``p`` of the motor position X or of the estimated endpoint X_e_hat, whichever is deeper,
+  and the velocity ``u`` of that one (V or V_e_hat)::
+
+      F_w = -(K_w p + B_w min(1, 4 p/band) u),  never pulling towards the wall,
+      |F_w| <= max_torque
+
+  (a damping that rises over the first quarter of the band: no step in the torque where the
+  finger enters it). The wall force is added to the torque of a torque mode or job, and to
+  the reference F_ref of a mode that runs the DOB, which renders it on the nominal plant below
+  lambda. A spring and a damper that only push: the walls are passive. Beyond the range
+  itself (X or X_e_hat outside ``position_min..position_max``) :attr:`JointWalls.beyond`
+  says why, and :class:`~.control_cycle.ControlCycle` latches a ``joint_limit`` fault (zero
+  torque until ``~/reset``).
+
+* :class:`RunawayMonitor` (``monitor.*``) -- in every mode that runs the DOB (the feed-forward
+  modes, ``impedance``, ``force``, ``dob`` and a grasp). The feed-forward cancels the friction
+  *of the model*; where the finger has less (a model off by more than the margin of
+  ``feedforward.margin``), its net stiffness, damping or hysteresis is negative and a free
+  finger accelerates away with a time constant of a fraction of a second. The monitor trips
+  when the motor speed |V| or the estimated endpoint speed |V_e_hat| has stayed beyond
+  ``max_speed`` for ``trip_time``: a speed no backdriving hand gives the finger in these
+  modes, i.e. a kinetic energy ``(m_n + m_e) max_speed^2/2`` the finger does not reach unless
+  something drives it. The channel then falls back, in the same sample, to
+  ``monitor.fallback`` (``dob``: the DOB without feed-forward, passive by eq. 28; a trip in
+  ``dob`` itself, or in the fall-back, goes on to ``passive``) and stays there until
+  ``~/reset``. Reaction time: ``trip_time`` plus one sample (the command's delay). After a
+  trip the finger is still fast: the monitor counts again once the speed has been back within
+  ``max_speed`` (a new excursion), or at once while it is beyond twice ``max_speed`` (a
+  fall-back that does not stop the finger goes on to ``passive``).
+
+What the monitor cannot see: a finger that drifts slowly (a negative net stiffness or damping
+small enough to stay below ``max_speed``) -- the walls keep that one in range; and it cannot
+tell a hand that moves the finger faster than ``max_speed`` from a runaway (it falls back
+then too: the conservative side).
+"""
+
+from __future__ import annotations
+
+from .params import LimitParams, MonitorParams
+
+__all__ = ["JointWalls", "RunawayMonitor"]
+
+
+class JointWalls:
+    """The soft walls and the hard limit of one channel's joint range (module docstring).
+
+    Parameters
+    ----------
+    limits : LimitParams
+    max_torque : float > 0
+        Bound on |F_w| [N m] (the channel's ``max_torque``).
+
+    Attributes (after every :meth:`update`)
+    ----------------------------------------
+    force : float
+        F_w [N m].
+    beyond : str
+        Why the finger is beyond the joint range (X or X_e_hat outside it), or ''.
+    """
+
+    __slots__ = ("_lo", "_hi", "_lo_wall", "_hi_wall", "_k", "_b", "_ramp", "_fmax", "force",
+                 "beyond")
+
+    def __init__(self, limits: LimitParams, max_torque: float) -> None:
+        self.configure(limits, max_torque)
+        self.force = 0.0
+        self.beyond = ""
+
+    def configure(self, limits: LimitParams, max_torque: float) -> None:
+        """New (validated) settings."""
+        self._lo, self._hi = limits.position_min, limits.position_max
+        band = limits.wall_band
+        self._lo_wall, self._hi_wall = self._lo + band, self._hi - band
+        self._k, self._b = limits.wall_stiffness, limits.wall_damping
+        self._ramp = 4.0 / band
+        self._fmax = float(max_torque)
+
+    def update(self, x: float, v: float, xe: float, ve: float) -> float:
+        """One sample: X [rad], V [rad/s], X_e_hat [rad], V_e_hat [rad/s]; returns F_w [N m]."""
+        f = 0.0
+        if x > xe:
+            hi, hv, lo, lv = x, v, xe, ve
+        else:
+            hi, hv, lo, lv = xe, ve, x, v
+        if hi > self._hi_wall:
+            p = hi - self._hi_wall
+            r = p * self._ramp
+            f = -(self._k * p + self._b * (r if r < 1.0 else 1.0) * hv)
+            if f > 0.0:
+                f = 0.0
+            elif f < -self._fmax:
+                f = -self._fmax
+        elif lo < self._lo_wall:
+            p = self._lo_wall - lo
+            r = p * self._ramp
+            f = self._k * p - self._b * (r if r < 1.0 else 1.0) * lv
+            if f < 0.0:
+                f = 0.0
+            elif f > self._fmax:
+                f = self._fmax
+        self.force = f
+        if hi > self._hi or lo < self._lo:
+            if not self.beyond:             # worded once per excursion
+                self.beyond = (f"beyond the joint range limits.position_min..position_max = "
+                               f"{self._lo:g}..{self._hi:g} rad: motor at {x:.4g} rad, "
+                               f"endpoint (estimated) at {xe:.4g} rad")
+        elif self.beyond:
+            self.beyond = ""
+        return f
+
+
+class RunawayMonitor:
+    """The speed envelope of one channel (module docstring).
+
+    Parameters
+    ----------
+    monitor : MonitorParams
+    dt : float > 0
+        Sample period [s].
+
+    Attributes
+    ----------
+    over : int
+        Sample periods the speed has been beyond ``max_speed`` without a break.
+    reason : str
+        Why it tripped (set on the sample it trips), or ''.
+    """
+
+    __slots__ = ("dt", "_vmax", "_trip", "over", "reason", "armed")
+
+    def __init__(self, monitor: MonitorParams, dt: float) -> None:
+        self.dt = float(dt)
+        self.configure(monitor)
+        self.reset()
+
+    def configure(self, monitor: MonitorParams) -> None:
+        """New (validated) settings; the count goes on."""
+        self._vmax = monitor.max_speed
+        # beyond for more than trip_time: the count reaches this (at least one sample)
+        self._trip = max(1, int(round(monitor.trip_time / self.dt)) + 1)
+
+    def reset(self) -> None:
+        """Forget the count; armed."""
+        self.over = 0
+        self.reason = ""
+        self.armed = True
+
+    def disarm(self) -> None:
+        """After a trip: the finger the fall-back has to stop is still fast. Count again once
+        the speed has been within ``max_speed`` (a new excursion), or at once beyond twice it
+        (the fall-back does not stop it)."""
+        self.over = 0
+        self.armed = False
+
+    def update(self, v: float, ve: float, steps: int = 1) -> bool:
+        """One sample: V, V_e_hat [rad/s], ``steps`` periods since the previous; True on the
+        sample the monitor trips (then :attr:`reason` says why)."""
+        vmax = self._vmax
+        if -vmax <= v <= vmax and -vmax <= ve <= vmax:
+            if self.over:
+                self.over = 0
+            if not self.armed:
+                self.armed = True
+            return False
+        if not self.armed:
+            twice = vmax + vmax
+            if -twice <= v <= twice and -twice <= ve <= twice:
+                return False
+        self.over += steps
+        if self.over < self._trip:
+            return False
+        speed, what = (v, "motor") if abs(v) >= abs(ve) else (ve, "endpoint (estimated)")
+        self.reason = (f"finger driven away: {what} speed {abs(speed):.3g} rad/s beyond "
+                       f"monitor.max_speed = {vmax:g} rad/s for "
+                       f"{1e3 * (self.over - 1) * self.dt:.3g} ms")
+        self.disarm()
+        return True

@@ -1,0 +1,352 @@
+"""The softest modes never make the finger active: the feed-forward's margin, the joint walls
+and the joint-limit fault, the runaway monitor and its fall-back (core/safety.py), alone, in the
+controller, in the cycle, and as properties over random plants, modes and environments."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from seaforce_ros.core import (ChannelController, ChannelSimulator, ControllerConfig,
+                               DahlParams, PlantParams, contact_object, free, position_sine,
+                               run_closed_loop)
+from seaforce_ros.core.control_cycle import JOINT_LIMIT
+from seaforce_ros.core.episodes import ERROR
+from seaforce_ros.core.errors import InvalidParameterError, NonPassiveError
+from seaforce_ros.core.grasp import Grasp, GraspGoal
+from seaforce_ros.core.params import (FeedforwardParams, ForceFeedbackParams, FrictionParams,
+                                      GraspParams, LimitParams, MonitorParams, TargetParams)
+from seaforce_ros.core.rig import CycleRig
+from seaforce_ros.core.safety import JointWalls, RunawayMonitor
+
+from helpers.configs import exact_feedforward
+
+DT = 5e-4
+TABLE_I = PlantParams.table_i()
+DAHL = DahlParams()
+LIMITS = LimitParams()
+FIELDS = ("motor_inertia", "motor_damping", "motor_stiffness", "endpoint_inertia",
+          "endpoint_damping", "endpoint_stiffness", "hose_damping", "hose_stiffness")
+#: The runaways measured on the plant before the margin: (name, true plant) for a Table I model.
+RUNAWAYS = [("k_e 17 % high", TABLE_I.scaled(endpoint_stiffness=0.83)),
+            ("k_e 25 % high", TABLE_I.scaled(endpoint_stiffness=0.75)),
+            ("b_e 1.5x", TABLE_I.scaled(endpoint_damping=1.0 / 1.5))]
+
+
+# --- the walls alone -------------------------------------------------------------------------
+def test_walls_push_back_inside_the_band_only_and_never_pull():
+    w = JointWalls(LIMITS, max_torque=5.0)
+    hi_wall = LIMITS.position_max - LIMITS.wall_band
+    assert w.update(0.0, 3.0, 0.0, 3.0) == 0.0 and w.beyond == ""
+    assert w.update(hi_wall - 1e-6, 3.0, hi_wall - 1e-6, 3.0) == 0.0
+    # spring plus damping (full from a quarter of the band in), pushing out
+    p = 0.1
+    f = w.update(hi_wall + p, 0.5, hi_wall + p, 0.5)
+    assert f == pytest.approx(-(LIMITS.wall_stiffness * p + LIMITS.wall_damping * 0.5))
+    # leaving the wall fast: the damping would pull; the wall only stops pushing
+    assert w.update(hi_wall + 0.01, -50.0, hi_wall + 0.01, -50.0) == 0.0
+    # the lower wall mirrors it
+    lo_wall = LIMITS.position_min + LIMITS.wall_band
+    assert w.update(lo_wall - p, -0.5, lo_wall - p, -0.5) == pytest.approx(-f)
+    # no step where the finger enters the band: the damping ramps in
+    assert abs(w.update(hi_wall + 1e-6, 5.0, hi_wall + 1e-6, 5.0)) < 1e-3
+
+
+def test_walls_take_the_deeper_of_motor_and_endpoint_are_bounded_and_name_the_limit():
+    w = JointWalls(LIMITS, max_torque=0.2)
+    hi_wall = LIMITS.position_max - LIMITS.wall_band
+    # the endpoint estimate deeper than the motor (a wrong hose model): its penetration counts
+    f = w.update(hi_wall, 0.0, hi_wall + 0.02, 0.0)
+    assert f == pytest.approx(-LIMITS.wall_stiffness * 0.02)
+    assert w.update(10.0, 100.0, 10.0, 100.0) == -0.2            # |F_w| <= max_torque
+    assert "beyond the joint range" in w.beyond and "motor at 10 rad" in w.beyond
+    w.update(1.0, 0.0, 1.0, 0.0)
+    assert w.beyond == ""
+    w.update(0.0, 0.0, -1.6, 0.0)                                  # the endpoint alone
+    assert "endpoint (estimated) at -1.6" in w.beyond
+
+
+# --- the monitor alone -----------------------------------------------------------------------
+def test_monitor_trips_after_trip_time_once_per_excursion():
+    params = MonitorParams(max_speed=10.0, trip_time=0.005)
+    m = RunawayMonitor(params, DT)
+    beyond = int(round(params.trip_time / DT)) + 1
+    assert not any(m.update(11.0, 0.0) for _ in range(beyond - 1))
+    assert not m.update(0.0, 9.9)                # a break restarts the count
+    trips = [m.update(0.0, -10.5) for _ in range(beyond)]
+    assert trips == [False] * (beyond - 1) + [True]
+    assert "endpoint (estimated) speed 10.5 rad/s" in m.reason
+    # still fast after the trip: no new trip until the speed was back within max_speed ...
+    assert not any(m.update(15.0, 15.0) for _ in range(100))
+    # ... or beyond twice max_speed (the fall-back does not stop it)
+    assert any(m.update(21.0, 0.0) for _ in range(beyond))
+    assert not m.update(0.0, 0.0)
+    assert any(m.update(12.0, 0.0) for _ in range(beyond))
+
+
+# --- the configuration's rules -----------------------------------------------------------------
+def test_a_feed_forward_without_its_margin_is_refused_unless_allowed():
+    for changes, name in (({"margin": 0.9}, "feedforward.margin"),
+                          ({"stiffness_uncertainty": 0.0}, "feedforward.stiffness_uncertainty"),
+                          ({"dahl_uncertainty": 0.005}, "feedforward.dahl_uncertainty")):
+        ff = FeedforwardParams(**changes)
+        with pytest.raises(NonPassiveError, match=name.replace(".", r"\.")) as info:
+            ControllerConfig(feedforward=ff)
+        assert info.value.override == "allow_non_passive"
+        ControllerConfig(feedforward=ff, allow_non_passive=True)
+    assert FeedforwardParams(margin=2.0, damping_uncertainty=0.6).scales()[0] == 0.0
+
+
+def test_motions_stay_inside_the_joint_range_and_grasps_below_the_monitor():
+    with pytest.raises(InvalidParameterError, match=r"friction\.position_max"):
+        ControllerConfig(limits=LimitParams(position_max=1.0))
+    with pytest.raises(InvalidParameterError, match=r"limits\.position_max"):
+        LimitParams(position_min=-0.1, position_max=0.1, wall_band=0.15)
+    with pytest.raises(InvalidParameterError, match=r"grasp\.max_closing_velocity"):
+        ControllerConfig(monitor=MonitorParams(max_speed=1.0))
+    narrow = ControllerConfig(limits=LimitParams(position_min=-1.0, position_max=1.0),
+                              friction=FrictionParams(position_min=-1.0, position_max=1.0),
+                              commissioning=dataclasses.replace(
+                                  ControllerConfig().commissioning, position_min=-1.0,
+                                  position_max=1.0))
+    assert narrow.limits.position_max == 1.0
+
+
+# --- in the controller --------------------------------------------------------------------------
+def free_finger(plant, config, seconds, flick=1.0, dahl=DAHL, seed=1):
+    """The whole cycle on a free finger that starts with a flick: (rig, X_e, V_e, fallback)."""
+    sim = ChannelSimulator(plant, dahl, seed=seed)
+    sim.reset(state=(0.0, flick, 0.0, flick))
+    rig = CycleRig(sim, config)
+    xe, ve, fb = [], [], []
+    for _ in range(int(round(seconds / DT))):
+        rig.step()
+        xe.append(sim._z[2])
+        ve.append(sim._z[3])
+        fb.append(rig.controller.fallback)
+    return rig, np.array(xe), np.array(ve), fb
+
+
+@pytest.mark.parametrize("name, plant", RUNAWAYS)
+def test_the_measured_runaways_stay_still_with_the_margin(name, plant):
+    """The plants that ran away in dob_full_ff (to 10-51 rad): with the default margin (each
+    term 20 % below the model) the free finger's net stiffness and damping are positive."""
+    rig, xe, ve, fb = free_finger(plant, ControllerConfig(mode="dob_full_ff"), 10.0)
+    assert np.max(np.abs(xe)) < 0.1, name
+    assert np.max(np.abs(ve[-2000:])) < 0.05, name        # at rest at the end
+    assert not any(fb) and not rig.cycle.faults_latched
+
+
+@pytest.mark.parametrize("name, plant", RUNAWAYS)
+def test_without_the_margin_the_walls_and_the_monitor_keep_them_in_range(name, plant):
+    """The paper's exact feed-forward on the same plants: the finger runs away, and the walls
+    and the monitor keep it inside the joint range; a trip comes within trip_time and one
+    sample of the speed crossing max_speed."""
+    config = exact_feedforward(mode="dob_full_ff")
+    rig, xe, ve, fb = free_finger(plant, config, 8.0)
+    assert np.max(np.abs(xe)) > 1.0, name                 # it does run away
+    assert np.max(np.abs(xe)) <= LIMITS.position_max, name
+    assert not rig.cycle.faults_latched, rig.cycle.latched(0)
+    if any(fb):
+        first = fb.index(next(f for f in fb if f))
+        limit = config.monitor.max_speed
+        crossed = int(np.argmax(np.abs(ve) > limit))
+        assert first - crossed <= round(config.monitor.trip_time / DT) + 2, (first, crossed)
+
+
+def test_the_fallback_is_latched_refuses_grasps_and_ends_with_clear_fallback():
+    """A trip ends a grasp, falls back to dob, enters it bumplessly; resets keep the fall-back;
+    a grasp goal is refused; clear_fallback (~/reset) returns to the configured mode."""
+    ctl = ChannelController(ControllerConfig(mode="dob_full_ff"))
+    for _ in range(10):
+        ctl.update(0.0, 0.0, 0.0)
+    grasp = Grasp(GraspGoal("pinch", 0.3, 0.2, 0.5, False), ctl.config)
+    ctl.request_job(grasp)
+    ctl.update(0.0, 0.0, 0.0)
+    assert ctl.job is grasp
+    u = [ctl.update(0.001 * k, 12.0, 0.0) for k in range(20)]
+    assert ctl.fallback == "dob" and "monitor.max_speed" in ctl.fallback_reason
+    assert ctl.tripped and ctl.job is None and grasp.outcome == "aborted"
+    assert "runaway monitor" in grasp.message
+    assert max(abs(a - b) for a, b in zip(u, u[1:])) < 0.05      # no torque step at the trip
+    ctl.reset(0.0)
+    assert ctl.fallback == "dob"
+    refused = Grasp(GraspGoal("pinch", 0.3, 0.2, 0.5, False), ctl.config)
+    ctl.request_job(refused)
+    ctl.update(0.0, 0.0, 0.0)
+    assert refused.outcome == "aborted" and "~/reset" in refused.message
+    # a trip in the fall-back goes on to passive: zero torque
+    for k in range(20):
+        ctl.update(0.0, 25.0, 0.0)
+    assert ctl.fallback == "passive" and ctl.update(0.0, 25.0, 0.0) == 0.0
+    assert ctl.mode == "dob_full_ff"            # the configured mode is kept ...
+    assert ctl.clear_fallback() and not ctl.fallback
+    ctl.update(0.0, 0.0, 0.0)
+    assert type(ctl._reference_mode).__name__ == "DobFullFeedforward"   # ... and back
+    assert not ctl.clear_fallback()
+
+
+def test_hold_works_inside_the_walls_and_enters_bumplessly_in_the_band():
+    """hold at 1.4 rad (inside the wall band) keeps the finger there against a drive that
+    pushes it; entering hold in the band gives the torque the channel had."""
+    sim = ChannelSimulator(TABLE_I, DAHL, seed=3,
+                           environment=position_sine(0.0, 0.0, offset=1.4,
+                                                     stiffness=5.0, damping=0.05))
+    sim.reset(state=(1.4, 0.0, 1.4, 0.0))
+    ctl = ChannelController(ControllerConfig(mode="dob"))
+    rec = run_closed_loop(sim, ctl, 4000, on_switch={
+        2000: lambda s, c: c.configure(c.config.replace(mode="hold"))})
+    u = rec["u"]
+    assert abs(u[2000] - u[1999]) < 1e-3
+    assert ctl.walls.force < 0.0                    # in the band: the wall pushes
+    assert np.max(np.abs(rec["x_e_true"] - 1.4)) < 0.05 and ctl.beyond == ""
+
+
+# --- in the cycle ------------------------------------------------------------------------------
+def test_beyond_the_range_latches_joint_limit_and_the_trip_is_reported_once():
+    """A force that overpowers the walls: the finger reaches the end of the range, the cycle
+    latches joint_limit (zero torque), ~/reset clears it. A trip is an error event, once."""
+    config = ControllerConfig(mode="force", target=TargetParams(force=1.0),
+                              monitor=MonitorParams(max_speed=50.0))
+    sim = ChannelSimulator(TABLE_I, DAHL, seed=2)
+    rig = CycleRig(sim, config)
+    for _ in range(8000):
+        rig.step()
+        if rig.cycle.latched(0):
+            break
+    assert "beyond the joint range" in rig.cycle.latched(0)
+    assert rig.cycle.counts[JOINT_LIMIT] >= 1
+    assert rig.step() == 0.0 and rig.step() == 0.0
+    assert any("FAULT latched" in text for _, text in rig.cycle.events.drain())
+    # the finger coasts passively: it stops close to the end of the range
+    for _ in range(4000):
+        rig.step()
+    assert abs(sim._z[2]) < LIMITS.position_max + 0.3
+
+    # the runaway monitor in the cycle: reported once, shown as the fault, cleared by a reset
+    config = ControllerConfig(mode="force", target=TargetParams(force=1.0),
+                              limits=LimitParams(position_min=-100.0, position_max=100.0))
+    rig = CycleRig(ChannelSimulator(TABLE_I, DAHL, seed=2), config)
+    for _ in range(4000):
+        rig.step()
+    assert rig.controller.fallback == "dob"
+    events = [text for sev, text in rig.cycle.events.drain() if sev == ERROR]
+    assert len(events) == 1 and "runaway monitor" in events[0] and "~/reset" in events[0]
+    assert rig.cycle.fault(0).startswith("fallback to dob")
+    assert rig.cycle.request_reset() == "cleared faults on pinch"
+    rig.step()
+    assert not rig.controller.fallback and rig.cycle.fault(0) == ""
+
+
+def test_no_trip_while_the_channel_is_faulted():
+    """Zero torque (a latched fault): the finger moves, but not by this controller's doing; a
+    speed beyond max_speed then trips nothing."""
+    ctl = ChannelController(ControllerConfig(mode="dob"))
+    rig = CycleRig(ChannelSimulator(TABLE_I, None, seed=1), ControllerConfig(mode="dob"))
+    ctl = rig.controller
+    cc = rig.cycle
+    cc._latch(0, "a test fault")
+    for k in range(50):
+        cc.step(["pinch"], 10 + k, 0, [0.0], [20.0], [0.0], [0.0], [0], 0, 1.0 + k * DT)
+    assert ctl.fallback == "" and not ctl.tripped
+
+
+# --- properties over random plants, modes and environments ------------------------------------
+MAX_VELOCITY = 30.0         # rad/s: the plant's speed trip (PlantLimits' default)
+#: How far a finger the cycle stopped (joint_limit, zero torque) coasts past the end of the
+#: range: from at most 2 max_speed (the monitor stops anything faster) the passive finger
+#: (friction and the motor's spring only) stops within this [rad].
+OVERTRAVEL = 0.3
+
+modes = st.sampled_from(["passive", "hold", "force_feedback", "dob", "dob_linear_ff",
+                         "dob_full_ff", "impedance", "force"])
+
+
+@st.composite
+def segments(draw):
+    """A mode with random targets, an environment kind, a duration."""
+    mode = draw(modes)
+    env = draw(st.sampled_from(["free", "free", "object", "hand"]))
+    return (mode, env, draw(st.floats(0.3, 2.0)), draw(st.floats(0.0, 1.0)),
+            draw(st.floats(0.0, 1.0)), draw(st.floats(0.0, 1.0)))
+
+
+def configured(mode, a, b):
+    """The default configuration in ``mode``, targets from a, b in 0..1."""
+    config = ControllerConfig(mode=mode)
+    if mode == "impedance":
+        config = config.replace(target=TargetParams(stiffness=a * 2.0, damping=b * 0.09))
+    elif mode == "force":
+        config = config.replace(target=TargetParams(force=(2 * a - 1) * 0.5))
+    elif mode == "force_feedback":
+        config = config.replace(force_feedback=ForceFeedbackParams(gain=2 * a - 1))
+    return config
+
+
+def environment(kind, xe, a, b, c):
+    """free; an object beyond the finger (0.02..0.8 rad ahead, 0.2..20 N m/rad); a hand that
+    takes the finger where it is and moves it within the range (2..50 N m/rad, up to 8 rad/s
+    peak)."""
+    if kind == "object" and xe < 1.25:
+        return contact_object(min(1.3, xe + 0.02 + 0.78 * a), 0.2 * 100.0 ** b,
+                              0.02 + 0.08 * c)
+    if kind == "hand" and abs(xe) < 1.2:
+        amplitude = min(0.5, 1.25 - abs(xe)) * (0.2 + 0.8 * a)
+        frequency = min(0.5 + 7.5 * b, 8.0 / amplitude)
+        return position_sine(amplitude, frequency, stiffness=2.0 * 25.0 ** c,
+                             damping=0.05 + 0.15 * c, offset=xe)
+    return free()
+
+
+@settings(max_examples=40, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(factors=st.lists(st.floats(-math.log(2.0), math.log(2.0)), min_size=10, max_size=10),
+       plan=st.lists(segments(), min_size=1, max_size=4), seed=st.integers(0, 2 ** 16))
+def test_no_torque_mode_leaves_the_range_or_outruns_the_limits(factors, plan, seed):
+    """Every Table I and Dahl parameter of the true plant 0.5x..2x of the controller's model,
+    random mode switches and environments (free; objects of random stiffness and position; a
+    backdriving hand as a position drive within the range). Invariants, every sample:
+
+    * no command beyond max_torque;
+    * |V| (true motor speed) within the plant's max_velocity;
+    * the finger within the joint range, or -- after the cycle latched joint_limit and zeroed
+      the torque, or a hand or object pushed it there -- within OVERTRAVEL of it;
+    * the monitor's reaction: where the DOB runs and the channel is not faulted, the speed is
+      never beyond max_speed for longer than trip_time plus one sample without a fall-back
+      (counted from the sample the monitor is armed).
+    """
+    f = np.exp(factors)
+    plant = TABLE_I.scaled(**dict(zip(FIELDS, f[:8])))
+    dahl = DahlParams(sigma=DAHL.sigma * f[8], coulomb_force=DAHL.coulomb_force * f[9])
+    sim = ChannelSimulator(plant, dahl, seed=seed, torque_saturation=20.0)
+    first = plan[0]
+    rig = CycleRig(sim, configured(first[0], first[3], first[4]))
+    ctl = rig.controller
+    config = rig.controller.config
+    vmax, limit = config.monitor.max_speed, config.max_torque
+    reaction = int(round(config.monitor.trip_time / DT)) + 1
+    lo, hi = config.limits.position_min, config.limits.position_max
+    for i, (mode, kind, seconds, a, b, c) in enumerate(plan):
+        if i:
+            rig.configure(configured(mode, a, b))
+        rig.set_environment(environment(kind, sim._z[2], a, b, c))
+        pushed = kind != "free"
+        over = 0
+        for _ in range(int(round(seconds / DT))):
+            u = rig.step()
+            z = sim._z
+            assert abs(u) <= limit, u
+            assert abs(z[1]) <= MAX_VELOCITY, (z, ctl.mode, ctl.fallback)
+            stopped = bool(rig.cycle.latched(0))
+            if not stopped and not pushed:
+                assert lo - 0.05 <= z[2] <= hi + 0.05, (z, ctl.mode, rig.cycle.fault(0))
+            assert lo - OVERTRAVEL <= z[2] <= hi + OVERTRAVEL, (z, ctl.mode,
+                                                                rig.cycle.fault(0))
+            runs_dob = ctl._torque_mode is None or ctl.job is not None
+            fast = abs(z[1]) > vmax * 1.05 or abs(ctl.observer.velocity) > vmax * 1.05
+            over = over + 1 if (fast and runs_dob and not stopped and ctl.monitor.armed) \
+                else 0
+            assert over <= reaction + 1, (z, ctl.mode, ctl.fallback)
