@@ -99,7 +99,7 @@ def start_scenario(layout, executor, qos, rate, workdir, prefix=()):
     or composed in bringup ('both'; layout 'direct': bringup loop:=direct). Returns
     {name: Popen}."""
     overrides = workdir / f'{layout}-{executor}-{qos}-{rate:.0f}-{len(prefix)}.yaml'
-    # node-specific sections: they take precedence over gripper.yaml's sim/controller ones
+    # one section per node (the composed bringup reads both), given after gripper.yaml
     common = (f'    executor: {executor}\n    control_qos: {qos}\n    rate: {rate}\n')
     overrides.write_text(
         'sim:\n  ros__parameters:\n' + common

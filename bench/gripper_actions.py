@@ -7,8 +7,8 @@ included); *free air* -- the goal sent until its result (reached_goal) for a 0.3
 the default 0.3 rad/s (the motion's own ~1 s is in it); *contact -> result* -- the first
 actuator_state in which the simulated object pushes on the finger (its stamp, the plant's
 system time) until the result (stalled) arrived here, in ms and in cycles (the newest state
-cycle this process had then; the detection's own delay is in it); *rejected* -- a NaN goal
-until its rejection. The figures are printed (median, max over ``--goals``).
+cycle this process had then; the detection's delay, the squeeze to the cap and the finger
+coming to rest at the grip are in it); *rejected* -- a NaN goal until its rejection. The figures are printed (median, max over ``--goals``).
 
 Run:  source scripts/setup.sh && python bench/gripper_actions.py [--goals 5]
 """
@@ -79,8 +79,9 @@ class Bench:
                                                     for k, v in values.items()])
         wait(self.bg.call(lambda: self.params.call_async(request)))
 
-    def goal(self, position, effort=0.0):
-        """(accepted after [s], handle, result future, {'arrived': (ns, cycle)})."""
+    def goal(self, position, effort=0.3):
+        """(accepted after [s], handle, result future, {'arrived': (ns, cycle)}); ``effort``:
+        the max_effort MoveIt's handle sends (docs/gripper-actions.md's snippet)."""
         goal = GripperCommand.Goal()
         goal.command.position = float(position)
         goal.command.max_effort = float(effort)

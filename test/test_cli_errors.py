@@ -164,6 +164,23 @@ def test_zwidth_simulation_options_without_simulate(processes, tmp_path):
               naming=["--params", "--simulate"])
 
 
+# --- commission ----------------------------------------------------------------------------
+@pytest.mark.parametrize("name, reason", [("bad//name", "repeated '/'"),
+                                          ("/1ctl", "must not start with a number")])
+def test_commission_controller_must_be_a_node_name(processes, name, reason):
+    out = _rejected(processes, "commission", "--channel", "pinch", "--controller", name,
+                    naming=("--controller", name, reason))
+    assert len(out.strip().splitlines()) == 1, out
+
+
+def test_commission_rollback_needs_a_rollback_file(processes, tmp_path):
+    out = _rejected(processes, "commission", "--rollback", tmp_path,
+                    naming=("--rollback", "no rollback.yaml in", "dry run"))
+    assert len(out.strip().splitlines()) == 1, out
+    _rejected(processes, "commission", "--rollback", tmp_path, "--channel", "pinch",
+              naming=("not allowed with argument",))
+
+
 # --- bag_recorder: start-up parameters ------------------------------------------------------
 def _recorder(tmp_path, *params, params_file=None):
     """bag_recorder arguments: ``--ros-args [--params-file FILE] -p NAME:=VALUE ...``."""

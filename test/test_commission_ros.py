@@ -5,7 +5,7 @@ Table I).
 One stack, in order: goals refused with the reason (unknown channel, a latched fault, a band
 upside down, NaN, a finger that is not free, a second goal while one runs); a cancel
 mid-excitation (CANCELED, zero torque on that channel from the next command on, nothing
-written or applied); a dry run with the ``commission`` tool (a report, no params file, the
+written or applied, no run directory left); a dry run with the ``commission`` tool (a report, no params file, the
 parameters unchanged, the identified plant within the goals); a run
 that applies (the channel's parameters become the result's new values, the identified plant
 within 5 % of the sim's truth, the torque continuous across the change, the drift against the
@@ -136,7 +136,7 @@ def test_commission_over_ros(processes, tmp_path, probe):
     assert after and all(e == 0.0 for _, e in after), after[:5]
     assert answer.result.params_file == '' and not answer.result.applied
     assert probe.get_parameters('/controller', [f'pinch.{k}' for k in PLANT_KEYS]) == before
-    assert not list(runs.glob('*/params.yaml'))
+    assert not list(runs.glob('*')), list(runs.glob('*'))    # nothing written: no directory
 
     # --- a dry run with the command-line tool, as a user types it: a report, no params
     # file, nothing changed; the identified plant within the goals of the sim's truth
@@ -219,3 +219,65 @@ def test_commission_over_ros(processes, tmp_path, probe):
     assert probe.get_parameters('/controller', list(old)) == old
     report = json.loads((pathlib.Path(result.report_path).parent / 'report.json').read_text())
     assert report['meta']['applied'] is True
+
+
+def test_a_rollback_restores_the_replaced_values(processes, tmp_path, probe):
+    """A controller running a tuning that lowered the motor inertia (a plant at 0.6x) with m_n
+    and raised lambda: the run's rollback file, loaded one value at a time in file order (what
+    ``ros2 param load`` does), restores every value; ``commission --rollback RUN_DIR`` restores
+    them in one atomic set even from a file in the order the tuning lists them (plant first:
+    one at a time, eq. 28 refuses m while the tuned m_n is in force); a rollback the
+    controller refuses changes nothing (exit 1)."""
+    from types import SimpleNamespace
+
+    from seaforce_ros.commissioning.analyse import Analysis, AnalysisRequest, write_stage
+    from seaforce_ros.commissioning.report import CommissioningReport, ReportMeta
+    from seaforce_ros.commissioning.tuning import TUNED_KEYS
+    from seaforce_ros.core.params import ControllerConfig
+    from seaforce_ros.identification.output import write_values_file
+
+    start = ControllerConfig()
+    m = start.plant.motor_inertia
+    tuned = ControllerConfig.from_dict({'plant.motor_inertia': 0.6 * m,
+                                        'dob.nominal_inertia': 0.6 * m, 'dob.cutoff': 200.0},
+                                       base=start)
+    keys = [k for k in TUNED_KEYS if k in start.to_dict()]
+    old = {f'pinch.{k}': start.to_dict()[k] for k in keys}
+    new = {f'pinch.{k}': tuned.to_dict()[k] for k in keys}
+    start_node(processes, 'controller_node', 'controller', tmp_path, new)
+    assert probe.get_parameters('/controller', list(new)) == new
+
+    run = tmp_path / 'run'
+    run.mkdir()
+    analysis = Analysis(CommissioningReport(ReportMeta('pinch', '', {}, False)), 'tuned',
+                        tuned=True, tuning=SimpleNamespace(config=tuned),
+                        apply={k: tuned.to_dict()[k] for k in keys},
+                        old_values={k: start.to_dict()[k] for k in keys})
+    write_stage(run, analysis, AnalysisRequest('pinch', start))
+    in_order = yaml.safe_load((run / 'rollback.yaml').read_text())['/**']['ros__parameters']
+    ok, reason = probe.set_parameters('/controller', in_order, atomic=False)
+    assert ok, reason
+    assert probe.get_parameters('/controller', list(old)) == old
+
+    ok, reason = probe.set_parameters('/controller', new)
+    assert ok, reason
+    plant_first = tmp_path / 'plant_first'
+    plant_first.mkdir()
+    write_values_file(plant_first / 'rollback.yaml', old, merge=False)
+    ok, reason = probe.set_parameters('/controller', old, atomic=False)
+    assert not ok and 'pinch.dob.nominal_inertia' in reason, reason    # the failure it fixes
+    ok, reason = probe.set_parameters('/controller', new)
+    assert ok, reason
+    cli = processes.start([str(executable('commission')), '--rollback', str(plant_first)],
+                          name='commission')
+    assert cli.wait(timeout=60) == 0, cli.output()
+    assert f'rolled back {len(old)} values on /controller' in cli.output(), cli.output()
+    assert probe.get_parameters('/controller', list(old)) == old
+
+    bad = tmp_path / 'bad.yaml'
+    write_values_file(bad, {**new, 'pinch.dob.nominal_inertia': 0.0}, merge=False)
+    cli = processes.start([str(executable('commission')), '--rollback', str(bad)],
+                          name='commission')
+    assert cli.wait(timeout=60) == 1, cli.output()
+    assert 'rollback refused, nothing changed' in cli.output(), cli.output()
+    assert probe.get_parameters('/controller', list(old)) == old

@@ -28,11 +28,12 @@ from seaforce_ros.ethercat.master import IFF_PROMISC, interface_flags
 YAML_BOOLEAN_WORDS = {'y', 'n', 'yes', 'no', 'on', 'off', 'true', 'false'}
 
 
-def run_until_exit(argv, timeout=60):
+def run_until_exit(argv, timeout=60, cwd=None):
     """Run an installed executable to its end; (exit code, stdout + stderr). Ended by its own
     PID if it outlives ``timeout`` (it must not: a bad configuration stops it at once)."""
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            stdin=subprocess.DEVNULL, start_new_session=True, text=True)
+                            stdin=subprocess.DEVNULL, start_new_session=True, text=True,
+                            cwd=cwd)
     try:
         out, _ = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
@@ -183,6 +184,53 @@ def test_unknown_interface_is_refused():
     assert_refused(code, out, "no network interface 'nosuch7'")
 
 
+# --- arguments a node does not take -----------------------------------------------------
+UNKNOWN_ARGUMENTS = [
+    ('bag_recorder', ['--bogus']),
+    ('bag_recorder', ['run1']),                          # a stray positional
+    ('bag_recorder', ['--output', 'run1']),              # a parameter without -p
+    ('sim_node', ['--bogus']),
+    ('controller_node', ['--ros-args', '-p', 'status_rate:=50.0', '--', '--bogus']),
+    ('bringup', ['--bogus']),
+    ('hardware_node', ['--bogus']),
+]
+
+
+@pytest.fixture(scope='module')
+def unknown_argument_runs(tmp_path_factory):
+    """Every UNKNOWN_ARGUMENTS case run to its end in a directory of its own, four at a time:
+    [(directory, exit code, output)]."""
+    directories = [tmp_path_factory.mktemp(f'args{i}') for i in range(len(UNKNOWN_ARGUMENTS))]
+
+    def run(case):
+        directory, (exe, args) = case
+        argv = [str(executable(exe)), *args]
+        if '--ros-args' not in args:
+            argv += ['--ros-args', '--params-file', str(CONFIG)]
+        return (directory, *run_until_exit(argv, cwd=directory))
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        return list(pool.map(run, zip(directories, UNKNOWN_ARGUMENTS)))
+
+
+@pytest.mark.parametrize('case', range(len(UNKNOWN_ARGUMENTS)),
+                         ids=[f'{e}-{"_".join(a)}' for e, a in UNKNOWN_ARGUMENTS])
+def test_unknown_arguments_are_refused(unknown_argument_runs, case):
+    """A node takes ROS arguments only: anything else is named in one line, exit 2, before
+    the node does anything (bag_recorder records nothing)."""
+    directory, code, out = unknown_argument_runs[case]
+    exe, args = UNKNOWN_ARGUMENTS[case]
+    assert_refused(code, out, 'unknown argument', exe)
+    extra = args[args.index('--') + 1:] if '--' in args else args
+    assert f'unknown argument(s) {" ".join(extra)}:' in out, out
+    assert len(out.strip().splitlines()) == 1, out
+    assert not list(directory.iterdir()), list(directory.iterdir())
+
+
+def test_help_is_no_unknown_argument():
+    code, out = run_until_exit([str(executable('sim_node')), '--help'])
+    assert code == 0 and out.startswith('usage: sim_node [--ros-args'), out
+
+
 # --- integers for float parameters -----------------------------------------------------
 def test_integer_for_a_float_parameter_is_accepted(processes, tmp_path, probe):
     proc = start_node(processes, 'controller_node', 'controller', tmp_path,
@@ -295,3 +343,81 @@ def test_unquoted_modes_load_and_dump_load_round_trip(processes, tmp_path, probe
     assert probe.get_parameters('/controller', list(modes)) == modes
     for channel, mode in MODE_CHANNELS.items():
         assert loaded['/controller']['ros__parameters'][channel]['mode'] == mode
+
+
+# --- -p after the shipped params file ----------------------------------------------------
+#: Keys the shipped file set in node sections before (its `/**/sim:` and `/**/controller:`)
+#: and the safety limits a user types: each must be the value `-p` gives after the file.
+COMMAND_LINE_KEYS = ('torque_limit', 'max_velocity', 'command_timeout', 'clock_mode', 'rate',
+                     'joint_state_rate', 'state_timeout', 'status_rate')
+
+
+def _other_value(spec):
+    """A valid value of ``spec`` other than its default (what a user would type)."""
+    default = spec.default
+    if spec.type is bool:
+        return not default
+    if spec.name == 'channels':
+        return list(reversed(default))
+    if spec.type is list:
+        return list(spec.choices[:1]) if spec.choices else ['actuator_state']
+    if spec.choices:
+        return next(c for c in spec.choices if c != default)
+    if spec.type is str:
+        return 'eth7' if spec.name == 'interface' else 'run1'
+    step = 1 if spec.type is int else 0.5 * abs(default or 1.0)
+    for value in (default + step, default - step, default + 2 * step):
+        value = spec.type(value)
+        if spec.reason(value) is None and value != default:
+            return value
+    raise AssertionError(f'no other value for {spec.name}')
+
+
+def _yaml(value):
+    """``value`` as `-p NAME:=VALUE` writes it."""
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, list):
+        return '[' + ', '.join(value) + ']'
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+def _node_specs(node, channels):
+    if node == 'sim':
+        return sim_node.node_specs() + [s for c in channels
+                                        for s in param_specs.sim_channel_specs(c)]
+    if node == 'controller':
+        return controller_node.node_specs() + [s for c in channels
+                                               for s in param_specs.controller_channel_specs(c)]
+    return {'hardware': hardware_node.node_specs, 'bag_recorder': bag_recorder.node_specs}[node]()
+
+
+@pytest.mark.parametrize('node', ['sim', 'controller', 'hardware', 'bag_recorder'])
+def test_command_line_wins_over_the_shipped_params_file(node):
+    """Every read-only key of every node, and the limits and modes a user types, set with
+    ``-p`` after ``--params-file config/gripper.yaml`` (the README's command lines) are the
+    values the node declares: rcl applies a node's own section of a file after the ``/**``
+    one the ``-p`` values join, so the shipped file has none."""
+    import rclpy
+    from rclpy.context import Context
+    from seaforce_ros.nodes.ros_common import declare
+
+    channels = yaml.safe_load(CONFIG.read_text())['/**']['ros__parameters']['channels']
+    specs = _node_specs(node, channels)
+    wanted = {s.name: _other_value(s) for s in specs
+              if s.read_only or s.name in COMMAND_LINE_KEYS}
+    assert len(wanted) > 3, wanted
+    argv = ['node', '--ros-args', '--params-file', str(CONFIG)]
+    for name, value in wanted.items():
+        argv += ['-p', f'{name}:={_yaml(value)}']
+    context = Context()
+    rclpy.init(args=argv, context=context)
+    try:
+        ros_node = rclpy.create_node(node, context=context)
+        try:
+            values = declare(ros_node, specs)
+        finally:
+            ros_node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+    assert {name: values[name] for name in wanted} == wanted

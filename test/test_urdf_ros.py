@@ -3,13 +3,14 @@
 * Against one running sim_node + controller_node (module-scoped): the URDF's joints are
   exactly the names on joint_states (<channel>_motor, <channel>_endpoint), and every joint's
   limits are the parameters the nodes run with: lower / upper the controller's
-  <channel>.friction.position_min / max, velocity the sim's max_velocity, effort its
-  torque_limit.
+  <channel>.friction.position_min / max, velocity the sim's max_velocity (motor) and the
+  controller's <channel>.grasp.gripper_velocity (finger: the speed MoveIt plans with), effort
+  the sim's torque_limit.
 * Without nodes: a parameter file that leaves the limits out gives the schema's defaults
   (sim and hardware), one with three channels and its own limits gives those; the installed
-  copy is the source (what display.launch.xml runs); the MoveIt controller snippet of
-  docs/gripper-actions.md commands a finger joint of the URDF through the action the
-  controller serves.
+  copy is the source (what display.launch.xml runs); the MoveIt snippets of
+  docs/gripper-actions.md command a finger joint of the URDF through the action the
+  controller serves, with an effort cap, at the URDF's speed.
 """
 import re
 
@@ -22,6 +23,7 @@ from urdf_parser_py.urdf import URDF
 from seaforce_ros.nodes import hardware_node, param_specs, sim_node
 from seaforce_ros.nodes.gripper_actions import action_namespace
 
+from helpers import moveit
 from helpers.nodes import CONFIG
 from helpers.processes import ROOT
 from helpers.sim_stack import SimStack
@@ -52,11 +54,13 @@ def live(tmp_path_factory):
         plant = stack.probe.get_parameters('/sim', ['channels', 'max_velocity', 'torque_limit'])
         expected = {}
         for channel in plant['channels']:
-            keys = [f'{channel}.friction.position_min', f'{channel}.friction.position_max']
+            keys = [f'{channel}.friction.position_min', f'{channel}.friction.position_max',
+                    f'{channel}.grasp.gripper_velocity']
             ranges = stack.probe.get_parameters('/controller', keys)
-            for joint in ('motor', 'endpoint'):
-                expected[f'{channel}_{joint}'] = (ranges[keys[0]], ranges[keys[1]],
-                                                  plant['max_velocity'], plant['torque_limit'])
+            for joint, velocity in (('motor', plant['max_velocity']),
+                                    ('endpoint', ranges[keys[2]])):
+                expected[f'{channel}_{joint}'] = (ranges[keys[0]], ranges[keys[1]], velocity,
+                                                  plant['torque_limit'])
     finally:
         stack.close()
     return names, expected
@@ -92,8 +96,9 @@ def test_limits_default_to_the_schema(tmp_path, plant, node):
     channel = _defaults(param_specs.controller_channel_specs('pinch'))
     row = (channel['pinch.friction.position_min'], channel['pinch.friction.position_max'],
            node_defaults['max_velocity'], node_defaults['torque_limit'])
+    finger = row[:2] + (channel['pinch.grasp.gripper_velocity'],) + row[3:]
     assert limits(urdf(params_file=params, plant=plant)) == \
-        {'pinch_motor': row, 'pinch_endpoint': row}
+        {'pinch_motor': row, 'pinch_endpoint': finger}
 
 
 def test_channels_and_limits_follow_the_parameter_file(tmp_path):
@@ -101,15 +106,19 @@ def test_channels_and_limits_follow_the_parameter_file(tmp_path):
     data['/**']['ros__parameters']['channels'] = ['a', 'b', 'c']
     for i, channel in enumerate('abc'):
         data['/**']['ros__parameters'][channel] = {
-            'friction': {'position_min': -0.5 - i, 'position_max': 0.25 + i}}
+            'friction': {'position_min': -0.5 - i, 'position_max': 0.25 + i},
+            'grasp': {'gripper_velocity': 0.1 * (i + 1)}}
     data['/**/hardware'] = {'ros__parameters': {'torque_limit': 3.5, 'max_velocity': 12.0}}
+    data['/**']['ros__parameters']['max_velocity'] = 50.0
     params = tmp_path / 'three.yaml'
     params.write_text(yaml.safe_dump(data))
     found = limits(urdf(params_file=params, plant='hardware'))
-    assert found == {f'{c}_{j}': (-0.5 - i, 0.25 + i, 12.0, 3.5)
+    assert found == {f'{c}_{j}': (-0.5 - i, 0.25 + i, 12.0 if j == 'motor' else 0.1 * (i + 1),
+                                  3.5)
                      for i, c in enumerate('abc') for j in ('motor', 'endpoint')}
-    # the sim's section of the same file
-    assert {v[2:] for v in limits(urdf(params_file=params)).values()} == {(100.0, 20.0)}
+    # the sim: no section of its own, its keys under /** (max_velocity) or the defaults
+    assert {v[2:] for k, v in limits(urdf(params_file=params)).items()
+            if k.endswith('_motor')} == {(50.0, 20.0)}
 
 
 def test_installed_copy_is_the_source():
@@ -118,15 +127,26 @@ def test_installed_copy_is_the_source():
 
 
 def test_the_moveit_snippet_commands_a_urdf_finger_joint():
-    text = (ROOT / 'docs' / 'gripper-actions.md').read_text()
-    blocks = [yaml.safe_load(b) for b in re.findall(r'```yaml\n(.*?)```', text, re.S)]
-    (snippet,) = [b['moveit_simple_controller_manager'] for b in blocks
-                  if 'moveit_simple_controller_manager' in b]
-    joints = {j.name for j in urdf().joints}
-    for name in snippet['controller_names']:
-        controller = snippet[name]
+    """The MoveIt snippets of docs/gripper-actions.md: a GripperCommand controller per
+    channel on the action the controller serves, with a max_effort MoveIt sends (0 is
+    refused) within the channel's limits; joint limits for the URDF's finger joint at the
+    speed a gripper command moves (the URDF's limit, grasp.gripper_velocity) with an
+    acceleration limit (MoveIt's time parameterisation needs both)."""
+    controllers, joint_limits = moveit.snippets()
+    robot = urdf()
+    joints = {j.name: j for j in robot.joints}
+    defaults = {s.name: s.default for s in param_specs.controller_channel_specs('pinch')}
+    for name in controllers['controller_names']:
+        controller = controllers[name]
         assert controller['type'] == 'GripperCommand' and controller['default'] is True
         assert controller['action_ns'] == 'gripper_cmd'
         (joint,) = controller['joints']
         assert joint in joints and joint.endswith('_endpoint'), joint
         assert name == action_namespace(joint[:-len('_endpoint')], '')
+        assert defaults['pinch.grasp.approach_force'] < controller['max_effort'] \
+            <= defaults['pinch.max_torque']
+        limits = joint_limits[joint]
+        assert limits['has_velocity_limits'] and limits['has_acceleration_limits']
+        assert limits['max_velocity'] == joints[joint].limit.velocity \
+            == defaults['pinch.grasp.gripper_velocity']
+        assert limits['max_acceleration'] > 0.0

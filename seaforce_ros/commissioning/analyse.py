@@ -46,7 +46,7 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 import numpy as np
 
 from ..core.errors import SeaforceError
-from ..core.params import ControllerConfig, DahlParams, PlantParams
+from ..core.params import ControllerConfig, DahlParams, PlantParams, settable_order
 from ..core.schema import by_key
 from ..identification.errors import IdentificationError
 from ..identification.output import write_values_file
@@ -456,10 +456,18 @@ def write_stage(directory: pathlib.Path, analysis: Analysis, request: AnalysisRe
             {f"{channel}.{k}": v for k, v in analysis.apply.items()},
             comments=[stamp, "tuned: " + ", ".join(analysis.apply)],
             option="commissioning.params_file"))
+        order = settable_order(analysis.tuning.config, analysis.old_values) \
+            if analysis.tuning is not None else None
+        how = ("in this order (eq. 28 holds after each one)" if order is not None else
+               "not one at a time: eq. 28 fails in between whatever the order")
         analysis.rollback_file = str(write_values_file(
             directory / ROLLBACK_FILE,
-            {f"{channel}.{k}": v for k, v in analysis.old_values.items()},
-            comments=[f"the values {stamp} replaced: load it to roll back"], merge=False))
+            {f"{channel}.{k}": analysis.old_values[k] for k in order or analysis.old_values},
+            comments=[f"the values {stamp} replaced: load it to roll back",
+                      f"atomically: commission --rollback {directory}",
+                      f"or with ros2 param load /controller {ROLLBACK_FILE}, which sets the "
+                      f"values one at a time: {how}"],
+            merge=False, flat=True))
     except IdentificationError as exc:
         analysis.message += f"; params files not written: {exc}"
 

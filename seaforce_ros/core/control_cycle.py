@@ -260,7 +260,7 @@ class ControlCycle:
         self.out = ControlOutput(n)
         self._checks_box: Mailbox[StateChecks] = Mailbox()
         self._reset_box: Mailbox[bool] = Mailbox()
-        self._configs: deque = deque()     # {channel index: ControllerConfig} hand-overs
+        self._configs: deque = deque()     # ({index: ControllerConfig}, mode set) hand-overs
         self._apply_checks(StateChecks() if checks is None else checks)
         self._stream = _StreamState()
         self._stream_ep = Episode(self.events, quiet_period)
@@ -278,11 +278,13 @@ class ControlCycle:
             raise TypeError("checks must be a StateChecks")
         self._checks_box.put(checks)
 
-    def configure_channels(self, configs: Mapping[int, ControllerConfig]) -> None:
+    def configure_channels(self, configs: Mapping[int, ControllerConfig],
+                           mode_set: Iterable[int] = ()) -> None:
         """New configurations ``{channel index: ControllerConfig}`` (validated), taken together
         at the start of the next step: a change that sets several channels reaches all of them
-        in the same cycle."""
-        self._configs.append(dict(configs))
+        in the same cycle. ``mode_set``: the channels whose mode was set (to any mode, the one
+        in force included: a running job ends, :meth:`ChannelController.configure`)."""
+        self._configs.append((dict(configs), frozenset(mode_set)))
 
     def set_state_publishers(self, names: Iterable[str]) -> None:
         """The publishers of ``actuator_state`` the ROS graph shows now (node names)."""
@@ -405,8 +407,9 @@ class ControlCycle:
             self._apply_checks(checks)
         configs = self._configs
         while configs:
-            for i, config in configs.popleft().items():
-                self.controllers[i].configure(config)
+            changed, mode_set = configs.popleft()
+            for i, config in changed.items():
+                self.controllers[i].configure(config, i in mode_set)
         if self._reset_box.take():
             for ch, ctrl in zip(self._ch, self.controllers):
                 ctrl.clear_fallback()

@@ -23,7 +23,9 @@ stages per sample (:meth:`ChannelController.update`):
    configuration the job leaves (a calibration's new friction; a grasp's release has ramped
    F_g to zero, the grip is not carried over into ``hold``). Selecting ``passive`` ends a job
    at once; selecting another mode ends it too, gently where the job can
-   (:meth:`~.jobs.Job.wind_down`). With ``friction.adaptation`` the feed-forward's b_e, k_e,
+   (:meth:`~.jobs.Job.wind_down`) -- and so does selecting the mode the channel has (a
+   ``configure`` with ``mode_set``: the job overrides the mode, so setting the mode asks for
+   it). With ``friction.adaptation`` the feed-forward's b_e, k_e,
    F_c, sigma follow the friction fit slowly while the estimator sees no contact
    (``dob_linear_ff``, ``dob_full_ff``, ``impedance``, and a grasp's approach);
 5. **mode** -- the mode (:mod:`.modes`, keyed by name) commands F_a itself (passive, hold,
@@ -139,6 +141,7 @@ class ChannelController:
         self.cycle = -1
         self.applied = _NAN
         self._pending: Mailbox[ControllerConfig] = Mailbox()
+        self._mode_sets: Mailbox[bool] = Mailbox()        # ... the mode was set with it
         self._jobs: Mailbox[Job] = Mailbox(size=None)     # every job requested, in order
         self.job: Job | None = None
         self.passivity_guard: PassivityGuard | None = None
@@ -162,12 +165,15 @@ class ChannelController:
         self.reset()
 
     # --- configuration ----------------------------------------------------------------------
-    def configure(self, config: ControllerConfig) -> None:
+    def configure(self, config: ControllerConfig, mode_set: bool = False) -> None:
         """Queue a new (already validated) config; it takes effect at the start of the next
-        :meth:`update`, bumplessly."""
+        :meth:`update`, bumplessly. ``mode_set``: its mode was set (``<channel>.mode``), even
+        to the one in force -- a running job ends as at a change of mode."""
         if not isinstance(config, ControllerConfig):
             raise TypeError("config must be a ControllerConfig")
         config.validate()
+        if mode_set:
+            self._mode_sets.put(True)       # before the config: taken with it, or earlier
         self._pending.put(config)
 
     @property
@@ -175,9 +181,9 @@ class ChannelController:
         """The active configuration."""
         return self._config
 
-    def _apply_config(self, c: ControllerConfig) -> None:
+    def _apply_config(self, c: ControllerConfig, mode_set: bool = False) -> None:
         job = self.job
-        if job is not None and c.mode != self.mode:
+        if job is not None and (c.mode != self.mode or mode_set):
             # passive: off at once; another mode: a job that can end gently does
             reason = f"mode set to {c.mode}"
             if c.mode == "passive" or not job.wind_down(reason):
@@ -209,7 +215,7 @@ class ChannelController:
 
     def _select(self, c: ControllerConfig) -> None:
         """Apply a configuration handed to :meth:`configure`: its mode is selected (anew)."""
-        self._apply_config(c)
+        self._apply_config(c, bool(self._mode_sets.take()))
         self._modes[c.mode].select()
 
     def _configure_guard(self, c: ControllerConfig) -> None:
@@ -427,7 +433,8 @@ class ChannelController:
         keep_ledger = False
         pending = self._pending.take()
         if pending is not None:
-            keep_ledger = pending.mode == self.mode and self._entry != _ENTER
+            keep_ledger = pending.mode == self.mode and self._entry != _ENTER and \
+                not (self.job is not None and self._mode_sets)
             self._select(pending)
             self._entry = _ENTER
         if self._jobs:

@@ -441,15 +441,20 @@ class Grasp(Job):
                 if self.contact:
                     self.estimate = est.estimate()    # the fit, frozen since the release
                 est.let_go()
-                self.outcome = self._pending_outcome
-                self._enter("done")
-                self.force_command = self._output = 0.0   # done: nothing remains
+                self.force_command = self._output = 0.0   # released: nothing remains
+                self._released(est)
                 return 0.0
         self.force_command = self._release_contact * scale
         # the damper stays: the object unloads the finger gently (a finger at minimum
         # impedance let go of a squeezed object would fly open)
         self._output = self._release_from * scale - self._damping * ve
         return self._output
+
+    def _released(self, est: ContactEstimator) -> None:
+        """The release is over (the force ramped down, the object relaxed): done, with the
+        outcome the release was begun with."""
+        self.outcome = self._pending_outcome
+        self._enter("done")
 
     def _object_gone(self, est: ContactEstimator, phase: str) -> bool:
         """A contact phase's checks of the object: the contact lost, the finger past the

@@ -15,9 +15,9 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import field
-from typing import Any, Dict, Mapping, Optional, Tuple
+from typing import Any, Dict, List, Mapping, Optional, Tuple
 
-from .errors import InvalidParameterError, NonPassiveError
+from .errors import InvalidParameterError, NonPassiveError, SeaforceError
 from .schema import ParameterGroup, Spec, group, param
 
 __all__ = [
@@ -25,7 +25,7 @@ __all__ = [
     "HoldParams", "ForceFeedbackParams", "ChirpParams", "FeedforwardParams", "EstimatorParams",
     "GraspParams", "FrictionParams", "CommissioningParams", "GUARD_MODES", "GuardParams",
     "LimitParams", "MonitorParams", "FALLBACK_MODES", "MIN_UNCERTAINTY",
-    "guard_carries",
+    "guard_carries", "settable_order",
     "check_dob_passivity", "ControllerConfig", "PARAMETERS", "DEFAULT_CUTOFF",
     "DEFAULT_HOLD_STIFFNESS", "DEFAULT_HOLD_DAMPING", "MIN_CLOSING_VELOCITY", "MODE_RENAMED",
     "GUARD_RENAMED",
@@ -296,16 +296,22 @@ class GraspParams(ParameterGroup):
                                 "abort", ge=1e-3, le=10.0)
     gripper_velocity: float = param(0.3, "rad/s", "speed of a gripper command (control_msgs "
                                     "GripperCommand, or ParallelGripperCommand without a "
-                                    "velocity) towards its position X_e", ge=MIN_CLOSING_VELOCITY,
-                                    le=100.0)
-    gripper_effort: float = param(0.3, "N m", "contact force cap of a gripper command whose "
-                                  "max_effort is 0 (or whose effort is empty)", gt=0.0, le=100.0)
+                                    "velocity) towards its position X_e; the finger joint's "
+                                    "velocity limit in the URDF, which MoveIt plans with",
+                                    ge=MIN_CLOSING_VELOCITY, le=100.0)
+    gripper_effort: float = param(0.3, "N m", "contact force cap of a ParallelGripperCommand "
+                                  "without an effort (a max_effort or effort of 0 is refused: "
+                                  "no force)", gt=0.0, le=100.0)
     gripper_tolerance: float = param(0.01, "rad", "|X_e - position| within which a gripper "
                                      "command has reached its goal", gt=0.0, le=1.0)
     gripper_namespace: str = param("", "ROS name", "namespace of the channel's control_msgs "
                                    "gripper actions <ns>/gripper_cmd and <ns>/parallel_gripper_cmd "
                                    "(empty: <channel>_gripper); read at start",
                                    read_only=True)
+    gripper_allow_stalling: bool = param(False, "", "a gripper command an object stopped "
+                                         "(stalled: gripping at its effort cap) ends SUCCEEDED; "
+                                         "false, as ros2_controllers' allow_stalling: ABORTED "
+                                         "(the grip goes on either way)")
     gripper_cancel: str = param("hold", "", "what a canceled gripper command leaves: hold (the "
                                 "grip, or the finger where it is) or release (as a grasp's "
                                 "cancel)", choices=("hold", "release"))
@@ -709,6 +715,31 @@ class ControllerConfig(ParameterGroup):
                     for name, _ in _NESTED if nested[name]}
         return dataclasses.replace(base, **replaced, **own)
 
+
+
+def settable_order(base: ControllerConfig, values: Mapping[str, Any]) -> Optional[List[str]]:
+    """An order of ``values``' keys (flat, as :meth:`ControllerConfig.from_dict` takes them)
+    in which setting them one at a time from ``base`` passes the channel's checks at every
+    step -- what ``ros2 param load`` does: one set per value, each validated as a whole
+    configuration (eq. 28 between ``plant.*`` and ``dob.*``) -- or None when there is none
+    and only an atomic set of all of them gets there.
+
+    Greedy: at each step the first key (in ``values``' order) whose set is accepted."""
+    order: List[str] = []
+    left = dict(values)
+    current = base
+    while left:
+        for key, value in left.items():
+            try:
+                current = ControllerConfig.from_dict({key: value}, base=current)
+            except SeaforceError:
+                continue
+            order.append(key)
+            del left[key]
+            break
+        else:
+            return None
+    return order
 
 #: ``(attribute, class)`` of ControllerConfig's nested groups, in field order.
 _NESTED = tuple((f.name, type(f.default_factory())) for f in dataclasses.fields(ControllerConfig)

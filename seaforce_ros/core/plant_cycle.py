@@ -93,7 +93,10 @@ class PlantLimits(ParameterGroup):
                                 "(STATUS_LIMIT)", gt=0.0, le=1e3, node_defaults={SIM: 20.0})
     max_velocity: float = param(30.0, "rad/s", "motor speed |V| beyond which the channel's "
                                 "torque is removed and a fault latched; 0 disables the trip",
-                                ge=0.0, le=1e4)
+                                ge=0.0, le=1e4,
+                                # the sim: a command timeout in hold releases a backdriven
+                                # motor at up to ~35 rad/s (hardware_node: 30 to start)
+                                node_defaults={SIM: 100.0})
     wkc_error_limit: int = param(10, "", "consecutive working-counter errors that latch a bus "
                                  "fault (safe state)", ge=1, le=100000, nodes=(HARDWARE,))
 

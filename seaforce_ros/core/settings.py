@@ -66,11 +66,11 @@ class ControllerSettings(ParameterGroup):
                                le=20000.0)
     commissioning_directory: str = param(
         "", "", "where ~/commission writes a directory per run (report, record, params and "
-        "rollback files) and finds the last run of a channel; default "
+        "rollback files) and finds the last run of a channel, read at each goal; default "
         "seaforce_commissioning in the working directory", key="commissioning.directory")
     commissioning_params_file: str = param(
         "", "", "params file ~/commission writes the tuned values into, its comments kept (the "
-        "setup's YAML, say); default params.yaml in the run's directory",
+        "setup's YAML, say), read at each goal; default params.yaml in the run's directory",
         key="commissioning.params_file")
 
 

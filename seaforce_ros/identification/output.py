@@ -105,12 +105,13 @@ def write_params_file(path: PathLike, channel: str, plant: Optional[PlantParams]
 
 def write_values_file(path: PathLike, values: Mapping[str, Union[float, str]],
                       comments: Iterable[str] = (), merge: bool = True,
-                      option: Optional[str] = None) -> pathlib.Path:
+                      option: Optional[str] = None, flat: bool = False) -> pathlib.Path:
     """Write ``values`` (``{dotted name: float or str}``, e.g. ``pinch.dob.cutoff``) as a
     params file for ``--ros-args --params-file``.
 
     A new file (or, without ``merge``, any file) becomes ``/**: ros__parameters: ...`` under a
-    header of ``comments``. An existing file is updated in place
+    header of ``comments``; ``flat``: one dotted key per value, in ``values``' order (the
+    order ``ros2 param load`` sets them in), else nested by the dots. An existing file is updated in place
     (:func:`~.params_file.update_text`): only these values change; every comment, other
     parameter and the layout stay. A file whose layout cannot be updated safely is refused
     (ParamsFileError, naming ``option`` and the file) and left as it is. The file is written
@@ -126,7 +127,7 @@ def write_values_file(path: PathLike, values: Mapping[str, Union[float, str]],
         data: Dict[str, Any] = {}
         for name, value in values.items():
             node = data.setdefault(ALL_NODES, {}).setdefault("ros__parameters", {})
-            parts = name.split(".")
+            parts = [name] if flat else name.split(".")
             for part in parts[:-1]:
                 node = node.setdefault(part, {})
             node[parts[-1]] = value

@@ -2,7 +2,8 @@
 
 One goal commissions one channel, through the node's one job path (:mod:`.jobs`):
 
-1. the goal's checks: its fields (a band with 0 < low < high, budgets >= 0 and finite), the
+1. the goal's checks: its fields (a band with 0 < low < high < pi/T, the Nyquist frequency
+   of the sample period T; budgets >= 0 and finite), the
    channel (known, not faulted, not held by another goal, not stopped by the plant) and a
    free finger (no contact on the channel's contact estimator while the finger moves; one
    standing with the finger still for :data:`STANDING_TIME` is logged and taken for the
@@ -22,7 +23,10 @@ One goal commissions one channel, through the node's one job path (:mod:`.jobs`)
    bumplessly; the result carries the summary, the paths, the values old and new.
 
 The run's directory is ``<commissioning.directory>/<channel>-<UTC time>``; the newest earlier
-run of the channel there is what the drift is reported against.
+run of the channel there is what the drift is reported against. ``commissioning.directory``
+and ``commissioning.params_file`` are read at each goal (a set at run time takes effect with
+the next goal). A run that ends before anything was written to its directory (a cancel, an
+abort during the excitation) removes it.
 """
 from __future__ import annotations
 
@@ -79,9 +83,10 @@ def previous_run(base: str, channel: str, exclude: pathlib.Path | None = None
     return runs[-1] if runs else None
 
 
-def _checked(goal: Any, defaults: dict[str, float]) -> dict[str, Any]:
+def _checked(goal: Any, defaults: dict[str, float], dt: float) -> dict[str, Any]:
     """The goal's numbers with the channel's defaults for zeros; InvalidJobGoalError with the
-    field's name for a bad one."""
+    field's name for a bad one (a band beyond the Nyquist frequency pi/T of the sample period
+    ``dt`` [s] among them: nothing there can be identified or tuned)."""
     values: dict[str, Any] = {}
     for name in ("band_low", "band_high", "noise_budget", "passivity_margin"):
         value = float(getattr(goal, name))
@@ -92,6 +97,11 @@ def _checked(goal: Any, defaults: dict[str, float]) -> dict[str, Any]:
     if not values["band_low"] < values["band_high"]:
         raise InvalidJobGoalError(f"band {values['band_low']:g}..{values['band_high']:g} "
                                   "rad/s: band_low must be below band_high")
+    nyquist = math.pi / dt
+    if not values["band_high"] < nyquist:
+        raise InvalidJobGoalError(f"band_high = {values['band_high']:g} rad/s: must be below "
+                                  f"the Nyquist frequency pi/T = {nyquist:.0f} rad/s (T = "
+                                  f"{dt:g} s, the controller's sample period)")
     if values["passivity_margin"] > 10.0:
         raise InvalidJobGoalError(f"passivity_margin = {values['passivity_margin']:g}: at most "
                                   "10 (1-sigmas of m, b, k)")
@@ -124,15 +134,13 @@ class CommissionAction:
     Parameters
     ----------
     node : ControllerNode
-        Its channels, configs, controllers, dt, logger and ``set_parameters``.
-    directory, params_file : str
-        The node's ``commissioning.directory`` and ``commissioning.params_file``.
+        Its channels, configs, controllers, dt, logger, ``get_parameter`` (its
+        ``commissioning.directory`` and ``commissioning.params_file``, read at each goal) and
+        ``set_parameters_atomically``.
     """
 
-    def __init__(self, node: Any, directory: str, params_file: str) -> None:
+    def __init__(self, node: Any) -> None:
         self._node = node
-        self._directory = directory
-        self._params_file = params_file
         self._runs: dict[int, _Run] = {}
         # per channel: the status cycle since which the endpoint has been still (or None),
         # and the latest status cycle
@@ -185,7 +193,7 @@ class CommissionAction:
         c = config.commissioning
         request = _checked(goal, {"band_low": c.band_low, "band_high": c.band_high,
                                   "noise_budget": c.noise_budget,
-                                  "passivity_margin": c.passivity_margin})
+                                  "passivity_margin": c.passivity_margin}, node.dt)
         estimator = node.controllers[index].estimator
         still = self._still_for(index)
         if estimator.contact and still < STANDING_TIME:
@@ -201,14 +209,16 @@ class CommissionAction:
                 f"({estimator.force:.3g} N m) with the finger still for {still:.1f} s: taken "
                 "for the model's error at rest; the excitation aborts at a real contact")
         job = FreeAirExcitation(ExcitationGoal(goal.channel), config, node.dt)
+        base = str(node.get_parameter("commissioning.directory").value)
+        params_file = str(node.get_parameter("commissioning.params_file").value)
         try:
-            directory = run_directory(self._directory, goal.channel)
+            directory = run_directory(base, goal.channel)
         except OSError as exc:
             raise InvalidJobGoalError(f"cannot create the run's directory: {exc} (set "
                                       "commissioning.directory)") from None
-        previous = previous_run(self._directory, goal.channel, exclude=directory)
+        previous = previous_run(base, goal.channel, exclude=directory)
         request.update(channel=goal.channel, config=config.to_dict(),
-                       params_file=self._params_file or str(directory / "params.yaml"),
+                       params_file=params_file or str(directory / "params.yaml"),
                        previous=str(previous / "report.json") if previous else "",
                        started=datetime.datetime.now(datetime.timezone.utc).isoformat())
         self._runs[index] = _Run(request, directory)
@@ -267,6 +277,10 @@ class CommissionAction:
             return result
         if run.analysis is not None and run.analysis.outcome is None:
             run.analysis.close()                    # a goal ended while the child ran
+        try:
+            run.directory.rmdir()                   # only if nothing was written to it
+        except OSError:
+            pass
         r = run.result
         result.summary = str(r.get("summary", ""))
         result.report_path = str(r.get("report_path", ""))

@@ -171,8 +171,7 @@ class ControllerNode(Node):
         self.jobs.add(self._calibration_action())
         for action in gripper_job_actions(self):     # control_msgs, per channel
             self.jobs.add(action)
-        self.commissioning = CommissionAction(self, values['commissioning.directory'],
-                                              values['commissioning.params_file'])
+        self.commissioning = CommissionAction(self)
         self.jobs.add(self.commissioning.action())
         self._state_topic = self.resolve_topic_name('actuator_state')
         self.create_timer(GRAPH_PERIOD, self._watch_graph)
@@ -229,8 +228,10 @@ class ControllerNode(Node):
         configs, checks = self._new_configs(params)
         if checks is not None:
             self.cycle.configure(checks)
-        if configs:
-            self.cycle.configure_channels(configs)   # all of them at the next cycle's start
+        if configs:     # all of them at the next cycle's start; a set mode ends a job
+            names = {p.name for p in params}
+            self.cycle.configure_channels(configs, (i for i, c in enumerate(self.channels)
+                                                    if f'{c}.mode' in names))
         for index, config in configs.items():
             old = self.configs[index]
             self.configs[index] = config

@@ -9,22 +9,33 @@ stops at a position X_e [rad]) through the node's :class:`~.jobs.JobActions`, li
   channel's ``grasp.gripper_namespace`` or ``<channel>_gripper`` -- relative to the node's
   namespace, the shape MoveIt's simple controller manager expects (``action_ns: gripper_cmd``
   under a controller named ``<channel>_gripper``);
-* GripperCommand: ``command.position`` [rad], ``command.max_effort`` [N m] (0: the channel's
-  ``grasp.gripper_effort``), the speed ``grasp.gripper_velocity``; ParallelGripperCommand:
-  one joint -- ``command.position[0]``, the optional ``command.velocity[0]`` and
-  ``command.effort[0]`` (empty or 0: the channel's defaults; the last point of a trajectory
-  carries velocity 0), ``command.name[0]`` (optional) is echoed in ``state.name``;
-* a goal that cannot be executed (a bad field, a faulted channel, one another goal holds, no
-  states) is rejected by the goal callback -- control_msgs results carry no message -- and the
-  reason logged (once per 10 s, with a count);
-* the goal succeeds when the finger is within ``grasp.gripper_tolerance`` of the position
-  (``reached_goal``) or a contact stopped it (``stalled``: it squeezes to the effort cap), and
-  the job goes on holding the position or the grip until the channel's next goal;
-* a cancel: ``grasp.gripper_cancel`` -- ``hold`` (the goal ends CANCELED at once; an approach
-  stops and holds where the finger is, a grip goes on) or ``release`` (as a grasp's cancel).
+* GripperCommand: ``command.position`` [rad], ``command.max_effort`` [N m] (0 is no force:
+  refused, as ros2_controllers' effort gripper controller would not move), the speed
+  ``grasp.gripper_velocity``; ParallelGripperCommand: one joint -- ``command.position[0]``,
+  the optional ``command.velocity[0]`` and ``command.effort[0]`` (empty: the channel's
+  ``grasp.gripper_velocity`` / ``grasp.gripper_effort``, as ros2_controllers'
+  parallel_gripper_controller takes its max_velocity / max_effort; MoveIt's handle sends them
+  empty unless configured), ``command.name[0]`` (optional) is echoed in ``state.name``;
+* a goal that cannot be executed (a bad field, a faulted channel, one a goal of another
+  action holds, no states) is rejected by the goal callback -- control_msgs results carry no
+  message -- and the reason logged (once per 10 s, with a count);
+* a goal on a channel with a gripper command (running, or holding after its answer) takes
+  its job over, bumplessly (:meth:`~seaforce_ros.core.gripper.GripperMove.request_retarget`);
+  a running goal ends CANCELED (preempted), as with ros2_controllers' gripper controllers;
+* the goal ends when the finger is within ``grasp.gripper_tolerance`` of the position
+  (``reached_goal``: SUCCEEDED) or a contact stopped it and the finger grips at the effort
+  cap (``stalled``: SUCCEEDED with ``grasp.gripper_allow_stalling``, else ABORTED, as
+  ros2_controllers' ``allow_stalling``), and the job goes on holding the position or the grip
+  until the channel's next goal;
+* a cancel: ``grasp.gripper_cancel`` -- ``hold`` (an approach stops and holds where the
+  finger is, a grip goes on) or ``release`` (as a grasp's cancel); either way the goal gives
+  the channel up when the cancel is accepted (MoveIt sends its next goal right after the
+  cancel's answer) and ends CANCELED at the next look (50-250 Hz), a releasing one once the
+  release is done.
 
 Feedback at :data:`~.jobs.JOB_FEEDBACK_RATE`: position X_e, effort = the contact force
-estimate (from the hose pressure; > 0 pushing back), stalled, reached_goal.
+estimate (from the hose pressure; > 0 pushing back), stalled, reached_goal; the result carries
+them at the answer (a stall's effort: the grip at the cap).
 """
 from __future__ import annotations
 
@@ -34,7 +45,7 @@ from typing import Any
 from control_msgs.action import GripperCommand, ParallelGripperCommand
 
 from ..core.grasp import InvalidGoalError
-from ..core.gripper import GripperGoal, GripperMove, check_gripper_goal
+from ..core.gripper import STALLED, GripperGoal, GripperMove, check_gripper_goal
 from .jobs import JobAction
 
 __all__ = ["gripper_job_actions", "action_namespace"]
@@ -58,15 +69,12 @@ def gripper_job_actions(node: Any) -> list[JobAction]:
 
 
 def _one(values: Any, field: str, default: float) -> float:
-    """The single entry of a JointState field; ``default`` when empty or 0."""
+    """The single entry of a JointState field; ``default`` when empty."""
     values = list(values)
     if len(values) > 1:
         raise InvalidGoalError(f'command.{field} has {len(values)} entries: one joint per '
                                'channel')
-    if not values:
-        return default
-    value = float(values[0])
-    return default if value == 0.0 else value
+    return float(values[0]) if values else default
 
 
 def _request(node: Any, index: int, channel: str, goal: Any, parallel: bool) -> GripperGoal:
@@ -74,9 +82,8 @@ def _request(node: Any, index: int, channel: str, goal: Any, parallel: bool) -> 
     grasp = node.configs[index].grasp
     command = goal.command
     if not parallel:
-        effort = float(command.max_effort)
         return GripperGoal(channel, float(command.position), grasp.gripper_velocity,
-                           grasp.gripper_effort if effort == 0.0 else effort)
+                           float(command.max_effort))
     if len(command.position) != 1:
         raise InvalidGoalError(f'command.position has {len(command.position)} entries: one '
                                'joint per channel')
@@ -155,9 +162,22 @@ def _action(node: Any, channel: str, name: str, action_type: Any) -> JobAction:
         job.request_stop()
         return True
 
+    def answered(job: GripperMove) -> str:
+        """The goal's status at the job's answer ('' before it): a stall SUCCEEDS only with
+        grasp.gripper_allow_stalling."""
+        answer = job.answer
+        if answer is None:
+            return ''
+        grasp = node.configs[node.channels.index(channel)].grasp
+        return 'aborted' if answer == STALLED and not grasp.gripper_allow_stalling \
+            else 'succeeded'
+
+    def retarget(running: Any, new: Any) -> bool:
+        return isinstance(running, GripperMove) and isinstance(new, GripperMove) and \
+            running.request_retarget(new)
+
     return JobAction(name, action_type, GripperMove.kind, make, result, describe,
                      busy=lambda job: f'is held by a {GripperMove.kind} goal ({job.phase})',
                      cancel_reason='released (goal canceled)',
-                     channel=lambda goal: channel,
-                     answered=lambda job: job.answer is not None,
+                     channel=lambda goal: channel, answered=answered, retarget=retarget,
                      on_cancel=on_cancel, reject_in_callback=True, feedback=feedback)

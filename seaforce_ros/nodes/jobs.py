@@ -28,13 +28,20 @@ new friction as parameters). The rest is the same for every action:
 An action may also declare (the control_msgs gripper actions do):
 
 * ``answered`` -- the goal has its answer while its job goes on holding (a gripper command
-  that reached its position, or stalled on an object and grips it): the goal ends SUCCEEDED
-  and the job stays on the channel, *held*, until the next goal there (of any action), which
-  releases it (:meth:`~seaforce_ros.core.jobs.Job.request_cancel`) and starts once it is done;
-  the answers are looked for at :data:`ANSWER_RATE` (not only at the feedback rate: a gripper
-  command's result comes within 50 ms of the contact; the rclpy events executor has no guard
-  conditions the cycle's thread could wake it with);
-* ``on_cancel`` -- a cancel that leaves the job holding (the goal ends CANCELED now);
+  that reached its position, or stalled on an object and grips it): the goal ends with the
+  status it names (SUCCEEDED, or ABORTED: a stall where stalling is not allowed) and the job
+  stays on the channel, *held*, until the next goal there (of any action), which releases it
+  (:meth:`~seaforce_ros.core.jobs.Job.request_cancel`) and starts once it is done; the answers
+  are looked for at :data:`ANSWER_RATE` (not only at the feedback rate: the rclpy events
+  executor has no guard conditions the cycle's thread could wake it with);
+* ``retarget`` -- a new goal of the action on a channel whose job (a running goal's, or a held
+  one) can take the new goal over: the job goes on with it, bumplessly, instead of being
+  released first, and a running goal of such an action ends CANCELED (preempted) -- as
+  ros2_controllers' gripper controllers take a new goal;
+* ``on_cancel`` -- how a cancel ends the job: True leaves it holding, False releases it. The
+  goal gives its channel up when the cancel is accepted (the next goal may come at once: it
+  takes the job over, or waits for the release) and ends CANCELED at the next look, or once
+  the release is done;
 * ``reject_in_callback`` -- a goal that cannot be executed is rejected by the goal callback
   (its result type has no message field); the reason is logged like every rejection;
 * ``follow`` -- work off the control thread after the job succeeded (commissioning's
@@ -50,6 +57,7 @@ from typing import Any, Callable, Optional, Protocol, Sequence
 
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.task import Future
 
@@ -118,8 +126,13 @@ class JobAction:
         end does in the node (the default: the job's message).
     channel : callable (goal) -> str, optional
         The goal's channel (the default: its ``channel`` field).
-    answered, on_cancel, reject_in_callback : optional
-        The gripper actions' goals that end while the job holds (module docstring).
+    answered : callable (Job) -> str, optional
+        The status a goal whose job holds ends with now (``succeeded``, ``aborted``), or ''
+        while it has no answer (module docstring).
+    retarget : callable (running Job, new Job) -> bool, optional
+        Whether the running job took the new goal's job over (module docstring).
+    on_cancel, reject_in_callback : optional
+        The gripper actions' cancels and rejections (module docstring).
     feedback : callable (channel index, Job) -> the action's Feedback, optional
         The default: the job's :meth:`~seaforce_ros.core.jobs.Job.feedback` fields set on the
         action's Feedback by name.
@@ -138,7 +151,8 @@ class JobAction:
     cancel_reason: str
     finish: Callable[[int, Job], str] = lambda index, job: job.message
     channel: Callable[[Any], str] = lambda goal: goal.channel
-    answered: Optional[Callable[[Job], bool]] = None
+    answered: Optional[Callable[[Job], str]] = None
+    retarget: Optional[Callable[[Job, Job], bool]] = None
     on_cancel: Optional[Callable[[Job], bool]] = None
     reject_in_callback: bool = False
     feedback: Optional[Callable[[int, Job], Any]] = None
@@ -156,6 +170,13 @@ class _Goal:
     requested: float            # monotonic time of the request [s] (or of the goal, waiting)
     after: Optional[Job] = None
     follow_up: Optional[FollowUp] = None   # once the job has succeeded (``JobAction.follow``)
+    releasing: bool = False                # (a canceled goal) it ends once its job is done
+
+
+def _preempts(new: Optional[JobAction], running: JobAction) -> bool:
+    """A goal of ``new`` preempts a running goal of ``running`` (both take new goals over:
+    ``retarget``)."""
+    return new is not None and new.retarget is not None and running.retarget is not None
 
 
 class JobActions:
@@ -185,6 +206,7 @@ class JobActions:
         self._stalled = stalled
         self._goals: dict[int, _Goal] = {}   # channel index -> its goal
         self._held: dict[int, Job] = {}      # channel index -> a job its answered goal left
+        self._canceled: list[tuple[int, _Goal]] = []   # goals that gave their channel up
         self._log = EventLog()
         self._rejections = Episode(self._log)   # logged once per 10 s, with a count
         node.create_timer(1.0 / JOB_FEEDBACK_RATE, self._tick)
@@ -200,21 +222,25 @@ class JobActions:
             if action.reject_in_callback and self._check(action, goal) is None:
                 return GoalResponse.REJECT
             return GoalResponse.ACCEPT
+        def cancel(handle: Any) -> CancelResponse:
+            if action.on_cancel is not None:
+                self._give_up(handle)
+            return CancelResponse.ACCEPT
         ActionServer(self._node, action.action_type, action.name, execute_callback=execute,
-                     goal_callback=accept,
-                     cancel_callback=lambda handle: CancelResponse.ACCEPT,
+                     goal_callback=accept, cancel_callback=cancel,
                      callback_group=ReentrantCallbackGroup())
 
-    def channel_for(self, channel: str) -> int:
-        """The index of a goal's ``channel`` if a goal can run on it now, else
-        InvalidJobGoalError with the reason: unknown, busy, faulted, stopped by the plant, no
-        states arriving."""
+    def channel_for(self, channel: str, action: Optional[JobAction] = None) -> int:
+        """The index of a goal's ``channel`` if a goal (of ``action``) can run on it now, else
+        InvalidJobGoalError with the reason: unknown, busy (a goal another goal of an action
+        with ``retarget`` cannot preempt), faulted, stopped by the plant, no states
+        arriving."""
         if channel not in self._channels:
             raise InvalidJobGoalError(f'unknown channel {channel!r}; the channels are '
                                       + ', '.join(self._channels))
         index = self._channels.index(channel)
         held = self._goals.get(index)
-        if held is not None:
+        if held is not None and not _preempts(action, held.action):
             raise InvalidJobGoalError(f'channel {channel} {held.action.busy(held.job)}; '
                                       'cancel it first')
         cycle = self._cycle
@@ -237,7 +263,7 @@ class JobActions:
         once per 10 s with a count)."""
         channel = action.channel(goal)
         try:
-            index = self.channel_for(channel)
+            index = self.channel_for(channel, action)
             try:
                 return index, action.make(index, goal)
             except InvalidJobGoalError as exc:
@@ -263,19 +289,77 @@ class JobActions:
         index, job = checked
         done = Future()
         previous = self._held.pop(index, None)
+        running = self._goals.pop(index, None)       # one the new goal preempts (channel_for)
+        if running is not None:
+            previous = self._preempt(index, running, previous)
+        after = None
         if previous is not None and previous.active:
-            previous.request_cancel(f'released for a new {action.label} goal')
-        else:
-            previous = None
-        self._goals[index] = _Goal(action, job, handle, done, time.monotonic(), previous)
-        if previous is None:
+            if action.retarget is not None and action.retarget(previous, job):
+                job = previous                       # it goes on with this goal, bumplessly
+            else:
+                previous.request_cancel(f'released for a new {action.label} goal')
+                after = previous
+        self._goals[index] = _Goal(action, job, handle, done, time.monotonic(), after)
+        if after is None and not job.started:
             self._controllers[index].request_job(job)
         self._node.get_logger().info(f'{action.channel(goal)}: {action.describe(goal)}')
+        if action.on_cancel is not None and handle.is_cancel_requested:
+            self._give_up(handle)          # canceled before this coroutine ran
         return await done
+
+    def _preempt(self, index: int, goal: _Goal, held: Optional[Job]) -> Optional[Job]:
+        """End ``goal``, preempted by a new goal on its channel: CANCELED now (rclpy offers no
+        server-side cancel of an executing goal; rcl's EXECUTING -> CANCELING -> CANCELED is
+        the way rclcpp's goal handle ends one that is dropped). Returns the job on the channel
+        the new goal follows: the goal's (started), or the one it waited for."""
+        job = goal.job
+        if goal.after is not None or not job.started:
+            job.withdraw('preempted before it started', 'canceled')
+        previous = goal.after if goal.after is not None else (
+            job if job.started else held)
+        if not goal.handle.is_cancel_requested:
+            goal.handle._update_state(_rclpy.GoalEvent.CANCEL_GOAL)
+        self._finish(index, goal, 'canceled', 'preempted by a new goal')
+        return previous
+
+    def _give_up(self, handle: Any) -> None:
+        """(the cancel callback of an action with ``on_cancel``) The goal of ``handle`` gives
+        its channel up now: its job holds (``on_cancel`` True), releases (False) or, not
+        started, is withdrawn; the goal ends CANCELED at the next look
+        (:meth:`_end_canceled`), a releasing one once its job is done."""
+        for index, goal in list(self._goals.items()):
+            if goal.handle != handle or goal.follow_up is not None:
+                continue
+            del self._goals[index]
+            job = goal.job
+            if job.withdraw('canceled before it started', 'canceled'):
+                if goal.after is not None and goal.after.active:
+                    self._held[index] = goal.after        # still releasing
+            elif goal.action.on_cancel(job):
+                self._held[index] = job
+            else:
+                job.request_cancel(goal.action.cancel_reason)
+                self._held[index] = job
+                goal.releasing = True
+            self._canceled.append((index, goal))
+
+    def _end_canceled(self) -> None:
+        """End the goals that gave their channel up, once rclpy has them CANCELING: at once,
+        or a releasing one once its job is done or another goal has taken it over."""
+        taken = {id(goal.job) for goal in self._goals.values()}
+        for entry in list(self._canceled):
+            index, goal = entry
+            if not goal.handle.is_cancel_requested:
+                continue
+            if goal.releasing and goal.job.active and id(goal.job) not in taken:
+                continue
+            self._canceled.remove(entry)
+            self._finish(index, goal, 'canceled')
 
     @shutdown_safe
     def _tick(self) -> None:
         """Feedback, cancel requests, start time-outs, stalls and ends of the running goals."""
+        self._end_canceled()
         for index, job in list(self._held.items()):
             if not job.active:
                 del self._held[index]
@@ -294,16 +378,11 @@ class JobActions:
                     goal.requested = time.monotonic()
                     self._controllers[index].request_job(job)
             if handle.is_cancel_requested and job.active:
-                if job.withdraw('canceled before it started', 'canceled'):
-                    pass
-                elif action.on_cancel is not None and action.on_cancel(job):
-                    self._end(index, 'canceled')
-                    continue
-                else:
+                if not job.withdraw('canceled before it started', 'canceled'):
                     job.request_cancel(action.cancel_reason)
-            if job.active and action.answered is not None and action.answered(job) \
-                    and not handle.is_cancel_requested:
-                self._end(index, 'succeeded')
+            answer = self._answer(goal)
+            if answer:
+                self._end(index, answer)
                 continue
             if job.active and not job.started and \
                     time.monotonic() - goal.requested > JOB_START_TIMEOUT:
@@ -334,12 +413,23 @@ class JobActions:
 
     @shutdown_safe
     def _answers(self) -> None:
-        """End the goals whose job has answered (it goes on holding the channel)."""
+        """End the goals whose job has answered (it goes on holding the channel), and the
+        canceled ones that gave their channel up."""
+        self._end_canceled()
         for index, goal in list(self._goals.items()):
-            answered = goal.action.answered
-            if answered is not None and goal.job.active and answered(goal.job) \
-                    and not goal.handle.is_cancel_requested:
-                self._end(index, 'succeeded')
+            answer = self._answer(goal)
+            if answer:
+                self._end(index, answer)
+
+    @staticmethod
+    def _answer(goal: _Goal) -> str:
+        """The status a goal whose job has answered ends with (its job goes on holding), or
+        ''."""
+        answered = goal.action.answered
+        if answered is None or not goal.job.active or not goal.job.started or \
+                goal.handle.is_cancel_requested:
+            return ''
+        return answered(goal.job)
 
     def _feedback(self, index: int, goal: _Goal) -> Any:
         if goal.action.feedback is not None:
@@ -353,12 +443,16 @@ class JobActions:
         """The goal of a job that is done (or, ``holding``: the goal's status, of a job that
         goes on holding the channel): its status, result and log line."""
         goal = self._goals.pop(index)
-        action, job, handle, done = goal.action, goal.job, goal.handle, goal.done
         if holding:
-            self._held[index] = job
-        outcome = holding or (goal.follow_up.outcome if goal.follow_up is not None
-                              else job.outcome)
-        message = action.finish(index, job)
+            self._held[index] = goal.job
+        self._finish(index, goal, holding or (goal.follow_up.outcome if goal.follow_up is not
+                                              None else goal.job.outcome))
+
+    def _finish(self, index: int, goal: _Goal, outcome: Optional[str], why: str = '') -> None:
+        """``goal``'s status (``outcome``: succeeded, canceled, else aborted), result and log
+        line (``why`` instead of its job's message)."""
+        action, job, handle = goal.action, goal.job, goal.handle
+        message = why or action.finish(index, job)
         result = action.result(index, job, message)
         if outcome == 'succeeded':
             handle.succeed()
@@ -366,9 +460,10 @@ class JobActions:
             handle.canceled()
         else:
             handle.abort()
+        holding = job.active and job.started
         self._node.get_logger().info(f'{self._channels[index]}: {action.label} {outcome}: '
                                      f'{message}' + (' (holding)' if holding else ''))
-        done.set_result(result)
+        goal.done.set_result(result)
 
     def _stall_message(self, job: Job) -> str:
         """Why a started, running job's goal must end because the cycle does not run (a plant

@@ -249,7 +249,15 @@ def run(node_factory: Callable[[], Any], args=None, executor_param: str = 'execu
     # 2 kHz is inside a callback, half-way through a cycle.
     signal.signal(signal.SIGINT, _ignore_signal)
     signal.signal(signal.SIGTERM, _ignore_signal)
-    problem = ros_arguments_problem(sys.argv if args is None else args)
+    argv = sys.argv if args is None else args
+    extra = non_ros_arguments(argv)
+    if extra in (['-h'], ['--help']):
+        print(f'usage: {name} [--ros-args [--params-file FILE] [-p NAME:=VALUE] ...]; every '
+              'parameter with its range: docs/parameters.md')
+        return 0
+    problem = ros_arguments_problem(argv) or (
+        f'unknown argument(s) {" ".join(extra)}: {name} takes ROS arguments only '
+        '(--ros-args --params-file FILE -p NAME:=VALUE)' if extra else None)
     if problem is None:
         try:
             rclpy.init(args=args)
@@ -300,6 +308,17 @@ def run(node_factory: Callable[[], Any], args=None, executor_param: str = 'execu
         sys.stderr.flush()
         os._exit(code)
     return code
+
+
+def non_ros_arguments(argv: Sequence[str]) -> list[str]:
+    """The arguments of ``argv`` (``sys.argv``: the program first) that are no ROS arguments:
+    what a node that takes ROS arguments only must refuse. Empty when rcl cannot parse the
+    ROS arguments (``rclpy.init`` then says what is wrong)."""
+    from rclpy.utilities import remove_ros_args
+    try:
+        return list(remove_ros_args(list(argv)))[1:]
+    except _rclpy.RCLError:
+        return []
 
 
 def ros_arguments_problem(argv: Sequence[str]) -> Optional[str]:

@@ -6,17 +6,22 @@
     commission --channel pinch --apply               # ... and apply the tuned settings
     commission --channel pinch --dry-run             # measure and report only
     commission --channel pinch --band 0.3 10 --noise-budget 0.002 --passivity-margin 0.1
+    commission --rollback seaforce_commissioning/pinch-20261204T101500Z   # undo a run's tuning
 
 The finger must be free in the air. A progress bar (phase, what is measured, percent) goes to
 stderr; the summary table, the report's path and the params files to stdout. Ctrl-C cancels
 the goal (the controller zeroes the excitation's torque) and waits for it to end.
-Exit status: 0 succeeded, 1 the goal was refused, aborted or canceled, 2 bad arguments or no
-controller answering, 130 interrupted twice.
+``--rollback RUN_DIR`` (or the path of a ``rollback.yaml``) sets the values a run's tuning
+replaced back on the controller in one atomic set (``rollback.yaml``, as rclpy's parameter
+client loads a params file): validated as a whole configuration, all of them or none.
+Exit status: 0 succeeded, 1 the goal (or the rollback) was refused, aborted or canceled, 2
+bad arguments or no controller answering, 130 interrupted twice.
 """
 from __future__ import annotations
 
 import argparse
 import math
+import pathlib
 import sys
 import time
 
@@ -32,7 +37,11 @@ def build_parser() -> argparse.ArgumentParser:
         prog="commission", description="Commission one channel of a running controller: "
         "excite the free finger, identify the plant from motor state and pressure, predict "
         "the Z-width, tune the DOB and the hold, write a report.")
-    p.add_argument("--channel", required=True, help="the channel to commission")
+    what = p.add_mutually_exclusive_group(required=True)
+    what.add_argument("--channel", help="the channel to commission")
+    what.add_argument("--rollback", metavar="RUN_DIR",
+                      help="set the values a run's tuning replaced back, atomically (its "
+                           "rollback.yaml)")
     p.add_argument("--controller", default="/controller",
                    help="the controller node's name (default /controller)")
     p.add_argument("--band", nargs=2, type=positive_float, metavar=("LOW", "HIGH"),
@@ -103,12 +112,84 @@ def _goal(args, action_type):
     return goal
 
 
+def _name_problem(controller: str) -> str:
+    """Why ``controller`` names no node whose ``<controller>/commission`` action a client can
+    reach (rcl's own words, one line), or ''."""
+    from rclpy.exceptions import InvalidTopicNameException
+    from rclpy.expand_topic_name import expand_topic_name
+    from rclpy.validate_full_topic_name import validate_full_topic_name
+    try:
+        validate_full_topic_name(expand_topic_name(controller.rstrip("/") + "/commission",
+                                                   "commission_cli", "/"))
+    except (InvalidTopicNameException, ValueError) as exc:
+        reason = str(exc).split(", at /")[0].splitlines()[0]
+        return f"not a ROS node name ({reason.split(': ', 1)[-1].rstrip(':')})"
+    return ""
+
+
 def _spin_until(executor, future, deadline) -> bool:
     while not future.done():
         if time.monotonic() > deadline:
             return False
         executor.spin_once(timeout_sec=0.05)
     return True
+
+
+def _rollback_file(where: str) -> tuple[pathlib.Path | None, str]:
+    """(the rollback file of a run directory or the file itself, '') or (None, why not)."""
+    from ..commissioning.analyse import ROLLBACK_FILE
+    from ..nodes.ros_common import params_file_problem
+    path = pathlib.Path(where)
+    if path.is_dir():
+        path = path / ROLLBACK_FILE
+        if not path.exists():
+            return None, f"no {ROLLBACK_FILE} in {where} (a dry run or an untuned run writes none)"
+    problem = params_file_problem(str(path))
+    return (None, f"{path}: {problem}") if problem else (path, "")
+
+
+def _answer(executor, send, deadline, resend_after: float = 2.0):
+    """The result of the request ``send()`` makes (a Future), re-sent every ``resend_after``
+    s while unanswered (a server that has not yet discovered this client drops its answer;
+    only for idempotent requests); None at ``deadline``."""
+    while time.monotonic() < deadline:
+        future = send()
+        if _spin_until(executor, future, min(deadline, time.monotonic() + resend_after)):
+            return future.result()
+    return None
+
+
+def rollback(args, path: pathlib.Path, node, executor) -> int:
+    """``--rollback``: the rollback file ``path`` set on the controller atomically (rclpy's
+    parameter client loads it, as ``ros2 param load`` does, but in one set)."""
+    from rclpy.parameter import parameter_dict_from_yaml_file, parameter_value_to_python
+    from rclpy.parameter_client import AsyncParameterClient
+
+    values = parameter_dict_from_yaml_file(str(path), use_wildcard=True)
+    client = AsyncParameterClient(node, args.controller)
+    deadline = time.monotonic() + args.timeout
+    before = None
+    if client.wait_for_services(timeout_sec=SERVER_TIMEOUT):
+        before = _answer(executor, lambda: client.get_parameters(list(values)), deadline)
+    if before is None:
+        print(f"commission: error: no answer from the parameter services of "
+              f"{args.controller} (is controller_node running, and in this ROS_DOMAIN_ID?)",
+              file=sys.stderr)
+        return 2
+    loaded = _answer(executor, lambda: client.load_parameter_file_atomically(
+        str(path), use_wildcard=True), deadline)
+    if loaded is None:
+        print("commission: error: the controller did not answer the rollback", file=sys.stderr)
+        return 2
+    if not loaded.result.successful:
+        print(f"[commission] rollback refused, nothing changed: {loaded.result.reason}",
+              file=sys.stderr)
+        return 1
+    for (name, new), old in zip(values.items(), before.values):
+        print(f"{name}: {parameter_value_to_python(old)} -> "
+              f"{parameter_value_to_python(new.value)}")
+    print(f"[commission] rolled back {len(values)} values on {args.controller} ({path})")
+    return 0
 
 
 def run(args) -> int:
@@ -121,12 +202,22 @@ def run(args) -> int:
         print(f"commission: error: --band {args.band[0]:g} {args.band[1]:g}: LOW must be "
               "below HIGH", file=sys.stderr)
         return 2
+    problem = _name_problem(args.controller)
+    if problem:
+        print(f"commission: error: --controller {args.controller}: {problem}", file=sys.stderr)
+        return 2
+    path, problem = _rollback_file(args.rollback) if args.rollback else (None, "")
+    if problem:
+        print(f"commission: error: --rollback {problem}", file=sys.stderr)
+        return 2
     rclpy.init()
     node = rclpy.create_node("commission_cli")
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     bar = ProgressBar()
     try:
+        if path is not None:
+            return rollback(args, path, node, executor)
         name = args.controller.rstrip("/") + "/commission"
         client = ActionClient(node, Commission, name)
         if not client.wait_for_server(timeout_sec=SERVER_TIMEOUT):

@@ -9,18 +9,20 @@ exit status 1, never a traceback."""
 import io
 import json
 import math
+import types
 from contextlib import redirect_stdout
 
 import numpy as np
 import pytest
 import yaml
 
-from seaforce_ros.commissioning.analyse import (RECORD_FILE, REQUEST_FILE, AnalysisError,
-                                                AnalysisRequest, analyse, analyse_directory,
-                                                main)
+from seaforce_ros.commissioning.analyse import (RECORD_FILE, REQUEST_FILE, Analysis,
+                                                AnalysisError, AnalysisRequest, analyse,
+                                                analyse_directory, main, write_stage)
 from seaforce_ros.commissioning.experiments import run_free_air_excitation
 from seaforce_ros.commissioning.record import save_record
-from seaforce_ros.commissioning.report import load_report
+from seaforce_ros.commissioning.report import CommissioningReport, ReportMeta, load_report
+from seaforce_ros.commissioning.tuning import TUNED_KEYS
 from seaforce_ros.core.params import ControllerConfig, DahlParams, PlantParams
 
 CHANNEL = 'pinch'
@@ -171,3 +173,30 @@ def test_params_files_keep_strings_strings(tmp_path):
         assert {k: back[k] for k in values} == values
         assert all(type(back[k]) is type(v) for k, v in values.items())
     assert '# kept' in existing.read_text() and '# was' in existing.read_text()
+
+
+def test_the_rollback_file_loads_one_value_at_a_time(tmp_path):
+    """A tuning that lowered the motor inertia (a plant at 0.6x) and m_n and raised lambda
+    with it: its rollback file is ordered so that ``ros2 param load``, which sets the values
+    one at a time in file order, passes eq. 28 after each one (m_n back before m), and it
+    holds exactly the replaced values."""
+    start = ControllerConfig()
+    m = start.plant.motor_inertia
+    tuned = ControllerConfig.from_dict({'plant.motor_inertia': 0.6 * m, 'plant.hose_damping':
+                                        0.011, 'dob.nominal_inertia': 0.6 * m,
+                                        'dob.cutoff': 200.0}, base=start)
+    new, old = tuned.to_dict(), start.to_dict()
+    apply = {k: new[k] for k in TUNED_KEYS if k in new}
+    analysis = Analysis(CommissioningReport(ReportMeta(CHANNEL, '', {}, False)), 'tuned',
+                        tuned=True, tuning=types.SimpleNamespace(config=tuned), apply=apply,
+                        old_values={k: old[k] for k in apply})
+    write_stage(tmp_path, analysis, AnalysisRequest(CHANNEL, start))
+    assert analysis.rollback_file == str(tmp_path / 'rollback.yaml'), analysis.message
+    text = (tmp_path / 'rollback.yaml').read_text()
+    assert f'commission --rollback {tmp_path}' in text
+    loaded = yaml.safe_load(text)['/**']['ros__parameters']
+    assert flatten(loaded) == {f'{CHANNEL}.{k}': old[k] for k in apply}
+    config = tuned
+    for key, value in loaded.items():          # file order: ros2 param load's sets
+        config = ControllerConfig.from_dict({key: value}, base=config)
+    assert config == start

@@ -1,7 +1,10 @@
-"""The ``~/commission`` goal's free-finger check (seaforce_ros.nodes.commissioning), without a
-running node: a contact the estimator reports while the finger moves turns the goal away; one
-that has stood with the finger still for STANDING_TIME is logged and the goal accepted (the
-model's error at rest; the excitation's contact test aborts at a real one)."""
+"""The ``~/commission`` goal's checks and run directory (seaforce_ros.nodes.commissioning),
+without a running node: a contact the estimator reports while the finger moves turns the goal
+away; one that has stood with the finger still for STANDING_TIME is logged and the goal
+accepted (the model's error at rest; the excitation's contact test aborts at a real one); a
+band beyond the Nyquist frequency pi/T is refused at goal time; ``commissioning.directory``
+and ``commissioning.params_file`` are read at each goal; a run that ends with nothing written
+leaves no directory."""
 import math
 import types
 
@@ -27,9 +30,11 @@ class Logger:
 
 class FakeNode:
     """What CommissionAction reads of a controller node: channels, configs, controllers'
-    estimators, dt, the logger."""
+    estimators, dt, the logger, its commissioning.* parameters."""
 
-    def __init__(self):
+    def __init__(self, directory=''):
+        self.parameters = {'commissioning.directory': directory,
+                           'commissioning.params_file': ''}
         self.channels = ['pinch']
         self.configs = [ControllerConfig()]
         self.estimator = types.SimpleNamespace(contact=False, force=0.0, velocity=0.0)
@@ -39,6 +44,9 @@ class FakeNode:
 
     def get_logger(self):
         return self.logger
+
+    def get_parameter(self, name):
+        return types.SimpleNamespace(value=self.parameters[name])
 
 
 def status_stream(action, velocities, start=0, every=20):
@@ -52,8 +60,8 @@ def status_stream(action, velocities, start=0, every=20):
 
 @pytest.fixture
 def setup(tmp_path):
-    node = FakeNode()
-    return node, CommissionAction(node, str(tmp_path / 'runs'), '')
+    node = FakeNode(str(tmp_path / 'runs'))
+    return node, CommissionAction(node)
 
 
 def test_a_contact_while_the_finger_moves_is_refused(setup):
@@ -98,3 +106,38 @@ def test_a_non_finite_velocity_counts_as_moving(setup):
     status_stream(action, [math.nan] * 1000)
     with pytest.raises(InvalidJobGoalError):
         action._make(0, Commission.Goal(channel='pinch'))
+
+
+def test_a_band_beyond_the_nyquist_frequency_is_refused_at_goal_time(setup):
+    _, action = setup
+    with pytest.raises(InvalidJobGoalError, match=r'band_high = 7540 .*pi/T = 6283 rad/s'):
+        action._make(0, Commission.Goal(channel='pinch', band_high=7540.0))
+    assert isinstance(action._make(0, Commission.Goal(channel='pinch', band_high=6000.0)),
+                      FreeAirExcitation)
+
+
+def test_the_directory_and_params_file_are_read_at_each_goal(setup, tmp_path):
+    node, action = setup
+    action._make(0, Commission.Goal(channel='pinch'))
+    first = action._runs[0]
+    assert first.directory.parent == tmp_path / 'runs'
+    node.parameters['commissioning.directory'] = str(tmp_path / 'elsewhere')
+    node.parameters['commissioning.params_file'] = str(tmp_path / 'setup.yaml')
+    action._make(0, Commission.Goal(channel='pinch'))
+    run = action._runs[0]
+    assert run.directory.parent == tmp_path / 'elsewhere'
+    assert run.request['params_file'] == str(tmp_path / 'setup.yaml')
+
+
+def test_a_run_that_wrote_nothing_leaves_no_directory(setup):
+    _, action = setup
+    job = action._make(0, Commission.Goal(channel='pinch'))
+    directory = action._runs[0].directory
+    assert directory.is_dir()
+    action._result(0, job, 'canceled')                  # canceled during the excitation
+    assert not directory.exists()
+    job = action._make(0, Commission.Goal(channel='pinch'))
+    directory = action._runs[0].directory
+    (directory / 'record.npz').write_bytes(b'')         # the analysis had started
+    action._result(0, job, 'canceled')
+    assert (directory / 'record.npz').exists()

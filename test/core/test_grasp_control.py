@@ -170,6 +170,24 @@ def test_passive_ends_a_grasp_at_once_another_mode_releases_it_first():
     assert g.log[-1][3] == 0.0
 
 
+@pytest.mark.parametrize('mode, phase', [('dob', 'release'), ('passive', 'done')])
+def test_setting_the_mode_in_force_ends_a_grasp_as_a_change_does(mode, phase):
+    """``<channel>.mode`` set to the mode the channel has: the grasp ends as at a change of
+    mode (the grasp overrides the mode; setting it asks for it); another parameter set does
+    not end it."""
+    g = Grasping(contact_object(0.2, 5.0, 0.05), mode=mode)
+    grasp = g.start(0.3, 0.5, 1.0)
+    g.until(lambda: grasp.phase == 'hold')
+    g.ctl.configure(g.config.replace(max_torque=4.0))
+    g.step(20)
+    assert grasp.phase == 'hold'
+    g.ctl.configure(g.config.replace(mode=mode), mode_set=True)
+    g.step()
+    assert grasp.phase == phase and grasp.message == f'mode set to {mode}'
+    g.until(lambda: not grasp.active).step(1)
+    assert grasp.outcome == 'aborted' and g.ctl.job is None and g.ctl.mode == mode
+
+
 def test_reset_ends_a_grasp():
     g = Grasping(contact_object(0.2, 5.0, 0.05))
     grasp = g.start(0.3, 0.5, 1.0)

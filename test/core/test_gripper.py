@@ -10,8 +10,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from seaforce_ros.core.grasp import InvalidGoalError
-from seaforce_ros.core.gripper import (EFFORT_MARGIN, POSITION_GAIN, REACHED, STALLED,
-                                       GripperGoal, GripperMove, check_gripper_goal)
+from seaforce_ros.core.gripper import (EFFORT_MARGIN, POSITION_GAIN, REACHED, STALL_SPEED,
+                                       STALL_TIME, STALLED, GripperGoal, GripperMove,
+                                       check_gripper_goal)
 from seaforce_ros.core.params import ControllerConfig
 
 from test_grasp import EVENTS, Est
@@ -49,6 +50,7 @@ class Finger:
     ('velocity', math.inf, 'velocity = inf: must be a finite number'),
     ('velocity', 0.001, 'velocity = 0.001 rad/s: must be within 0.01'),
     ('max_effort', -0.1, 'max_effort = -0.1 N m: must not be negative'),
+    ('max_effort', 0.0, 'max_effort = 0 N m: a command with no force cannot move the finger'),
     ('max_effort', 0.01, 'must be > grasp.approach_force = 0.02'),
     ('max_effort', 6.0, "must be <= the channel's max_torque = 5"),
 ])
@@ -93,11 +95,22 @@ def test_a_contact_on_the_way_stalls_and_grips_at_the_cap():
     est.velocity = 0.0
     est.touch(0.02)
     g.update(est, 0.0)
-    assert g.answer == STALLED and g.stalled and not g.reached_goal and g.phase == 'contact'
+    assert g.phase == 'contact' and g.answer is None        # not yet gripping at the cap
     est.touch(0.4)
-    for _ in range(int(0.3 / DT)):
+    est.velocity = 0.2                      # squeezing into the object
+    while g.phase != 'hold':
         g.update(est, 0.0)
-    assert g.phase == 'hold' and g.force_command == pytest.approx(0.4)
+    for _ in range(int(0.2 / DT)):
+        g.update(est, 0.0)
+    assert g.answer is None                 # at the cap, but still moving
+    est.velocity = 0.5 * STALL_SPEED
+    for _ in range(int(STALL_TIME / DT) - 1):
+        g.update(est, 0.0)
+    assert g.answer is None
+    g.update(est, 0.0)
+    # stalled once the finger holds still at the grip: the effort at the answer is the grip
+    assert g.answer == STALLED and g.stalled and not g.reached_goal
+    assert g.force_command == pytest.approx(0.4) and g.feedback(est)['effort'] == 0.4
     assert g.goal.max_force == pytest.approx(EFFORT_MARGIN * 0.4)   # the abort limit
 
 
@@ -120,6 +133,84 @@ def test_a_stop_holds_the_finger_where_it_is_and_a_release_ends_it():
     assert g.phase == 'done' and g.outcome == 'canceled'
 
 
+def run(g, finger, seconds, until=None):
+    """Step ``g`` on ``finger`` for ``seconds`` or until ``until()``; the outputs."""
+    out = []
+    for _ in range(int(seconds / DT)):
+        out.append(g.update(finger.est, finger.est.velocity))
+        finger.step(out[-1])
+        if until is not None and until():
+            break
+    return out
+
+
+@pytest.mark.parametrize('first, second', [(1.0, 1.2), (1.0, -0.3)])
+def test_a_new_command_takes_a_moving_finger_over_bumplessly(first, second):
+    """A new command while the finger moves (the same direction, or back): the answer is the
+    new command's from the request on; the job goes on with the same servo, so the force stays
+    continuous where the speed command does (the same direction), and the finger reaches the
+    new target."""
+    g = make(position=first)
+    est = Est()
+    finger = Finger(est, damping_error=0.01, error=0.005)
+    before = run(g, finger, 1.0)
+    assert g.phase == 'approach' and 0.2 < est.position < first
+    assert g.request_retarget(make(position=second, start=est.position))
+    assert g.answer is None
+    after = run(g, finger, 8.0, until=lambda: g.answer is not None)
+    if second > first:                                          # the same direction
+        assert abs(after[0] - before[-1]) < 1e-3, (before[-1], after[0])
+    assert g.answer == REACHED and g.reached_goal and g.target == second
+    assert abs(est.position - second) <= GP.gripper_tolerance
+    assert g.active and g.outcome is None
+
+
+def test_a_new_command_after_an_answer_answers_anew():
+    g = make(position=0.2)
+    est = Est()
+    finger = Finger(est)
+    run(g, finger, 3.0, until=lambda: g.answer is not None)
+    assert g.answer == REACHED
+    assert g.request_retarget(make(position=-0.2, start=est.position))
+    assert g.answer is None and not g.reached_goal         # before the cycle takes it over
+    run(g, finger, 4.0, until=lambda: g.answer is not None)
+    assert g.answer == REACHED and abs(est.position + 0.2) <= GP.gripper_tolerance
+
+
+def test_a_new_command_on_a_grip_releases_it_first_then_moves():
+    g = make(position=1.0, effort=0.4)
+    est = Est()
+    est.velocity = 0.3
+    for _ in range(int(0.2 / DT)):
+        est.position += est.velocity * DT
+        g.update(est, est.velocity)
+    est.velocity = 0.0
+    est.touch(0.4)
+    while g.answer is None:
+        g.update(est, 0.0)
+    assert g.stalled and g.phase == 'hold'
+    grip = g.update(est, 0.0)
+    assert g.request_retarget(make(position=0.0, start=est.position))
+    outputs = [g.update(est, 0.0)]
+    assert g.phase == 'release' and g.answer is None
+    est.contact = False
+    est.force = 0.0
+    while g.phase == 'release':
+        outputs.append(g.update(est, 0.0))
+    # the grip ramped down (no step), then the approach towards the new target
+    assert max(abs(b - a) for a, b in zip([grip] + outputs, outputs)) < 0.05 * abs(grip)
+    assert g.phase == 'approach' and g.active and not g.contact and g.target == 0.0
+    finger = Finger(est)
+    run(g, finger, 8.0, until=lambda: g.answer is not None)
+    assert g.answer == REACHED and abs(est.position) <= GP.gripper_tolerance
+
+
+def test_a_command_that_ended_takes_no_new_one():
+    g = make(position=0.5)
+    g.abort_now('fault')
+    assert not g.request_retarget(make(position=0.0))
+
+
 INVARIANTS = """
     1. |commanded contact force| <= approach_force while moving or at the target, <= the
        effort cap (max_effort) in contact -- never more, whatever the estimator says;
@@ -131,13 +222,15 @@ INVARIANTS = """
 
 
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(events=st.lists(st.one_of(EVENTS, st.tuples(st.just('stop'))), min_size=1,
-                       max_size=40),
+@given(events=st.lists(st.one_of(EVENTS, st.tuples(st.just('stop')),
+                                 st.tuples(st.just('retarget'), st.floats(-1.5, 1.5))),
+                       min_size=1, max_size=40),
        target=st.floats(-1.5, 1.5), velocity=st.sampled_from([0.05, 0.3, 1.5]),
        effort=st.floats(0.021, 2.0))
 def test_properties_over_arbitrary_estimates(events, target, velocity, effort):
     """The INVARIANTS from the start of a command, whatever the estimator says and whenever
-    stops, releases and aborts come."""
+    stops, releases, aborts and new commands (the same effort cap) come; a new command's
+    answer is its own."""
     g = make(position=target, velocity=velocity, effort=effort)
     est = Est()
     sign = 1.0 if target >= 0.0 else -1.0
@@ -148,6 +241,12 @@ def test_properties_over_arbitrary_estimates(events, target, velocity, effort):
             {'release': lambda: g.request_release('client'),
              'abort': lambda: g.abort_now('fault'), 'stop': g.request_stop,
              'quiet': lambda: setattr(est, 'quiet', ev[1])}[ev[0]]()
+            continue
+        if ev[0] == 'retarget':
+            if g.request_retarget(make(position=ev[1], velocity=velocity, effort=effort,
+                                       start=est.position)):
+                assert g.answer is None
+                answer = None
             continue
         if ev[0] == 'steady':
             ev = ('state', False, 1, 0.0, sign * velocity, 0.0, ev[1], 0.0)

@@ -7,6 +7,7 @@ import pytest
 from seaforce_ros.core import (ControllerConfig, DahlParams, DobParams, ForceFeedbackParams,
                                GraspParams, InvalidParameterError, MODES, NonPassiveError,
                                PARAMETERS, PlantParams, SeaforceError, TargetParams)
+from seaforce_ros.core.params import settable_order
 
 TABLE_I = PlantParams.table_i()
 
@@ -190,3 +191,19 @@ def test_impedance_target_limits():
         ControllerConfig(mode="impedance", target=TargetParams(damping=11 * bs))
     assert ControllerConfig(mode="impedance", target=TargetParams(stiffness=1.5 * ks),
                             allow_non_passive=True).target.stiffness == 1.5 * ks
+
+
+def test_settable_order_puts_m_n_back_before_m():
+    """From a configuration tuned for a plant at 0.6 m (m_n with it) back to the defaults, one
+    value at a time: m first is refused (eq. 28 with the tuned m_n), so m_n goes first; a
+    value no configuration accepts gives no order."""
+    start = ControllerConfig()
+    m = start.plant.motor_inertia
+    tuned = ControllerConfig.from_dict({'plant.motor_inertia': 0.6 * m,
+                                        'dob.nominal_inertia': 0.6 * m}, base=start)
+    back = {'plant.motor_inertia': m, 'dob.nominal_inertia': m}
+    with pytest.raises(NonPassiveError):
+        ControllerConfig.from_dict({'plant.motor_inertia': m}, base=tuned)
+    assert settable_order(tuned, back) == ['dob.nominal_inertia', 'plant.motor_inertia']
+    assert settable_order(tuned, {**back, 'dob.cutoff': -1.0}) is None
+    assert settable_order(tuned, {}) == []
