@@ -498,7 +498,24 @@ def _summary(analysis: Analysis, request: AnalysisRequest) -> List[str]:
         lines.append(f"tuned DOB torque noise {1e3 * t.torque_noise:.3g} mN m rms (budget "
                      f"{1e3 * request.noise_budget:.3g}); hold stable up to "
                      f"{t.hold_delay_limit} samples of delay")
+        lines.append(_margin_line(t))
     return lines
+
+
+def _margin_line(t: TuningResult) -> str:
+    """What the feed-forward's margin costs, in words: its scales and the predicted |Z| of
+    dob_full_ff with it less without it at the headline frequencies."""
+    ff = t.config.feedforward
+    sb, sk, sd = ff.scales()
+    cost = [float(np.interp(math.log(w), np.log(t.omega), t.margin_cost_db))
+            for w in HEADLINE_OMEGA]
+    return (f"feed-forward margin: b_e x{sb:.3g}, k_e x{sk:.3g}, Dahl F_c x{sd:.3g} "
+            f"(margin {ff.margin:g} x the uncertainties "
+            f"{100 * ff.damping_uncertainty:.2g} / {100 * ff.stiffness_uncertainty:.2g} / "
+            f"{100 * ff.dahl_uncertainty:.2g} %, sigma share {ff.dahl_stiffness_share:g}); it "
+            "costs " + " / ".join(f"{c:+.1f}" for c in cost) + " dB of dob_full_ff |Z| at "
+            + ", ".join(f"{w:g}" for w in HEADLINE_OMEGA) + " rad/s (predicted, against the "
+            "exact inversion of the identified model)")
 
 
 def analyse(record: ExcitationRecord, request: AnalysisRequest,

@@ -91,6 +91,14 @@ def test_a_run_tunes_and_writes_its_files(record, tmp_path):
     # the tuned settings are a valid whole configuration
     assert ControllerConfig.from_dict(a.apply, base=config) == a.tuning.config
     assert a.after_db[1.0] >= a.before_db[1.0] - 3.0
+    # the feed-forward's uncertainties from the identification (1-sigma and misfit, >= 1 %),
+    # tighter than the hand-typed 10 %, and what their margin costs, in the summary
+    ff = a.tuning.config.feedforward
+    for name in ('damping_uncertainty', 'stiffness_uncertainty', 'dahl_uncertainty'):
+        assert 0.01 <= getattr(ff, name) < 0.1, (name, getattr(ff, name))
+        assert a.apply[f'feedforward.{name}'] == getattr(ff, name)
+    assert any(line.startswith('feed-forward margin: b_e x') and 'dB of dob_full_ff' in line
+               for line in a.report.summary), a.report.summary
 
 
 def test_a_dry_run_writes_no_params_and_the_next_run_reports_drift(record, tmp_path):
