@@ -273,7 +273,7 @@ def test_an_object_in_the_way_stalls_and_is_gripped_at_the_cap(stack, stiffness,
     stack.set('/controller', {'pinch.grasp.gripper_allow_stalling': allow})
     start = stack.cycle()
     surface = stack.place(0.15, stiffness)
-    beyond = min(surface + 0.3, 1.4)
+    beyond = min(surface + 0.3, 1.35)
     traj = trajectory(beyond, effort=cap)
     goal = gripper_goal(traj) if action is GripperCommand else parallel_goal(traj,
                                                                              max_effort=cap)
@@ -385,7 +385,7 @@ def test_bad_goals_are_rejected(stack):
     here = stack.position()
     log_from = len(stack.controller.output())
     assert stack.rejected(gripper_goal(trajectory(math.nan)))
-    assert stack.rejected(gripper_goal(trajectory(5.0)))                  # joint range +-1.5
+    assert stack.rejected(gripper_goal(trajectory(5.0)))                  # joint range +-1.35 (between the walls)
     assert stack.rejected(gripper_goal(trajectory(here), max_effort=-0.1))
     assert stack.rejected(gripper_goal(trajectory(here), max_effort=0.0))   # MoveIt's default
     goal = parallel_goal(trajectory(here))

@@ -3,7 +3,7 @@
 * Against one running sim_node + controller_node (module-scoped): the URDF's joints are
   exactly the names on joint_states (<channel>_motor, <channel>_endpoint), and every joint's
   limits are the parameters the nodes run with: lower / upper the controller's
-  <channel>.friction.position_min / max, velocity the sim's max_velocity (motor) and the
+  <channel>.limits.position_min / max less the walls' band, velocity the sim's max_velocity (motor) and the
   controller's <channel>.grasp.gripper_velocity (finger: the speed MoveIt plans with), effort
   the sim's torque_limit.
 * Without nodes: a parameter file that leaves the limits out gives the schema's defaults
@@ -54,13 +54,14 @@ def live(tmp_path_factory):
         plant = stack.probe.get_parameters('/sim', ['channels', 'max_velocity', 'torque_limit'])
         expected = {}
         for channel in plant['channels']:
-            keys = [f'{channel}.friction.position_min', f'{channel}.friction.position_max',
-                    f'{channel}.grasp.gripper_velocity']
+            keys = [f'{channel}.limits.position_min', f'{channel}.limits.position_max',
+                    f'{channel}.limits.wall_band', f'{channel}.grasp.gripper_velocity']
             ranges = stack.probe.get_parameters('/controller', keys)
+            band = ranges[keys[2]]
             for joint, velocity in (('motor', plant['max_velocity']),
-                                    ('endpoint', ranges[keys[2]])):
-                expected[f'{channel}_{joint}'] = (ranges[keys[0]], ranges[keys[1]], velocity,
-                                                  plant['torque_limit'])
+                                    ('endpoint', ranges[keys[3]])):
+                expected[f'{channel}_{joint}'] = (ranges[keys[0]] + band, ranges[keys[1]] - band,
+                                                  velocity, plant['torque_limit'])
     finally:
         stack.close()
     return names, expected
@@ -94,7 +95,8 @@ def test_limits_default_to_the_schema(tmp_path, plant, node):
     params.write_text(yaml.safe_dump({'/**': {'ros__parameters': {'channels': ['pinch']}}}))
     node_defaults = _defaults(node.node_specs())
     channel = _defaults(param_specs.controller_channel_specs('pinch'))
-    row = (channel['pinch.friction.position_min'], channel['pinch.friction.position_max'],
+    band = channel['pinch.limits.wall_band']
+    row = (channel['pinch.limits.position_min'] + band, channel['pinch.limits.position_max'] - band,
            node_defaults['max_velocity'], node_defaults['torque_limit'])
     finger = row[:2] + (channel['pinch.grasp.gripper_velocity'],) + row[3:]
     assert limits(urdf(params_file=params, plant=plant)) == \
@@ -106,15 +108,15 @@ def test_channels_and_limits_follow_the_parameter_file(tmp_path):
     data['/**']['ros__parameters']['channels'] = ['a', 'b', 'c']
     for i, channel in enumerate('abc'):
         data['/**']['ros__parameters'][channel] = {
-            'friction': {'position_min': -0.5 - i, 'position_max': 0.25 + i},
+            'limits': {'position_min': -0.5 - i, 'position_max': 0.25 + i, 'wall_band': 0.125},
             'grasp': {'gripper_velocity': 0.1 * (i + 1)}}
     data['/**/hardware'] = {'ros__parameters': {'torque_limit': 3.5, 'max_velocity': 12.0}}
     data['/**']['ros__parameters']['max_velocity'] = 50.0
     params = tmp_path / 'three.yaml'
     params.write_text(yaml.safe_dump(data))
     found = limits(urdf(params_file=params, plant='hardware'))
-    assert found == {f'{c}_{j}': (-0.5 - i, 0.25 + i, 12.0 if j == 'motor' else 0.1 * (i + 1),
-                                  3.5)
+    assert found == {f'{c}_{j}': (-0.5 - i + 0.125, 0.25 + i - 0.125,
+                                  12.0 if j == 'motor' else 0.1 * (i + 1), 3.5)
                      for i, c in enumerate('abc') for j in ('motor', 'endpoint')}
     # the sim: no section of its own, its keys under /** (max_velocity) or the defaults
     assert {v[2:] for k, v in limits(urdf(params_file=params)).items()

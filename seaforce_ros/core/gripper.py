@@ -48,7 +48,7 @@ from .params import MIN_CLOSING_VELOCITY, ControllerConfig
 if TYPE_CHECKING:
     from .estimator import ContactEstimator
 
-__all__ = ["GripperGoal", "GripperMove", "check_gripper_goal", "POSITION_GAIN",
+__all__ = ["free_range", "GripperGoal", "GripperMove", "check_gripper_goal", "POSITION_GAIN",
            "EFFORT_MARGIN", "STALL_SPEED", "STALL_TIME", "REACHED", "STALLED"]
 
 POSITION_GAIN = 10.0   # 1/s: the speed command's taper near the target, v_cmd = w_p (x_t - X_e)
@@ -92,10 +92,18 @@ class GripperGoal:
                 f"velocity={self.velocity!r}, max_effort={self.max_effort!r})")
 
 
+def free_range(config: ControllerConfig) -> tuple[float, float]:
+    """The joint range between the walls [rad]: ``limits.position_min + wall_band`` to
+    ``limits.position_max - wall_band`` -- where a gripper command may send the finger (the
+    walls push back beyond it) and the URDF's joint limits (what MoveIt plans with)."""
+    lim = config.limits
+    return lim.position_min + lim.wall_band, lim.position_max - lim.wall_band
+
+
 def check_gripper_goal(goal: GripperGoal, config: ControllerConfig) -> None:
     """Raise :class:`~.grasp.InvalidGoalError` naming the field and the bound if ``goal``
     cannot be executed on a channel with ``config``: a finite position within the joint range
-    ``[friction.position_min, friction.position_max]``, a velocity within
+    between its walls (:func:`free_range`), a velocity within
     ``[MIN_CLOSING_VELOCITY, grasp.max_closing_velocity]``, a max_effort above
     ``grasp.approach_force`` (the touch) and the contact threshold, at most ``max_torque``."""
     for name in ("position", "velocity", "max_effort"):
@@ -103,11 +111,12 @@ def check_gripper_goal(goal: GripperGoal, config: ControllerConfig) -> None:
         if isinstance(value, bool) or not isinstance(value, (int, float)) \
                 or not math.isfinite(value):
             raise InvalidGoalError(f"{name} = {value!r}: must be a finite number")
-    low, high = config.friction.position_min, config.friction.position_max
+    low, high = free_range(config)
     if not low <= goal.position <= high:
         raise InvalidGoalError(f"position = {goal.position!r} rad: outside the joint range "
-                               f"[{low:g}, {high:g}] rad (friction.position_min, "
-                               "friction.position_max)")
+                               f"between its walls [{low:g}, {high:g}] rad "
+                               "(limits.position_min + limits.wall_band, "
+                               "limits.position_max - limits.wall_band)")
     grasp = config.grasp
     if not MIN_CLOSING_VELOCITY <= goal.velocity <= grasp.max_closing_velocity:
         raise InvalidGoalError(f"velocity = {goal.velocity!r} rad/s: must be within "
