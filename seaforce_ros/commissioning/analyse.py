@@ -509,10 +509,11 @@ def _margin_line(t: TuningResult) -> str:
     sb, sk, sd = ff.scales()
     cost = [float(np.interp(math.log(w), np.log(t.omega), t.margin_cost_db))
             for w in HEADLINE_OMEGA]
-    return (f"feed-forward margin: b_e x{sb:.3g}, k_e x{sk:.3g}, Dahl F_c x{sd:.3g} "
+    return (f"feed-forward margin: b_e x{sb:.3g}, k_e x{sk:.3g}, Dahl F_c x{sd:.3g}, sigma "
+            f"x{ff.dahl_stiffness_share:g} "
             f"(margin {ff.margin:g} x the uncertainties "
             f"{100 * ff.damping_uncertainty:.2g} / {100 * ff.stiffness_uncertainty:.2g} / "
-            f"{100 * ff.dahl_uncertainty:.2g} %, sigma share {ff.dahl_stiffness_share:g}); it "
+            f"{100 * ff.dahl_uncertainty:.2g} %); it "
             "costs " + " / ".join(f"{c:+.1f}" for c in cost) + " dB of dob_full_ff |Z| at "
             + ", ".join(f"{w:g}" for w in HEADLINE_OMEGA) + " rad/s (predicted, against the "
             "exact inversion of the identified model)")

@@ -107,7 +107,8 @@ class TuningResult:
         Why the passivity guard is needed ('' when eq. 28 holds without it).
     margin_cost_db : float array
         What the feed-forward's margin costs over ``omega``: predicted ``|Z|`` of
-        ``dob_full_ff`` with the tuned settings less the same without the margin [dB].
+        ``dob_full_ff`` with the tuned settings less the same with the model inverted exactly
+        (no margin, the whole of sigma) [dB].
     """
 
     values: Dict[str, Any]
@@ -465,7 +466,8 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     tuned = ControllerConfig.from_dict(values, base=base)
     after = predict_modes(plant, dahl, tuned, ("hold", "dob_full_ff"), omega,
                           delay=figures.delay_p50, dt=dt, amplitude=amplitude)
-    exact = tuned.replace(feedforward=dataclasses.replace(tuned.feedforward, margin=0.0),
+    exact = tuned.replace(feedforward=dataclasses.replace(tuned.feedforward, margin=0.0,
+                                                          dahl_stiffness_share=1.0),
                           allow_non_passive=True)
     unmargined = predict_modes(plant, dahl, exact, ("dob_full_ff",), omega,
                                delay=figures.delay_p50, dt=dt, amplitude=amplitude)
@@ -484,8 +486,8 @@ def feedforward_uncertainties(plant: PlantParams, plant_sigma: Mapping[str, floa
     1-sigma, relative, and the model class's error the misfit shows (a parameter whose
     effect the fit cannot match is off by about that much: on a plant with the hose and
     finger nonlinearities of the paper's Section IV, k_e's statistical 1-sigma was 1.1 %
-    and its error 7.4 %, the port misfit 8.5 %). The Dahl term takes the larger of sigma's
-    and F_c's. Each at least :data:`~seaforce_ros.core.params.MIN_UNCERTAINTY`, at most 1."""
+    and its error 7.4 %, the port misfit 8.5 %). The Dahl term is F_c's (sigma's margin is
+    ``feedforward.dahl_stiffness_share``). Each at least :data:`~seaforce_ros.core.params.MIN_UNCERTAINTY`, at most 1."""
     def rel(name: str, value: float) -> float:      # (missing: 0, as for eq. 28's margin)
         sd = float(plant_sigma.get(name, 0.0))
         return sd / value if value > 0.0 and math.isfinite(sd) else 1.0
@@ -497,9 +499,7 @@ def feedforward_uncertainties(plant: PlantParams, plant_sigma: Mapping[str, floa
                                                         plant.endpoint_damping)),
             "feedforward.stiffness_uncertainty": term(rel("endpoint_stiffness",
                                                           plant.endpoint_stiffness)),
-            "feedforward.dahl_uncertainty": term(max(rel("sigma", dahl.sigma),
-                                                     rel("coulomb_force",
-                                                         dahl.coulomb_force)))}
+            "feedforward.dahl_uncertainty": term(rel("coulomb_force", dahl.coulomb_force))}
 
 
 def _guard(config: ControllerConfig, active: bool) -> GuardParams:

@@ -201,26 +201,27 @@ class FeedforwardParams(ParameterGroup):
                                        "0.01 unless allow_non_passive", ge=0.0, le=1.0)
     stiffness_uncertainty: float = param(0.1, "-", "relative 1-sigma of the model's k_e, as "
                                          "damping_uncertainty", ge=0.0, le=1.0)
-    dahl_uncertainty: float = param(0.1, "-", "relative 1-sigma of the model's sigma and F_c "
-                                    "(eq. 14), as damping_uncertainty", ge=0.0, le=1.0)
+    dahl_uncertainty: float = param(0.1, "-", "relative 1-sigma of the model's F_c (eq. 14, "
+                                    "the Dahl force's amplitude), as damping_uncertainty",
+                                    ge=0.0, le=1.0)
     dahl_stiffness_share: float = param(0.5, "-", "the share of the model's pre-sliding "
                                         "stiffness sigma the Dahl feed-forward cancels (its F_c "
-                                        "in full, less the margin): cancelling sigma (100 times "
+                                        "in full, less the margin): cancelling sigma (200 times "
                                         "k_e) through the loop's lag makes the free finger "
-                                        "oscillate; at most 0.5 unless allow_non_passive",
-                                        ge=0.0, le=1.0)
+                                        "oscillate; 0.5 also covers a sigma off by up to 2x; at "
+                                        "most 0.5 unless allow_non_passive", ge=0.0, le=1.0)
 
     def dahl(self, model: "DahlParams") -> "DahlParams":
-        """The Dahl parameters of the feed-forward's force: the model's F_c and sigma times the
-        margin's scale, sigma times ``dahl_stiffness_share`` too."""
+        """The Dahl parameters of the feed-forward's force: the model's F_c times the margin's
+        scale, its sigma times ``dahl_stiffness_share`` (which stands for sigma's margin: at
+        0.5 it covers a sigma off by up to 2x)."""
         sd = self.scales()[2]
-        return dataclasses.replace(model, sigma=sd * self.dahl_stiffness_share * model.sigma,
+        return dataclasses.replace(model, sigma=self.dahl_stiffness_share * model.sigma,
                                    coulomb_force=max(sd, 1e-12) * model.coulomb_force)
 
     def scales(self) -> Tuple[float, float, float]:
         """The factors ``1 - margin u`` (at least 0) the feed-forward applies to b_e, k_e and
-        the Dahl force (sigma and F_c scaled alike scale F_d): the low edge of each term's
-        uncertainty."""
+        the Dahl F_c: the low edge of each term's uncertainty."""
         m = self.margin
         return (max(0.0, 1.0 - m * self.damping_uncertainty),
                 max(0.0, 1.0 - m * self.stiffness_uncertainty),

@@ -71,7 +71,7 @@ def test_observer_at_rest_and_the_reference_modes():
     # own; the model's F_d is what the estimator sees)
     ff_dahl = CONFIG.feedforward.dahl(CONFIG.dahl)
     assert ff_dahl.coulomb_force == pytest.approx(s_d * CONFIG.dahl.coulomb_force)
-    assert ff_dahl.sigma == pytest.approx(0.5 * s_d * CONFIG.dahl.sigma)
+    assert ff_dahl.sigma == pytest.approx(0.5 * CONFIG.dahl.sigma)
     ff = obs.compensation + obs.dahl_feedforward
     assert obs.feedforward == pytest.approx(ff, rel=1e-15)
     assert refs == {"dob": 0.0, "dob_linear_ff": obs.compensation, "dob_full_ff": ff,
