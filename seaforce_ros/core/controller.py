@@ -12,7 +12,8 @@ stages per sample (:meth:`ChannelController.update`):
 2. **observe** -- the endpoint observer (:mod:`.observer`): the hose inversion gives X_e_hat
    and V_e_hat (eq. 29), the Dahl play and state F_d (eq. 14), the feed-forward F_cmp (eq. 29);
 3. **estimate** -- the contact estimator (:mod:`.estimator`) runs in every mode on X_e_hat,
-   F_p and F_d;
+   F_p and F_d; outside a job a contact that stands with the finger still for
+   :data:`~.estimator.STANDING_TIME` is the model's error at rest (re-armed);
 4. **job or adaptation** -- a job (:mod:`.jobs`, one at a time per channel, a second one is
    refused as busy) overrides the mode while it runs. A :data:`~.jobs.TORQUE` job (a friction
    calibration, :mod:`.friction_calibration`) commands F_a itself and the stages below pause;
@@ -28,17 +29,23 @@ stages per sample (:meth:`ChannelController.update`):
    it). With ``friction.adaptation`` the feed-forward's b_e, k_e,
    F_c, sigma follow the friction fit slowly while the estimator sees no contact
    (``dob_linear_ff``, ``dob_full_ff``, ``impedance``, and a grasp's approach);
-5. **mode** -- the mode (:mod:`.modes`, keyed by name) commands F_a itself (passive, hold,
-   force_feedback, chirp) or gives the DOB's reference F_ref (dob, dob_linear_ff,
-   dob_full_ff, impedance, force);
-6. **guard** -- the passivity guard (:mod:`.passivity_guard`, ``passivity_guard`` not
+5. **monitor** -- wherever the DOB runs (the reference modes, a grasp) the runaway monitor
+   (:mod:`.safety`) watches the finger's speed and the energy the walls take out of it; a
+   trip ends a job and falls back, in this sample, to ``monitor.fallback`` until
+   :meth:`~ChannelController.clear_fallback` (``~/reset``);
+6. **mode and walls** -- the mode (:mod:`.modes`, keyed by name) commands F_a itself
+   (passive, hold, force_feedback, chirp) or gives the DOB's reference F_ref (dob,
+   dob_linear_ff, dob_full_ff, impedance, force); the joint walls' force (:mod:`.safety`) is
+   added to either in every mode but ``passive`` (and to a job's), and :attr:`beyond` says
+   when the finger is beyond the joint range (the cycle latches ``joint_limit``);
+7. **guard** -- the passivity guard (:mod:`.passivity_guard`, ``passivity_guard`` not
    ``disabled``) watches the DOB's port ``(F_p + F_ref, V)`` whenever the DOB runs; when
    ``active`` its damping force is added to F_ref (the port impedance becomes Z + alpha). It
    restarts (full reserve, no damping) at every mode entry, so entries stay bumpless; a
    parameter set within the mode keeps its ledger;
-7. **DOB** -- the disturbance observer (:mod:`.dob`, eq. 19, bumpless entry): F_a and the
+8. **DOB** -- the disturbance observer (:mod:`.dob`, eq. 19, bumpless entry): F_a and the
    disturbance estimate ``d_hat = F_a - F_ref``;
-8. **output** -- ``torque`` and ``disturbance`` are set and F_a returned.
+9. **output** -- ``torque`` and ``disturbance`` are set and F_a returned.
 
 Bumpless transfer: every mode entry (or ``configure``) initialises the new mode's state from
 the last output so that the first output equals it; :meth:`ChannelController.reset` and
@@ -120,6 +127,17 @@ class ChannelController:
     passivity_guard : PassivityGuard or None
         The time-domain passivity guard of the DOB's motor port (None when disabled); it runs
         while the DOB does (the DOB modes and a grasp) and restarts at every mode entry.
+    walls : JointWalls
+        The joint walls (their ``force`` this sample).
+    monitor : RunawayMonitor
+        The runaway monitor.
+    fallback : str
+        The mode the monitor fell back to ('' when none), latched until
+        :meth:`clear_fallback`; ``fallback_reason`` says why.
+    tripped : str
+        Set on the sample the monitor trips (the cycle reports and clears it).
+    beyond : str
+        Why the finger is beyond the joint range in a mode that commands torque, or ''.
 
     Attributes the caller sets before :meth:`update` (passed on to a job's
     :class:`~.jobs.JobSample`; :class:`~.control_cycle.ControlCycle` sets them)
@@ -399,9 +417,8 @@ class ChannelController:
         if not job.active:
             self.job = None
             if job.output != TORQUE:
-                # a grasp let go: the residual at rest, the model's error where the finger
-                # stopped, becomes the bias once it has come to rest (re-armed at once, a
-                # model off by 15-20 % kept the contact standing after 7 of 12 releases)
+                # a grasp let go: once the finger rests, the residual there (the model's error
+                # where it stopped) becomes the bias
                 self.estimator.rearm_at_rest()
             config = job.final_config(self._config)
             if config is not None:
@@ -474,8 +491,8 @@ class ChannelController:
 
         # the job, or the friction adaptation
         if job is not None and job.output == TORQUE:
-            w = self._walls(x, v, obs)
-            u = self._run_job(job, x, v, f_p, steps) + w
+            u = self._run_job(job, x, v, f_p, steps)     # (sees the last sample's walls)
+            u += self._walls(x, v, obs)
             self.torque = u
             return u
         if self._adapting and (self._uses_feedforward or job is not None):
@@ -503,16 +520,16 @@ class ChannelController:
                  mode.update(x, v, f_p, steps)) + w
             self.torque = u
             return u
-        w = self._walls(x, v, obs)
         if job is not None:
             # the job's endpoint force on minimum impedance: a grasp closes its own loop
             # around the endpoint (a speed servo, then the object and the contact damping), so
             # it takes the model's friction in full, without the margin
-            f_ref = obs.model_feedforward() + self._run_job(job, x, v, f_p, steps) + w
+            f_ref = obs.model_feedforward() + self._run_job(job, x, v, f_p, steps)
         else:
             ref = self._reference_mode
             assert ref is not None
-            f_ref = (ref.enter(obs) if entry == _ENTER else ref.update(obs)) + w
+            f_ref = ref.enter(obs) if entry == _ENTER else ref.update(obs)
+        f_ref += self._walls(x, v, obs)
 
         # the guard: damping on the DOB's port (F_p + F_ref, V), Z -> Z + alpha
         if guard is not None:
@@ -529,9 +546,10 @@ class ChannelController:
 
     def _standing_contact(self, est: ContactEstimator, steps: int) -> None:
         """Outside a job, a contact that stands with the finger still for
-        :data:`~.estimator.STANDING_TIME` is the model's error at rest: re-arm (a model off by
-        15-20 % kept one standing after 6 of 12 grasp releases in dob_full_ff, and the next
-        grasp saw a contact that was not there)."""
+        :data:`~.estimator.STANDING_TIME` is the model's error at rest: re-arm (a model 20 %
+        off left a contact standing 3 s after 7 of 12 grasp releases in dob_full_ff, which the
+        next grasp would see; with this 4 of 12 after 6 s, each a finger still touching or
+        bouncing on the object)."""
         if -REST_SPEED < est.velocity < REST_SPEED:
             self._still += steps
             if self._still >= self._standing:
