@@ -79,6 +79,9 @@ def _grasp_once(probe, client, obj, where):
     before the touch to the squeeze)."""
     now = probe.messages('actuator_state')[-1]
     position = value(now, 'pinch', 'endpoint_position') + obj['gap']
+    # the squeeze ends inside the joint range's walls (1.35 rad): beyond, a wall takes part
+    # of the grip (a soft object after the last one's release was squeezed into it)
+    obj['grip'] = min(obj['grip'], obj['k'] * (1.25 - position))
     ok, reason = probe.set_parameters('/sim', {
         'pinch.environment.position': position, 'pinch.environment.stiffness': obj['k'],
         'pinch.environment.damping': obj['b']})

@@ -151,7 +151,7 @@ class RunawayMonitor:
     """
 
     __slots__ = ("dt", "_vmax", "_trip", "over", "reason", "armed", "wall_work", "_budget",
-                 "_forget")
+                 "_forget", "_grace", "_memory")
 
     def __init__(self, monitor: MonitorParams, dt: float) -> None:
         self.dt = float(dt)
@@ -163,6 +163,7 @@ class RunawayMonitor:
         self._vmax = monitor.max_speed
         self._budget = monitor.wall_energy
         self._forget = math.exp(-self.dt / WALL_MEMORY)
+        self._memory = int(round(WALL_MEMORY / self.dt))
         # beyond for more than trip_time: the count reaches this (at least one sample)
         self._trip = max(1, int(round(monitor.trip_time / self.dt)) + 1)
 
@@ -172,18 +173,24 @@ class RunawayMonitor:
         self.reason = ""
         self.armed = True
         self.wall_work = 0.0
+        self._grace = 0
 
     def disarm(self) -> None:
         """After a trip: the finger the fall-back has to stop is still fast. Count again once
         the speed has been within ``max_speed`` (a new excursion), or at once beyond twice it
-        (the fall-back does not stop it)."""
+        (the fall-back does not stop it); the walls' energy after :data:`WALL_MEMORY` (they
+        take the finger's energy at the trip out of it meanwhile)."""
         self.over = 0
         self.armed = False
         self.wall_work = 0.0
+        self._grace = self._memory       # the walls stop the finger the fall-back released
 
     def walls(self, power: float, steps: int = 1) -> None:
         """The power the walls take out of the finger this sample, ``-F_w V`` [W] (counted
         when positive), into the ledger :attr:`wall_work` [J]."""
+        if self._grace > 0:
+            self._grace -= steps
+            return
         w = self.wall_work * (self._forget if steps == 1 else self._forget ** steps)
         if power > 0.0:
             w += power * self.dt * steps

@@ -106,6 +106,13 @@ def test_monitor_trips_on_the_energy_the_walls_take_out():
     for _ in range(8):
         m.walls(5.0)                        # 20 mJ more
     assert m.update(0.0, 0.0) and "joint walls" in m.reason and m.wall_work == 0.0
+    # after a trip the walls take the finger's energy out of it: not counted for WALL_MEMORY
+    for _ in range(int(WALL_MEMORY / DT) - 1):
+        m.walls(5.0)
+    assert m.wall_work == 0.0 and not m.update(0.0, 0.0)
+    m.walls(5.0)
+    m.walls(5.0)
+    assert m.wall_work > 0.0
 
 
 # --- the configuration's rules -----------------------------------------------------------------
