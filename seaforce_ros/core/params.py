@@ -192,9 +192,9 @@ class FeedforwardParams(ParameterGroup):
                                  "endpoint position driving the Dahl feed-forward (3-4 sigma "
                                  "of its noise from the pressure sensor)", ge=0.0, le=1.0)
     margin: float = param(2.0, "-", "how many uncertainties (1-sigma) below the model the "
-                          "feed-forward takes b_e, k_e, sigma and F_c: the free finger stays "
-                          "passive for every plant within margin x uncertainty; at least 1 "
-                          "unless allow_non_passive", ge=0.0, le=10.0)
+                          "feed-forward takes b_e, k_e and the Dahl F_c: the free finger "
+                          "stays passive for every plant within margin x uncertainty; at "
+                          "least 1 unless allow_non_passive", ge=0.0, le=10.0)
     damping_uncertainty: float = param(0.1, "-", "relative 1-sigma of the model's b_e, the "
                                        "fit's and the model class's (commissioning writes it; "
                                        "0.1 stands for hand-typed values); at least "
