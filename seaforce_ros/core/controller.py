@@ -130,6 +130,21 @@ class ChannelController:
         The torque the plant reports it applied in this sample [N m] (NaN: not given).
     """
 
+    # slots: more than 30 attributes would leave the instance's dict unshared (CPython 3.11),
+    # every attribute access in update a hashed look-up
+    __slots__ = (
+        "dt", "cycle", "applied", "mode", "torque", "disturbance",
+        # hand-overs and the job
+        "_pending", "_mode_sets", "_jobs", "job", "_job_sample",
+        # the parts
+        "observer", "estimator", "adaptation", "walls", "monitor", "passivity_guard", "_dob",
+        "_modes", "_config",
+        # the mode in force and its entry
+        "_torque_mode", "_reference_mode", "_uses_feedforward", "_walled", "_adapting",
+        "_entry",
+        # the walls, the monitor's fall-back, a standing contact
+        "_wall", "beyond", "fallback", "fallback_reason", "tripped", "_still", "_standing")
+
     def __init__(self, config: ControllerConfig | None = None, dt: float = 5e-4) -> None:
         if config is None:
             config = ControllerConfig()
