@@ -485,7 +485,10 @@ class ChannelController:
         est.update(obs.position, f_p, obs.dahl_force, steps)
         job = self.job
         if est.contact and job is None:
-            self._standing_contact(est, steps)
+            if -REST_SPEED < est.velocity < REST_SPEED:
+                self._standing_contact(est, steps)
+            else:
+                self._still = 0         # a contact that moves is no model error at rest
 
         # the job, or the friction adaptation
         if job is not None and job.output == TORQUE:
@@ -496,29 +499,42 @@ class ChannelController:
         if self._adapting and (self._uses_feedforward or job is not None):
             self._adapt(f_p, steps)
 
-        # the runaway monitor, wherever the DOB runs: a trip falls back in this sample
-        if (job is not None or self._torque_mode is None) and \
-                self.monitor.update(v, obs.velocity, steps):
-            self._trip(self.monitor.reason)
-            job = None
+        # the runaway monitor, wherever the DOB runs: a trip falls back in this sample (calm
+        # and both speeds within its limit, its update would change nothing: skipped)
+        monitor = self.monitor
+        if job is not None or self._torque_mode is None:
+            limit = monitor.max_speed
+            ve = obs.velocity
+            if not (monitor.calm and -limit <= v <= limit and -limit <= ve <= limit) and \
+                    monitor.update(v, ve, steps):
+                self._trip(monitor.reason)
+                job = None
 
-        # the mode: F_a itself, or the DOB's reference; the walls add to either
+        # the mode: F_a itself, or the DOB's reference; the walls add to either (clear of
+        # them at the last sample and now, with the monitor's wall ledger empty, _walls would
+        # find what there is: nothing -- skipped)
         entry = self._entry
         self._entry = 0
         u_prev = self.torque
         guard = self.passivity_guard
         if entry == _ENTER and guard is not None and not keep_ledger:
             guard.reset()           # a new port: the full reserve, no damping (bumpless)
+        walls = self.walls
+        if job is None and not self._walled:
+            w = self._no_walls()
+        elif walls.clear and not monitor.wall_work and walls.free_min <= x <= walls.free_max \
+                and walls.free_min <= obs.position <= walls.free_max:
+            w = 0.0
+        else:
+            w = self._walls(x, v, obs)
         mode = self._torque_mode
         if job is None and mode is not None:
             self.disturbance = _NAN
-            w = self._walls(x, v, obs) if self._walled else self._no_walls()
             # the mode's own part of the last torque: entries stay bumpless in the walls
             u = (mode.enter(x, v, f_p, steps, u_prev - w, entry == _ENTER) if entry else
                  mode.update(x, v, f_p, steps)) + w
             self.torque = u
             return u
-        w = self._walls(x, v, obs)
         if job is not None:
             # the job's endpoint force on minimum impedance: a grasp closes its own loop
             # around the endpoint (a speed servo, then the object and the contact damping), so
@@ -543,17 +559,14 @@ class ChannelController:
         return u
 
     def _standing_contact(self, est: ContactEstimator, steps: int) -> None:
-        """Outside a job, a contact that stands with the finger still for
-        :data:`~.estimator.STANDING_TIME` is the model's error at rest: re-arm (a model off by
-        15-20 % kept one standing after 6 of 12 grasp releases in dob_full_ff, and the next
-        grasp saw a contact that was not there)."""
-        if -REST_SPEED < est.velocity < REST_SPEED:
-            self._still += steps
-            if self._still >= self._standing:
-                self._still = 0
-                est.rearm()
-        else:
+        """Outside a job, a contact that stands with the finger still (:meth:`update` calls
+        this while it is) for :data:`~.estimator.STANDING_TIME` is the model's error at rest:
+        re-arm (a model off by 15-20 % kept one standing after 6 of 12 grasp releases in
+        dob_full_ff, and the next grasp saw a contact that was not there)."""
+        self._still += steps
+        if self._still >= self._standing:
             self._still = 0
+            est.rearm()
 
     def _walls(self, x: float, v: float, obs: EndpointObserver) -> float:
         """The walls' force this sample [N m] (:class:`~.safety.JointWalls`) and whether the
