@@ -226,8 +226,8 @@ class ContactEstimator:
         "_first", "_x_in", "_g_in", "position", "velocity", "_f1", "_f2", "force", "bias",
         "_drift", "_recent", "detection", "detection_mean", "_spread2", "_on2", "_off",
         # contact and quiet periods
-        "contact", "direction", "onset_position", "_onset_before", "contacts", "_frozen",
-        "_quiet", "quiet", "_settling", "_at_rest", "_skip", "_below",
+        "contact", "direction", "_side", "onset_position", "_onset_before", "contacts",
+        "_frozen", "_quiet", "quiet", "_settling", "_at_rest", "_skip", "_below",
         # the fit
         "_stats", "_cache", "_S", "_block", "_filled", "_p0")
 
@@ -279,6 +279,7 @@ class ContactEstimator:
         self._x_in = self._g_in = 0.0   # the previous X_e_hat and F_p + F_d (lost samples)
         self.contact = False
         self.direction = 0
+        self._side = 0.0
         self.force = 0.0
         self.position = 0.0
         self.velocity = 0.0
@@ -449,7 +450,24 @@ class ContactEstimator:
             self.quiet = False
         elif self.contact:
             self.quiet = False
-            self._in_contact(d, p, q, acc, f1, fd, steps)
+            if d * self._side > -self._off or self._skip:
+                self._in_contact(d, steps)
+            else:
+                # a sample of the object (the most frequent case in contact: in line)
+                if self._below:
+                    self._below = 0
+                block = self._block
+                k = self._filled
+                block[k] = p - self._p0
+                block[k + 1] = q
+                block[k + 2] = acc
+                block[k + 3] = 1.0
+                block[k + 4] = -f1
+                block[k + 5] = fd
+                k += 6
+                self._filled = k
+                if k == _BLOCK_VALUES:
+                    self._fold()
         else:
             self.quiet = False
             # free motion: a contact starts when d leaves its free-motion mean by more than
@@ -525,41 +543,26 @@ class ContactEstimator:
             self._quiet = 0
             self.rearm()
 
-    def _in_contact(self, d: float, p: float, q: float, acc: float, f1: float, fd: float,
-                    steps: int) -> None:
-        """A sample in contact: the contact ends when ``d`` stays below the release level
-        (such samples are not of the object); the first ones after its start are skipped
-        (the filters still hold free motion); the others go to the fit's block."""
-        if d * self.direction > -self._off:
+    def _in_contact(self, d: float, steps: int) -> None:
+        """A sample in contact that is no sample of the object (:meth:`update` puts those in
+        the fit's block): the contact ends when ``d`` stays below the release level; the first
+        samples after its start are skipped (the filters still hold free motion)."""
+        if d * self._side > -self._off:
             # below the release level: not a sample of the object; the contact ends when
             # that lasts (noise on a light touch must not end it)
             self._below += steps
             if self._below >= self._loss_samples:
                 self._end_contact()
-        elif self._skip:
+        else:
             self._skip -= 1
             self._below = 0
-        else:
-            if self._below:
-                self._below = 0
-            block = self._block
-            k = self._filled
-            block[k] = p - self._p0
-            block[k + 1] = q
-            block[k + 2] = acc
-            block[k + 3] = 1.0
-            block[k + 4] = -f1
-            block[k + 5] = fd
-            k += 6
-            self._filled = k
-            if k == _BLOCK_VALUES:
-                self._fold()
 
     def _start_contact(self, excess: float, p: float) -> None:
         """A contact starts at the filtered endpoint position ``p``; ``excess`` < 0: something
         pushes towards -X_e."""
         self.contact = True
         self.direction = 1 if excess < 0.0 else -1
+        self._side = float(self.direction)      # (d * side: a product of two floats)
         self._off = 0.5 * math.sqrt(self._on2)
         self._onset_before = self.onset_position
         self.onset_position = p
