@@ -50,7 +50,10 @@ which calls :meth:`~ChannelController.update` only with checked inputs. A non-fi
 still raises :class:`~.errors.NonFiniteInputError` (nothing is latched).
 
 The hot path uses Python floats only (no numpy, no allocation beyond float boxing, no
-logging); a disabled guard or adaptation costs one test per sample.
+logging); a disabled guard or adaptation costs one test per sample, and so do the walls clear
+of the finger and a calm runaway monitor (their updates, which would change nothing, are
+skipped). Its classes have slots: an instance with more than 30 attributes in a dict would
+make every attribute access a hashed look-up (CPython 3.11).
 """
 
 from __future__ import annotations
@@ -130,8 +133,7 @@ class ChannelController:
         The torque the plant reports it applied in this sample [N m] (NaN: not given).
     """
 
-    # slots: more than 30 attributes would leave the instance's dict unshared (CPython 3.11),
-    # every attribute access in update a hashed look-up
+    # slots (module docstring)
     __slots__ = (
         "dt", "cycle", "applied", "mode", "torque", "disturbance",
         # hand-overs and the job
@@ -510,9 +512,7 @@ class ChannelController:
                 self._trip(monitor.reason)
                 job = None
 
-        # the mode: F_a itself, or the DOB's reference; the walls add to either (clear of
-        # them at the last sample and now, with the monitor's wall ledger empty, _walls would
-        # find what there is: nothing -- skipped)
+        # the mode: F_a itself, or the DOB's reference; the walls add to either
         entry = self._entry
         self._entry = 0
         u_prev = self.torque
@@ -524,6 +524,8 @@ class ChannelController:
             w = self._no_walls()
         elif walls.clear and not monitor.wall_work and walls.free_min <= x <= walls.free_max \
                 and walls.free_min <= obs.position <= walls.free_max:
+            # clear of the walls at the last sample and now, the monitor's wall ledger empty:
+            # _walls would find no force and change nothing (its two calls skipped)
             w = 0.0
         else:
             w = self._walls(x, v, obs)
