@@ -35,11 +35,11 @@ from __future__ import annotations
 import math
 
 from .dahl import DahlState
-
-_exp = math.exp
 from .params import DahlParams, FeedforwardParams, PlantParams
 
 __all__ = ["EndpointObserver", "hose_coefficients"]
+
+_exp = math.exp
 
 
 def hose_coefficients(stiffness: float, inverse_damping: float,
@@ -193,27 +193,27 @@ class EndpointObserver:
         self.velocity = ve
         if self._relax:
             # DahlState.update (n = 1) written out for the model's state and the
-            # feed-forward's: the same arithmetic without two calls (a quarter of this update)
+            # feed-forward's: the same arithmetic without two calls (a fifth of this update)
             dahl = self.dahl
             dx = xd - dahl.position
             dahl.position = xd
             fd = dahl.force
             if dx != 0.0:
-                fc = dahl.coulomb_force
+                f_c = dahl.coulomb_force
                 if dx > 0.0:
-                    fd = dahl.force = fc - (fc - fd) * _exp(-dahl.sigma * dx / fc)
+                    fd = dahl.force = f_c - (f_c - fd) * _exp(-dahl.sigma * dx / f_c)
                 else:
-                    fd = dahl.force = -fc + (fc + fd) * _exp(dahl.sigma * dx / fc)
+                    fd = dahl.force = -f_c + (f_c + fd) * _exp(dahl.sigma * dx / f_c)
             dahl = self.dahl_ff
             dx = xd - dahl.position
             dahl.position = xd
             fdf = dahl.force
             if dx != 0.0:
-                fc = dahl.coulomb_force
+                f_c = dahl.coulomb_force
                 if dx > 0.0:
-                    fdf = dahl.force = fc - (fc - fdf) * _exp(-dahl.sigma * dx / fc)
+                    fdf = dahl.force = f_c - (f_c - fdf) * _exp(-dahl.sigma * dx / f_c)
                 else:
-                    fdf = dahl.force = -fc + (fc + fdf) * _exp(dahl.sigma * dx / fc)
+                    fdf = dahl.force = -f_c + (f_c + fdf) * _exp(dahl.sigma * dx / f_c)
         else:
             fd = self.dahl.update(xd)
             fdf = self.dahl_ff.update(xd)
