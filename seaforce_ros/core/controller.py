@@ -57,7 +57,10 @@ which calls :meth:`~ChannelController.update` only with checked inputs. A non-fi
 still raises :class:`~.errors.NonFiniteInputError` (nothing is latched).
 
 The hot path uses Python floats only (no numpy, no allocation beyond float boxing, no
-logging); a disabled guard or adaptation costs one test per sample.
+logging); a disabled guard or adaptation costs one test per sample, and so do the walls clear
+of the finger and a calm runaway monitor (their updates, which would change nothing, are
+skipped). Its classes have slots: an instance with more than 30 attributes in a dict would
+make every attribute access a hashed look-up (CPython 3.11).
 """
 
 from __future__ import annotations
@@ -147,6 +150,20 @@ class ChannelController:
     applied : float
         The torque the plant reports it applied in this sample [N m] (NaN: not given).
     """
+
+    # slots (module docstring)
+    __slots__ = (
+        "dt", "cycle", "applied", "mode", "torque", "disturbance",
+        # hand-overs and the job
+        "_pending", "_mode_sets", "_jobs", "job", "_job_sample",
+        # the parts
+        "observer", "estimator", "adaptation", "walls", "monitor", "passivity_guard", "_dob",
+        "_modes", "_config",
+        # the mode in force and its entry
+        "_torque_mode", "_reference_mode", "_uses_feedforward", "_walled", "_adapting",
+        "_entry",
+        # the walls, the monitor's fall-back, a standing contact
+        "_wall", "beyond", "fallback", "fallback_reason", "tripped", "_still", "_standing")
 
     def __init__(self, config: ControllerConfig | None = None, dt: float = 5e-4) -> None:
         if config is None:
@@ -487,7 +504,10 @@ class ChannelController:
         est.update(obs.position, f_p, obs.dahl_force, steps)
         job = self.job
         if est.contact and job is None:
-            self._standing_contact(est, steps)
+            if -REST_SPEED < est.velocity < REST_SPEED:
+                self._standing_contact(est, steps)
+            else:
+                self._still = 0         # a contact that moves is no model error at rest
 
         # the job, or the friction adaptation
         if job is not None and job.output == TORQUE:
@@ -498,11 +518,16 @@ class ChannelController:
         if self._adapting and (self._uses_feedforward or job is not None):
             self._adapt(f_p, steps)
 
-        # the runaway monitor, wherever the DOB runs: a trip falls back in this sample
-        if (job is not None or self._torque_mode is None) and \
-                self.monitor.update(v, obs.velocity, steps):
-            self._trip(self.monitor.reason)
-            job = None
+        # the runaway monitor, wherever the DOB runs: a trip falls back in this sample (calm
+        # and V_e_hat within its limit, its update would change nothing: skipped)
+        monitor = self.monitor
+        if job is not None or self._torque_mode is None:
+            limit = monitor.max_speed
+            ve = obs.velocity
+            if not (monitor.calm and -limit <= ve <= limit) and \
+                    monitor.update(v, ve, steps):
+                self._trip(monitor.reason)
+                job = None
 
         # the mode: F_a itself, or the DOB's reference; the walls add to either
         entry = self._entry
@@ -511,10 +536,19 @@ class ChannelController:
         guard = self.passivity_guard
         if entry == _ENTER and guard is not None and not keep_ledger:
             guard.reset()           # a new port: the full reserve, no damping (bumpless)
+        walls = self.walls
+        if job is None and not self._walled:
+            w = self._no_walls()
+        elif walls.clear and not monitor.wall_work and walls.free_min <= x <= walls.free_max \
+                and walls.free_min <= obs.position <= walls.free_max:
+            # clear of the walls at the last sample and now, the monitor's wall ledger empty:
+            # _walls would find no force and change nothing (its two calls skipped)
+            w = 0.0
+        else:
+            w = self._walls(x, v, obs)
         mode = self._torque_mode
         if job is None and mode is not None:
             self.disturbance = _NAN
-            w = self._walls(x, v, obs) if self._walled else self._no_walls()
             # the mode's own part of the last torque: entries stay bumpless in the walls
             u = (mode.enter(x, v, f_p, steps, u_prev - w, entry == _ENTER) if entry else
                  mode.update(x, v, f_p, steps)) + w
@@ -545,18 +579,15 @@ class ChannelController:
         return u
 
     def _standing_contact(self, est: ContactEstimator, steps: int) -> None:
-        """Outside a job, a contact that stands with the finger still for
-        :data:`~.estimator.STANDING_TIME` is the model's error at rest: re-arm (a model 20 %
-        off left a contact standing 3 s after 7 of 12 grasp releases in dob_full_ff, which the
-        next grasp would see; with this 4 of 12 after 6 s, each a finger still touching or
-        bouncing on the object)."""
-        if -REST_SPEED < est.velocity < REST_SPEED:
-            self._still += steps
-            if self._still >= self._standing:
-                self._still = 0
-                est.rearm()
-        else:
+        """Outside a job, a contact that stands with the finger still (:meth:`update` calls
+        this while it is) for :data:`~.estimator.STANDING_TIME` is the model's error at rest:
+        re-arm (a model 20 % off left a contact standing 3 s after 7 of 12 grasp releases in
+        dob_full_ff, which the next grasp would see; with this 4 of 12 after 6 s, each a finger
+        still touching or bouncing on the object)."""
+        self._still += steps
+        if self._still >= self._standing:
             self._still = 0
+            est.rearm()
 
     def _walls(self, x: float, v: float, obs: EndpointObserver) -> float:
         """The walls' force this sample [N m] (:class:`~.safety.JointWalls`) and whether the

@@ -70,7 +70,9 @@ class DisturbanceObserver:
         """One sample (``steps`` sample periods since the previous one): F_a [N m]."""
         e = f_ref + f_p - self._kn * x
         ramp = self._lam_mn * v + self._lam_bn * x
-        integ = self._integ + self._lam_half_dt * steps * (e + self._e_prev)
+        # (times 1 is exact: one sample skips the product of a float and an int)
+        lam_h = self._lam_half_dt if steps == 1 else self._lam_half_dt * steps
+        integ = self._integ + lam_h * (e + self._e_prev)
         self._e_prev = e
         self._integ = integ
         return f_ref + integ - ramp

@@ -76,21 +76,31 @@ class JointWalls:
         F_w [N m].
     beyond : str
         Why the finger is beyond the joint range (X or X_e_hat outside it), or ''.
+    clear : bool
+        Neither X nor X_e_hat was in a wall or beyond the range: ``force`` is 0.0 and
+        ``beyond`` ''. While both stay within ``free_min..free_max`` another update changes
+        nothing and returns 0.0 (the controller skips it then).
+
+    Attributes (configuration)
+    --------------------------
+    free_min, free_max : float
+        The range between the walls [rad].
     """
 
-    __slots__ = ("_lo", "_hi", "_lo_wall", "_hi_wall", "_k", "_b", "_ramp", "_fmax", "force",
-                 "beyond")
+    __slots__ = ("_lo", "_hi", "free_min", "free_max", "_k", "_b", "_ramp", "_fmax", "force",
+                 "beyond", "clear")
 
     def __init__(self, limits: LimitParams, max_torque: float) -> None:
         self.configure(limits, max_torque)
         self.force = 0.0
         self.beyond = ""
+        self.clear = True
 
     def configure(self, limits: LimitParams, max_torque: float) -> None:
         """New (validated) settings."""
         self._lo, self._hi = limits.position_min, limits.position_max
         band = limits.wall_band
-        self._lo_wall, self._hi_wall = self._lo + band, self._hi - band
+        self.free_min, self.free_max = self._lo + band, self._hi - band
         self._k, self._b = limits.wall_stiffness, limits.wall_damping
         self._ramp = 4.0 / band
         self._fmax = float(max_torque)
@@ -98,34 +108,39 @@ class JointWalls:
     def update(self, x: float, v: float, xe: float, ve: float) -> float:
         """One sample: X [rad], V [rad/s], X_e_hat [rad], V_e_hat [rad/s]; returns F_w [N m]."""
         f = 0.0
+        clear = False
         if x > xe:
             hi, hv, lo, lv = x, v, xe, ve
         else:
             hi, hv, lo, lv = xe, ve, x, v
-        if hi > self._hi_wall:
-            p = hi - self._hi_wall
+        if hi > self.free_max:
+            p = hi - self.free_max
             r = p * self._ramp
             f = -(self._k * p + self._b * (r if r < 1.0 else 1.0) * hv)
             if f > 0.0:
                 f = 0.0
             elif f < -self._fmax:
                 f = -self._fmax
-        elif lo < self._lo_wall:
-            p = self._lo_wall - lo
+        elif lo < self.free_min:
+            p = self.free_min - lo
             r = p * self._ramp
             f = self._k * p - self._b * (r if r < 1.0 else 1.0) * lv
             if f < 0.0:
                 f = 0.0
             elif f > self._fmax:
                 f = self._fmax
+        else:
+            clear = True
         self.force = f
         if hi > self._hi or lo < self._lo:
+            clear = False
             if not self.beyond:             # worded once per excursion
                 self.beyond = (f"beyond the joint range limits.position_min..position_max = "
                                f"{self._lo:g}..{self._hi:g} rad: motor at {x:.4g} rad, "
                                f"endpoint (estimated) at {xe:.4g} rad")
         elif self.beyond:
             self.beyond = ""
+        self.clear = clear
         return f
 
 
@@ -148,10 +163,15 @@ class RunawayMonitor:
         False after a trip until the speed was back within ``max_speed``.
     wall_work : float
         The energy the walls took out of the finger, forgotten with :data:`WALL_MEMORY` [J].
+    calm : bool
+        Nothing is counted: ``over`` 0, armed, ``wall_work`` 0. An update with V_e_hat
+        within ``max_speed`` then changes nothing and returns False (the controller skips it).
+    max_speed : float
+        ``monitor.max_speed`` [rad/s].
     """
 
-    __slots__ = ("dt", "_vmax", "_trip", "over", "reason", "armed", "wall_work", "_budget",
-                 "_forget", "_grace", "_memory")
+    __slots__ = ("dt", "max_speed", "_trip", "over", "reason", "armed", "wall_work", "_budget",
+                 "_forget", "_grace", "_memory", "calm")
 
     def __init__(self, monitor: MonitorParams, dt: float) -> None:
         self.dt = float(dt)
@@ -160,7 +180,7 @@ class RunawayMonitor:
 
     def configure(self, monitor: MonitorParams) -> None:
         """New (validated) settings; the count goes on."""
-        self._vmax = monitor.max_speed
+        self.max_speed = monitor.max_speed
         self._budget = monitor.wall_energy
         self._forget = math.exp(-self.dt / WALL_MEMORY)
         self._memory = int(round(WALL_MEMORY / self.dt))
@@ -174,6 +194,7 @@ class RunawayMonitor:
         self.armed = True
         self.wall_work = 0.0
         self._grace = 0
+        self.calm = True
 
     def disarm(self) -> None:
         """After a trip: the finger the fall-back has to stop is still fast. Count again once
@@ -184,6 +205,7 @@ class RunawayMonitor:
         self.armed = False
         self.wall_work = 0.0
         self._grace = self._memory       # the walls stop the finger the fall-back released
+        self.calm = False
 
     def walls(self, power: float, steps: int = 1) -> None:
         """The power the walls take out of the finger this sample, ``-F_w V`` [W] (counted
@@ -195,11 +217,13 @@ class RunawayMonitor:
         if power > 0.0:
             w += power * self.dt * steps
         self.wall_work = w
+        if w:
+            self.calm = False
 
     def update(self, v: float, ve: float, steps: int = 1) -> bool:
         """One sample: V (not judged), V_e_hat [rad/s], ``steps`` periods since the previous;
         True on the sample the monitor trips (then :attr:`reason` says why)."""
-        vmax = self._vmax
+        vmax = self.max_speed
         if -vmax <= ve <= vmax:
             if self.over:
                 self.over = 0
@@ -212,12 +236,14 @@ class RunawayMonitor:
                                f"{1e3 * self._budget:g} mJ")
                 self.disarm()
                 return True
+            self.calm = not self.wall_work
             return False
         if not self.armed:
             twice = vmax + vmax
             if -twice <= ve <= twice:
                 return False
         self.over += steps
+        self.calm = False
         if self.over < self._trip:
             return False
         self.reason = (f"finger driven away: endpoint (estimated) speed {abs(ve):.3g} rad/s "

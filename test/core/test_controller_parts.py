@@ -4,7 +4,9 @@ import math
 
 import pytest
 
-from seaforce_ros.core import DOB_MODES, MODES, ControllerConfig, PlantParams, TargetParams
+from seaforce_ros.core import (DOB_MODES, MODES, ControllerConfig, DahlParams, PlantParams,
+                               TargetParams)
+from seaforce_ros.core.dahl import DahlState
 from seaforce_ros.core.dob import DisturbanceObserver
 from seaforce_ros.core.modes import MODE_TYPES, ReferenceMode, TorqueMode
 from seaforce_ros.core.observer import EndpointObserver, hose_coefficients
@@ -76,6 +78,25 @@ def test_observer_at_rest_and_the_reference_modes():
     assert obs.feedforward == pytest.approx(ff, rel=1e-15)
     assert refs == {"dob": 0.0, "dob_linear_ff": obs.compensation, "dob_full_ff": ff,
                     "impedance": ff - 0.01 * obs.velocity, "force": 0.1}
+
+
+@pytest.mark.parametrize("exponent", [1.0, 1.5])
+def test_the_observers_dahl_states_are_dahl_states_driven_by_the_play(exponent):
+    """The observer updates its two Dahl states itself for n = 1: exactly (==) what
+    DahlState.update gives on the play's output, as it does for another n."""
+    dahl = DahlParams(exponent=exponent)
+    obs = EndpointObserver(PLANT, CONFIG.feedforward, dahl, DT)
+    model, feedforward = DahlState(dahl), DahlState(CONFIG.feedforward.dahl(dahl))
+    for k in range(2000):
+        t = k * DT
+        obs.update(0.3 * math.sin(7.0 * t) + 0.02 * math.sin(300.0 * t), 0.0,
+                   0.05 * math.cos(11.0 * t))
+        if k == 0:
+            model.reset(obs.dahl_input)
+            feedforward.reset(obs.dahl_input)
+        assert obs.dahl_force == model.update(obs.dahl_input)
+        assert obs.dahl_feedforward == feedforward.update(obs.dahl_input)
+        assert obs.feedforward == obs.compensation + obs.dahl_feedforward
 
 
 def test_hose_coefficients_over_n_periods_are_n_single_ones_for_a_ramp():

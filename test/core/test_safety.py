@@ -115,6 +115,50 @@ def test_monitor_trips_on_the_energy_the_walls_take_out():
     assert m.wall_work > 0.0
 
 
+# --- what the controller skips ------------------------------------------------------------------
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(st.lists(st.tuples(st.floats(-1.6, 1.6), st.floats(-20.0, 20.0), st.floats(-1.6, 1.6),
+                          st.floats(-20.0, 20.0)), min_size=1, max_size=80),
+       st.sampled_from([(4.0, 0.1), (0.0, 0.0)]))
+def test_walls_clear_and_between_them_change_nothing(samples, wall):
+    """ChannelController.update skips JointWalls.update while ``clear`` with X and X_e_hat
+    within ``free_min..free_max``: the update then returns +0.0 and leaves ``force``,
+    ``beyond`` and ``clear`` as they were (0.0, '', True). (Walls without stiffness and
+    damping give -0.0 in them: not clear.)"""
+    walls = JointWalls(LimitParams(position_min=-1.2, position_max=1.4, wall_band=0.3,
+                                   wall_stiffness=wall[0], wall_damping=wall[1]), 0.5)
+    low, high = walls.free_min, walls.free_max
+    for x, v, xe, ve in samples:
+        state = (walls.force, walls.beyond, walls.clear)
+        if walls.clear:     # +0.0 (the sign counts: -0.0 is no skipped +0.0)
+            assert (walls.force, math.copysign(1.0, walls.force), walls.beyond) == (0.0, 1.0, "")
+        f = walls.update(x, v, xe, ve)
+        if state[2] and low <= x <= high and low <= xe <= high:
+            assert (f, math.copysign(1.0, f)) == (0.0, 1.0)
+            assert (walls.force, walls.beyond, walls.clear) == state
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(st.lists(st.tuples(st.floats(-25.0, 25.0), st.floats(-25.0, 25.0),
+                          st.sampled_from([0.0, 0.0, -3.0, 4.0]), st.integers(1, 3)),
+                min_size=1, max_size=80))
+def test_a_calm_monitor_within_its_limit_changes_nothing(samples):
+    """ChannelController.update skips RunawayMonitor.update while ``calm`` with both speeds
+    within ``max_speed``: calm is nothing counted (over 0, armed, wall_work 0), and the update
+    then returns False and changes nothing."""
+    m = RunawayMonitor(MonitorParams(max_speed=10.0, trip_time=0.002, wall_energy=1e-3), DT)
+    for v, ve, power, steps in samples:
+        if m.calm:
+            assert m.over == 0 and m.armed and m.wall_work == 0.0
+        state = (m.over, m.reason, m.armed, m.wall_work, m.calm)
+        tripped = m.update(v, ve, steps)
+        if state[4] and -10.0 <= v <= 10.0 and -10.0 <= ve <= 10.0:
+            assert not tripped and (m.over, m.reason, m.armed, m.wall_work, m.calm) == state
+        m.walls(power, steps)
+        if m.calm:
+            assert m.over == 0 and m.armed and m.wall_work == 0.0
+
+
 # --- the configuration's rules -----------------------------------------------------------------
 def test_a_feed_forward_without_its_margin_is_refused_unless_allowed():
     for changes, name in (({"margin": 0.9}, "feedforward.margin"),
