@@ -216,6 +216,8 @@ class ImpedanceFigures(NamedTuple):
     z_rms : float
         ``rms(F_e)/rms(V_e)`` [N m s/rad], both about their means over whole periods: every
         harmonic (and the noise) of F_e counts.
+        rms(F_e)^2 is the power of its first 20 harmonics plus the mean square of what they
+        leave, rms(V_e)^2 that of the first 20 harmonics of V_e.
     harmonics : tuple of float
         Amplitudes |F_e| at ``k w``, k = 1 .. :data:`HARMONICS` [N m].
     distortion : float
@@ -331,10 +333,14 @@ def impedance_figures(f_e: npt.ArrayLike, x_e: npt.ArrayLike, omega: float, dt: 
     basis = np.hstack([np.ones((n, 1)), np.cos(phase), np.sin(phase)])
     coef = np.linalg.lstsq(basis, np.stack([fw, xw], axis=1), rcond=None)[0]
     rot = np.exp(-1j * orders * omega * t[0])        # back to the phase of t = k dt
-    cf = ((coef[1:1 + orders.size, 0] - 1j * coef[1 + orders.size:, 0]) * rot)[:HARMONICS]
+    cf_all = (coef[1:1 + orders.size, 0] - 1j * coef[1 + orders.size:, 0]) * rot
+    cf = cf_all[:HARMONICS]
     cx = (coef[1:1 + orders.size, 1] - 1j * coef[1 + orders.size:, 1]) * rot
     z = complex(cf[0] / (1j * omega * cx[0]))
-    rms_f = float(np.sqrt(np.mean((fw - fw.mean()) ** 2)))
+    # the harmonics' power plus what they leave (noise, content beyond them): exact for a
+    # periodic force whatever fraction of a sample the window is off whole periods
+    resid = fw - basis @ coef[:, 0]
+    rms_f = float(np.sqrt(0.5 * np.sum(np.abs(cf_all) ** 2) + np.mean(resid ** 2)))
     rms_v = float(np.sqrt(0.5 * np.sum((orders[:_VELOCITY_HARMONICS] * omega
                                         * np.abs(cx)) ** 2)))
     fundamental = float(abs(cf[0])) / math.sqrt(2.0)
