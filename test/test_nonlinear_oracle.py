@@ -4,7 +4,7 @@ closed forms, so that what it says of the project is worth something:
 * every effect off, no hysteresis: the passive backdrive's |F_e/V_e| is the model's analytic
   endpoint impedance (:func:`helpers.second_sim.transfer_functions`) on plants drawn 0.5x..2x,
   with no distortion;
-* the quasi-static force of a slow backdrive (the mean of the up and down strokes, which
+* the quasi-static force of a slow backdrive (0.5 rad/s, within 0.5 % of its peak) (the mean of the up and down strokes, which
   cancels the rate terms) is the static equilibrium solved apart (scipy's brentq) with the
   diaphragm's stroke stiffness, the finger ratio, the hose's pressure stiffening and the
   cogging drawn on; without them it would be the linear one, 8-20 % away;
@@ -39,7 +39,7 @@ def _plant(rng, low=0.5, high=2.0):
 def test_without_effects_it_is_the_linear_model(seed):
     rng = np.random.default_rng(seed)
     plant = _plant(rng)
-    for omega in (1.0, 3.0):
+    for omega in (2.0, 10.0):
         rec = backdrive(plant, None, Effects(), Unpowered(), 0.3, omega, periods=1, **EXACT)
         fig = impedance_figures(rec["f_e"], rec["x_e"], omega, rec["dt"])
         z = 1.0 / (1j * omega * transfer_functions(plant, [omega])["D"][0])
@@ -65,8 +65,8 @@ def test_quasi_static_force_is_the_static_equilibrium(seed):
     plant = _plant(rng, 0.7, 1.4)
     effects = draw_effects(rng, ("hose_pressure", "stroke_stiffness", "finger_ratio",
                                  "cogging"))
-    omega = 0.25
-    rec = backdrive(plant, None, effects, Unpowered(), STROKE, omega, periods=1, settle=2.0,
+    omega = 0.5
+    rec = backdrive(plant, None, effects, Unpowered(), STROKE, omega, periods=1, settle=1.0,
                     **EXACT)
     q, f = rec["x_e"], rec["f_e"]
     up = np.gradient(q) > 0
@@ -76,7 +76,7 @@ def test_quasi_static_force_is_the_static_equilibrium(seed):
     static = np.array([_static_force(g, plant, effects) for g in grid])
     linear = np.array([_static_force(g, plant, linear_counterpart(effects)) for g in grid])
     scale = np.max(np.abs(static))
-    assert np.max(np.abs(mean - static)) < 2e-3 * scale
+    assert np.max(np.abs(mean - static)) < 5e-3 * scale
     assert np.max(np.abs(linear - static)) > 0.03 * scale       # the effects are there
 
 
