@@ -15,7 +15,9 @@ them):
 3. :func:`tune_stage` -- lambda, the nominal plant and the hold gains (:func:`~.tuning.tune`);
 4. :func:`predict_stage` -- |Z| of every mode with the tuned settings and its 1-sigma band,
    the Z-width chart with impedance mode's virtual-wall boundary, the DOB's torque noise
-   against lambda (:mod:`.predictor`);
+   against lambda (:mod:`.predictor`); :func:`work_loop_stage` -- the work loops of a
+   backdrive at 1 rad/s, 0.5 rad simulated on the identified model with the tuned settings,
+   with their figures (the fundamental and the rms |Z|, the distortion, the peaks);
 5. :func:`report_stage` -- the :class:`~.report.CommissioningReport` with the drift against the
    previous run's ``report.json``;
 6. :func:`write_stage` -- the report directory, the params file (an existing one is updated in
@@ -45,6 +47,7 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
+from ..core.analysis import impedance_figures
 from ..core.errors import SeaforceError
 from ..core.params import ControllerConfig, DahlParams, PlantParams, settable_order
 from ..core.schema import by_key
@@ -57,14 +60,15 @@ from .predictor import (PREDICTED_MODES, ImpedanceBand, LoopModel, predict_band,
                         torque_noise, wall_limits)
 from .record import ExcitationRecord, load_record
 from .report import (CommissioningReport, LoopFigure, ModeImpedance, NoiseSweep, ParameterRow,
-                     PortResponse, ReportMeta, Tuning, TuningRow, WallBoundary, ZWidthChart,
-                     load_report, summary_table, write_report)
+                     PortResponse, ReportMeta, Tuning, TuningRow, WallBoundary, WorkLoop,
+                     ZWidthChart, load_report, summary_table, write_report)
 from .tuning import TUNED_KEYS, InfeasibleTuningError, TuningResult, tune
 
 __all__ = ["AnalysisRequest", "Analysis", "AnalysisError", "Prediction", "analyse",
            "analyse_directory", "zwidth_at", "identification_rows",
-           "identify_stage", "loop_stage", "tune_stage", "predict_stage", "report_stage",
-           "write_stage", "REQUEST_FILE", "RECORD_FILE", "ROLLBACK_FILE", "HEADLINE_OMEGA",
+           "identify_stage", "loop_stage", "tune_stage", "predict_stage", "work_loop_stage",
+           "report_stage", "write_stage", "WORK_LOOP_MODES", "WORK_LOOP_OMEGA",
+           "WORK_LOOP_AMPLITUDE", "REQUEST_FILE", "RECORD_FILE", "ROLLBACK_FILE", "HEADLINE_OMEGA",
            "main"]
 
 REQUEST_FILE = "request.json"
@@ -186,6 +190,8 @@ class Analysis:
         The channel's values of those keys when the goal started.
     report_path, params_file, rollback_file : str
         '' when not written.
+    work_loops : list of WorkLoop
+        The backdrive work loops simulated on the identified model (:func:`work_loop_stage`).
     """
 
     report: CommissioningReport
@@ -202,6 +208,7 @@ class Analysis:
     report_path: str = ""
     params_file: str = ""
     rollback_file: str = ""
+    work_loops: List[WorkLoop] = field(default_factory=list)
 
     def result(self) -> Dict[str, Any]:
         """The JSON result the action's client gets (numeric keys only in the value arrays;
@@ -331,6 +338,48 @@ def _noise_sweep(plant: PlantParams, dahl: Optional[DahlParams], config: Control
     return NoiseSweep(lam, rms, pressure * rel_sigma, budget, config.dob.cutoff)
 
 
+#: The modes, frequency [rad/s] and amplitude [rad] of the report's work loops (the paper's
+#: bonded-finger experiment, Fig. 5A-B).
+WORK_LOOP_MODES = ("passive", "hold", "dob", "dob_full_ff")
+WORK_LOOP_OMEGA = 1.0
+WORK_LOOP_AMPLITUDE = 0.5
+#: Points kept of a work loop's period.
+_LOOP_POINTS = 400
+
+
+def work_loop_stage(plant: PlantParams, dahl: Optional[DahlParams], config: ControllerConfig,
+                    modes: Sequence[str] = WORK_LOOP_MODES, omega: float = WORK_LOOP_OMEGA,
+                    amplitude: float = WORK_LOOP_AMPLITUDE,
+                    progress: Optional[Progress] = None) -> List[WorkLoop]:
+    """The work loops of a backdrive (the core's simulator: the identified ``plant`` and
+    ``dahl`` as the gripper, the tuned ``config`` as the controller, its sensors), one period
+    after one of settling, with their figures. A mode the simulation cannot run (its
+    configuration refused) is left out."""
+    from ..identification.experiments import work_loop_experiment
+    out: List[WorkLoop] = []
+    for i, mode in enumerate(modes):
+        if progress is not None:
+            progress("predict", 0.8 + 0.2 * i / len(modes),
+                     f"work loop of {mode} at {omega:g} rad/s on the identified model")
+        try:
+            rec = work_loop_experiment(plant=plant, dahl=dahl, amplitude=amplitude,
+                                       frequency=omega, cycles=1.0, mode=mode, config=config,
+                                       settle_cycles=1.0)
+        except SeaforceError:
+            continue
+        dt = float(rec["t"][1] - rec["t"][0])  # type: ignore[index]
+        fig = impedance_figures(rec["f_e"], rec["x_e"], omega, dt,
+                                float(rec["settle"]))
+        n = int(round(2.0 * math.pi / omega / dt))
+        x = np.asarray(rec["x_e"])[-n:]
+        f = np.asarray(rec["f_e"])[-n:]
+        keep = np.linspace(0, n - 1, min(n, _LOOP_POINTS)).astype(int)
+        out.append(WorkLoop(mode, omega, amplitude, x[keep], f[keep], fig.z_db, fig.z_rms_db,
+                            fig.distortion, fig.peak, fig.peak_centre, fig.centre_band,
+                            "simulated on the identified model, tuned settings"))
+    return out
+
+
 # --- 5. the report --------------------------------------------------------------------------
 def _spec(key: str) -> Tuple[str, str]:
     spec = by_key().get(key)
@@ -412,7 +461,8 @@ def report_stage(request: AnalysisRequest, phases: Mapping[str, float], *,
                  loop: Optional[Tuple[LoopFigures, LoopModel]] = None,
                  tuning: Optional[TuningResult] = None,
                  prediction: Optional[Prediction] = None,
-                 summary: Sequence[str] = ()) -> CommissioningReport:
+                 summary: Sequence[str] = (),
+                 work_loops: Sequence[WorkLoop] = ()) -> CommissioningReport:
     """The report of what the stages reached (None: not reached)."""
     previous, note = _previous_rows(request.previous)
     meta = ReportMeta(request.channel, request.started or _now(), dict(phases),
@@ -430,6 +480,7 @@ def report_stage(request: AnalysisRequest, phases: Mapping[str, float], *,
         data.impedance = _mode_rows(prediction.band)
         data.zwidth = prediction.zwidth
         data.noise = prediction.noise
+    data.work_loops = list(work_loops)
     return data
 
 
@@ -541,6 +592,8 @@ def analyse(record: ExcitationRecord, request: AnalysisRequest,
                                    tuning.config, analysis.loop, request.noise_budget,
                                    noise_rel_sigma=figures.pressure.std_1s
                                    / max(figures.pressure.std, 1e-300), progress=say)
+        analysis.work_loops = work_loop_stage(ident.plant(), ident.dahl(), tuning.config,
+                                              progress=say)
         lap("predict")
         analysis.band = prediction.band
         analysis.before_db = {w: float(np.interp(math.log(w), np.log(tuning.omega),
@@ -561,7 +614,8 @@ def analyse(record: ExcitationRecord, request: AnalysisRequest,
     loop_pair = None if figures is None or analysis.loop is None else (figures, analysis.loop)
     analysis.report = report_stage(request, phases, ident=ident, loop=loop_pair,
                                    tuning=tuning, prediction=prediction,
-                                   summary=_summary(analysis, request))
+                                   summary=_summary(analysis, request),
+                                   work_loops=analysis.work_loops)
     if directory is not None:
         write_stage(directory, analysis, request)
     lap("report")
