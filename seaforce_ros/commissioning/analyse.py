@@ -5,7 +5,10 @@ Stages (each a function over explicit inputs; :func:`analyse` runs them in order
 them):
 
 1. :func:`identify_stage` -- the eight Table I parameters and the Dahl hysteresis with their
-   1-sigmas (:func:`~.free_air.identify_free_air`);
+   1-sigmas (:func:`~.free_air.identify_free_air`); then the model class: the fits' misfits
+   against :data:`~.free_air.MODEL_CLASS_THRESHOLD` and the candidate nonlinear terms the
+   record resolves (:func:`~.nonlinear_terms.identify_nonlinear_terms`), in the report's
+   summary;
 2. :func:`loop_stage` -- the pressure noise, the encoder's quantum and the loop delay
    (:func:`~.loop_figures.loop_figures`), as the predictor's :class:`~.predictor.LoopModel`.
    The record's delay counts from a state to the first state whose ``applied`` torque is the
@@ -54,19 +57,22 @@ from ..core.schema import by_key
 from ..identification.errors import IdentificationError
 from ..identification.output import write_values_file
 from .errors import CommissioningError
-from .free_air import DAHL_KEYS, PLANT_KEYS, FreeAirIdentification, identify_free_air
+from .free_air import (DAHL_KEYS, PLANT_KEYS, FreeAirIdentification, identify_free_air,
+                       model_class)
+from .nonlinear_terms import NonlinearTerms, identify_nonlinear_terms
 from .loop_figures import LoopFigures, loop_figures
 from .predictor import (PREDICTED_MODES, ImpedanceBand, LoopModel, predict_band,
                         torque_noise, wall_limits)
 from .record import ExcitationRecord, load_record
-from .report import (CommissioningReport, LoopFigure, ModeImpedance, NoiseSweep, ParameterRow,
+from .report import (CommissioningReport, LoopFigure, ModeImpedance, ModelClass, NoiseSweep,
+                     ParameterRow,
                      PortResponse, ReportMeta, Tuning, TuningRow, WallBoundary, WorkLoop,
                      ZWidthChart, load_report, summary_table, write_report)
 from .tuning import TUNED_KEYS, InfeasibleTuningError, TuningResult, tune
 
 __all__ = ["AnalysisRequest", "Analysis", "AnalysisError", "Prediction", "analyse",
            "analyse_directory", "zwidth_at", "identification_rows",
-           "identify_stage", "loop_stage", "tune_stage", "predict_stage", "work_loop_stage",
+           "identify_stage", "model_class_stage", "loop_stage", "tune_stage", "predict_stage", "work_loop_stage",
            "report_stage", "write_stage", "WORK_LOOP_MODES", "WORK_LOOP_OMEGA",
            "WORK_LOOP_AMPLITUDE", "REQUEST_FILE", "RECORD_FILE", "ROLLBACK_FILE", "HEADLINE_OMEGA",
            "main"]
@@ -192,6 +198,10 @@ class Analysis:
         '' when not written.
     work_loops : list of WorkLoop
         The backdrive work loops simulated on the identified model (:func:`work_loop_stage`).
+    model_class : ModelClass or None
+        Whether the model class fits, with the candidate nonlinear terms' lines.
+    terms : NonlinearTerms or None
+        The candidate nonlinear terms (:mod:`.nonlinear_terms`).
     """
 
     report: CommissioningReport
@@ -209,6 +219,8 @@ class Analysis:
     params_file: str = ""
     rollback_file: str = ""
     work_loops: List[WorkLoop] = field(default_factory=list)
+    model_class: Optional[ModelClass] = None
+    terms: Optional[NonlinearTerms] = None
 
     def result(self) -> Dict[str, Any]:
         """The JSON result the action's client gets (numeric keys only in the value arrays;
@@ -235,8 +247,24 @@ def identify_stage(record: ExcitationRecord, progress: Optional[Progress] = None
     """The free-air identification, its progress mapped onto ``progress('identify', ...)``."""
     def step(message: str, fraction: float) -> None:
         if progress is not None:
-            progress("identify", fraction, message)
+            progress("identify", 0.6 * fraction, message)
     return identify_free_air(record, progress=step)
+
+
+def model_class_stage(record: ExcitationRecord, ident: FreeAirIdentification,
+                      progress: Optional[Progress] = None
+                      ) -> Tuple[ModelClass, Optional[NonlinearTerms]]:
+    """The model class's verdict with the candidate nonlinear terms (None, and a line saying
+    why, when they cannot be fitted)."""
+    def step(message: str, fraction: float) -> None:
+        if progress is not None:
+            progress("identify", 0.6 + 0.4 * fraction, message)
+    try:
+        terms: Optional[NonlinearTerms] = identify_nonlinear_terms(record, ident, step)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        return model_class(ident, terms=[f"candidate nonlinear terms not fitted: {exc}"]), None
+    assert terms is not None
+    return model_class(ident, terms=terms.lines()), terms
 
 
 def _plant_sigma(ident: FreeAirIdentification) -> Dict[str, float]:
@@ -462,7 +490,8 @@ def report_stage(request: AnalysisRequest, phases: Mapping[str, float], *,
                  tuning: Optional[TuningResult] = None,
                  prediction: Optional[Prediction] = None,
                  summary: Sequence[str] = (),
-                 work_loops: Sequence[WorkLoop] = ()) -> CommissioningReport:
+                 work_loops: Sequence[WorkLoop] = (),
+                 model: Optional[ModelClass] = None) -> CommissioningReport:
     """The report of what the stages reached (None: not reached)."""
     previous, note = _previous_rows(request.previous)
     meta = ReportMeta(request.channel, request.started or _now(), dict(phases),
@@ -481,6 +510,7 @@ def report_stage(request: AnalysisRequest, phases: Mapping[str, float], *,
         data.zwidth = prediction.zwidth
         data.noise = prediction.noise
     data.work_loops = list(work_loops)
+    data.model_class = model
     return data
 
 
@@ -581,6 +611,7 @@ def analyse(record: ExcitationRecord, request: AnalysisRequest,
     try:
         say("identify", 0.0, "the motor plant and the port from the record")
         ident = analysis.identification = identify_stage(record, say)
+        analysis.model_class, analysis.terms = model_class_stage(record, ident, say)
         lap("identify")
         say("loop", 0.0, "pressure noise, encoder quantum, loop delay")
         figures, analysis.loop = loop_stage(record, request.config)
@@ -615,7 +646,8 @@ def analyse(record: ExcitationRecord, request: AnalysisRequest,
     analysis.report = report_stage(request, phases, ident=ident, loop=loop_pair,
                                    tuning=tuning, prediction=prediction,
                                    summary=_summary(analysis, request),
-                                   work_loops=analysis.work_loops)
+                                   work_loops=analysis.work_loops,
+                                   model=analysis.model_class)
     if directory is not None:
         write_stage(directory, analysis, request)
     lap("report")

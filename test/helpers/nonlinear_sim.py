@@ -417,7 +417,7 @@ def run_loop(gripper, controller, samples, job_done=None):
         out["f_p_true"][k] = gripper.true_f_p
         m = gripper.step(u)
         if job_done is not None and job_done():
-            return {k: a[:k + 1] for k, a in out.items()}
+            return {name: a[:k + 1] for name, a in out.items()}
     return out
 
 

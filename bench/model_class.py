@@ -1,0 +1,76 @@
+"""Does the free-air identification see when its model class does not fit?
+
+Over N plants of the commissioning family (each Table I parameter, sigma and F_c log-uniform
+in [0.5x, 2x]) the project's excitation job runs in its controller on the nonlinear oracle
+(``test/helpers/nonlinear_sim.py``: its own integrator and sensors), once with every
+nonlinear effect off (the model class the identification assumes) and once with every effect
+drawn within its range (and, with ``--each``, with each effect alone). Printed per draw and
+summarised: the misfits of the motor and port fits, the model-class verdict of
+:func:`seaforce_ros.commissioning.free_air.model_class` and the identified hose damping b_s
+against the truth and against its equivalent linear value at the excitation's hose flow;
+last, how many draws the verdict flags per class (the threshold's false alarms and misses).
+
+Run (from the repository root, environment sourced)::
+
+    python bench/model_class.py [N] [seed] [--each] [--quick]
+
+``--quick``: 4 draws.
+"""
+import math
+import pathlib
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "test"))
+from helpers.nonlinear_sim import EFFECTS  # noqa: E402
+from helpers.oracle_commissioning import draw, excite, identify, relative_errors  # noqa: E402
+
+from seaforce_ros.commissioning.free_air import model_class  # noqa: E402
+
+
+def main(argv):
+    flags = {a for a in argv if a.startswith("--")}
+    args = [a for a in argv if not a.startswith("--")]
+    n = 4 if "--quick" in flags else int(args[0]) if args else 20
+    seed0 = int(args[1]) if len(args) > 1 else 1
+    classes = ["linear", "all effects"] + (list(EFFECTS) if "--each" in flags else [])
+    rows = {c: [] for c in classes}
+    t0 = time.process_time()
+    for i in range(n):
+        for label in classes:
+            rng = np.random.default_rng(seed0 * 1000 + i)
+            plant, dahl, effects = draw(rng, effects=label != "linear")
+            if label not in ("linear", "all effects"):
+                effects = effects.only(label)
+            try:
+                record = excite(plant, dahl, effects, seed=i)
+            except RuntimeError as exc:
+                print(f"draw {i} {label}: {exc}")
+                continue
+            ident = identify(record)
+            verdict = model_class(ident)
+            err = relative_errors(ident, plant, dahl)
+            rows[label].append((ident.misfit["motor"], ident.misfit["port"], verdict.fits,
+                                err["hose_damping"], ident.equivalent_hose_damping(plant)
+                                if hasattr(ident, "equivalent_hose_damping") else math.nan))
+            print(f"draw {i:2d} {label:16s} misfit motor {100 * ident.misfit['motor']:5.2f} %, "
+                  f"port {100 * ident.misfit['port']:5.2f} % -> "
+                  f"{'fits' if verdict.fits else 'FLAGGED'}; b_s {100 * err['hose_damping']:+6.1f}"
+                  f" %; {effects.describe()}", flush=True)
+    print(f"\nover {n} draws (seed {seed0}); misfit [%] median / max, flagged draws:")
+    for label, r in rows.items():
+        if not r:
+            continue
+        a = np.asarray([x[:4] for x in r], float)
+        print(f"  {label:16s} motor {100 * np.median(a[:, 0]):5.2f} / {100 * a[:, 0].max():5.2f}"
+              f"  port {100 * np.median(a[:, 1]):5.2f} / {100 * a[:, 1].max():5.2f}  flagged "
+              f"{int((a[:, 2] == 0).sum())}/{len(r)}  b_s error median "
+              f"{100 * np.median(a[:, 3]):+.1f} %, max |{100 * np.abs(a[:, 3]).max():.1f}| %")
+    print(f"CPU {time.process_time() - t0:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
