@@ -27,7 +27,7 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "test"))
 from helpers.nonlinear_sim import EFFECTS  # noqa: E402
 from helpers.oracle_commissioning import draw, excite, identify, relative_errors  # noqa: E402
 
-from seaforce_ros.commissioning.free_air import model_class  # noqa: E402
+from seaforce_ros.commissioning.analyse import model_class_stage  # noqa: E402
 
 
 def main(argv):
@@ -50,24 +50,38 @@ def main(argv):
                 print(f"draw {i} {label}: {exc}")
                 continue
             ident = identify(record)
-            verdict = model_class(ident)
+            verdict, terms = model_class_stage(record, ident)
             err = relative_errors(ident, plant, dahl)
+            resolved = sorted(t.key for t in terms.resolved()) if terms else []
+            b_s = (terms.equations["port"].linear["hose_damping"][0]
+                   if terms and "port" in terms.equations else math.nan)
+            b_s_err = b_s / plant["hose_damping"] - 1.0
+            flow = terms.term("hose_flow") if terms else None
+            c_err = (flow.value / (plant["hose_damping"] / effects.hose_flow) - 1.0
+                     if flow is not None and effects.hose_flow else math.nan)
             rows[label].append((ident.misfit["motor"], ident.misfit["port"], verdict.fits,
-                                err["hose_damping"], ident.equivalent_hose_damping(plant)
-                                if hasattr(ident, "equivalent_hose_damping") else math.nan))
+                                err["hose_damping"], b_s_err, c_err, resolved))
             print(f"draw {i:2d} {label:16s} misfit motor {100 * ident.misfit['motor']:5.2f} %, "
                   f"port {100 * ident.misfit['port']:5.2f} % -> "
                   f"{'fits' if verdict.fits else 'FLAGGED'}; b_s {100 * err['hose_damping']:+6.1f}"
-                  f" %; {effects.describe()}", flush=True)
+                  f" % (with the terms {100 * b_s_err:+5.1f} %, c {100 * c_err:+5.1f} %); "
+                  f"resolved: {', '.join(resolved) or '-'}; {effects.describe()}", flush=True)
     print(f"\nover {n} draws (seed {seed0}); misfit [%] median / max, flagged draws:")
     for label, r in rows.items():
         if not r:
             continue
-        a = np.asarray([x[:4] for x in r], float)
+        a = np.asarray([x[:6] for x in r], float)
+        counts = {}
+        for x in r:
+            for key in x[6]:
+                counts[key] = counts.get(key, 0) + 1
         print(f"  {label:16s} motor {100 * np.median(a[:, 0]):5.2f} / {100 * a[:, 0].max():5.2f}"
               f"  port {100 * np.median(a[:, 1]):5.2f} / {100 * a[:, 1].max():5.2f}  flagged "
               f"{int((a[:, 2] == 0).sum())}/{len(r)}  b_s error median "
-              f"{100 * np.median(a[:, 3]):+.1f} %, max |{100 * np.abs(a[:, 3]).max():.1f}| %")
+              f"{100 * np.median(a[:, 3]):+.1f} %, max |{100 * np.abs(a[:, 3]).max():.1f}| %; "
+              f"with the terms max |{100 * np.nanmax(np.abs(a[:, 4])):.1f}| %, c max "
+              f"|{100 * np.nanmax(np.abs(a[:, 5])) if np.isfinite(a[:, 5]).any() else math.nan:.1f}"
+              f"| %; resolved: " + ", ".join(f"{k} {v}/{len(r)}" for k, v in sorted(counts.items())))
     print(f"CPU {time.process_time() - t0:.0f} s")
     return 0
 

@@ -264,7 +264,8 @@ def model_class_stage(record: ExcitationRecord, ident: FreeAirIdentification,
     except (ValueError, np.linalg.LinAlgError) as exc:
         return model_class(ident, terms=[f"candidate nonlinear terms not fitted: {exc}"]), None
     assert terms is not None
-    return model_class(ident, terms=terms.lines()), terms
+    return model_class(ident, terms=terms.lines(),
+                       resolved=[t.key.replace("_", " ") for t in terms.resolved()]), terms
 
 
 def _plant_sigma(ident: FreeAirIdentification) -> Dict[str, float]:

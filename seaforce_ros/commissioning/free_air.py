@@ -707,21 +707,25 @@ def _response(resp: FrequencyResponse, coherence: _Real, model: _Complex) -> Res
 
 def model_class(ident: FreeAirIdentification,
                 threshold: Optional[Dict[str, float]] = None,
-                terms: Optional[Sequence[str]] = None) -> "ModelClass":
+                terms: Optional[Sequence[str]] = None,
+                resolved: Sequence[str] = ()) -> "ModelClass":
     """Whether the identified model class describes the gripper: each fit's misfit against
     :data:`MODEL_CLASS_THRESHOLD` (or ``threshold``), and a warning that says what a misfit
-    beyond it means for the parameters and the predictions; ``terms``: the lines of the
-    candidate nonlinear terms (:mod:`.nonlinear_terms`)."""
+    beyond it -- or a nonlinear term the record resolved (``resolved``: their labels) --
+    means for the parameters and the predictions; ``terms``: the lines of the candidate
+    nonlinear terms (:mod:`.nonlinear_terms`)."""
     from .report import ModelClass
     limits = dict(MODEL_CLASS_THRESHOLD if threshold is None else threshold)
     over = [k for k, v in ident.misfit.items() if k in limits and not v <= limits[k]]
+    causes = [f"the {k} fit's misfit {100 * ident.misfit[k]:.2g} % exceeds "
+              f"{100 * limits[k]:.2g} %" for k in over]
+    if resolved:
+        causes.append("the record resolves " + ", ".join(resolved))
     warning = ""
-    if over:
-        warning = ("the " + " and the ".join(
-            f"{k} fit's misfit {100 * ident.misfit[k]:.2g} % exceeds {100 * limits[k]:.2g} %"
-            for k in over)
-            + ": the linear model with the Dahl hysteresis does not describe this gripper "
-            "(nonlinear hose, diaphragm, finger or motor friction); its parameters are "
-            "equivalent values at this excitation's amplitudes, their 1-sigmas do not cover "
-            "that, and predictions of the softest modes are optimistic")
+    if causes:
+        warning = ("; ".join(causes)
+                   + ": the linear model with the Dahl hysteresis does not describe this gripper "
+                   "(nonlinear hose, diaphragm, finger or motor friction); its parameters are "
+                   "equivalent values at this excitation's amplitudes, their 1-sigmas do not "
+                   "cover that, and predictions of the softest modes are optimistic")
     return ModelClass(dict(ident.misfit), limits, warning, list(terms or []))

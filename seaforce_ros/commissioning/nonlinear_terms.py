@@ -44,11 +44,17 @@ linear terms, the candidate that lowers the Bayesian information criterion
 with tau the integrated autocorrelation time of the residual of the linear terms (filtered
 samples are not independent). The 1-sigmas are Newey-West's (a heteroscedasticity- and
 autocorrelation-consistent sandwich, lag ``3 tau``). A term is *resolved* when the criterion
-chose it and its value is at least :data:`RESOLVED_SIGMAS` 1-sigmas from zero; otherwise the
-reason is given: the criterion did not choose it (what it would lower the misfit by), it is
-below three 1-sigmas, it is not separable from another term (variance inflation above
-:data:`COLLINEAR_VIF`), or the record never reaches where it acts (the hose flow, the
-stroke and the pressure the record reached are printed with each term).
+chose it, its value is at least :data:`RESOLVED_SIGMAS` 1-sigmas from zero, the two halves
+of the record (split where the filtered target's energy is half spent: for a chirp, the
+lower and the upper half of what the band holds) give it within
+:data:`CONSISTENCY` of its value, and it carries at least :data:`MIN_SHARE` of its
+equation's force; otherwise the reason is given: the criterion did not choose it (what it
+would lower the misfit by), it is below three 1-sigmas, the halves disagree (it takes up
+another error of the model: a term the model's other errors can imitate), it is a trace, or
+it is not separable from another term (variance inflation above :data:`COLLINEAR_VIF`). The
+hose flow, the stroke and the pressure the record reached are printed with each term: a
+term the record never drives far cannot show. The 1-sigmas are statistical: on the oracle's
+family the resolved terms' errors are several of them (bench/model_class.py).
 """
 from __future__ import annotations
 
@@ -68,7 +74,7 @@ from .record import ExcitationRecord
 
 __all__ = ["Term", "EquationFit", "NonlinearTerms", "identify_nonlinear_terms",
            "MOTOR_CUTOFF", "PORT_TOP", "ENDPOINT_CUTOFF", "DECIMATE", "COULOMB_VELOCITY",
-           "COGGING_PERIODS", "RESOLVED_SIGMAS", "COLLINEAR_VIF", "MIN_SHARE"]
+           "COGGING_PERIODS", "RESOLVED_SIGMAS", "COLLINEAR_VIF", "MIN_SHARE", "CONSISTENCY"]
 
 _Real = npt.NDArray[np.float64]
 
@@ -89,6 +95,9 @@ RESOLVED_SIGMAS = 3.0
 #: A chosen term that carries less than this share of its equation's force (rms of its part
 #: over rms of the target, filtered) is not resolved: a trace of the model's other errors.
 MIN_SHARE = 0.005
+#: A chosen term whose values on the two halves of the record differ from its value by more
+#: than this share is not resolved: it takes up another error of the model.
+CONSISTENCY = 0.25
 #: Variance inflation factor above which a term is not separable from the others.
 COLLINEAR_VIF = 100.0
 #: Seconds left out at each end (the filters' transients).
@@ -119,8 +128,8 @@ class Term:
         What else the record says of it (the cogging's N; the flow, stroke or pressure the
         record reached).
     bic_change : float
-        The criterion's change when the term is added to the chosen ones (removed, for a
-        chosen one: the change is then its cost, positive); NaN when not fitted.
+        The criterion with the term less the criterion without it (the other chosen terms
+        kept): negative for a term the criterion chose; NaN when not fitted.
     """
 
     key: str
@@ -263,6 +272,7 @@ class _Selection:
     n: int
     bic_change: Dict[str, float]
     alone: Dict[str, _Fit]
+    lags: int
 
 
 def _bic(rss: float, n: int, n_eff: float, p: int) -> float:
@@ -315,7 +325,8 @@ def _select(y: _Real, cols: Dict[str, _Real], base: Sequence[str],
             fit = _lstsq(y, cols, names + gcols, lags)
             change[g] = cost(names + gcols, fit, chosen + [g]) - best_cost
             alone[g] = fit
-    return _Selection(_lstsq(y, cols, base, lags), current, chosen, tau, n, change, alone)
+    return _Selection(_lstsq(y, cols, base, lags), current, chosen, tau, n, change, alone,
+                      lags)
 
 
 def _coef(fit: _Fit, key: str) -> Tuple[float, float]:
@@ -332,12 +343,39 @@ def _misfit(fit: _Fit, y: _Real) -> float:
     return math.sqrt(fit.rss / max(float(y @ y), 1e-300))
 
 
+def _group_value(fit: _Fit, group: Sequence[str], amplitude: bool) -> Tuple[float, float]:
+    """(value, 1-sigma) of a group: its coefficient, or the amplitude of a pair (delta
+    method)."""
+    idx = [fit.names.index(c) for c in group]
+    if not amplitude:
+        return float(fit.coef[idx[0]]), math.sqrt(max(float(fit.cov[idx[0], idx[0]]), 0.0))
+    vals = np.asarray(fit.coef[idx], float)
+    amp = float(np.hypot(*vals))
+    grad = vals / amp if amp > 0 else np.zeros(len(idx))
+    return amp, math.sqrt(max(float(grad @ fit.cov[np.ix_(idx, idx)] @ grad), 0.0))
+
+
+def _halves(y: _Real, cols: Dict[str, _Real], names: Sequence[str], group: Sequence[str],
+            amplitude: bool, lags: int) -> List[Tuple[float, float]]:
+    """The group's (value, 1-sigma) fitted on each half of the samples, split where the
+    target's energy is half spent (for a chirp: the lower and the upper half of what the
+    equation's band holds)."""
+    out = []
+    energy = np.cumsum(y ** 2)
+    half = int(np.searchsorted(energy, 0.5 * energy[-1]))
+    half = min(max(half, 10), y.size - 10)
+    for part in (slice(0, half), slice(half, y.size)):
+        fit = _lstsq(y[part], {k: c[part] for k, c in cols.items()}, names, lags)
+        out.append(_group_value(fit, group, amplitude))
+    return out
+
+
 def _term(key: str, equation: str, label: str, unit: str, sel: _Selection,
           y: _Real, cols: Dict[str, _Real], group: List[str], extra: str = "",
-          value: Optional[Tuple[float, float]] = None) -> Term:
+          amplitude: bool = False) -> Term:
     """The report of one candidate from a selection."""
     fit = sel.alone[key]
-    v, s = value if value is not None else _coef(fit, group[0])
+    v, s = _group_value(fit, group, amplitude)
     chosen = key in sel.chosen
     vif = max(_vif(cols, fit.names, c) for c in group)
     if vif > COLLINEAR_VIF:
@@ -356,6 +394,14 @@ def _term(key: str, equation: str, label: str, unit: str, sel: _Selection,
         return Term(key, equation, label, unit, v, s, False,
                     f"chosen, but within {RESOLVED_SIGMAS:g} 1-sigmas of zero", extra,
                     sel.bic_change[key])
+    halves = _halves(y, cols, fit.names, group, amplitude, sel.lags)
+    if any(not abs(h - v) <= max(CONSISTENCY * abs(v), RESOLVED_SIGMAS * hs)
+           for h, hs in halves):
+        return Term(key, equation, label, unit, v, s, False,
+                    "chosen, but the two halves of the record give " + " and ".join(
+                        f"{h:.3g} +- {hs:.2g}" for h, hs in halves)
+                    + f" (beyond {100 * CONSISTENCY:g} % and {RESOLVED_SIGMAS:g} 1-sigmas): it "
+                    "takes up another error of the model", extra, sel.bic_change[key])
     a = np.stack([cols[c] for c in group], 1)
     idx = [fit.names.index(c) for c in group]
     share = math.sqrt(float(np.mean((a @ fit.coef[idx]) ** 2)) / max(float(np.mean(y ** 2)),
@@ -402,18 +448,11 @@ def _motor(sig: Dict[str, _Real], dt: float) -> Tuple[List[Term], EquationFit]:
     speed = float(np.max(np.abs(v)))
     terms = [_term("motor_coulomb", "motor", "motor Coulomb friction F_cm tanh(V/v_c)", "N m",
                    sel, y, cols, ["coulomb"], f"motor speed up to {speed:.3g} rad/s")]
-    fit = sel.alone["cogging"]
-    i, j = fit.names.index("cog_s"), fit.names.index("cog_c")
-    cs, cc = float(fit.coef[i]), float(fit.coef[j])
-    amp = math.hypot(cs, cc)
-    grad = np.array([cs, cc]) / amp if amp > 0 else np.zeros(2)
-    sub = fit.cov[np.ix_([i, j], [i, j])]
-    amp_sigma = math.sqrt(max(float(grad @ sub @ grad), 0.0))
     terms.append(_term("cogging", "motor", "motor cogging F_cog sin(N X + phi)", "N m", sel,
                        y, cols, ["cog_s", "cog_c"],
                        f"N = {best_n} periods/rev (the best of {COGGING_PERIODS[0]}.."
                        f"{COGGING_PERIODS[-1]}); stroke {np.ptp(x):.3g} rad",
-                       value=(amp, amp_sigma)))
+                       amplitude=True))
     linear = {name: _coef(sel.final, c)
               for name, c in (("motor_inertia", "m"), ("motor_damping", "b"),
                               ("motor_stiffness", "k"))}
