@@ -49,8 +49,9 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
+import numpy.typing as npt
 
-from ..core.analysis import impedance_figures
+from ..core.analysis import ImpedanceFigures, impedance_figures
 from ..core.errors import SeaforceError
 from ..core.params import ControllerConfig, DahlParams, PlantParams, settable_order
 from ..core.schema import by_key
@@ -74,7 +75,7 @@ __all__ = ["AnalysisRequest", "Analysis", "AnalysisError", "Prediction", "analys
            "analyse_directory", "zwidth_at", "identification_rows",
            "identify_stage", "model_class_stage", "loop_stage", "tune_stage", "predict_stage", "work_loop_stage",
            "report_stage", "write_stage", "WORK_LOOP_MODES", "WORK_LOOP_OMEGA",
-           "WORK_LOOP_AMPLITUDE", "REQUEST_FILE", "RECORD_FILE", "ROLLBACK_FILE", "HEADLINE_OMEGA",
+           "WORK_LOOP_AMPLITUDE", "BACKDRIVE_SPEED", "backdrive_amplitude", "Backdrives", "REQUEST_FILE", "RECORD_FILE", "ROLLBACK_FILE", "HEADLINE_OMEGA",
            "main"]
 
 REQUEST_FILE = "request.json"
@@ -202,6 +203,8 @@ class Analysis:
         Whether the model class fits, with the candidate nonlinear terms' lines.
     terms : NonlinearTerms or None
         The candidate nonlinear terms (:mod:`.nonlinear_terms`).
+    backdrives : Backdrives or None
+        The backdrives simulated on the identified model: the rms prediction.
     """
 
     report: CommissioningReport
@@ -221,6 +224,7 @@ class Analysis:
     work_loops: List[WorkLoop] = field(default_factory=list)
     model_class: Optional[ModelClass] = None
     terms: Optional[NonlinearTerms] = None
+    backdrives: Optional["Backdrives"] = None
 
     def result(self) -> Dict[str, Any]:
         """The JSON result the action's client gets (numeric keys only in the value arrays;
@@ -372,41 +376,80 @@ def _noise_sweep(plant: PlantParams, dahl: Optional[DahlParams], config: Control
 WORK_LOOP_MODES = ("passive", "hold", "dob", "dob_full_ff")
 WORK_LOOP_OMEGA = 1.0
 WORK_LOOP_AMPLITUDE = 0.5
+#: Peak drive speed [rad/s] of the rms predictions' backdrives (and the commissioning demo's):
+#: amplitude min(0.5 rad, BACKDRIVE_SPEED/omega).
+BACKDRIVE_SPEED = 0.5
 #: Points kept of a work loop's period.
 _LOOP_POINTS = 400
 
 
+def backdrive_amplitude(omega: float) -> float:
+    """The backdrive's amplitude [rad] at ``omega`` [rad/s]: 0.5 rad, at most
+    :data:`BACKDRIVE_SPEED` of peak speed."""
+    return min(WORK_LOOP_AMPLITUDE, BACKDRIVE_SPEED / omega)
+
+
+@dataclass
+class Backdrives:
+    """What :func:`work_loop_stage` simulated: the work loops, and the impedance figures
+    (:class:`~..core.analysis.ImpedanceFigures`) per mode at each frequency (None where the
+    mode's configuration was refused)."""
+
+    work_loops: List[WorkLoop]
+    omega: Tuple[float, ...]
+    figures: Dict[str, List[Optional[ImpedanceFigures]]]
+
+    def rms(self, mode: str) -> npt.NDArray[np.float64]:
+        """The predicted rms |Z| [N m s/rad] of ``mode`` on :attr:`omega` (NaN: none)."""
+        return np.array([f.z_rms if f is not None else math.nan
+                         for f in self.figures.get(mode, [None] * len(self.omega))])
+
+
 def work_loop_stage(plant: PlantParams, dahl: Optional[DahlParams], config: ControllerConfig,
-                    modes: Sequence[str] = WORK_LOOP_MODES, omega: float = WORK_LOOP_OMEGA,
-                    amplitude: float = WORK_LOOP_AMPLITUDE,
-                    progress: Optional[Progress] = None) -> List[WorkLoop]:
-    """The work loops of a backdrive (the core's simulator: the identified ``plant`` and
-    ``dahl`` as the gripper, the tuned ``config`` as the controller, its sensors), one period
-    after one of settling, with their figures. A mode the simulation cannot run (its
-    configuration refused) is left out."""
+                    modes: Sequence[str] = PREDICTED_MODES,
+                    omegas: Sequence[float] = HEADLINE_OMEGA, motor_coulomb: float = 0.0,
+                    progress: Optional[Progress] = None) -> Backdrives:
+    """Backdrives simulated on the identified model (the core's simulator: ``plant``,
+    ``dahl`` and the motor's ``motor_coulomb`` as the gripper, the tuned ``config`` as the
+    controller, the simulator's sensors and one sample of delay), each mode at each of
+    ``omegas`` with :func:`backdrive_amplitude`, one period after one of settling: the
+    impedance figures -- the rms prediction, which counts the harmonics the Dahl hysteresis
+    and the Coulomb friction give -- and the work loops of :data:`WORK_LOOP_MODES` at
+    :data:`WORK_LOOP_OMEGA`. A mode the simulation cannot run (its configuration refused) is
+    left out."""
     from ..identification.experiments import work_loop_experiment
-    out: List[WorkLoop] = []
+    loops: List[WorkLoop] = []
+    figures: Dict[str, List[Optional[ImpedanceFigures]]] = {}
+    total = len(modes) * len(omegas)
     for i, mode in enumerate(modes):
-        if progress is not None:
-            progress("predict", 0.8 + 0.2 * i / len(modes),
-                     f"work loop of {mode} at {omega:g} rad/s on the identified model")
-        try:
-            rec = work_loop_experiment(plant=plant, dahl=dahl, amplitude=amplitude,
-                                       frequency=omega, cycles=1.0, mode=mode, config=config,
-                                       settle_cycles=1.0)
-        except SeaforceError:
-            continue
-        dt = float(rec["t"][1] - rec["t"][0])  # type: ignore[index]
-        fig = impedance_figures(rec["f_e"], rec["x_e"], omega, dt,
-                                float(rec["settle"]))
-        n = int(round(2.0 * math.pi / omega / dt))
-        x = np.asarray(rec["x_e"])[-n:]
-        f = np.asarray(rec["f_e"])[-n:]
-        keep = np.linspace(0, n - 1, min(n, _LOOP_POINTS)).astype(int)
-        out.append(WorkLoop(mode, omega, amplitude, x[keep], f[keep], fig.z_db, fig.z_rms_db,
-                            fig.distortion, fig.peak, fig.peak_centre, fig.centre_band,
-                            "simulated on the identified model, tuned settings"))
-    return out
+        figures[mode] = []
+        for j, omega in enumerate(omegas):
+            if progress is not None:
+                progress("predict", 0.8 + 0.2 * (i * len(omegas) + j) / total,
+                         f"backdrive of {mode} at {omega:g} rad/s on the identified model")
+            amplitude = backdrive_amplitude(omega)
+            try:
+                rec = work_loop_experiment(plant=plant, dahl=dahl, amplitude=amplitude,
+                                           frequency=omega, cycles=1.0, mode=mode,
+                                           config=config, settle_cycles=1.0,
+                                           motor_coulomb=motor_coulomb)
+            except SeaforceError:
+                figures[mode].append(None)
+                continue
+            dt = float(rec["t"][1] - rec["t"][0])  # type: ignore[index]
+            fig = impedance_figures(rec["f_e"], rec["x_e"], omega, dt,
+                                    float(rec["settle"]))
+            figures[mode].append(fig)
+            if mode in WORK_LOOP_MODES and omega == WORK_LOOP_OMEGA:
+                n = int(round(2.0 * math.pi / omega / dt))
+                x = np.asarray(rec["x_e"])[-n:]
+                f = np.asarray(rec["f_e"])[-n:]
+                keep = np.linspace(0, n - 1, min(n, _LOOP_POINTS)).astype(int)
+                loops.append(WorkLoop(mode, omega, amplitude, x[keep], f[keep], fig.z_db,
+                                      fig.z_rms_db, fig.distortion, fig.peak, fig.peak_centre,
+                                      fig.centre_band,
+                                      "simulated on the identified model, tuned settings"))
+    return Backdrives(loops, tuple(float(w) for w in omegas), figures)
 
 
 # --- 5. the report --------------------------------------------------------------------------
@@ -480,9 +523,26 @@ def _tuning_rows(tuning: TuningResult, old: Mapping[str, Any]) -> Tuning:
     return Tuning(rows, binding)
 
 
-def _mode_rows(band: ImpedanceBand) -> List[ModeImpedance]:
-    return [ModeImpedance(m, band.omega, band.nominal[m], band.lower[m], band.upper[m])
-            for m in PREDICTED_MODES if m in band.nominal]
+def _mode_rows(band: ImpedanceBand, backdrives: Optional[Backdrives] = None
+               ) -> List[ModeImpedance]:
+    rows = []
+    for m in PREDICTED_MODES:
+        if m not in band.nominal:
+            continue
+        row = ModeImpedance(m, band.omega, band.nominal[m], band.lower[m], band.upper[m])
+        if backdrives is not None and m in backdrives.figures:
+            row.rms_omega = np.asarray(backdrives.omega)
+            row.rms_abs = backdrives.rms(m)
+        rows.append(row)
+    return rows
+
+
+def _rms_zwidth(backdrives: Backdrives) -> npt.NDArray[np.float64]:
+    """The Z-width on the predicted rms [dB]: hold over the softest other mode."""
+    hold = backdrives.rms("hold")
+    soft = np.nanmin(np.stack([backdrives.rms(m) for m in backdrives.figures if m != "hold"]),
+                     axis=0)
+    return np.asarray(20.0 * np.log10(hold / soft), dtype=float)
 
 
 def report_stage(request: AnalysisRequest, phases: Mapping[str, float], *,
@@ -491,7 +551,7 @@ def report_stage(request: AnalysisRequest, phases: Mapping[str, float], *,
                  tuning: Optional[TuningResult] = None,
                  prediction: Optional[Prediction] = None,
                  summary: Sequence[str] = (),
-                 work_loops: Sequence[WorkLoop] = (),
+                 backdrives: Optional[Backdrives] = None,
                  model: Optional[ModelClass] = None) -> CommissioningReport:
     """The report of what the stages reached (None: not reached)."""
     previous, note = _previous_rows(request.previous)
@@ -507,10 +567,14 @@ def report_stage(request: AnalysisRequest, phases: Mapping[str, float], *,
     if tuning is not None:
         data.tuning = _tuning_rows(tuning, request.config.to_dict())
     if prediction is not None:
-        data.impedance = _mode_rows(prediction.band)
+        data.impedance = _mode_rows(prediction.band, backdrives)
         data.zwidth = prediction.zwidth
         data.noise = prediction.noise
-    data.work_loops = list(work_loops)
+        if backdrives is not None:
+            data.zwidth.rms_omega = np.asarray(backdrives.omega)
+            data.zwidth.rms_db = _rms_zwidth(backdrives)
+    if backdrives is not None:
+        data.work_loops = list(backdrives.work_loops)
     data.model_class = model
     return data
 
@@ -575,6 +639,19 @@ def _summary(analysis: Analysis, request: AnalysisRequest) -> List[str]:
                          f"{analysis.before_db[w]:.1f}" for w in HEADLINE_OMEGA)
                      + " dB, after " + " / ".join(
                          f"{analysis.after_db[w]:.1f}" for w in HEADLINE_OMEGA) + " dB")
+    b = analysis.backdrives
+    if b is not None and "dob_full_ff" in b.figures:
+        figs = b.figures["dob_full_ff"]
+        lines.append("predicted dob_full_ff at " + ", ".join(f"{w:g}" for w in b.omega)
+                     + " rad/s: |Z| " + " / ".join(
+                         f"{f.z_db:.1f}" if f else "-" for f in figs) + " dB fundamental, "
+                     + " / ".join(f"{f.z_rms_db:.1f}" if f else "-" for f in figs)
+                     + " dB rms; Z-width on the rms " + " / ".join(
+                         f"{v:.1f}" for v in _rms_zwidth(b)) + " dB (a simulation of the "
+                     "identified model: the harmonics of its Dahl hysteresis"
+                     + (" and motor Coulomb friction" if analysis.terms is not None
+                        and analysis.terms.term("motor_coulomb").resolved else "")
+                     + "; not those of terms the controller's model lacks)")
     t = analysis.tuning
     if t is not None:
         lines.append(f"tuned DOB torque noise {1e3 * t.torque_noise:.3g} mN m rms (budget "
@@ -624,8 +701,12 @@ def analyse(record: ExcitationRecord, request: AnalysisRequest,
                                    tuning.config, analysis.loop, request.noise_budget,
                                    noise_rel_sigma=figures.pressure.std_1s
                                    / max(figures.pressure.std, 1e-300), progress=say)
-        analysis.work_loops = work_loop_stage(ident.plant(), ident.dahl(), tuning.config,
-                                              progress=say)
+        coulomb = 0.0
+        if analysis.terms is not None and analysis.terms.term("motor_coulomb").resolved:
+            coulomb = analysis.terms.term("motor_coulomb").value
+        analysis.backdrives = work_loop_stage(ident.plant(), ident.dahl(), tuning.config,
+                                              motor_coulomb=coulomb, progress=say)
+        analysis.work_loops = analysis.backdrives.work_loops
         lap("predict")
         analysis.band = prediction.band
         analysis.before_db = {w: float(np.interp(math.log(w), np.log(tuning.omega),
@@ -647,7 +728,7 @@ def analyse(record: ExcitationRecord, request: AnalysisRequest,
     analysis.report = report_stage(request, phases, ident=ident, loop=loop_pair,
                                    tuning=tuning, prediction=prediction,
                                    summary=_summary(analysis, request),
-                                   work_loops=analysis.work_loops,
+                                   backdrives=analysis.backdrives,
                                    model=analysis.model_class)
     if directory is not None:
         write_stage(directory, analysis, request)

@@ -250,6 +250,9 @@ class ModeImpedance:
         The 1-sigma band of |Z| [N m s/rad].
     measured_omega, measured_abs : float arrays
         Measured |Z| points (w [rad/s], |Z| [N m s/rad]); empty: none.
+    rms_omega, rms_abs : float arrays
+        Predicted rms impedance rms(F_e)/rms(V_e) (w [rad/s], [N m s/rad]) from backdrives
+        simulated on the identified model; empty: none.
     """
 
     mode: str
@@ -259,14 +262,18 @@ class ModeImpedance:
     upper: _Array
     measured_omega: _Array = field(default_factory=_empty)
     measured_abs: _Array = field(default_factory=_empty)
+    rms_omega: _Array = field(default_factory=_empty)
+    rms_abs: _Array = field(default_factory=_empty)
 
     def __post_init__(self) -> None:
         n = _floats(self, self.mode, "omega", "lower", "upper")
         if _arrays(self, self.mode, ("z",), np.complex128) != n:
             raise ReportError(f"{self.mode}: z needs one value per frequency ({n})")
         _floats(self, self.mode, "measured_omega", "measured_abs")
+        _floats(self, self.mode, "rms_omega", "rms_abs")
         _check_omega(self.omega, self.mode)
         _check_omega(self.measured_omega, self.mode, "measured_omega")
+        _check_omega(self.rms_omega, self.mode, "rms_omega")
 
 
 @dataclass
@@ -343,6 +350,9 @@ class ZWidthChart:
         Measured points, their 1-sigma [dB] (NaN: none); empty: none.
     wall : WallBoundary or None
         K_max(B) of ``impedance`` mode.
+    rms_omega, rms_db : float arrays
+        The Z-width on the predicted rms impedances [dB] (backdrives simulated on the
+        identified model); empty: none.
     """
 
     omega: _Array
@@ -353,9 +363,13 @@ class ZWidthChart:
     measured_db: _Array = field(default_factory=_empty)
     measured_sigma_db: _Array = field(default_factory=_empty)
     wall: Optional[WallBoundary] = None
+    rms_omega: _Array = field(default_factory=_empty)
+    rms_db: _Array = field(default_factory=_empty)
 
     def __post_init__(self) -> None:
         _floats(self, "zwidth", "omega", "predicted_db", "lower_db", "upper_db")
+        _floats(self, "zwidth", "rms_omega", "rms_db")
+        _check_omega(self.rms_omega, "zwidth", "rms_omega")
         n = len(np.asarray(self.measured_omega).reshape(-1))
         if len(np.asarray(self.measured_sigma_db).reshape(-1)) == 0:
             self.measured_sigma_db = np.full(n, np.nan)
@@ -777,7 +791,12 @@ def _fig_impedance(modes: Sequence[ModeImpedance]) -> Figure:
         if len(m.measured_omega):
             ax.semilogx(m.measured_omega, _db(m.measured_abs), "o", color=colour, ms=6,
                         mfc="white", mew=1.6)
+        if len(m.rms_omega):
+            ax.semilogx(m.rms_omega, _db(m.rms_abs), "s", color=colour, ms=7, mfc="none",
+                        mew=1.4)
     ax.plot([], [], "o", color="0.3", mfc="white", mew=1.6, label="measured")
+    if any(len(m.rms_omega) for m in modes):
+        ax.plot([], [], "s", color="0.3", mfc="none", mew=1.4, label="rms (simulated)")
     ax.set_xlabel("frequency w [rad/s]")
     ax.set_ylabel("|Z| = |F_e/V_e| [dB re 1 N m s/rad]")
     _grid(ax)
@@ -798,6 +817,9 @@ def _fig_zwidth(chart: ZWidthChart) -> Figure:
         err = np.where(np.isfinite(chart.measured_sigma_db), chart.measured_sigma_db, 0.0)
         ax.errorbar(chart.measured_omega, chart.measured_db, yerr=err, fmt="o",
                     color="tab:red", ms=6, capsize=3, label="measured")
+    if len(chart.rms_omega):
+        ax.plot(chart.rms_omega, chart.rms_db, "s", color="tab:purple", ms=8, mfc="none",
+                mew=1.6, label="on the rms (simulated)")
     ax.set_xscale("log")
     ax.set_xlabel("frequency w [rad/s]")
     ax.set_ylabel("Z-width 20 log10(|Z_hold|/|Z_min|) [dB]")
@@ -896,7 +918,10 @@ def _captions(data: CommissioningReport) -> List[Tuple[str, str, Callable[[], Fi
         out.append(("b", "Predicted endpoint impedance per mode",
                     lambda: _fig_impedance(data.impedance),
                     "Predicted |Z(jw)| = |F_e/V_e| of each controller mode with its 1-sigma "
-                    "band; open circles: measured points, where a backdrive measured them."))
+                    "band; open circles: measured points, where a backdrive measured them; "
+                    "open squares: the rms impedance rms(F_e)/rms(V_e) of backdrives "
+                    "simulated on the identified model (0.5 rad, at most 0.5 rad/s), which "
+                    "counts the harmonics of its nonlinear terms."))
     if data.zwidth is not None:
         chart = data.zwidth
         wall = ""
@@ -906,7 +931,8 @@ def _captions(data: CommissioningReport) -> List[Tuple[str, str, Callable[[], Fi
                     f"binds), and the chosen (B, K); {chart.wall.describe()}.")
         out.append(("c", "Z-width: predicted vs measured", lambda: _fig_zwidth(chart),
                     "Z-width, the range between the stiff hold and the lowest-impedance mode, "
-                    "predicted with its 1-sigma band and measured (red)." + wall))
+                    "predicted with its 1-sigma band and measured (red); squares: on the rms "
+                    "impedances of the simulated backdrives." + wall))
     if data.noise is not None:
         noise = data.noise
         out.append(("d", "DOB torque noise vs lambda", lambda: _fig_noise(noise),

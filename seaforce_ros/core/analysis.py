@@ -278,8 +278,10 @@ def _whole_periods(n_samples: int, omega: float, dt: float, settle_time: float) 
     period = 2.0 * math.pi / omega
     start = int(math.ceil(settle_time / dt))
     available = n_samples - start
-    # a period that is a whole number of samples up to half a sample is a whole period
-    periods = int(math.floor((available + 0.5) * dt / period))
+    # a window up to one sample short of whole periods counts as whole periods (a record of
+    # k periods rounded to samples; the harmonics are fitted by least squares, which a
+    # fraction of a sample does not bias)
+    periods = int(math.floor((available + 1.0) * dt / period))
     if periods < 1:
         raise ValueError("record shorter than one period after settle_time")
     return n_samples - min(available, int(round(periods * period / dt))), periods

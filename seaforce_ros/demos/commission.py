@@ -20,7 +20,9 @@ the plant steps on the controller's answers, so every figure is the loop's own o
 
 Predictions (:func:`~..commissioning.predictor.predict_modes`, on the *identified* plant from
 the run's report, with its loop delay): before with the starting configuration, after with
-the applied one. Prints measured (fundamental and rms) vs predicted per mode and frequency,
+the applied one; after, also the report's rms prediction (backdrives simulated on the
+identified model at 1, 3 and 10 rad/s). Prints measured (fundamental and rms) vs predicted
+per mode and frequency,
 the Z-width (hold less the softest other mode) before and after on both, ``dob_full_ff`` after vs ideal and the rig time;
 writes ``zwidth_commission.png`` and ``results.json`` to ``--out``.
 
@@ -39,6 +41,7 @@ from typing import Dict, List, Sequence, Tuple
 
 import numpy as np
 
+from ..commissioning.analyse import backdrive_amplitude
 from ..commissioning.tuning import contact_damping_within
 from ..core.plant_cycle import STATUS_FAULT
 from .common import (CHANNEL, DT, drawn_plant, prepare, run_action, run_guarded,
@@ -47,13 +50,9 @@ from .impedance import Observer, measure, status_note
 
 MODES = ('passive', 'hold', 'dob', 'dob_linear_ff', 'dob_full_ff', 'impedance')
 SETTLE = 1.0            # s of drive before a mode's measured period
-PEAK_SPEED = 0.5        # rad/s of the drive: amplitude min(0.5, PEAK_SPEED/omega)
 COMMISSION_TIMEOUT = 600.0
-
-
-def amplitude(omega: float) -> float:
-    """The drive's amplitude at ``omega`` [rad]."""
-    return min(0.5, PEAK_SPEED / omega)
+#: The drive's amplitude at omega [rad]: min(0.5, 0.5/omega), as the rms predictions'
+amplitude = backdrive_amplitude
 
 
 class CommissionObserver(Observer):
@@ -217,13 +216,15 @@ def zwidth(z: Dict[Tuple[str, float], Dict[str, float]], omega: float,
     return z[('hold', omega)][key] - min(soft) if ('hold', omega) in z and soft else math.nan
 
 
-def print_table(measured, predicted, modes, frequencies) -> float:
-    """The measured (fundamental and rms) vs predicted table; returns the largest
-    |difference| [dB] of the fundamental."""
+def print_table(measured, predicted, modes, frequencies, predicted_rms=None) -> float:
+    """The measured (fundamental and rms) vs predicted table (after: the report's rms
+    prediction too, where it has the frequency); returns the largest |difference| [dB] of the
+    fundamental."""
+    predicted_rms = predicted_rms or {}
     print(f'\n{"mode":15s}{"omega":>7s} | {"before: meas.":>13s}{"rms":>7s}{"pred.":>7s}'
           f'{"diff":>7s} | {"after: meas.":>12s}{"rms":>7s}{"pred.":>7s}{"diff":>7s}'
-          f'{"dist.":>7s}')
-    print(f'{"":15s}{"rad/s":>7s} | {"[dB re 1 N m s/rad]":>34s} | {"[dB]":>33s}{"[%]":>7s}')
+          f'{"p.rms":>7s}{"diff":>7s}{"dist.":>7s}')
+    print(f'{"":15s}{"rad/s":>7s} | {"[dB re 1 N m s/rad]":>34s} | {"[dB]":>47s}{"[%]":>7s}')
     worst = 0.0
     for omega in frequencies:
         for mode in modes:
@@ -238,9 +239,20 @@ def print_table(measured, predicted, modes, frequencies) -> float:
                 worst = max(worst, abs(m['z_db'] - p))
                 cells.append(f'{m["z_db"]:{width}.1f}{m["z_rms_db"]:7.1f}{p:7.1f}'
                              f'{m["z_db"] - p:+7.1f}')
-            dist = measured['after'][(mode, omega)]['distortion']
-            print(f'{mode:15s}{omega:7.3g} | {cells[0]} | {cells[1]}{100 * dist:7.0f}')
+            after = measured['after'][(mode, omega)]
+            p_rms = predicted_rms.get((mode, omega), math.nan)
+            rms_cells = (f'{p_rms:7.1f}{after["z_rms_db"] - p_rms:+7.1f}'
+                         if math.isfinite(p_rms) else f'{"-":>7s}{"":7s}')
+            print(f'{mode:15s}{omega:7.3g} | {cells[0]} | {cells[1]}{rms_cells}'
+                  f'{100 * after["distortion"]:7.0f}')
     return worst
+
+
+def rms_predictions(report) -> Dict[Tuple[str, float], float]:
+    """The report's predicted rms |Z| [dB] per (mode, omega)."""
+    return {(row.mode, float(w)): 20.0 * math.log10(float(v))
+            for row in report.impedance for w, v in zip(row.rms_omega, row.rms_abs)
+            if math.isfinite(v) and v > 0}
 
 
 def plot(measured, predicted_curves, modes, path: pathlib.Path) -> None:
@@ -356,7 +368,8 @@ def main(argv=None):
         except RuntimeError as exc:
             print(f'[commission] ideal model not measured: {exc}', flush=True)
             ideal = {('dob_full_ff', low): UNSTABLE}
-        worst = print_table(measured, predicted, modes, frequencies)
+        predicted_rms = rms_predictions(report)
+        worst = print_table(measured, predicted, modes, frequencies, predicted_rms)
         phases = report.meta.phases
         rig = sum(phases.values())
         lines = [f'\nZ-width (hold vs the softest other mode), predictor delay {delay} '
@@ -389,6 +402,8 @@ def main(argv=None):
                                         for label, z in measured.items()},
                    'predicted': {f'{label}:{m}@{w:g}': v for (label, m, w), v in
                                  predicted.items() if w in frequencies},
+                   'predicted_rms_after': {f'{m}@{w:g}': v
+                                           for (m, w), v in predicted_rms.items()},
                    'ideal_dob_full_ff_db': z_ideal,
                    'ideal_dob_full_ff': ideal[('dob_full_ff', low)],
                    'zwidth_db': {label: {f'{w:g}': zwidth(measured[label], w)
