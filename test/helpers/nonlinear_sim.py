@@ -1,5 +1,6 @@
 """The oracle with the real gripper's nonlinearities: a third simulator, independent of
-``seaforce_ros`` and of :mod:`helpers.second_sim` (its own equations, integrator and sensors).
+``seaforce_ros`` and of :mod:`helpers.second_sim`'s integration (its own equations and
+integrator; the rig's sensor steps from :func:`helpers.second_sim.quanta`).
 
 The paper names the effects the linear model leaves out (Section IV: "a linear damper poorly
 approximates nonlinear viscous losses" in the hose, "a nonlinear four-bar mechanism gear ratio
@@ -66,6 +67,8 @@ from collections import namedtuple
 from dataclasses import asdict, dataclass, fields, replace
 
 import numpy as np
+
+from helpers.second_sim import quanta
 
 #: Half-stroke L [rad] the stroke ranges refer to.
 STROKE = 0.5
@@ -236,11 +239,9 @@ class NonlinearGripper:
         self.dt = dt
         self.substeps = substeps
         self._rng = np.random.default_rng(seed)
-        self._noise = pressure_noise
-        self._range = pressure_range
-        self._qp = 2.0 * pressure_range / 2 ** pressure_bits if pressure_bits else 0.0
-        self._qx = 2.0 * math.pi / motor_counts if motor_counts else 0.0
-        self._qq = 2.0 * math.pi / finger_counts if finger_counts else 0.0
+        self._noise, self._range = pressure_noise, pressure_range
+        self._qp, self._qx = quanta(pressure_range, pressure_bits, motor_counts)
+        self._qq = quanta(motor_counts=finger_counts)[1]
         self.t = 0.0
         self._path_cache = {}
         self._noise_block = []
