@@ -56,17 +56,34 @@ amplitude = backdrive_amplitude
 
 
 class CommissionObserver(Observer):
-    """The demo's observer, which also keeps the channel's contact flag."""
+    """The demo's observer, which also keeps the channel's contact flag and fault."""
 
     def __init__(self):
         super().__init__()
         self.contact: Dict[int, bool] = {}
+        self.fault: Dict[int, str] = {}
 
     def _on_status(self, msg):
         super()._on_status(msg)
         i = list(msg.name).index(CHANNEL)
         with self.lock:
             self.contact[msg.cycle] = bool(msg.contact[i])
+            if msg.fault[i]:
+                self.fault[msg.cycle] = str(msg.fault[i])
+
+    def fault_in(self, first: int, last: int) -> str:
+        """The channel's fault reported in ``first..last`` (a latched fall-back of the runaway
+        monitor, a fault); '' when none."""
+        with self.lock:
+            found = [f for c, f in self.fault.items() if first <= c <= last]
+        return found[0] if found else ''
+
+    def latest_fault(self) -> str:
+        """The fault of the latest status ('' when none)."""
+        with self.lock:
+            if not self.modes:
+                return ''
+            return self.fault.get(max(self.modes), '')
 
     def free_for(self, cycles: int) -> bool:
         """No contact in the statuses of the last ``cycles`` cycles (and some seen)."""
@@ -104,6 +121,17 @@ def measure_modes(observer, children, modes: Sequence[str], frequencies: Sequenc
             last = first + period - 1
             observer.wait_cycle(children, last)
             window = observer.window(first, last)
+            fault = observer.fault_in(first - int(round(SETTLE / DT)), last)
+            if fault and not window['status'] & STATUS_FAULT:
+                # the controller fell back (the runaway monitor: a finger driven away on a
+                # model this far off): the configured mode did not run; no figure
+                out[(mode, omega)] = UNSTABLE
+                print(f'[commission] {label:6s} {mode:14s} {omega:5.3g} rad/s ({a:.3g} rad): '
+                      f'NOT HELD (the controller reports: {fault}); resetting the controller',
+                      flush=True)
+                observer.set_mode('passive')
+                reset_plant(observer, ('/controller/reset',))
+                continue
             if window['status'] & STATUS_FAULT:
                 # the mode does not hold on this plant (a 2x model error can make dob_full_ff
                 # unstable): no figure; the plant's fault cleared, the next mode measured
@@ -122,13 +150,14 @@ def measure_modes(observer, children, modes: Sequence[str], frequencies: Sequenc
     return out
 
 
-def reset_plant(observer) -> None:
+def reset_plant(observer, targets=('/sim/reset', '/controller/reset')) -> None:
     """Clear the sim's latched fault (``/sim/reset``) and the controller's (``/controller/
-    reset``); RuntimeError when the sim refuses or one does not answer."""
+    reset``: a fault or a fall-back); RuntimeError when the sim refuses or one does not
+    answer."""
     from std_srvs.srv import Trigger
 
     from ..nodes.ros_common import request_until_answered
-    for target in ('/sim/reset', '/controller/reset'):
+    for target in targets:
         client = observer.node.create_client(Trigger, target)
         try:
             if not client.wait_for_service(timeout_sec=20.0):
@@ -152,6 +181,9 @@ def release(observer, children) -> None:
     contact test aborts at a real one); a goal it turns away says why."""
     observer.set_mode('passive')
     set_parameters(observer.node, '/sim', {f'{CHANNEL}.environment.mode': 'free'})
+    if observer.latest_fault():
+        # a latched fall-back turns the commissioning goal away: clear it first
+        reset_plant(observer, ('/controller/reset',))
     deadline = time.monotonic() + 10.0
     while not observer.free_for(int(round(1.0 / DT))):
         children.check()
