@@ -50,6 +50,7 @@ from .impedance import Observer, measure, status_note
 
 MODES = ('passive', 'hold', 'dob', 'dob_linear_ff', 'dob_full_ff', 'impedance')
 SETTLE = 1.0            # s of drive before a mode's measured period
+ATTEMPTS = 3            # measurements of a mode at most when the recorded states have gaps
 COMMISSION_TIMEOUT = 600.0
 #: The drive's amplitude at omega [rad]: min(0.5, 0.5/omega), as the rms predictions'
 amplitude = backdrive_amplitude
@@ -115,12 +116,22 @@ def measure_modes(observer, children, modes: Sequence[str], frequencies: Sequenc
                                       f'{CHANNEL}.environment.frequency': float(omega)})
         period = int(math.ceil(2.0 * math.pi / omega / DT)) + 1
         for mode in modes:
-            before = observer.latest_cycle()
-            observer.set_mode(mode)
-            first = observer.wait_mode(mode, before, children, 30.0) + int(round(SETTLE / DT))
-            last = first + period - 1
-            observer.wait_cycle(children, last)
-            window = observer.window(first, last)
+            for attempt in range(1, ATTEMPTS + 1):
+                # through passive: a switch straight from hold to a DOB mode releases the
+                # hose's deflection at once (the runaway monitor sees a finger driven away)
+                observer.set_mode('passive')
+                before = observer.latest_cycle()
+                observer.set_mode(mode)
+                first = observer.wait_mode(mode, before, children, 30.0) \
+                    + int(round(SETTLE / DT))
+                last = first + period - 1
+                observer.wait_cycle(children, last)
+                window = observer.window(first, last)
+                if window['received'] >= 0.5 * window['expected']:
+                    break
+                print(f'[commission] {label:6s} {mode:14s} {omega:5.3g} rad/s: recorded '
+                      f'{window["received"]} of {window["expected"]} states (a busy host); '
+                      f'measuring again ({attempt}/{ATTEMPTS})', flush=True)
             fault = observer.fault_in(first - int(round(SETTLE / DT)), last)
             if fault and not window['status'] & STATUS_FAULT:
                 # the controller fell back (the runaway monitor: a finger driven away on a

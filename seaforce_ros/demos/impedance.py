@@ -137,8 +137,12 @@ class Observer:
         with self.lock:
             rows = [r for r in self.states if first <= r[0] <= last]
         rows = sorted({r[0]: r for r in rows}.values())
-        data = np.array(rows, dtype=float)
         grid = np.arange(first, last + 1, dtype=float)
+        if len(rows) < 2:          # nothing recorded there (a lost stretch of messages)
+            nan = np.full(grid.size, np.nan)
+            return {'cycle': grid, 'received': len(rows), 'expected': grid.size, 'status': 0,
+                    'timeouts': 0, **{name: nan for name in ('x', 'f_p', 'f_a', 'x_e', 'f_e')}}
+        data = np.array(rows, dtype=float)
         status = data[:, 6].astype(int)
         out = {'cycle': grid, 'received': len(rows), 'expected': grid.size,
                'status': int(np.bitwise_or.reduce(status)),
