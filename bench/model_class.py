@@ -24,10 +24,19 @@ import time
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "test"))
-from helpers.nonlinear_sim import EFFECTS  # noqa: E402
+from helpers.nonlinear_sim import EFFECTS, STROKE  # noqa: E402
 from helpers.oracle_commissioning import draw, excite, identify, relative_errors  # noqa: E402
 
 from seaforce_ros.commissioning.analyse import model_class_stage  # noqa: E402
+
+
+def term_truth(plant, e):
+    """The oracle's value of each candidate term's coefficient (0: the effect is off)."""
+    return {"motor_coulomb": e.motor_coulomb, "cogging": e.cogging,
+            "hose_flow": plant["hose_damping"] / e.hose_flow if e.hose_flow else 0.0,
+            "hose_pressure": e.hose_pressure * plant["hose_stiffness"] ** 2 / 2.0,
+            "stroke_asymmetry": plant["endpoint_stiffness"] * e.stroke_asymmetry / STROKE,
+            "stroke_stiffness": plant["endpoint_stiffness"] * e.stroke_stiffness / STROKE ** 2}
 
 
 def main(argv):
@@ -59,8 +68,11 @@ def main(argv):
             flow = terms.term("hose_flow") if terms else None
             c_err = (flow.value / (plant["hose_damping"] / effects.hose_flow) - 1.0
                      if flow is not None and effects.hose_flow else math.nan)
+            truth = term_truth(plant, effects)
+            term_err = {t.key: t.value / truth[t.key] - 1.0 for t in terms.resolved()
+                        if truth.get(t.key)} if terms else {}
             rows[label].append((ident.misfit["motor"], ident.misfit["port"], verdict.fits,
-                                err["hose_damping"], b_s_err, c_err, resolved))
+                                err["hose_damping"], b_s_err, c_err, resolved, term_err))
             print(f"draw {i:2d} {label:16s} misfit motor {100 * ident.misfit['motor']:5.2f} %, "
                   f"port {100 * ident.misfit['port']:5.2f} % -> "
                   f"{'fits' if verdict.fits else 'FLAGGED'}; b_s {100 * err['hose_damping']:+6.1f}"
@@ -82,6 +94,15 @@ def main(argv):
               f"with the terms max |{100 * np.nanmax(np.abs(a[:, 4])):.1f}| %, c max "
               f"|{100 * np.nanmax(np.abs(a[:, 5])) if np.isfinite(a[:, 5]).any() else math.nan:.1f}"
               f"| %; resolved: " + ", ".join(f"{k} {v}/{len(r)}" for k, v in sorted(counts.items())))
+        errors = {}
+        for x in r:
+            for key, e in x[7].items():
+                errors.setdefault(key, []).append(e)
+        for key, e in sorted(errors.items()):
+            e = np.abs(np.asarray(e))
+            print(f"      {key:18s} resolved {e.size}/{len(r)}: |error| median "
+                  f"{100 * np.median(e):.1f} %, 90th percentile {100 * np.percentile(e, 90):.1f} %,"
+                  f" largest {100 * e.max():.1f} %")
     print(f"CPU {time.process_time() - t0:.0f} s")
     return 0
 
