@@ -57,34 +57,17 @@ amplitude = backdrive_amplitude
 
 
 class CommissionObserver(Observer):
-    """The demo's observer, which also keeps the channel's contact flag and fault."""
+    """The demo's observer, which also keeps the channel's contact flag."""
 
     def __init__(self):
         super().__init__()
         self.contact: Dict[int, bool] = {}
-        self.fault: Dict[int, str] = {}
 
     def _on_status(self, msg):
         super()._on_status(msg)
         i = list(msg.name).index(CHANNEL)
         with self.lock:
             self.contact[msg.cycle] = bool(msg.contact[i])
-            if msg.fault[i]:
-                self.fault[msg.cycle] = str(msg.fault[i])
-
-    def fault_in(self, first: int, last: int) -> str:
-        """The channel's fault reported in ``first..last`` (a latched fall-back of the runaway
-        monitor, a fault); '' when none."""
-        with self.lock:
-            found = [f for c, f in self.fault.items() if first <= c <= last]
-        return found[0] if found else ''
-
-    def latest_fault(self) -> str:
-        """The fault of the latest status ('' when none)."""
-        with self.lock:
-            if not self.modes:
-                return ''
-            return self.fault.get(max(self.modes), '')
 
     def free_for(self, cycles: int) -> bool:
         """No contact in the statuses of the last ``cycles`` cycles (and some seen)."""
@@ -117,13 +100,7 @@ def measure_modes(observer, children, modes: Sequence[str], frequencies: Sequenc
         period = int(math.ceil(2.0 * math.pi / omega / DT)) + 1
         for mode in modes:
             for attempt in range(1, ATTEMPTS + 1):
-                # through passive: a switch straight from hold to a DOB mode releases the
-                # hose's deflection at once (the runaway monitor sees a finger driven away)
-                observer.set_mode('passive')
-                before = observer.latest_cycle()
-                observer.set_mode(mode)
-                first = observer.wait_mode(mode, before, children, 30.0) \
-                    + int(round(SETTLE / DT))
+                first = observer.enter_mode(mode, children, 30.0) + int(round(SETTLE / DT))
                 last = first + period - 1
                 observer.wait_cycle(children, last)
                 window = observer.window(first, last)

@@ -53,6 +53,8 @@ from .common import (CHANNEL, DT, get_parameter, prepare, print_calibration,
 
 #: measurements of a mode at most, when the controller's answers came late (real time only)
 ATTEMPTS = 3
+#: seconds of passive between two modes (the hose's deflection released)
+RELEASE = 0.25
 
 
 
@@ -72,6 +74,7 @@ class Observer:
         self.lock = threading.Lock()
         self.states = []
         self.modes: Dict[int, str] = {}
+        self.fault: Dict[int, str] = {}
         self.param_client = None
         self.node.create_subscription(ActuatorState, 'actuator_state', self._on_state, RECORD_QOS)
         self.node.create_subscription(ControllerStatus, 'controller_status', self._on_status,
@@ -88,6 +91,22 @@ class Observer:
         i = list(msg.name).index(CHANNEL)
         with self.lock:
             self.modes[msg.cycle] = msg.mode[i]
+            if msg.fault[i]:
+                self.fault[msg.cycle] = str(msg.fault[i])
+
+    def fault_in(self, first: int, last: int) -> str:
+        """The channel's fault reported in ``first..last`` (a latched fall-back of the runaway
+        monitor, a fault); '' when none."""
+        with self.lock:
+            found = [f for c, f in self.fault.items() if first <= c <= last]
+        return found[0] if found else ''
+
+    def latest_fault(self) -> str:
+        """The fault of the latest status ('' when none)."""
+        with self.lock:
+            if not self.modes:
+                return ''
+            return self.fault.get(max(self.modes), '')
 
     def wait_until_live(self, children, timeout=60.0):
         """Until both topics arrive; RuntimeError if a node exits or ``timeout`` s pass."""
@@ -113,6 +132,19 @@ class Observer:
         with self.lock:
             cycles = [c for c, m in self.modes.items() if m == mode and c > after]
         return min(cycles) if cycles else None
+
+    def enter_mode(self, mode, children, timeout=20.0):
+        """Set ``mode`` through ``passive`` (RELEASE s of it) and return the first status cycle
+        in it: a switch straight from ``hold`` to a DOB mode releases the hose's deflection
+        at once, and the runaway monitor takes the motor's slam (30-45 rad/s measured) for
+        a finger driven away."""
+        before = self.latest_cycle() or 0
+        self.set_mode('passive')
+        self.wait_cycle(children, self.wait_mode('passive', before, children, timeout)
+                        + int(round(RELEASE / DT)))
+        before = self.latest_cycle()
+        self.set_mode(mode)
+        return self.wait_mode(mode, before, children, timeout)
 
     def set_mode(self, mode, timeout=20.0):
         from rclpy.parameter import Parameter
@@ -141,12 +173,13 @@ class Observer:
         if len(rows) < 2:          # nothing recorded there (a lost stretch of messages)
             nan = np.full(grid.size, np.nan)
             return {'cycle': grid, 'received': len(rows), 'expected': grid.size, 'status': 0,
-                    'timeouts': 0, **{name: nan for name in ('x', 'f_p', 'f_a', 'x_e', 'f_e')}}
+                    'timeouts': 0, 'fault': '', **{name: nan for name in ('x', 'f_p', 'f_a', 'x_e', 'f_e')}}
         data = np.array(rows, dtype=float)
         status = data[:, 6].astype(int)
         out = {'cycle': grid, 'received': len(rows), 'expected': grid.size,
                'status': int(np.bitwise_or.reduce(status)),
-               'timeouts': int(np.count_nonzero(status & STATUS_COMMAND_TIMEOUT))}
+               'timeouts': int(np.count_nonzero(status & STATUS_COMMAND_TIMEOUT)),
+               'fault': self.fault_in(first, last)}
         for k, name in enumerate(('x', 'f_p', 'f_a', 'x_e', 'f_e'), start=1):
             out[name] = np.interp(grid, data[:, 0], data[:, k])
         return out
@@ -250,9 +283,7 @@ def main(argv=None):
         results = {}
         settle = int(round(1.0 / DT))
         for mode in MODES:
-            before = observer.latest_cycle()
-            observer.set_mode(mode)
-            first = observer.wait_mode(mode, before, children) + settle
+            first = observer.enter_mode(mode, children) + settle
             for attempt in range(1, ATTEMPTS + 1):
                 last = first + args.periods * period_cycles - 1
                 print(f'[demo] {mode:14s} measuring cycles {first}..{last} '
@@ -290,6 +321,8 @@ def status_note(window):
         notes.append('torque limit reached')
     if window['status'] & STATUS_FAULT:
         notes.append('a channel fault')
+    if window.get('fault'):
+        notes.append(f'the controller reported "{window["fault"]}": not the mode\'s figure')
     return f'  ({"; ".join(notes)}: see the sim log)' if notes else ''
 
 
@@ -336,8 +369,8 @@ def recalibrate(observer, children, args, z_before):
     """Calibrate, drive the finger again, measure dob_full_ff, print what was recovered."""
     state_timeout = get_parameter(observer.node, '/controller', 'state_timeout')
     result = run_friction_calibration(observer, children, args)
-    set_parameters(observer.node, '/controller', {'state_timeout': state_timeout,
-                                                  f'{CHANNEL}.mode': 'dob_full_ff'})
+    set_parameters(observer.node, '/controller', {'state_timeout': state_timeout})
+    observer.enter_mode('dob_full_ff', children)
     if not result.applied:
         print(f'\nfriction calibration: {result.message}')
         return
@@ -346,11 +379,12 @@ def recalibrate(observer, children, args, z_before):
     first = before + int(round(1.0 / DT))
     last = first + args.periods * (int(math.ceil(2 * math.pi / args.frequency / DT)) + 1) - 1
     observer.wait_cycle(children, last)
-    after = measure(observer.window(first, last), args.frequency, args.amplitude)
+    window = observer.window(first, last)
+    after = measure(window, args.frequency, args.amplitude)
     print_calibration(result, model_error(args), args.calibration_time)
     print(f'recalibrated dob_full_ff |Z| at {args.frequency} rad/s: {after["z_db"]:.1f} dB '
           f'(was {z_before:.1f} dB with the model); rms {after["z_rms_db"]:.1f} dB, '
-          f'distortion {100 * after["distortion"]:.0f} %')
+          f'distortion {100 * after["distortion"]:.0f} %{status_note(window)}')
 
 
 if __name__ == '__main__':
