@@ -37,10 +37,16 @@ def _run_demo(processes, tmp_path, *extra):
     assert code == 0, text
     rows = {}
     for mode in ('passive', 'hold', 'dob', 'dob_linear_ff', 'dob_full_ff'):
-        match = re.search(rf'^{mode}\s+(-?\d+\.\d)\s+(-?\d+\.\d)\s+(\d+\.\d+)', text, re.M)
+        # |Z| of the fundamental, vs passive, |Z| rms, distortion [%], peak |F_e|
+        match = re.search(rf'^{mode}\s+(-?\d+\.\d)\s+(-?\d+\.\d)\s+(-?\d+\.\d)\s+(\d+)\s+'
+                          r'(\d+\.\d+)', text, re.M)
         assert match, f'no table row for {mode}:\n{text}'
         rows[mode] = float(match.group(1))
-    width = float(re.search(r'impedance range at 3\.0 rad/s: (\d+\.\d) dB', text).group(1))
+        # the rms counts every harmonic: never below the fundamental
+        assert float(match.group(3)) >= rows[mode] - 0.05, text
+    width = float(re.search(r'impedance range at 3\.0 rad/s: (\d+\.\d) dB on the fundamental',
+                            text).group(1))
+    assert re.search(r'dB on the fundamental .*, (\d+\.\d) dB on the rms', text), text
     png = out / 'work_loops.png'
     assert png.is_file() and png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert png.stat().st_size > 20_000

@@ -118,8 +118,11 @@ def test_zwidth_from_backdrive_bags_matches_direct_computation(tmp_path, capsys)
             paths.append(f"{mode}={path}")
     code, out, err = _run(capsys, *paths, "--channel", "pinch", "--plot", tmp_path / "z.png")
     assert code == 0, err
-    table = {l.split()[0]: float(l.split()[1]) for l in out.splitlines()
-             if l.split() and l.split()[0] in ("hold", "dob_full_ff")}
+    table, rms = {}, {}
+    for line in out.splitlines():     # the first table is the fundamental's, the second the rms
+        words = line.split()
+        if words and words[0] in ("hold", "dob_full_ff"):
+            (rms if words[0] in table else table).setdefault(words[0], float(words[1]))
     # the drive frequency is estimated from the bag (not given): |Z| within 0.3 dB of the
     # Fourier ratio at the true 1 rad/s (dob_full_ff's -50 dB residual is the most sensitive)
     for mode, value in expected.items():
@@ -129,6 +132,12 @@ def test_zwidth_from_backdrive_bags_matches_direct_computation(tmp_path, capsys)
     drives = [float(l.split("drive ")[1].split()[0]) for l in out.splitlines() if "drive " in l]
     assert len(drives) == 2 and all(abs(w - 1.0) < 1e-3 for w in drives), drives
     assert "mode hold" in out          # read from controller_status
+    # beside it the rms impedance, its Z-width and the distortion: the linear plant with the
+    # Dahl hysteresis has some, and the rms is never below the fundamental
+    for mode in expected:
+        assert rms[mode] >= table[mode] - 0.01
+    assert "Z-width rms [dB]" in out and "harmonic distortion of F_e" in out
+    assert out.count("peak |F_e|") >= 2
 
 
 def test_drive_frequency_estimate():
@@ -144,6 +153,14 @@ def test_zwidth_rows_pick_the_lowest_mode():
     assert [r.min_mode for r in rows] == ["dob", "passive"]
     assert rows[0].width_db == pytest.approx(40.0)
     assert rows[1].width_db == pytest.approx(20 * math.log10(50.0))
+    assert rows[0].width_rms_db is None
+    # on the rms the softest mode can be another one (a fundamental that nearly cancels)
+    rms = {"hold": np.array([10.0, 5.0]), "dob": np.array([1.0, 0.2]),
+           "passive": np.array([0.5, 0.1])}
+    rows = zwidth_rows([1.0, 3.0], z, rms_by_mode=rms)
+    assert [r.min_mode_rms for r in rows] == ["passive", "passive"]
+    assert rows[0].width_rms_db == pytest.approx(26.0206, abs=1e-4)
+    assert rows[0].width_db == pytest.approx(40.0)
 
 
 def test_zwidth_errors(tmp_path, capsys):

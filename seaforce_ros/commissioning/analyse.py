@@ -5,7 +5,10 @@ Stages (each a function over explicit inputs; :func:`analyse` runs them in order
 them):
 
 1. :func:`identify_stage` -- the eight Table I parameters and the Dahl hysteresis with their
-   1-sigmas (:func:`~.free_air.identify_free_air`);
+   1-sigmas (:func:`~.free_air.identify_free_air`); then the model class: the fits' misfits
+   against :data:`~.free_air.MODEL_CLASS_THRESHOLD` and the candidate nonlinear terms the
+   record resolves (:func:`~.nonlinear_terms.identify_nonlinear_terms`), in the report's
+   summary;
 2. :func:`loop_stage` -- the pressure noise, the encoder's quantum and the loop delay
    (:func:`~.loop_figures.loop_figures`), as the predictor's :class:`~.predictor.LoopModel`.
    The record's delay counts from a state to the first state whose ``applied`` torque is the
@@ -15,7 +18,9 @@ them):
 3. :func:`tune_stage` -- lambda, the nominal plant and the hold gains (:func:`~.tuning.tune`);
 4. :func:`predict_stage` -- |Z| of every mode with the tuned settings and its 1-sigma band,
    the Z-width chart with impedance mode's virtual-wall boundary, the DOB's torque noise
-   against lambda (:mod:`.predictor`);
+   against lambda (:mod:`.predictor`); :func:`work_loop_stage` -- the work loops of a
+   backdrive at 1 rad/s, 0.5 rad simulated on the identified model with the tuned settings,
+   with their figures (the fundamental and the rms |Z|, the distortion, the peaks);
 5. :func:`report_stage` -- the :class:`~.report.CommissioningReport` with the drift against the
    previous run's ``report.json``;
 6. :func:`write_stage` -- the report directory, the params file (an existing one is updated in
@@ -44,27 +49,33 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
+import numpy.typing as npt
 
+from ..core.analysis import ImpedanceFigures, impedance_figures
 from ..core.errors import SeaforceError
 from ..core.params import ControllerConfig, DahlParams, PlantParams, settable_order
 from ..core.schema import by_key
 from ..identification.errors import IdentificationError
 from ..identification.output import write_values_file
 from .errors import CommissioningError
-from .free_air import DAHL_KEYS, PLANT_KEYS, FreeAirIdentification, identify_free_air
+from .free_air import (DAHL_KEYS, PLANT_KEYS, FreeAirIdentification, identify_free_air,
+                       model_class)
+from .nonlinear_terms import NonlinearTerms, identify_nonlinear_terms
 from .loop_figures import LoopFigures, loop_figures
 from .predictor import (PREDICTED_MODES, ImpedanceBand, LoopModel, predict_band,
                         torque_noise, wall_limits)
 from .record import ExcitationRecord, load_record
-from .report import (CommissioningReport, LoopFigure, ModeImpedance, NoiseSweep, ParameterRow,
-                     PortResponse, ReportMeta, Tuning, TuningRow, WallBoundary, ZWidthChart,
-                     load_report, summary_table, write_report)
+from .report import (CommissioningReport, LoopFigure, ModeImpedance, ModelClass, NoiseSweep,
+                     ParameterRow,
+                     PortResponse, ReportMeta, Tuning, TuningRow, WallBoundary, WorkLoop,
+                     ZWidthChart, load_report, summary_table, write_report)
 from .tuning import TUNED_KEYS, InfeasibleTuningError, TuningResult, tune
 
 __all__ = ["AnalysisRequest", "Analysis", "AnalysisError", "Prediction", "analyse",
            "analyse_directory", "zwidth_at", "identification_rows",
-           "identify_stage", "loop_stage", "tune_stage", "predict_stage", "report_stage",
-           "write_stage", "REQUEST_FILE", "RECORD_FILE", "ROLLBACK_FILE", "HEADLINE_OMEGA",
+           "identify_stage", "model_class_stage", "loop_stage", "tune_stage", "predict_stage", "work_loop_stage",
+           "report_stage", "write_stage", "WORK_LOOP_MODES", "WORK_LOOP_OMEGA",
+           "WORK_LOOP_AMPLITUDE", "BACKDRIVE_SPEED", "backdrive_amplitude", "Backdrives", "REQUEST_FILE", "RECORD_FILE", "ROLLBACK_FILE", "HEADLINE_OMEGA",
            "main"]
 
 REQUEST_FILE = "request.json"
@@ -186,6 +197,14 @@ class Analysis:
         The channel's values of those keys when the goal started.
     report_path, params_file, rollback_file : str
         '' when not written.
+    work_loops : list of WorkLoop
+        The backdrive work loops simulated on the identified model (:func:`work_loop_stage`).
+    model_class : ModelClass or None
+        Whether the model class fits, with the candidate nonlinear terms' lines.
+    terms : NonlinearTerms or None
+        The candidate nonlinear terms (:mod:`.nonlinear_terms`).
+    backdrives : Backdrives or None
+        The backdrives simulated on the identified model: the rms prediction.
     """
 
     report: CommissioningReport
@@ -202,6 +221,10 @@ class Analysis:
     report_path: str = ""
     params_file: str = ""
     rollback_file: str = ""
+    work_loops: List[WorkLoop] = field(default_factory=list)
+    model_class: Optional[ModelClass] = None
+    terms: Optional[NonlinearTerms] = None
+    backdrives: Optional["Backdrives"] = None
 
     def result(self) -> Dict[str, Any]:
         """The JSON result the action's client gets (numeric keys only in the value arrays;
@@ -228,8 +251,25 @@ def identify_stage(record: ExcitationRecord, progress: Optional[Progress] = None
     """The free-air identification, its progress mapped onto ``progress('identify', ...)``."""
     def step(message: str, fraction: float) -> None:
         if progress is not None:
-            progress("identify", fraction, message)
+            progress("identify", 0.6 * fraction, message)
     return identify_free_air(record, progress=step)
+
+
+def model_class_stage(record: ExcitationRecord, ident: FreeAirIdentification,
+                      progress: Optional[Progress] = None
+                      ) -> Tuple[ModelClass, Optional[NonlinearTerms]]:
+    """The model class's verdict with the candidate nonlinear terms (None, and a line saying
+    why, when they cannot be fitted)."""
+    def step(message: str, fraction: float) -> None:
+        if progress is not None:
+            progress("identify", 0.6 + 0.4 * fraction, message)
+    try:
+        terms: Optional[NonlinearTerms] = identify_nonlinear_terms(record, ident, step)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        return model_class(ident, terms=[f"candidate nonlinear terms not fitted: {exc}"]), None
+    assert terms is not None
+    return model_class(ident, terms=terms.lines(),
+                       resolved=[t.key.replace("_", " ") for t in terms.resolved()]), terms
 
 
 def _plant_sigma(ident: FreeAirIdentification) -> Dict[str, float]:
@@ -331,6 +371,87 @@ def _noise_sweep(plant: PlantParams, dahl: Optional[DahlParams], config: Control
     return NoiseSweep(lam, rms, pressure * rel_sigma, budget, config.dob.cutoff)
 
 
+#: The modes, frequency [rad/s] and amplitude [rad] of the report's work loops (the paper's
+#: bonded-finger experiment, Fig. 5A-B).
+WORK_LOOP_MODES = ("passive", "hold", "dob", "dob_full_ff")
+WORK_LOOP_OMEGA = 1.0
+WORK_LOOP_AMPLITUDE = 0.5
+#: Peak drive speed [rad/s] of the rms predictions' backdrives (and the commissioning demo's):
+#: amplitude min(0.5 rad, BACKDRIVE_SPEED/omega).
+BACKDRIVE_SPEED = 0.5
+#: Points kept of a work loop's period.
+_LOOP_POINTS = 400
+
+
+def backdrive_amplitude(omega: float) -> float:
+    """The backdrive's amplitude [rad] at ``omega`` [rad/s]: 0.5 rad, at most
+    :data:`BACKDRIVE_SPEED` of peak speed."""
+    return min(WORK_LOOP_AMPLITUDE, BACKDRIVE_SPEED / omega)
+
+
+@dataclass
+class Backdrives:
+    """What :func:`work_loop_stage` simulated: the work loops, and the impedance figures
+    (:class:`~..core.analysis.ImpedanceFigures`) per mode at each frequency (None where the
+    mode's configuration was refused)."""
+
+    work_loops: List[WorkLoop]
+    omega: Tuple[float, ...]
+    figures: Dict[str, List[Optional[ImpedanceFigures]]]
+
+    def rms(self, mode: str) -> npt.NDArray[np.float64]:
+        """The predicted rms |Z| [N m s/rad] of ``mode`` on :attr:`omega` (NaN: none)."""
+        return np.array([f.z_rms if f is not None else math.nan
+                         for f in self.figures.get(mode, [None] * len(self.omega))])
+
+
+def work_loop_stage(plant: PlantParams, dahl: Optional[DahlParams], config: ControllerConfig,
+                    modes: Sequence[str] = PREDICTED_MODES,
+                    omegas: Sequence[float] = HEADLINE_OMEGA, motor_coulomb: float = 0.0,
+                    progress: Optional[Progress] = None) -> Backdrives:
+    """Backdrives simulated on the identified model (the core's simulator: ``plant``,
+    ``dahl`` and the motor's ``motor_coulomb`` as the gripper, the tuned ``config`` as the
+    controller, the simulator's sensors and one sample of delay), each mode at each of
+    ``omegas`` with :func:`backdrive_amplitude`, one period after one of settling: the
+    impedance figures -- the rms prediction, which counts the harmonics the Dahl hysteresis
+    and the Coulomb friction give -- and the work loops of :data:`WORK_LOOP_MODES` at
+    :data:`WORK_LOOP_OMEGA`. A mode the simulation cannot run (its configuration refused) is
+    left out."""
+    from ..identification.experiments import work_loop_experiment
+    loops: List[WorkLoop] = []
+    figures: Dict[str, List[Optional[ImpedanceFigures]]] = {}
+    total = len(modes) * len(omegas)
+    for i, mode in enumerate(modes):
+        figures[mode] = []
+        for j, omega in enumerate(omegas):
+            if progress is not None:
+                progress("predict", 0.8 + 0.2 * (i * len(omegas) + j) / total,
+                         f"backdrive of {mode} at {omega:g} rad/s on the identified model")
+            amplitude = backdrive_amplitude(omega)
+            try:
+                rec = work_loop_experiment(plant=plant, dahl=dahl, amplitude=amplitude,
+                                           frequency=omega, cycles=1.0, mode=mode,
+                                           config=config, settle_cycles=1.0,
+                                           motor_coulomb=motor_coulomb)
+            except SeaforceError:
+                figures[mode].append(None)
+                continue
+            dt = float(rec["t"][1] - rec["t"][0])  # type: ignore[index]
+            fig = impedance_figures(rec["f_e"], rec["x_e"], omega, dt,
+                                    float(rec["settle"]))
+            figures[mode].append(fig)
+            if mode in WORK_LOOP_MODES and omega == WORK_LOOP_OMEGA:
+                n = int(round(2.0 * math.pi / omega / dt))
+                x = np.asarray(rec["x_e"])[-n:]
+                f = np.asarray(rec["f_e"])[-n:]
+                keep = np.linspace(0, n - 1, min(n, _LOOP_POINTS)).astype(int)
+                loops.append(WorkLoop(mode, omega, amplitude, x[keep], f[keep], fig.z_db,
+                                      fig.z_rms_db, fig.distortion, fig.peak, fig.peak_centre,
+                                      fig.centre_band,
+                                      "simulated on the identified model, tuned settings"))
+    return Backdrives(loops, tuple(float(w) for w in omegas), figures)
+
+
 # --- 5. the report --------------------------------------------------------------------------
 def _spec(key: str) -> Tuple[str, str]:
     spec = by_key().get(key)
@@ -402,9 +523,26 @@ def _tuning_rows(tuning: TuningResult, old: Mapping[str, Any]) -> Tuning:
     return Tuning(rows, binding)
 
 
-def _mode_rows(band: ImpedanceBand) -> List[ModeImpedance]:
-    return [ModeImpedance(m, band.omega, band.nominal[m], band.lower[m], band.upper[m])
-            for m in PREDICTED_MODES if m in band.nominal]
+def _mode_rows(band: ImpedanceBand, backdrives: Optional[Backdrives] = None
+               ) -> List[ModeImpedance]:
+    rows = []
+    for m in PREDICTED_MODES:
+        if m not in band.nominal:
+            continue
+        row = ModeImpedance(m, band.omega, band.nominal[m], band.lower[m], band.upper[m])
+        if backdrives is not None and m in backdrives.figures:
+            row.rms_omega = np.asarray(backdrives.omega)
+            row.rms_abs = backdrives.rms(m)
+        rows.append(row)
+    return rows
+
+
+def _rms_zwidth(backdrives: Backdrives) -> npt.NDArray[np.float64]:
+    """The Z-width on the predicted rms [dB]: hold over the softest other mode."""
+    hold = backdrives.rms("hold")
+    soft = np.nanmin(np.stack([backdrives.rms(m) for m in backdrives.figures if m != "hold"]),
+                     axis=0)
+    return np.asarray(20.0 * np.log10(hold / soft), dtype=float)
 
 
 def report_stage(request: AnalysisRequest, phases: Mapping[str, float], *,
@@ -412,7 +550,9 @@ def report_stage(request: AnalysisRequest, phases: Mapping[str, float], *,
                  loop: Optional[Tuple[LoopFigures, LoopModel]] = None,
                  tuning: Optional[TuningResult] = None,
                  prediction: Optional[Prediction] = None,
-                 summary: Sequence[str] = ()) -> CommissioningReport:
+                 summary: Sequence[str] = (),
+                 backdrives: Optional[Backdrives] = None,
+                 model: Optional[ModelClass] = None) -> CommissioningReport:
     """The report of what the stages reached (None: not reached)."""
     previous, note = _previous_rows(request.previous)
     meta = ReportMeta(request.channel, request.started or _now(), dict(phases),
@@ -427,9 +567,15 @@ def report_stage(request: AnalysisRequest, phases: Mapping[str, float], *,
     if tuning is not None:
         data.tuning = _tuning_rows(tuning, request.config.to_dict())
     if prediction is not None:
-        data.impedance = _mode_rows(prediction.band)
+        data.impedance = _mode_rows(prediction.band, backdrives)
         data.zwidth = prediction.zwidth
         data.noise = prediction.noise
+        if backdrives is not None:
+            data.zwidth.rms_omega = np.asarray(backdrives.omega)
+            data.zwidth.rms_db = _rms_zwidth(backdrives)
+    if backdrives is not None:
+        data.work_loops = list(backdrives.work_loops)
+    data.model_class = model
     return data
 
 
@@ -493,6 +639,19 @@ def _summary(analysis: Analysis, request: AnalysisRequest) -> List[str]:
                          f"{analysis.before_db[w]:.1f}" for w in HEADLINE_OMEGA)
                      + " dB, after " + " / ".join(
                          f"{analysis.after_db[w]:.1f}" for w in HEADLINE_OMEGA) + " dB")
+    b = analysis.backdrives
+    if b is not None and "dob_full_ff" in b.figures:
+        figs = b.figures["dob_full_ff"]
+        lines.append("predicted dob_full_ff at " + ", ".join(f"{w:g}" for w in b.omega)
+                     + " rad/s: |Z| " + " / ".join(
+                         f"{f.z_db:.1f}" if f else "-" for f in figs) + " dB fundamental, "
+                     + " / ".join(f"{f.z_rms_db:.1f}" if f else "-" for f in figs)
+                     + " dB rms; Z-width on the rms " + " / ".join(
+                         f"{v:.1f}" for v in _rms_zwidth(b)) + " dB (a simulation of the "
+                     "identified model: the harmonics of its Dahl hysteresis"
+                     + (" and motor Coulomb friction" if analysis.terms is not None
+                        and analysis.terms.term("motor_coulomb").resolved else "")
+                     + "; not those of terms the controller's model lacks)")
     t = analysis.tuning
     if t is not None:
         lines.append(f"tuned DOB torque noise {1e3 * t.torque_noise:.3g} mN m rms (budget "
@@ -548,6 +707,7 @@ def analyse(record: ExcitationRecord, request: AnalysisRequest,
     try:
         say("identify", 0.0, "the motor plant and the port from the record")
         ident = analysis.identification = identify_stage(record, say)
+        analysis.model_class, analysis.terms = model_class_stage(record, ident, say)
         lap("identify")
         say("loop", 0.0, "pressure noise, encoder quantum, loop delay")
         figures, analysis.loop = loop_stage(record, request.config)
@@ -559,6 +719,12 @@ def analyse(record: ExcitationRecord, request: AnalysisRequest,
                                    tuning.config, analysis.loop, request.noise_budget,
                                    noise_rel_sigma=figures.pressure.std_1s
                                    / max(figures.pressure.std, 1e-300), progress=say)
+        coulomb = 0.0
+        if analysis.terms is not None and analysis.terms.term("motor_coulomb").resolved:
+            coulomb = analysis.terms.term("motor_coulomb").value
+        analysis.backdrives = work_loop_stage(ident.plant(), ident.dahl(), tuning.config,
+                                              motor_coulomb=coulomb, progress=say)
+        analysis.work_loops = analysis.backdrives.work_loops
         lap("predict")
         analysis.band = prediction.band
         analysis.before_db = {w: float(np.interp(math.log(w), np.log(tuning.omega),
@@ -579,7 +745,9 @@ def analyse(record: ExcitationRecord, request: AnalysisRequest,
     loop_pair = None if figures is None or analysis.loop is None else (figures, analysis.loop)
     analysis.report = report_stage(request, phases, ident=ident, loop=loop_pair,
                                    tuning=tuning, prediction=prediction,
-                                   summary=_summary(analysis, request))
+                                   summary=_summary(analysis, request),
+                                   backdrives=analysis.backdrives,
+                                   model=analysis.model_class)
     if directory is not None:
         write_stage(directory, analysis, request)
     lap("report")

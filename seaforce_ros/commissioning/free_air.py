@@ -82,7 +82,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
+from typing import TYPE_CHECKING, Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 import numpy.typing as npt
@@ -99,13 +99,16 @@ from ..identification.spectral import BlackmanTukey, FrequencyResponse
 from .errors import CommissioningError
 from .record import ExcitationRecord
 
+if TYPE_CHECKING:
+    from .report import ModelClass
+
 __all__ = ["FreeAirIdentification", "Estimate", "Response", "identify_free_air",
            "RecordTooShortError", "NotExcitedError", "NonFiniteRecordError",
            "LowCoherenceError", "PLANT_KEYS", "DAHL_KEYS", "REQUIRED_BAND", "MOTOR_TOP",
            "PERIODS", "FORCE_ORDERS", "PORT_TOP", "ALIAS_IMAGES", "PORT_SEARCH", "PORT_RESTARTS",
            "SK_ITERATIONS", "N_FREQ", "FILTER_CUTOFF", "DECIMATE", "RATIO_RANGE",
            "MAX_ITERATIONS", "CONVERGED", "MIN_COHERENCE", "SETTLE_TIME", "DAHL_INPUT_CUTOFF",
-           "PATH_CUTOFF"]
+           "PATH_CUTOFF", "MODEL_CLASS_THRESHOLD", "model_class"]
 
 _Real = npt.NDArray[np.float64]
 _Complex = npt.NDArray[np.complex128]
@@ -167,6 +170,11 @@ DAHL_INPUT_CUTOFF = 100.0
 #: Zero-phase low-pass [Hz] of the estimated endpoint path that drives the Dahl force of the
 #: port fit (the pressure noise would otherwise reverse it at every sample).
 PATH_CUTOFF = 400.0
+
+
+#: The misfits (rms relative, over the fitted band) beyond which the identified model class
+#: -- the linear plant with the Dahl hysteresis -- is said not to describe the gripper.
+MODEL_CLASS_THRESHOLD = {"motor": 0.03, "port": 0.025}
 
 
 class RecordTooShortError(CommissioningError):
@@ -695,3 +703,29 @@ def identify_free_air(record: ExcitationRecord, *, band: Optional[Tuple[float, f
 
 def _response(resp: FrequencyResponse, coherence: _Real, model: _Complex) -> Response:
     return Response(resp.name, resp.omega, resp.h, resp.sigma, coherence, model)
+
+
+def model_class(ident: FreeAirIdentification,
+                threshold: Optional[Dict[str, float]] = None,
+                terms: Optional[Sequence[str]] = None,
+                resolved: Sequence[str] = ()) -> "ModelClass":
+    """Whether the identified model class describes the gripper: each fit's misfit against
+    :data:`MODEL_CLASS_THRESHOLD` (or ``threshold``), and a warning that says what a misfit
+    beyond it -- or a nonlinear term the record resolved (``resolved``: their labels) --
+    means for the parameters and the predictions; ``terms``: the lines of the candidate
+    nonlinear terms (:mod:`.nonlinear_terms`)."""
+    from .report import ModelClass
+    limits = dict(MODEL_CLASS_THRESHOLD if threshold is None else threshold)
+    over = [k for k, v in ident.misfit.items() if k in limits and not v <= limits[k]]
+    causes = [f"the {k} fit's misfit {100 * ident.misfit[k]:.2g} % exceeds "
+              f"{100 * limits[k]:.2g} %" for k in over]
+    if resolved:
+        causes.append("the record resolves " + ", ".join(resolved))
+    warning = ""
+    if causes:
+        warning = ("; ".join(causes)
+                   + ": the linear model with the Dahl hysteresis does not describe this gripper "
+                   "(nonlinear hose, diaphragm, finger or motor friction); its parameters are "
+                   "equivalent values at this excitation's amplitudes, their 1-sigmas do not "
+                   "cover that, and predictions of the softest modes are optimistic")
+    return ModelClass(dict(ident.misfit), limits, warning, list(terms or []))

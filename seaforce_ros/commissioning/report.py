@@ -10,6 +10,9 @@ a directory::
     impedance.png        (b) predicted |Z| per controller mode with bands, measured points
     zwidth.png           (c) the Z-width, predicted vs measured; the virtual wall's K_max(B)
     torque_noise.png     (d) DOB torque noise vs lambda, the budget, the chosen lambda
+    work_loops.png       (e) work loops F_e(X_e) of a backdrive per mode, with the fundamental
+                         and the rms |Z|, the distortion and the peaks within +-0.2 rad and
+                         over the stroke
     report.html          self-contained: inline CSS, the figures as data URIs, the tables
 
 A figure whose section is empty is not drawn (the page says so). :func:`load_report` reads
@@ -51,7 +54,7 @@ if TYPE_CHECKING:
 
 __all__ = ["SCHEMA", "MODES", "FIGURE_MARKERS", "ReportError", "ParameterRow", "PortResponse",
            "LoopFigure", "ModeImpedance", "WallBoundary", "ZWidthChart", "NoiseSweep",
-           "TuningRow", "Tuning", "ReportMeta", "CommissioningReport", "RenderedFigure",
+           "WorkLoop", "ModelClass", "TuningRow", "Tuning", "ReportMeta", "CommissioningReport", "RenderedFigure",
            "write_report", "load_report", "report_json", "summary_table", "render_html",
            "render_figures"]
 
@@ -67,6 +70,7 @@ FIGURE_MARKERS: Dict[str, Tuple[str, Tuple[int, int, int]]] = {
     "b": ("impedance.png", (0, 128, 255)),
     "c": ("zwidth.png", (255, 0, 128)),
     "d": ("torque_noise.png", (0, 255, 128)),
+    "e": ("work_loops.png", (128, 0, 255)),
 }
 """Figure letter -> (file name, marker colour RGB)."""
 
@@ -246,6 +250,9 @@ class ModeImpedance:
         The 1-sigma band of |Z| [N m s/rad].
     measured_omega, measured_abs : float arrays
         Measured |Z| points (w [rad/s], |Z| [N m s/rad]); empty: none.
+    rms_omega, rms_abs : float arrays
+        Predicted rms impedance rms(F_e)/rms(V_e) (w [rad/s], [N m s/rad]) from backdrives
+        simulated on the identified model; empty: none.
     """
 
     mode: str
@@ -255,14 +262,18 @@ class ModeImpedance:
     upper: _Array
     measured_omega: _Array = field(default_factory=_empty)
     measured_abs: _Array = field(default_factory=_empty)
+    rms_omega: _Array = field(default_factory=_empty)
+    rms_abs: _Array = field(default_factory=_empty)
 
     def __post_init__(self) -> None:
         n = _floats(self, self.mode, "omega", "lower", "upper")
         if _arrays(self, self.mode, ("z",), np.complex128) != n:
             raise ReportError(f"{self.mode}: z needs one value per frequency ({n})")
         _floats(self, self.mode, "measured_omega", "measured_abs")
+        _floats(self, self.mode, "rms_omega", "rms_abs")
         _check_omega(self.omega, self.mode)
         _check_omega(self.measured_omega, self.mode, "measured_omega")
+        _check_omega(self.rms_omega, self.mode, "rms_omega")
 
 
 @dataclass
@@ -339,6 +350,9 @@ class ZWidthChart:
         Measured points, their 1-sigma [dB] (NaN: none); empty: none.
     wall : WallBoundary or None
         K_max(B) of ``impedance`` mode.
+    rms_omega, rms_db : float arrays
+        The Z-width on the predicted rms impedances [dB] (backdrives simulated on the
+        identified model); empty: none.
     """
 
     omega: _Array
@@ -349,9 +363,13 @@ class ZWidthChart:
     measured_db: _Array = field(default_factory=_empty)
     measured_sigma_db: _Array = field(default_factory=_empty)
     wall: Optional[WallBoundary] = None
+    rms_omega: _Array = field(default_factory=_empty)
+    rms_db: _Array = field(default_factory=_empty)
 
     def __post_init__(self) -> None:
         _floats(self, "zwidth", "omega", "predicted_db", "lower_db", "upper_db")
+        _floats(self, "zwidth", "rms_omega", "rms_db")
+        _check_omega(self.rms_omega, "zwidth", "rms_omega")
         n = len(np.asarray(self.measured_omega).reshape(-1))
         if len(np.asarray(self.measured_sigma_db).reshape(-1)) == 0:
             self.measured_sigma_db = np.full(n, np.nan)
@@ -396,6 +414,84 @@ class NoiseSweep:
         _floats(self, "torque noise", "lam", "rms", "rms_sigma")
         _check_omega(self.lam, "torque noise", "lam")
         _scalars(self, "torque noise", "budget", "chosen")
+
+
+@dataclass
+class WorkLoop:
+    """A backdrive of one mode at one frequency: its work loop and impedance figures
+    (:func:`~seaforce_ros.core.analysis.impedance_figures`).
+
+    Attributes
+    ----------
+    mode : str
+        The controller mode.
+    omega, amplitude : float
+        Drive frequency [rad/s] and amplitude [rad].
+    x_e, f_e : float arrays
+        One period of the loop: endpoint position [rad] and external force [N m].
+    z_db, z_rms_db : float
+        |Z| of the fundamental and rms(F_e)/rms(V_e) [dB re 1 N m s/rad].
+    distortion : float
+        Harmonic distortion of F_e (0.4: 40 %).
+    peak, peak_centre : float
+        Peak |F_e| over the stroke and within +-``centre_band`` [N m].
+    centre_band : float
+        [rad].
+    source : str
+        What it comes from, e.g. ``"simulated on the identified model"``.
+    """
+
+    mode: str
+    omega: float
+    amplitude: float
+    x_e: _Array
+    f_e: _Array
+    z_db: float
+    z_rms_db: float
+    distortion: float
+    peak: float
+    peak_centre: float
+    centre_band: float = 0.2
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        if _floats(self, self.mode, "x_e") != _floats(self, self.mode, "f_e"):
+            raise ReportError(f"work loop {self.mode}: x_e and f_e need the same length")
+        _scalars(self, self.mode, "omega", "amplitude", "z_db", "z_rms_db", "distortion",
+                 "peak", "peak_centre", "centre_band")
+
+    def describe(self) -> str:
+        """One line of its figures."""
+        return (f"{self.mode} at {self.omega:g} rad/s, {self.amplitude:g} rad: |Z| "
+                f"{self.z_db:.1f} dB fundamental, {self.z_rms_db:.1f} dB rms, distortion "
+                f"{100 * self.distortion:.0f} %, peak |F_e| {_num(self.peak, 3)} N m over the "
+                f"stroke, {_num(self.peak_centre, 3)} within +-{self.centre_band:g} rad")
+
+
+@dataclass
+class ModelClass:
+    """Whether the identified model class describes the gripper: the fits' misfits against
+    the thresholds that separate a linear plant's records from nonlinear ones.
+
+    Attributes
+    ----------
+    misfit, threshold : dict str -> float
+        rms relative misfit of each fitted response and its threshold (0.02: 2 %).
+    warning : str
+        '' when every misfit is below its threshold, else what that means.
+    terms : list of str
+        Candidate nonlinear terms the record resolved or could not resolve, one line each.
+    """
+
+    misfit: Dict[str, float]
+    threshold: Dict[str, float]
+    warning: str = ""
+    terms: List[str] = field(default_factory=list)
+
+    @property
+    def fits(self) -> bool:
+        """No misfit beyond its threshold."""
+        return not self.warning
 
 
 @dataclass
@@ -477,6 +573,8 @@ class CommissioningReport:
     noise: Optional[NoiseSweep] = None
     tuning: Optional[Tuning] = None
     summary: List[str] = field(default_factory=list)
+    work_loops: List[WorkLoop] = field(default_factory=list)
+    model_class: Optional[ModelClass] = None
 
 
 # --- report.json --------------------------------------------------------------------------
@@ -693,7 +791,12 @@ def _fig_impedance(modes: Sequence[ModeImpedance]) -> Figure:
         if len(m.measured_omega):
             ax.semilogx(m.measured_omega, _db(m.measured_abs), "o", color=colour, ms=6,
                         mfc="white", mew=1.6)
+        if len(m.rms_omega):
+            ax.semilogx(m.rms_omega, _db(m.rms_abs), "s", color=colour, ms=7, mfc="none",
+                        mew=1.4)
     ax.plot([], [], "o", color="0.3", mfc="white", mew=1.6, label="measured")
+    if any(len(m.rms_omega) for m in modes):
+        ax.plot([], [], "s", color="0.3", mfc="none", mew=1.4, label="rms (simulated)")
     ax.set_xlabel("frequency w [rad/s]")
     ax.set_ylabel("|Z| = |F_e/V_e| [dB re 1 N m s/rad]")
     _grid(ax)
@@ -714,6 +817,9 @@ def _fig_zwidth(chart: ZWidthChart) -> Figure:
         err = np.where(np.isfinite(chart.measured_sigma_db), chart.measured_sigma_db, 0.0)
         ax.errorbar(chart.measured_omega, chart.measured_db, yerr=err, fmt="o",
                     color="tab:red", ms=6, capsize=3, label="measured")
+    if len(chart.rms_omega):
+        ax.plot(chart.rms_omega, chart.rms_db, "s", color="tab:purple", ms=8, mfc="none",
+                mew=1.6, label="on the rms (simulated)")
     ax.set_xscale("log")
     ax.set_xlabel("frequency w [rad/s]")
     ax.set_ylabel("Z-width 20 log10(|Z_hold|/|Z_min|) [dB]")
@@ -766,6 +872,27 @@ def _fig_noise(noise: NoiseSweep) -> Figure:
     return fig
 
 
+def _fig_work_loops(loops: Sequence[WorkLoop]) -> Figure:
+    plt = _plt()
+    stiff = [w for w in loops if w.mode == "hold"]
+    soft = [w for w in loops if w.mode != "hold"]
+    panels = [p for p in (soft, stiff) if p]
+    fig, axes = plt.subplots(1, len(panels), figsize=(11, 4.8), squeeze=False)
+    extra = iter(("tab:olive", "tab:cyan", "tab:pink", "black"))
+    for ax, group in zip(axes[0], panels):
+        for w in group:
+            colour = _MODE_COLOURS.get(w.mode) or next(extra, "black")
+            ax.plot(w.x_e, w.f_e, color=colour, lw=1.5,
+                    label=f"{w.mode}: |Z| {w.z_db:.1f} dB, rms {w.z_rms_db:.1f} dB, "
+                          f"dist. {100 * w.distortion:.0f} %")
+            ax.axvspan(-w.centre_band, w.centre_band, color="0.93", zorder=0)
+        ax.set_xlabel("endpoint position X_e [rad]")
+        ax.set_ylabel("external torque F_e [N m]")
+        _grid(ax)
+        ax.legend(fontsize=8, loc="best")
+    return fig
+
+
 @dataclass(frozen=True)
 class RenderedFigure:
     """One drawn figure: letter (a-d), file name, title, caption, the PNG's bytes."""
@@ -791,7 +918,10 @@ def _captions(data: CommissioningReport) -> List[Tuple[str, str, Callable[[], Fi
         out.append(("b", "Predicted endpoint impedance per mode",
                     lambda: _fig_impedance(data.impedance),
                     "Predicted |Z(jw)| = |F_e/V_e| of each controller mode with its 1-sigma "
-                    "band; open circles: measured points, where a backdrive measured them."))
+                    "band; open circles: measured points, where a backdrive measured them; "
+                    "open squares: the rms impedance rms(F_e)/rms(V_e) of backdrives "
+                    "simulated on the identified model (0.5 rad, at most 0.5 rad/s), which "
+                    "counts the harmonics of its nonlinear terms."))
     if data.zwidth is not None:
         chart = data.zwidth
         wall = ""
@@ -801,18 +931,30 @@ def _captions(data: CommissioningReport) -> List[Tuple[str, str, Callable[[], Fi
                     f"binds), and the chosen (B, K); {chart.wall.describe()}.")
         out.append(("c", "Z-width: predicted vs measured", lambda: _fig_zwidth(chart),
                     "Z-width, the range between the stiff hold and the lowest-impedance mode, "
-                    "predicted with its 1-sigma band and measured (red)." + wall))
+                    "predicted with its 1-sigma band and measured (red); squares: on the rms "
+                    "impedances of the simulated backdrives." + wall))
     if data.noise is not None:
         noise = data.noise
         out.append(("d", "DOB torque noise vs lambda", lambda: _fig_noise(noise),
                     "RMS of the DOB's torque command from the measured sensor noise against "
                     "the cut-off lambda, with its 1-sigma band, the budget (red) and the "
                     "lambda the tuning chose (black)."))
+    if data.work_loops:
+        loops = data.work_loops
+        source = loops[0].source or "a backdrive"
+        out.append(("e", "Work loops", lambda: _fig_work_loops(loops),
+                    f"External torque against endpoint position, the finger backdriven at "
+                    f"{loops[0].omega:g} rad/s, {loops[0].amplitude:g} rad ({source}); grey: "
+                    f"+-{loops[0].centre_band:g} rad about the centre, where the paper's "
+                    "compensation holds. The legend gives |Z| of the fundamental beside the "
+                    "rms impedance rms(F_e)/rms(V_e) and the distortion of F_e: where the "
+                    "fundamental nearly cancels, the rms is what the finger feels. "
+                    + " ".join(w.describe() + "." for w in loops)))
     return out
 
 
 def render_figures(data: CommissioningReport) -> List[RenderedFigure]:
-    """The report's figures, one per section that has data, in the order (a)-(d)."""
+    """The report's figures, one per section that has data, in the order (a)-(e)."""
     figs = []
     with warnings.catch_warnings():
         # Data with nothing to draw on a log axis (all NaN, zero) leaves its panel empty,
@@ -873,6 +1015,21 @@ def _plain(headers: Sequence[str], rows: Sequence[Sequence[str]], numeric: str) 
     return format_table(headers, cells, (None,) * len(headers))
 
 
+def _model_class_lines(model: Optional[ModelClass]) -> List[str]:
+    """The model class's verdict: the misfits against their thresholds, the warning, the
+    candidate terms."""
+    if model is None:
+        return []
+    fits = ", ".join(f"{k} {100 * v:.2g} % (threshold {100 * model.threshold.get(k, _NAN):.2g} %)"
+                     for k, v in model.misfit.items())
+    head = (f"model class: {'fits' if model.fits else 'DOES NOT FIT'} -- misfit {fits}")
+    out = [head]
+    if model.warning:
+        out.append(f"WARNING: {model.warning}")
+    out += [f"  {t}" for t in model.terms]
+    return out
+
+
 def summary_table(data: CommissioningReport) -> str:
     """The plain-text summary a command-line tool prints: meta, summary lines, the
     identification, the loop figures, the tuning (a changed value marked ``*``)."""
@@ -882,6 +1039,9 @@ def summary_table(data: CommissioningReport) -> str:
              + ("" if m.seed is None else f", simulated (seed {m.seed})"),
              "phases: " + (", ".join(f"{k} {v:.1f} s" for k, v in m.phases.items()) or "-")]
     lines += [f"  {s}" for s in data.summary]
+    lines += [f"  {s}" for s in _model_class_lines(data.model_class)]
+    for w in data.work_loops:
+        lines.append(f"  work loop ({w.source or 'backdrive'}): {w.describe()}")
     if data.zwidth is not None:
         lines.append("  " + _zwidth_headline(data.zwidth))
         if data.zwidth.wall is not None:
@@ -1003,6 +1163,13 @@ def _cards(data: CommissioningReport) -> str:
                                f"<b>{_e(_num(r.new))}</b> {_e(r.unit)}<br>"
                                for r in changed)
                      + f"bound by: {_e(data.tuning.binding)}</div>")
+    if data.model_class is not None:
+        mc = data.model_class
+        lines = _model_class_lines(mc)
+        verdict = "fits" if mc.fits else "does not fit"
+        cards.append(f'<div class="card"><h3>Model class</h3><div class="big'
+                     + ('' if mc.fits else ' drift') + f'">{verdict}</div>'
+                     + "<br>".join(_e(x) for x in lines) + "</div>")
     summary = "".join(f"<li>{_e(s)}</li>" for s in data.summary)
     if summary:
         cards.append(f'<div class="card"><h3>Summary</h3><ul class="summary">{summary}</ul>'
@@ -1031,6 +1198,14 @@ def render_html(data: CommissioningReport, figures: Sequence[RenderedFigure]) ->
             ["figure", "value \u00b1 1-sigma", "unit"],
             [("", [(_e(f.name), ""), (_e(_pm(f.value, f.sigma)), "n"),
                    (_e(f.unit), "u")]) for f in data.loop])]
+    if data.work_loops:
+        parts += ["<h2>Work loops</h2>", _table(
+            ["mode", "omega [rad/s]", "|Z| fundamental [dB]", "|Z| rms [dB]", "distortion",
+             "peak |F_e| [N m]", "peak within the centre band [N m]", "source"],
+            [("", [(_e(w.mode), ""), (_e(_num(w.omega)), "n"), (_e(f"{w.z_db:.1f}"), "n"),
+                   (_e(f"{w.z_rms_db:.1f}"), "n"), (_e(f"{100 * w.distortion:.0f} %"), "n"),
+                   (_e(_num(w.peak, 3)), "n"), (_e(_num(w.peak_centre, 3)), "n"),
+                   (_e(w.source), "")]) for w in data.work_loops])]
     parts.append("<h2>Figures</h2>")
     drawn = {f.letter for f in figures}
     for f in figures:

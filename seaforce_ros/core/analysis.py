@@ -21,6 +21,7 @@ __all__ = [
     "low_frequency_stiffness_internal", "low_frequency_stiffness_external",
     "eq22_stiffness", "eq23_stiffness", "eq24_stiffness",
     "fourier_coefficient", "impedance_from_series", "impedance_from_position",
+    "ImpedanceFigures", "impedance_figures", "CENTRE_BAND", "HARMONICS",
     "hold_loop", "HoldMargins", "hold_margins", "design_hold_gains",
 ]
 
@@ -190,6 +191,170 @@ def impedance_from_position(f_e: npt.ArrayLike, x_e: npt.ArrayLike, omega: float
     """Complex Z(j omega) = F_e/(j omega X_e) from F_e [N m] and X_e [rad]."""
     return (fourier_coefficient(f_e, omega, dt, settle_time)
             / (1j * omega * fourier_coefficient(x_e, omega, dt, settle_time)))
+
+
+#: Half-width [rad] of the work loop's centre band: the paper's Fig. 5 compensation holds
+#: within +-0.2 rad of the stroke's centre.
+CENTRE_BAND = 0.2
+#: Harmonics of F_e reported (1 = the fundamental).
+HARMONICS = 5
+#: Harmonics of X_e the rms of V_e is summed over (a drive's path is smooth: its content
+#: beyond them is the encoder's quantum).
+_VELOCITY_HARMONICS = 20
+
+
+class ImpedanceFigures(NamedTuple):
+    """What a backdrive at one frequency shows of the endpoint impedance, the fundamental
+    beside the rms (:func:`impedance_figures`).
+
+    Attributes
+    ----------
+    omega : float
+        Drive frequency w [rad/s].
+    z : complex
+        ``F_e/V_e`` of the fundamentals [N m s/rad].
+    z_rms : float
+        ``rms(F_e)/rms(V_e)`` [N m s/rad], both about their means over whole periods: every
+        harmonic (and the noise) of F_e counts.
+        rms(F_e)^2 is the power of its first 20 harmonics plus the mean square of what they
+        leave, rms(V_e)^2 that of the first 20 harmonics of V_e.
+    harmonics : tuple of float
+        Amplitudes |F_e| at ``k w``, k = 1 .. :data:`HARMONICS` [N m].
+    distortion : float
+        Harmonic distortion of F_e (noise included): ``sqrt(rms^2 - rms_1^2)/rms_1``, rms_1
+        the fundamental's rms; inf when the fundamental is 0.
+    peak : float
+        Largest |F_e| over the whole stroke [N m] (the work loop's).
+    peak_centre : float
+        Largest |F_e| within ``centre_band`` of the stroke's centre [N m] (NaN when the
+        stroke never comes there).
+    amplitude : float
+        Amplitude of the fundamental of X_e [rad].
+    centre_band : float
+        The band's half-width [rad].
+    periods : int
+        Whole periods the figures are taken over.
+    """
+
+    omega: float
+    z: complex
+    z_rms: float
+    harmonics: Tuple[float, ...]
+    distortion: float
+    peak: float
+    peak_centre: float
+    amplitude: float
+    centre_band: float
+    periods: int
+
+    @property
+    def z_db(self) -> float:
+        """``20 log10 |z|`` [dB re 1 N m s/rad]."""
+        return 20.0 * math.log10(abs(self.z)) if self.z != 0 else -math.inf
+
+    @property
+    def z_rms_db(self) -> float:
+        """``20 log10 z_rms`` [dB re 1 N m s/rad]."""
+        return 20.0 * math.log10(self.z_rms) if self.z_rms > 0 else -math.inf
+
+    @property
+    def peak_ratio(self) -> float:
+        """``peak / peak_centre``: how much the work loop's force grows outside the centre."""
+        return self.peak / self.peak_centre if self.peak_centre > 0 else math.inf
+
+    def as_dict(self) -> Dict[str, Any]:
+        """The figures as JSON-able numbers (``z`` as ``z_re``, ``z_im``; the dBs too)."""
+        return {"omega": self.omega, "z_re": self.z.real, "z_im": self.z.imag,
+                "z_db": self.z_db, "z_rms": self.z_rms, "z_rms_db": self.z_rms_db,
+                "harmonics": list(self.harmonics), "distortion": self.distortion,
+                "peak": self.peak, "peak_centre": self.peak_centre,
+                "amplitude": self.amplitude, "centre_band": self.centre_band,
+                "periods": self.periods}
+
+
+def _whole_periods(n_samples: int, omega: float, dt: float, settle_time: float) -> Tuple[int, int]:
+    """(first sample, periods) of the largest whole number of periods after ``settle_time``,
+    taken from the end of the record (as :func:`fourier_coefficient`)."""
+    period = 2.0 * math.pi / omega
+    start = int(math.ceil(settle_time / dt))
+    available = n_samples - start
+    # a window up to one sample short of whole periods counts as whole periods (a record of
+    # k periods rounded to samples; the harmonics are fitted by least squares, which a
+    # fraction of a sample does not bias)
+    periods = int(math.floor((available + 1.0) * dt / period))
+    if periods < 1:
+        raise ValueError("record shorter than one period after settle_time")
+    return n_samples - min(available, int(round(periods * period / dt))), periods
+
+
+def impedance_figures(f_e: npt.ArrayLike, x_e: npt.ArrayLike, omega: float, dt: float,
+                      settle_time: float = 0.0, centre_band: float = CENTRE_BAND
+                      ) -> ImpedanceFigures:
+    """The endpoint impedance of a backdrive at ``omega``, the fundamental beside the rms.
+
+    Over the largest whole number of drive periods after ``settle_time`` (from the end of the
+    record): the Fourier coefficients of F_e at ``k omega`` (k = 1 .. :data:`HARMONICS`), the
+    rms of F_e about its mean, the rms of V_e = X_e' summed over the first harmonics of X_e
+    (robust to the encoder's quantum; exact for a drive's smooth path), the peaks of |F_e|
+    over the stroke and within ``centre_band`` of its centre ((max + min)/2 of X_e).
+
+    Parameters
+    ----------
+    f_e : array_like
+        External force F_e [N m] at ``t_k = k dt``.
+    x_e : array_like
+        Endpoint position X_e [rad], same samples.
+    omega : float > 0
+        Drive frequency [rad/s].
+    dt : float > 0
+        Sample period [s].
+    settle_time : float >= 0
+        Transient to discard at the start [s].
+    centre_band : float > 0
+        Half-width of the centre band [rad].
+
+    Returns
+    -------
+    ImpedanceFigures
+    """
+    f = np.asarray(f_e, float)
+    x = np.asarray(x_e, float)
+    if f.shape != x.shape or f.ndim != 1:
+        raise ValueError(f"f_e and x_e need the same one-dimensional shape, got {f.shape} and "
+                         f"{x.shape}")
+    if not (omega > 0.0 and dt > 0.0 and centre_band > 0.0):
+        raise ValueError("omega, dt and centre_band must be > 0")
+    k0, periods = _whole_periods(f.size, omega, dt, settle_time)
+    fw, xw = f[k0:], x[k0:]
+    n = fw.size
+    t = (k0 + np.arange(n)) * dt
+    orders = np.arange(1, _VELOCITY_HARMONICS + 1)
+    # least squares on a mean and the harmonics (not projections: a period that is not a
+    # whole number of samples would leak a large fundamental into the small harmonics)
+    phase = omega * np.outer(t - t[0], orders)
+    basis = np.hstack([np.ones((n, 1)), np.cos(phase), np.sin(phase)])
+    coef = np.linalg.lstsq(basis, np.stack([fw, xw], axis=1), rcond=None)[0]
+    rot = np.exp(-1j * orders * omega * t[0])        # back to the phase of t = k dt
+    cf_all = (coef[1:1 + orders.size, 0] - 1j * coef[1 + orders.size:, 0]) * rot
+    cf = cf_all[:HARMONICS]
+    cx = (coef[1:1 + orders.size, 1] - 1j * coef[1 + orders.size:, 1]) * rot
+    z = complex(cf[0] / (1j * omega * cx[0]))
+    # the harmonics' power plus what they leave (noise, content beyond them): exact for a
+    # periodic force whatever fraction of a sample the window is off whole periods
+    resid = fw - basis @ coef[:, 0]
+    rms_f = float(np.sqrt(0.5 * np.sum(np.abs(cf_all) ** 2) + np.mean(resid ** 2)))
+    rms_v = float(np.sqrt(0.5 * np.sum((orders[:_VELOCITY_HARMONICS] * omega
+                                        * np.abs(cx)) ** 2)))
+    fundamental = float(abs(cf[0])) / math.sqrt(2.0)
+    rest = math.sqrt(max(rms_f ** 2 - fundamental ** 2, 0.0))
+    distortion = rest / fundamental if fundamental > 0 else math.inf
+    centre = 0.5 * (float(xw.max()) + float(xw.min()))
+    inside = np.abs(xw - centre) <= centre_band
+    peak_centre = float(np.max(np.abs(fw[inside]))) if inside.any() else math.nan
+    return ImpedanceFigures(float(omega), z, rms_f / rms_v if rms_v > 0 else math.inf,
+                            tuple(float(a) for a in np.abs(cf)), distortion,
+                            float(np.max(np.abs(fw))), peak_centre, float(abs(cx[0])),
+                            float(centre_band), periods)
 
 
 # --- hold (maximum impedance) gain design ---------------------------------------

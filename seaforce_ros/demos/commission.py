@@ -7,7 +7,9 @@ the plant steps on the controller's answers, so every figure is the loop's own o
 
 1. **before**: each mode's |Z(j omega)| = |F_e/V_e| measured with the sim's position drive
    (``position_sine``, amplitude ``min(0.5, 0.5/omega)`` rad: 0.5 rad/s peak) at each
-   ``--frequencies`` value, one period after a settling second;
+   ``--frequencies`` value, one period after a settling second: the fundamental beside the
+   rms impedance rms(F_e)/rms(V_e), the distortion of F_e and the work loop's peaks
+   (:func:`~..core.analysis.impedance_figures`);
 2. **commission**: the finger released into free air (passive, the drive off), the
    ``~/commission`` action with ``apply`` (excitation, identification, tuning, report; the run
    directory under ``<--out>/runs``);
@@ -18,8 +20,10 @@ the plant steps on the controller's answers, so every figure is the loop's own o
 
 Predictions (:func:`~..commissioning.predictor.predict_modes`, on the *identified* plant from
 the run's report, with its loop delay): before with the starting configuration, after with
-the applied one. Prints measured vs predicted per mode and frequency, the Z-width (hold less
-the softest other mode) before and after, ``dob_full_ff`` after vs ideal and the rig time;
+the applied one; after, also the report's rms prediction (backdrives simulated on the
+identified model at 1, 3 and 10 rad/s). Prints measured (fundamental and rms) vs predicted
+per mode and frequency,
+the Z-width (hold less the softest other mode) before and after on both, ``dob_full_ff`` after vs ideal and the rig time;
 writes ``zwidth_commission.png`` and ``results.json`` to ``--out``.
 
 Usage: python -m seaforce_ros.demos commission [--seed N] [--out DIR]
@@ -37,6 +41,7 @@ from typing import Dict, List, Sequence, Tuple
 
 import numpy as np
 
+from ..commissioning.analyse import backdrive_amplitude
 from ..commissioning.tuning import contact_damping_within
 from ..core.plant_cycle import STATUS_FAULT
 from .common import (CHANNEL, DT, drawn_plant, prepare, run_action, run_guarded,
@@ -45,13 +50,10 @@ from .impedance import Observer, measure, status_note
 
 MODES = ('passive', 'hold', 'dob', 'dob_linear_ff', 'dob_full_ff', 'impedance')
 SETTLE = 1.0            # s of drive before a mode's measured period
-PEAK_SPEED = 0.5        # rad/s of the drive: amplitude min(0.5, PEAK_SPEED/omega)
+ATTEMPTS = 3            # measurements of a mode at most when the recorded states have gaps
 COMMISSION_TIMEOUT = 600.0
-
-
-def amplitude(omega: float) -> float:
-    """The drive's amplitude at ``omega`` [rad]."""
-    return min(0.5, PEAK_SPEED / omega)
+#: The drive's amplitude at omega [rad]: min(0.5, 0.5/omega), as the rms predictions'
+amplitude = backdrive_amplitude
 
 
 class CommissionObserver(Observer):
@@ -77,11 +79,18 @@ class CommissionObserver(Observer):
         return len(recent) > 10 and not any(recent)
 
 
+#: The figures of a mode that did not hold (the plant latched a fault).
+UNSTABLE = {'z_db': math.nan, 'z_rms_db': math.nan, 'distortion': math.nan, 'peak': math.nan,
+            'peak_centre': math.nan}
+
+
 def measure_modes(observer, children, modes: Sequence[str], frequencies: Sequence[float],
-                  label: str) -> Dict[Tuple[str, float], float]:
-    """|Z| [dB] of each mode at each frequency with the sim's position drive."""
+                  label: str) -> Dict[Tuple[str, float], Dict[str, float]]:
+    """The impedance figures (``impedance.measure``: |Z| of the fundamental and rms [dB],
+    distortion, peaks) of each mode at each frequency with the sim's position drive;
+    :data:`UNSTABLE` for a mode that latched a fault."""
     node = observer.node
-    out: Dict[Tuple[str, float], float] = {}
+    out: Dict[Tuple[str, float], Dict[str, float]] = {}
     for omega in frequencies:
         a = amplitude(omega)
         observer.set_mode('passive')        # the drive changes under the softest mode
@@ -90,35 +99,53 @@ def measure_modes(observer, children, modes: Sequence[str], frequencies: Sequenc
                                       f'{CHANNEL}.environment.frequency': float(omega)})
         period = int(math.ceil(2.0 * math.pi / omega / DT)) + 1
         for mode in modes:
-            before = observer.latest_cycle()
-            observer.set_mode(mode)
-            first = observer.wait_mode(mode, before, children, 30.0) + int(round(SETTLE / DT))
-            last = first + period - 1
-            observer.wait_cycle(children, last)
-            window = observer.window(first, last)
+            for attempt in range(1, ATTEMPTS + 1):
+                first = observer.enter_mode(mode, children, 30.0) + int(round(SETTLE / DT))
+                last = first + period - 1
+                observer.wait_cycle(children, last)
+                window = observer.window(first, last)
+                if window['received'] >= 0.5 * window['expected']:
+                    break
+                print(f'[commission] {label:6s} {mode:14s} {omega:5.3g} rad/s: recorded '
+                      f'{window["received"]} of {window["expected"]} states (a busy host); '
+                      f'measuring again ({attempt}/{ATTEMPTS})', flush=True)
+            fault = observer.fault_in(first - int(round(SETTLE / DT)), last)
+            if fault and not window['status'] & STATUS_FAULT:
+                # the controller fell back (the runaway monitor: a finger driven away on a
+                # model this far off): the configured mode did not run; no figure
+                out[(mode, omega)] = UNSTABLE
+                print(f'[commission] {label:6s} {mode:14s} {omega:5.3g} rad/s ({a:.3g} rad): '
+                      f'NOT HELD (the controller reports: {fault}); resetting the controller',
+                      flush=True)
+                observer.set_mode('passive')
+                reset_plant(observer, ('/controller/reset',))
+                continue
             if window['status'] & STATUS_FAULT:
                 # the mode does not hold on this plant (a 2x model error can make dob_full_ff
                 # unstable): no figure; the plant's fault cleared, the next mode measured
-                out[(mode, omega)] = math.nan
+                out[(mode, omega)] = UNSTABLE
                 print(f'[commission] {label:6s} {mode:14s} {omega:5.3g} rad/s ({a:.3g} rad): '
                       'UNSTABLE (the plant latched a fault; see the sim log); resetting',
                       flush=True)
                 observer.set_mode('passive')
                 reset_plant(observer)
                 continue
-            out[(mode, omega)] = measure(window, omega, a)['z_db']
+            m = measure(window, omega, a)
+            out[(mode, omega)] = {k: v for k, v in m.items() if k != 'figures'}
             print(f'[commission] {label:6s} {mode:14s} {omega:5.3g} rad/s ({a:.3g} rad): '
-                  f'|Z| {out[(mode, omega)]:6.1f} dB{status_note(window)}', flush=True)
+                  f'|Z| {m["z_db"]:6.1f} dB, rms {m["z_rms_db"]:6.1f} dB, distortion '
+                  f'{100 * m["distortion"]:4.0f} %{status_note(window)}', flush=True)
     return out
 
 
-def reset_plant(observer) -> None:
+def reset_plant(observer, targets=('/sim/reset', '/controller/reset')) -> None:
     """Clear the sim's latched fault (``/sim/reset``) and the controller's (``/controller/
-    reset``); RuntimeError when the sim refuses or one does not answer."""
+    reset``: a fault or a fall-back); RuntimeError when the sim refuses or one does not
+    answer."""
     from std_srvs.srv import Trigger
 
     from ..nodes.ros_common import request_until_answered
-    for target in ('/sim/reset', '/controller/reset'):
+    for target in targets:
         client = observer.node.create_client(Trigger, target)
         try:
             if not client.wait_for_service(timeout_sec=20.0):
@@ -142,6 +169,9 @@ def release(observer, children) -> None:
     contact test aborts at a real one); a goal it turns away says why."""
     observer.set_mode('passive')
     set_parameters(observer.node, '/sim', {f'{CHANNEL}.environment.mode': 'free'})
+    if observer.latest_fault():
+        # a latched fall-back turns the commissioning goal away: clear it first
+        reset_plant(observer, ('/controller/reset',))
     deadline = time.monotonic() + 10.0
     while not observer.free_for(int(round(1.0 / DT))):
         children.check()
@@ -197,30 +227,52 @@ def predictions(run_dir: pathlib.Path, result, modes, frequencies):
     return out, before_values, applied, report, delay
 
 
-def zwidth(z: Dict[Tuple[str, float], float], omega: float) -> float:
-    soft = [v for (m, w), v in z.items() if w == omega and m != 'hold' and not math.isnan(v)]
-    return z[('hold', omega)] - min(soft) if ('hold', omega) in z and soft else math.nan
+def zwidth(z: Dict[Tuple[str, float], Dict[str, float]], omega: float,
+           key: str = 'z_db') -> float:
+    """hold less the softest other mode [dB] at ``omega``, on ``key`` (``z_db``: the
+    fundamental, ``z_rms_db``: the rms)."""
+    soft = [v[key] for (m, w), v in z.items() if w == omega and m != 'hold'
+            and not math.isnan(v[key])]
+    return z[('hold', omega)][key] - min(soft) if ('hold', omega) in z and soft else math.nan
 
 
-def print_table(measured, predicted, modes, frequencies) -> float:
-    """The measured vs predicted table; returns the largest |difference| [dB]."""
-    print(f'\n{"mode":15s}{"omega":>7s} | {"before: meas.":>13s}{"pred.":>8s}{"diff":>7s} | '
-          f'{"after: meas.":>12s}{"pred.":>8s}{"diff":>7s}')
-    print(f'{"":15s}{"rad/s":>7s} | {"[dB re 1 N m s/rad]":>28s} | {"[dB]":>27s}')
+def print_table(measured, predicted, modes, frequencies, predicted_rms=None) -> float:
+    """The measured (fundamental and rms) vs predicted table (after: the report's rms
+    prediction too, where it has the frequency); returns the largest |difference| [dB] of the
+    fundamental."""
+    predicted_rms = predicted_rms or {}
+    print(f'\n{"mode":15s}{"omega":>7s} | {"before: meas.":>13s}{"rms":>7s}{"pred.":>7s}'
+          f'{"diff":>7s} | {"after: meas.":>12s}{"rms":>7s}{"pred.":>7s}{"diff":>7s}'
+          f'{"p.rms":>7s}{"diff":>7s}{"dist.":>7s}')
+    print(f'{"":15s}{"rad/s":>7s} | {"[dB re 1 N m s/rad]":>34s} | {"[dB]":>47s}{"[%]":>7s}')
     worst = 0.0
     for omega in frequencies:
         for mode in modes:
             cells = []
             for label in ('before', 'after'):
-                m, p = measured[label][(mode, omega)], predicted[(label, mode, omega)]
-                if math.isnan(m):
-                    cells.append(f'{"unstable":>13s}{p:8.1f}{"":7s}')
+                m = measured[label][(mode, omega)]
+                p = predicted[(label, mode, omega)]
+                width = 13 if label == 'before' else 12
+                if math.isnan(m['z_db']):
+                    cells.append(f'{"unstable":>{width}s}{"":7s}{p:7.1f}{"":7s}')
                     continue
-                worst = max(worst, abs(m - p))
-                cells.append(f'{m:13.1f}{p:8.1f}{m - p:+7.1f}' if label == 'before'
-                             else f'{m:12.1f}{p:8.1f}{m - p:+7.1f}')
-            print(f'{mode:15s}{omega:7.3g} | {cells[0]} | {cells[1]}')
+                worst = max(worst, abs(m['z_db'] - p))
+                cells.append(f'{m["z_db"]:{width}.1f}{m["z_rms_db"]:7.1f}{p:7.1f}'
+                             f'{m["z_db"] - p:+7.1f}')
+            after = measured['after'][(mode, omega)]
+            p_rms = predicted_rms.get((mode, omega), math.nan)
+            rms_cells = (f'{p_rms:7.1f}{after["z_rms_db"] - p_rms:+7.1f}'
+                         if math.isfinite(p_rms) else f'{"-":>7s}{"":7s}')
+            print(f'{mode:15s}{omega:7.3g} | {cells[0]} | {cells[1]}{rms_cells}'
+                  f'{100 * after["distortion"]:7.0f}')
     return worst
+
+
+def rms_predictions(report) -> Dict[Tuple[str, float], float]:
+    """The report's predicted rms |Z| [dB] per (mode, omega)."""
+    return {(row.mode, float(w)): 20.0 * math.log10(float(v))
+            for row in report.impedance for w, v in zip(row.rms_omega, row.rms_abs)
+            if math.isfinite(v) and v > 0}
 
 
 def plot(measured, predicted_curves, modes, path: pathlib.Path) -> None:
@@ -234,10 +286,14 @@ def plot(measured, predicted_curves, modes, path: pathlib.Path) -> None:
         for mode in modes:
             w, db = predicted_curves[(label, mode)]
             ax.semilogx(w, db, color=colours.get(mode), lw=1.2, label=f'{mode} predicted')
-            pts = sorted((o, v) for (m, o), v in measured[label].items() if m == mode)
+            pts = sorted((o, v['z_db'], v['z_rms_db']) for (m, o), v in measured[label].items()
+                         if m == mode)
             ax.semilogx([p[0] for p in pts], [p[1] for p in pts], 'o',
                         color=colours.get(mode), ms=6)
-        ax.set_title(f'{label} commissioning (lines: predicted; dots: measured)')
+            ax.semilogx([p[0] for p in pts], [p[2] for p in pts], 's', mfc='none',
+                        color=colours.get(mode), ms=8)
+        ax.set_title(f'{label} commissioning (lines: predicted; dots: measured, squares: '
+                     'measured rms)')
         ax.set_xlabel('omega [rad/s]')
         ax.grid(True, which='both', alpha=0.3)
     axes[0].set_ylabel('|Z| [dB re 1 N m s/rad]')
@@ -331,20 +387,27 @@ def main(argv=None):
             ideal = measure_modes(observer, children, ('dob_full_ff',), [low], 'ideal')
         except RuntimeError as exc:
             print(f'[commission] ideal model not measured: {exc}', flush=True)
-            ideal = {('dob_full_ff', low): math.nan}
-        worst = print_table(measured, predicted, modes, frequencies)
+            ideal = {('dob_full_ff', low): UNSTABLE}
+        predicted_rms = rms_predictions(report)
+        worst = print_table(measured, predicted, modes, frequencies, predicted_rms)
         phases = report.meta.phases
         rig = sum(phases.values())
         lines = [f'\nZ-width (hold vs the softest other mode), predictor delay {delay} '
                  'sample(s):']
         for omega in frequencies:
             lines.append(f'  {omega:5.3g} rad/s: before {zwidth(measured["before"], omega):5.1f}'
-                         f' dB, after {zwidth(measured["after"], omega):5.1f} dB')
-        z_after = measured['after'][('dob_full_ff', low)]
-        z_ideal = ideal[('dob_full_ff', low)]
-        lines += [f'dob_full_ff at {low:g} rad/s: {measured["before"][("dob_full_ff", low)]:.1f}'
+                         f' dB, after {zwidth(measured["after"], omega):5.1f} dB; on the rms '
+                         f'before {zwidth(measured["before"], omega, "z_rms_db"):5.1f} dB, after '
+                         f'{zwidth(measured["after"], omega, "z_rms_db"):5.1f} dB')
+        after_ff = measured['after'][('dob_full_ff', low)]
+        z_after, z_ideal = after_ff['z_db'], ideal[('dob_full_ff', low)]['z_db']
+        lines += [f'dob_full_ff at {low:g} rad/s: '
+                  f'{measured["before"][("dob_full_ff", low)]["z_db"]:.1f}'
                   f' dB before, {z_after:.1f} dB after, {z_ideal:.1f} dB with the true model '
-                  f'({z_after - z_ideal:+.1f} dB)',
+                  f'({z_after - z_ideal:+.1f} dB); rms after {after_ff["z_rms_db"]:.1f} dB, '
+                  f'{ideal[("dob_full_ff", low)]["z_rms_db"]:.1f} dB with the true model; '
+                  f'work loop peak {after_ff["peak"]:.3g} N m over the stroke, '
+                  f'{after_ff["peak_centre"]:.3g} within +-0.2 rad',
                   f'predicted vs measured: largest difference {worst:.1f} dB',
                   'rig time: ' + ', '.join(f'{k} {v:.1f} s' for k, v in phases.items())
                   + f' = {rig:.1f} s (goal {commission_wall:.1f} s wall)',
@@ -353,13 +416,20 @@ def main(argv=None):
         png = out / 'zwidth_commission.png'
         plot(measured, curves(predicted, modes), modes, png)
         results = {'seed': args.seed, 'factors': factors, 'frequencies': frequencies,
-                   'measured': {label: {f'{m}@{w:g}': v for (m, w), v in z.items()}
+                   'measured': {label: {f'{m}@{w:g}': v['z_db'] for (m, w), v in z.items()}
                                 for label, z in measured.items()},
+                   'measured_figures': {label: {f'{m}@{w:g}': v for (m, w), v in z.items()}
+                                        for label, z in measured.items()},
                    'predicted': {f'{label}:{m}@{w:g}': v for (label, m, w), v in
                                  predicted.items() if w in frequencies},
+                   'predicted_rms_after': {f'{m}@{w:g}': v
+                                           for (m, w), v in predicted_rms.items()},
                    'ideal_dob_full_ff_db': z_ideal,
+                   'ideal_dob_full_ff': ideal[('dob_full_ff', low)],
                    'zwidth_db': {label: {f'{w:g}': zwidth(measured[label], w)
                                          for w in frequencies} for label in measured},
+                   'zwidth_rms_db': {label: {f'{w:g}': zwidth(measured[label], w, 'z_rms_db')
+                                             for w in frequencies} for label in measured},
                    'worst_prediction_error_db': worst, 'phases': phases, 'rig_time': rig,
                    'identified': {r.name: r.value for r in report.identification},
                    'truth': truth, 'report': result.report_path,

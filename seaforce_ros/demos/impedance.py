@@ -6,14 +6,16 @@ backdrives the ``pinch`` finger with the paper's quasi-static position drive (0.
 ``passive, hold, dob, dob_linear_ff, dob_full_ff`` with the controller's parameter service (what
 ``ros2 param set`` does), and for each mode measures from ``actuator_state``:
 
+* |Z(j omega)| = |F_e / V_e| of the fundamentals at the drive frequency (dB re 1 N m s/rad),
+  beside the rms impedance rms(F_e)/rms(V_e) and the harmonic distortion of F_e,
 * the peak external torque |F_e| over the work loop and within +-0.2 rad,
-* |Z(j omega)| = |F_e / V_e| at the drive frequency (dB re 1 N m s/rad),
 
 A window in which the plant went without a fresh command (zero torque: a busy host in real
 time) does not measure the mode: it is measured again, up to ``ATTEMPTS`` times, and the table
 notes what remained (``--lockstep`` steps the plant only on the controller's answer: exact on
 any host). It
-prints a table with the impedance range (``hold`` vs the softest mode), writes a PNG of the
+prints a table with the impedance range (``hold`` vs the softest mode, on the fundamental and
+on the rms), writes a PNG of the
 work loops (external F_e and internal F_p vs X_e, as Fig. 5A-B), and stops every process it
 started, also on Ctrl-C or an error.
 
@@ -51,6 +53,8 @@ from .common import (CHANNEL, DT, get_parameter, prepare, print_calibration,
 
 #: measurements of a mode at most, when the controller's answers came late (real time only)
 ATTEMPTS = 3
+#: seconds of passive between two modes (the hose's deflection released)
+RELEASE = 0.25
 
 
 
@@ -70,6 +74,7 @@ class Observer:
         self.lock = threading.Lock()
         self.states = []
         self.modes: Dict[int, str] = {}
+        self.fault: Dict[int, str] = {}
         self.param_client = None
         self.node.create_subscription(ActuatorState, 'actuator_state', self._on_state, RECORD_QOS)
         self.node.create_subscription(ControllerStatus, 'controller_status', self._on_status,
@@ -86,6 +91,22 @@ class Observer:
         i = list(msg.name).index(CHANNEL)
         with self.lock:
             self.modes[msg.cycle] = msg.mode[i]
+            if msg.fault[i]:
+                self.fault[msg.cycle] = str(msg.fault[i])
+
+    def fault_in(self, first: int, last: int) -> str:
+        """The channel's fault reported in ``first..last`` (a latched fall-back of the runaway
+        monitor, a fault); '' when none."""
+        with self.lock:
+            found = [f for c, f in self.fault.items() if first <= c <= last]
+        return found[0] if found else ''
+
+    def latest_fault(self) -> str:
+        """The fault of the latest status ('' when none)."""
+        with self.lock:
+            if not self.modes:
+                return ''
+            return self.fault.get(max(self.modes), '')
 
     def wait_until_live(self, children, timeout=60.0):
         """Until both topics arrive; RuntimeError if a node exits or ``timeout`` s pass."""
@@ -112,6 +133,19 @@ class Observer:
             cycles = [c for c, m in self.modes.items() if m == mode and c > after]
         return min(cycles) if cycles else None
 
+    def enter_mode(self, mode, children, timeout=20.0):
+        """Set ``mode`` through ``passive`` (RELEASE s of it) and return the first status cycle
+        in it: a switch straight from ``hold`` to a DOB mode releases the hose's deflection
+        at once, and the runaway monitor takes the motor's slam (30-45 rad/s measured) for
+        a finger driven away."""
+        before = self.latest_cycle() or 0
+        self.set_mode('passive')
+        self.wait_cycle(children, self.wait_mode('passive', before, children, timeout)
+                        + int(round(RELEASE / DT)))
+        before = self.latest_cycle()
+        self.set_mode(mode)
+        return self.wait_mode(mode, before, children, timeout)
+
     def set_mode(self, mode, timeout=20.0):
         from rclpy.parameter import Parameter
         from rclpy.parameter_client import AsyncParameterClient
@@ -135,12 +169,17 @@ class Observer:
         with self.lock:
             rows = [r for r in self.states if first <= r[0] <= last]
         rows = sorted({r[0]: r for r in rows}.values())
-        data = np.array(rows, dtype=float)
         grid = np.arange(first, last + 1, dtype=float)
+        if len(rows) < 2:          # nothing recorded there (a lost stretch of messages)
+            nan = np.full(grid.size, np.nan)
+            return {'cycle': grid, 'received': len(rows), 'expected': grid.size, 'status': 0,
+                    'timeouts': 0, 'fault': '', **{name: nan for name in ('x', 'f_p', 'f_a', 'x_e', 'f_e')}}
+        data = np.array(rows, dtype=float)
         status = data[:, 6].astype(int)
         out = {'cycle': grid, 'received': len(rows), 'expected': grid.size,
                'status': int(np.bitwise_or.reduce(status)),
-               'timeouts': int(np.count_nonzero(status & STATUS_COMMAND_TIMEOUT))}
+               'timeouts': int(np.count_nonzero(status & STATUS_COMMAND_TIMEOUT)),
+               'fault': self.fault_in(first, last)}
         for k, name in enumerate(('x', 'f_p', 'f_a', 'x_e', 'f_e'), start=1):
             out[name] = np.interp(grid, data[:, 0], data[:, k])
         return out
@@ -149,14 +188,16 @@ class Observer:
         self.background.close()
 
 
-def measure(window, omega, amplitude):
-    from ..core.analysis import impedance_from_position
-    z = impedance_from_position(window['f_e'], window['x_e'], omega, DT)
-    f_e, x_e = window['f_e'], window['x_e']
-    centre = np.abs(x_e) <= 0.2 * amplitude / 0.5
-    area = abs(np.trapezoid(window['f_p'], x_e))
-    return {'z_db': 20.0 * math.log10(abs(z)), 'peak': float(np.max(np.abs(f_e))),
-            'peak_centre': float(np.max(np.abs(f_e[centre]))) if centre.any() else float('nan'),
+def measure(window, omega, amplitude=None):
+    """The impedance figures of a measured window (``core.analysis.impedance_figures``: the
+    fundamental and the rms |Z|, the distortion, the peaks over the stroke and within
+    +-0.2 rad) and the area of the F_p loop; ``amplitude`` is not used (the figures take the
+    stroke from X_e)."""
+    from ..core.analysis import impedance_figures
+    fig = impedance_figures(window['f_e'], window['x_e'], omega, DT)
+    area = abs(np.trapezoid(window['f_p'], window['x_e']))
+    return {'figures': fig, 'z_db': fig.z_db, 'z_rms_db': fig.z_rms_db,
+            'distortion': fig.distortion, 'peak': fig.peak, 'peak_centre': fig.peak_centre,
             'fp_area': area}
 
 
@@ -168,7 +209,8 @@ def plot(results, path, amplitude):
                'dob_linear_ff': '#c51b8a', 'dob_full_ff': '#1f77b4'}
     fig, (ax_e, ax_p, ax_h) = plt.subplots(1, 3, figsize=(16, 5), sharex=True)
     for mode, (window, m) in results.items():
-        kw = dict(color=colours.get(mode), lw=1.2, label=f'{mode}  |Z|={m["z_db"]:.1f} dB')
+        kw = dict(color=colours.get(mode), lw=1.2,
+                  label=f'{mode}  |Z| {m["z_db"]:.1f} dB, rms {m["z_rms_db"]:.1f} dB')
         if mode == 'hold':
             ax_h.plot(window['x_e'], window['f_e'], **kw)
             ax_h.plot(window['x_e'], window['f_p'], color='0.4', lw=1.0, ls='--',
@@ -182,7 +224,7 @@ def plot(results, path, amplitude):
     for ax in (ax_e, ax_p, ax_h):
         ax.set_xlabel('endpoint position X_e [rad]')
         ax.set_ylabel('torque [N m]')
-        ax.axvspan(-0.2 * amplitude / 0.5, 0.2 * amplitude / 0.5, color='0.93', zorder=0)
+        ax.axvspan(-0.2, 0.2, color='0.93', zorder=0)
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
     fig.suptitle(f'pinch finger backdriven {amplitude} rad (work loops, cf. paper Fig. 5A-B); '
@@ -241,9 +283,7 @@ def main(argv=None):
         results = {}
         settle = int(round(1.0 / DT))
         for mode in MODES:
-            before = observer.latest_cycle()
-            observer.set_mode(mode)
-            first = observer.wait_mode(mode, before, children) + settle
+            first = observer.enter_mode(mode, children) + settle
             for attempt in range(1, ATTEMPTS + 1):
                 last = first + args.periods * period_cycles - 1
                 print(f'[demo] {mode:14s} measuring cycles {first}..{last} '
@@ -281,28 +321,33 @@ def status_note(window):
         notes.append('torque limit reached')
     if window['status'] & STATUS_FAULT:
         notes.append('a channel fault')
+    if window.get('fault'):
+        notes.append(f'the controller reported "{window["fault"]}": not the mode\'s figure')
     return f'  ({"; ".join(notes)}: see the sim log)' if notes else ''
 
 
 def report(results, args):
     soft = min((m for m in results if m != 'hold'), key=lambda m: results[m][1]['z_db'])
+    soft_rms = min((m for m in results if m != 'hold'),
+                   key=lambda m: results[m][1]['z_rms_db'])
     print(f'\nPinch finger backdriven {args.amplitude} rad at {args.frequency} rad/s; '
           'the controller only measures motor position and hose pressure.\n')
-    print(f'{"mode":15s}{"|Z| [dB]":>10s}{"vs passive":>11s}{"peak |F_e|":>13s}'
-          f'{"|F_e| in +-0.2":>16s}{"F_p loop area":>15s}')
-    print(f'{"":15s}{"re N m s/rad":>10s}{"[dB]":>11s}{"[N m]":>13s}{"rad [N m]":>16s}'
-          f'{"[N m rad]":>15s}')
+    print(f'{"mode":15s}{"|Z| fund.":>10s}{"vs passive":>11s}{"|Z| rms":>9s}{"distortion":>11s}'
+          f'{"peak |F_e|":>12s}{"|F_e| in +-0.2":>16s}{"F_p loop area":>15s}')
+    print(f'{"":15s}{"[dB re 1 N m s/rad]":>30s}{"[%]":>11s}{"[N m]":>12s}'
+          f'{"rad [N m]":>16s}{"[N m rad]":>15s}')
     z_passive = results['passive'][1]['z_db'] if 'passive' in results else float('nan')
     for mode, (window, m) in results.items():
         flag = status_note(window)
-        print(f'{mode:15s}{m["z_db"]:10.1f}{m["z_db"] - z_passive:11.1f}{m["peak"]:13.3f}'
-              f'{m["peak_centre"]:16.4f}{m["fp_area"]:15.4f}{flag}')
+        print(f'{mode:15s}{m["z_db"]:10.1f}{m["z_db"] - z_passive:11.1f}{m["z_rms_db"]:9.1f}'
+              f'{100 * m["distortion"]:11.0f}{m["peak"]:12.3f}{m["peak_centre"]:16.4f}'
+              f'{m["fp_area"]:15.4f}{flag}')
     if 'hold' in results:
-        width = results['hold'][1]['z_db'] - results[soft][1]['z_db']
-        print(f'\nimpedance range at {args.frequency} rad/s: {width:.1f} dB '
-              f'(hold vs {soft}); paper, on hardware: ~50 dB up to 3 rad/s')
-
-
+        hold = results['hold'][1]
+        print(f'\nimpedance range at {args.frequency} rad/s: '
+              f'{hold["z_db"] - results[soft][1]["z_db"]:.1f} dB on the fundamental (hold vs '
+              f'{soft}), {hold["z_rms_db"] - results[soft_rms][1]["z_rms_db"]:.1f} dB on the rms '
+              f'(hold vs {soft_rms}); paper, on hardware: ~50 dB up to 3 rad/s')
 
 
 def model_error(args):
@@ -324,8 +369,8 @@ def recalibrate(observer, children, args, z_before):
     """Calibrate, drive the finger again, measure dob_full_ff, print what was recovered."""
     state_timeout = get_parameter(observer.node, '/controller', 'state_timeout')
     result = run_friction_calibration(observer, children, args)
-    set_parameters(observer.node, '/controller', {'state_timeout': state_timeout,
-                                                  f'{CHANNEL}.mode': 'dob_full_ff'})
+    set_parameters(observer.node, '/controller', {'state_timeout': state_timeout})
+    observer.enter_mode('dob_full_ff', children)
     if not result.applied:
         print(f'\nfriction calibration: {result.message}')
         return
@@ -334,10 +379,12 @@ def recalibrate(observer, children, args, z_before):
     first = before + int(round(1.0 / DT))
     last = first + args.periods * (int(math.ceil(2 * math.pi / args.frequency / DT)) + 1) - 1
     observer.wait_cycle(children, last)
-    z_after = measure(observer.window(first, last), args.frequency, args.amplitude)['z_db']
+    window = observer.window(first, last)
+    after = measure(window, args.frequency, args.amplitude)
     print_calibration(result, model_error(args), args.calibration_time)
-    print(f'recalibrated dob_full_ff |Z| at {args.frequency} rad/s: {z_after:.1f} dB '
-          f'(was {z_before:.1f} dB with the model)')
+    print(f'recalibrated dob_full_ff |Z| at {args.frequency} rad/s: {after["z_db"]:.1f} dB '
+          f'(was {z_before:.1f} dB with the model); rms {after["z_rms_db"]:.1f} dB, '
+          f'distortion {100 * after["distortion"]:.0f} %{status_note(window)}')
 
 
 if __name__ == '__main__':

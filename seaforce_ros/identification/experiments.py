@@ -102,7 +102,7 @@ def work_loop_experiment(plant: Optional[PlantParams] = None, dahl: Optional[Dah
                          frequency: float = 1.0, cycles: float = 3.0, mode: str = "passive",
                          config: Optional[ControllerConfig] = None, seed: int = 0,
                          dt: float = 5e-4,
-                         settle_cycles: float = 1.0) -> _WorkLoop:
+                         settle_cycles: float = 1.0, motor_coulomb: float = 0.0) -> _WorkLoop:
     """Backdrive the endpoint with the stiff position drive in controller ``mode``.
 
     Parameters
@@ -120,6 +120,8 @@ def work_loop_experiment(plant: Optional[PlantParams] = None, dahl: Optional[Dah
     mode : str
         Controller mode; ``config`` (a ControllerConfig, e.g. with identified parameters)
         overrides the default config built from ``plant`` and ``dahl``.
+    motor_coulomb : float >= 0
+        The simulated motor's Coulomb friction [N m].
 
     Returns
     -------
@@ -129,7 +131,8 @@ def work_loop_experiment(plant: Optional[PlantParams] = None, dahl: Optional[Dah
     period = 2.0 * math.pi / frequency
     n = int(round((cycles + settle_cycles) * period / dt))
     sim = ChannelSimulator(plant, dahl=dahl, dt=dt, seed=seed,
-                           environment=position_sine(amplitude, frequency), sensors=sensors)
+                           environment=position_sine(amplitude, frequency), sensors=sensors,
+                           motor_coulomb=motor_coulomb)
     ctl: Union[ZeroTorque, ChannelController]
     if mode == "passive" and config is None:
         ctl = ZeroTorque()

@@ -119,10 +119,12 @@ def dahl_fig6(fit: DahlFit, path: _Path, title: str = "") -> pathlib.Path:
 def zwidth_fig5c(omega: npt.ArrayLike, curves: Mapping[str, npt.NDArray[np.complex128]],
                  path: _Path, title: str = "",
                  markers: Optional[Mapping[str, Tuple[npt.ArrayLike,
-                                                      npt.NDArray[np.complex128]]]] = None
+                                                      npt.NDArray[np.complex128]]]] = None,
+                 rms: Optional[Mapping[str, Tuple[npt.ArrayLike, npt.ArrayLike]]] = None
                  ) -> pathlib.Path:
     """Fig. 5C-style |Z(jw)| per mode. ``curves``: label -> complex array on ``omega``;
-    ``markers``: label -> (omega points, complex Z) measured points."""
+    ``markers``: label -> (omega points, complex Z) measured points (filled: the
+    fundamental); ``rms``: label -> (omega points, rms |Z| [N m s/rad]) (open squares)."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 4.8))
     colors: Dict[str, str] = {}
@@ -132,8 +134,12 @@ def zwidth_fig5c(omega: npt.ArrayLike, curves: Mapping[str, npt.NDArray[np.compl
     for label, (w, z) in (markers or {}).items():
         ax.semilogx(w, _db(z), "o", color=colors.get(label), ms=5,
                     label=None if label in colors else label)
+    for label, (w, r) in (rms or {}).items():
+        ax.semilogx(w, _db(r), "s", mfc="none", color=colors.get(label), ms=7,
+                    label=f"{label} rms")
     ax.set_xlabel("frequency [rad/s]")
-    ax.set_ylabel("|Z| = |F_e/V_e| [dB re 1 N m s/rad]")
+    ax.set_ylabel("|Z| = |F_e/V_e| [dB re 1 N m s/rad]" + ("; squares: rms(F_e)/rms(V_e)"
+                                                           if rms else ""))
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     if title:

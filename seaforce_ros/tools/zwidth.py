@@ -12,9 +12,13 @@ set and compares the Z-widths)::
 
     zwidth --simulate --channel pinch --params PARAMS.yaml --reference-params TRUE.yaml
 
-Table: |Z| [dB re 1 N m s/rad] per mode at the DC limit (0.1 rad/s), 1, 3 and 10 rad/s and
-the Z-width = |Z_hold| / |Z_min| in dB, Z_min the lowest-impedance mode at that frequency.
-Exit status 0 ok, 2 bad input (one line on stderr).
+Tables: |Z| [dB re 1 N m s/rad] per mode at the DC limit (0.1 rad/s), 1, 3 and 10 rad/s and
+the Z-width = |Z_hold| / |Z_min| in dB, Z_min the lowest-impedance mode at that frequency:
+once on the fundamental |F_e/V_e|, once on the rms impedance rms(F_e)/rms(V_e); then the
+harmonic distortion of F_e and the work loop's peak |F_e| over the stroke against the peak
+within +-0.2 rad (:func:`seaforce_ros.core.analysis.impedance_figures`). On a nonlinear
+gripper the fundamental can nearly cancel while the harmonics stay: judge a low impedance on
+the rms. Exit status 0 ok, 2 bad input (one line on stderr).
 """
 
 from __future__ import annotations
@@ -138,9 +142,9 @@ def _from_bags(args, progress):
     from ..bags import read_channel
     from ..identification.errors import IdentificationError
     from ..identification.timeseries import prepare
-    from ..identification.zwidth_lib import impedance_from_record
+    from ..identification.zwidth_lib import figure_lines, figures_from_record
 
-    points = collections.defaultdict(list)     # mode -> [(omega, Z)]
+    points = collections.defaultdict(list)     # mode -> [ImpedanceFigures]
     for mode, path in [_bag_item(item) for item in args.bags]:
         progress(f"reading {path}", None)
         record = read_channel(path, args.channel, args.topic)
@@ -152,36 +156,59 @@ def _from_bags(args, progress):
             if mode is None:
                 raise IdentificationError(f"{path}: no controller_status in the bag to tell "
                                           "the mode; give it as MODE=BAG")
-        w, z = impedance_from_record(series)
+        fig = figures_from_record(series)
         for note in series.notes():
             print(f"note ({path}): {note}")
-        print(f"{path}: mode {mode}, drive {w:.4g} rad/s, |Z| = {20 * math.log10(abs(z)):.2f} "
-              "dB")
-        points[mode].append((w, z))
+        print(figure_lines(f"{path}: mode {mode}, drive {fig.omega:.4g} rad/s", fig))
+        points[mode].append(fig)
     # common frequency grid (drive frequencies rounded to 3 significant digits)
-    omegas = sorted({float(f"{w:.3g}") for pts in points.values() for w, _ in pts})
-    z_by_mode = {}
-    for mode, pts in points.items():
-        arr = np.full(len(omegas), np.nan + 0j)
-        for w, z in pts:
-            arr[omegas.index(float(f"{w:.3g}"))] = z
-        z_by_mode[mode] = arr
-    return omegas, z_by_mode
+    omegas = sorted({float(f"{f.omega:.3g}") for figs in points.values() for f in figs})
+    by_mode = {}
+    for mode, figs in points.items():
+        row = [None] * len(omegas)
+        for f in figs:
+            row[omegas.index(float(f"{f.omega:.3g}"))] = f
+        by_mode[mode] = row
+    return omegas, by_mode
 
 
-def _print_rows(title, rows, modes):
+def _arrays(figures):
+    """(mode -> complex Z, mode -> rms |Z|) arrays of figures lists (None: NaN)."""
+    z = {m: np.asarray([f.z if f is not None else np.nan + 0j for f in fs])
+         for m, fs in figures.items()}
+    rms = {m: np.asarray([f.z_rms if f is not None else np.nan for f in fs])
+           for m, fs in figures.items()}
+    return z, rms
+
+
+def _print_rows(title, rows, modes, figures=None):
+    """The fundamental table with its Z-width; with ``figures`` the rms table with its
+    Z-width and the distortion and peaks table too."""
     from ..identification.output import format_table
     from ..identification.zwidth_lib import DC_OMEGA
     print(title)
     headers = ["mode"] + [("DC (0.1)" if abs(r.omega - DC_OMEGA) < 1e-12 else f"{r.omega:g}")
                           + " rad/s" for r in rows]
-    table = []
+
+    def table(values, width, min_mode, label):
+        out = [[m] + [f"{getattr(r, values)[m]:.2f}" if m in getattr(r, values) else "-"
+                      for r in rows] for m in modes]
+        out.append([f"Z-width{label} [dB]"] + [
+            f"{getattr(r, width):.2f}" if getattr(r, width) is not None else "-" for r in rows])
+        out.append(["  min mode"] + [getattr(r, min_mode) or "-" for r in rows])
+        print(format_table(headers, out, [None] * len(headers)))
+    print("fundamental |F_e/V_e|:")
+    table("z_db", "width_db", "min_mode", "")
+    if figures is None:
+        return
+    print("rms(F_e)/rms(V_e):")
+    table("z_rms_db", "width_rms_db", "min_mode_rms", " rms")
+    print("harmonic distortion of F_e [%]; peak |F_e| over the stroke / within +-0.2 rad:")
+    out = []
     for m in modes:
-        table.append([m] + [f"{r.z_db[m]:.2f}" if m in r.z_db else "-" for r in rows])
-    table.append(["Z-width [dB]"] + [f"{r.width_db:.2f}" if r.width_db is not None else "-"
-                                     for r in rows])
-    table.append(["  min mode"] + [r.min_mode or "-" for r in rows])
-    print(format_table(headers, table, [None] * len(headers)))
+        out.append([m] + [f"{100 * f.distortion:.0f} %; {f.peak:.3g}/{f.peak_centre:.3g}"
+                          if f is not None else "-" for f in figures.get(m, [None] * len(rows))])
+    print(format_table(headers, out, [None] * len(headers)))
 
 
 def _plant_dahl(path, channel, option, plant, dahl):
@@ -212,6 +239,7 @@ def run(args):
     if args.plot:
         check_output_file(args.plot)
     curves = {}
+    rms_curves = {}
     if args.simulate:
         if args.bags:
             raise UsageError("give bags or --simulate, not both")
@@ -234,22 +262,29 @@ def run(args):
                                               "--reference-params", truth_config)))
         omegas = _frequencies(args.frequencies)
         modes = _modes(args.modes)
-        from ..identification.zwidth_lib import simulate_impedance, zwidth_rows
+        from ..identification.zwidth_lib import simulate_figures, zwidth_rows
         results = []
         for i, (label, cfg) in enumerate(sets):
-            z = simulate_impedance(plant, dahl, cfg, modes, omegas, amplitude=args.amplitude,
-                                   progress=progress.stage(i / len(sets), (i + 1) / len(sets)))
-            rows = zwidth_rows(omegas, z)
+            figs = simulate_figures(plant, dahl, cfg, modes, omegas, amplitude=args.amplitude,
+                                    progress=progress.stage(i / len(sets), (i + 1) / len(sets)))
+            z, rms = _arrays(figs)
+            rows = zwidth_rows(omegas, z, rms_by_mode=rms)
             _print_rows(f"|Z| [dB re 1 N m s/rad], controller with {label} "
                         f"({args.params if label == 'params' else args.reference_params or ''})"
-                        .replace(" ()", ""), rows, modes)
+                        .replace(" ()", ""), rows, modes, figs)
             results.append(rows)
             curves[label] = z
+            rms_curves[label] = rms
         if len(results) == 2:
             print("Z-width difference (params - reference) [dB]: " + ", ".join(
                 f"{a.omega:g} rad/s {a.width_db - b.width_db:+.2f}"
-                for a, b in zip(*results) if a.width_db is not None and b.width_db is not None))
+                for a, b in zip(*results) if a.width_db is not None and b.width_db is not None)
+                + "; on the rms: " + ", ".join(
+                f"{a.omega:g} rad/s {a.width_rms_db - b.width_rms_db:+.2f}"
+                for a, b in zip(*results)
+                if a.width_rms_db is not None and b.width_rms_db is not None))
         z_plot = curves[sets[0][0]]
+        rms_plot = rms_curves[sets[0][0]]
     else:
         if not args.bags:
             raise UsageError("give backdrive bags (BAG or MODE=BAG) or --simulate")
@@ -262,10 +297,11 @@ def run(args):
         for item in args.bags:
             _bag_item(item)
         from ..identification.zwidth_lib import zwidth_rows
-        omegas, z_plot = _from_bags(args, progress)
+        omegas, figs = _from_bags(args, progress)
+        z_plot, rms_plot = _arrays(figs)
         modes = list(z_plot)
-        rows = zwidth_rows(omegas, z_plot)
-        _print_rows("|Z| [dB re 1 N m s/rad] from the bags", rows, modes)
+        rows = zwidth_rows(omegas, z_plot, rms_by_mode=rms_plot)
+        _print_rows("|Z| [dB re 1 N m s/rad] from the bags", rows, modes, figs)
     if args.plot:
         from ..identification.plots import zwidth_fig5c
         markers = {m: (np.asarray(omegas), z) for m, z in z_plot.items()}
@@ -275,7 +311,8 @@ def run(args):
                 lines[f"{m} (reference)"] = z
         path = zwidth_fig5c(np.asarray(omegas), lines, args.plot,
                             f"channel {args.channel}: endpoint impedance per mode",
-                            markers=markers)
+                            markers=markers, rms={m: (np.asarray(omegas), r)
+                                                  for m, r in rms_plot.items()})
         print(f"wrote {path}")
     progress("done", 1.0)
     return 0

@@ -88,6 +88,25 @@ def test_a_run_tunes_and_writes_its_files(record, tmp_path):
     loaded = load_report(run / 'report.json')
     assert loaded.tuning is not None and loaded.zwidth is not None
     assert {m.mode for m in loaded.impedance} >= {'hold', 'dob_full_ff', 'impedance'}
+    # the work loops of a backdrive at 1 rad/s on the identified model, with the rms and the
+    # peaks beside the fundamental, and the figure (e) of them
+    loops = {w.mode: w for w in loaded.work_loops}
+    assert set(loops) == {'passive', 'hold', 'dob', 'dob_full_ff'}
+    for w in loops.values():
+        assert w.z_rms_db >= w.z_db - 0.1 and w.peak >= w.peak_centre > 0.0
+        assert len(w.x_e) == len(w.f_e) > 100 and np.ptp(w.x_e) == pytest.approx(1.0, rel=0.02)
+    assert loops['hold'].z_db > loops['dob_full_ff'].z_db + 40.0
+    assert (run / 'work_loops.png').stat().st_size > 10_000
+    # the rms predicted at 1, 3 and 10 rad/s for every mode (the same backdrives), never below
+    # the fundamental there, and the Z-width on it
+    rows = {m.mode: m for m in loaded.impedance}
+    for m in ('passive', 'hold', 'dob', 'dob_full_ff'):
+        assert list(rows[m].rms_omega) == [1.0, 3.0, 10.0]
+        fund = np.interp(np.log(rows[m].rms_omega), np.log(rows[m].omega), np.abs(rows[m].z))
+        assert np.all(rows[m].rms_abs > 0.7 * fund), m
+    assert len(loaded.zwidth.rms_db) == 3 and np.all(loaded.zwidth.rms_db > 20.0)
+    assert 'dB rms; Z-width on the rms' in a.result()['summary']
+    assert 'work loop (simulated on the identified model' in a.result()['summary']
     # the tuned settings are a valid whole configuration
     assert ControllerConfig.from_dict(a.apply, base=config) == a.tuning.config
     assert a.after_db[1.0] >= a.before_db[1.0] - 3.0

@@ -92,7 +92,7 @@ def written(tmp_path_factory):
 def test_screenshot_shows_every_figure(written):
     data, page, shot, _ = written
     sizes = png_sizes(page.parent)
-    assert sorted(sizes) == ['a', 'b', 'c', 'd']
+    assert sorted(sizes) == ['a', 'b', 'c', 'd', 'e']
     assert figure_problems(shot, sizes) == []
     # The colours are the figures' own: the page's text and CSS never use them.
     text = re.sub(r'data:image/png;base64,[A-Za-z0-9+/=]+', '', page.read_text()).lower()
@@ -112,8 +112,8 @@ def test_check_catches_a_missing_or_broken_figure(written):
     text = page.read_text()
     sizes = png_sizes(page.parent)
     tags = _img_tags(text)
-    assert len(tags) == 4
-    a, b, c, d = (t.group(1) for t in tags)
+    assert len(tags) == 5
+    a, b, c, d, _ = (t.group(1) for t in tags)
     half = b[:len(b) // 2]
     # 1: (c)'s whole <figure> removed; (b) cut in the middle of its data (the browser
     #    decodes its top rows only)
@@ -132,13 +132,14 @@ def test_check_catches_a_missing_or_broken_figure(written):
 
 def test_partial_report_draws_what_it_has(tmp_path):
     """A run that stopped before the noise sweep and the tuning: figures (a)-(c), the page
-    says (d) was not drawn, the screenshot shows the three."""
+    says (d) and (e) were not drawn, the screenshot shows the three."""
     data = example_report(seed=1)
-    data.noise, data.tuning, data.zwidth.wall = None, None, None
+    data.noise, data.tuning, data.zwidth.wall, data.work_loops = None, None, None, []
     page = write_report(tmp_path / 'partial', data)
     sizes = png_sizes(page.parent)
     assert sorted(sizes) == ['a', 'b', 'c']
     assert 'torque_noise.png: not drawn' in page.read_text()
+    assert 'work_loops.png: not drawn' in page.read_text()
     assert figure_problems(screenshot(page, tmp_path / 'shot.png', tmp_path), sizes) == []
 
 
@@ -216,8 +217,9 @@ def test_degenerate_data_still_writes_a_report(tmp_path, recwarn):
     d.zwidth.wall.k_passivity[:], d.zwidth.wall.k_quantisation[:] = np.nan, np.inf
     d.noise.rms[:], d.noise.budget, d.noise.chosen = 0, np.nan, np.nan
     d.identification[0].value = np.inf
+    d.work_loops[0].f_e[:] = np.nan
     page = write_report(tmp_path / 'nan', d)
-    assert sorted(png_sizes(page.parent)) == ['a', 'b', 'c', 'd']
+    assert sorted(png_sizes(page.parent)) == ['a', 'b', 'c', 'd', 'e']
     assert report_json(load_report(page.parent)) == report_json(d)
     assert 'no finite prediction' in page.read_text()
     empty = rp.CommissioningReport(
@@ -325,7 +327,7 @@ def test_html_references_nothing_external(written):
     assert not {'script', 'link', 'iframe', 'object', 'embed', 'base'} & set(parser.tags)
     assert 'url(' not in text and '@import' not in text
     srcs = [v for tag, k, v in parser.attrs if k in ('src', 'href', 'srcset', 'data')]
-    assert len(srcs) == 4
+    assert len(srcs) == 5
     assert all(v.startswith('data:image/png;base64,') for v in srcs)
     for v in srcs:   # each is a whole PNG
         assert base64.b64decode(v.split(',', 1)[1]).startswith(b'\x89PNG\r\n\x1a\n')

@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from seaforce_ros.core.analysis import impedance_figures
+
 from seaforce_ros.commissioning.report import (MODES, CommissioningReport, LoopFigure,
-                                               ModeImpedance, NoiseSweep, ParameterRow,
-                                               PortResponse, ReportMeta, Tuning, TuningRow,
-                                               WallBoundary, ZWidthChart)
+                                               ModeImpedance, ModelClass, NoiseSweep,
+                                               ParameterRow, PortResponse, ReportMeta, Tuning,
+                                               TuningRow, WallBoundary, WorkLoop, ZWidthChart)
 
 __all__ = ['example_report']
 
@@ -67,6 +69,24 @@ def _zwidth(impedance, rng):
     return ZWidthChart(w, zw, zw - band, zw + band, pts, meas, np.full(4, 1.2), wall)
 
 
+def _work_loops(rng):
+    """Work loops at 1 rad/s, 0.5 rad: a linear finger with Coulomb friction per mode, the
+    soft ones with a stroke-dependent stiffness that grows outside +-0.2 rad."""
+    theta = np.linspace(0.0, 2.0 * np.pi, 400, endpoint=False)
+    x = 0.5 * np.sin(theta)
+    v = np.cos(theta)
+    out = []
+    for mode, k, b, fc in (('passive', 0.22, 0.04, 0.03), ('hold', 20.0, 0.5, 0.0),
+                           ('dob', 0.05, 0.01, 0.02), ('dob_full_ff', 0.004, 0.002, 0.004)):
+        f = k * x * (1.0 + 1.5 * x ** 2) + b * v + fc * np.tanh(v / 0.05)
+        f = f + 0.02 * fc * rng.standard_normal(f.size)
+        fig = impedance_figures(f, x, 1.0, 2.0 * np.pi / theta.size)
+        out.append(WorkLoop(mode, 1.0, 0.5, x, f, fig.z_db, fig.z_rms_db, fig.distortion,
+                            fig.peak, fig.peak_centre,
+                            source='simulated on the identified model'))
+    return out
+
+
 def example_report(seed=0, channel='left_finger'):
     """A filled report (``seed`` draws the measurement noise)."""
     rng = np.random.default_rng(seed)
@@ -112,6 +132,11 @@ def example_report(seed=0, channel='left_finger'):
                          'tuning': 1.1}, applied=False, seed=seed),
         identification=ident, responses=_port_responses(rng), loop=loop, impedance=impedance,
         zwidth=_zwidth(impedance, rng), noise=noise, tuning=tuning,
+        work_loops=_work_loops(rng),
+        model_class=ModelClass({'motor': 0.012, 'port': 0.085}, {'motor': 0.03, 'port': 0.025},
+                               'the port misfit 8.5 % exceeds 2.5 %: the linear model does not '
+                               'describe this gripper',
+                               ['hose damping c |V| V: resolved, 4.1e-3 +- 0.3e-3 N m s^2/rad^2']),
         summary=['5 of 7 parameters identified; k_s drifted +7.6 % since the last '
                  'commissioning (4.4 sigma)',
                  'loop delay p99 3 samples; no missed commands',

@@ -53,6 +53,14 @@ def draw_family(rng):
     return plant, dahl
 
 
+def quanta(pressure_range=10.0, pressure_bits=16, motor_counts=2 ** 20):
+    """The rig's sensor steps: ``(pressure ADC step [N m], motor encoder step [rad])`` (0:
+    not quantised)."""
+    qp = 2.0 * pressure_range / 2 ** pressure_bits if pressure_bits else 0.0
+    qx = 2.0 * math.pi / motor_counts if motor_counts else 0.0
+    return qp, qx
+
+
 def _matrices(p):
     m, b, k = p["motor_inertia"], p["motor_damping"], p["motor_stiffness"]
     me, be, ke = p["endpoint_inertia"], p["endpoint_damping"], p["endpoint_stiffness"]
@@ -393,8 +401,7 @@ class MotorTorqueSim:
         self._rng = np.random.default_rng(seed)
         self._noise = pressure_noise
         self._range = pressure_range
-        self._qp = 2.0 * pressure_range / 2 ** pressure_bits if pressure_bits else 0.0
-        self._qx = 2.0 * math.pi / motor_counts if motor_counts else 0.0
+        self._qp, self._qx = quanta(pressure_range, pressure_bits, motor_counts)
         self.state = [0.0, 0.0, 0.0, 0.0]
         self.dahl_force = 0.0
         self._pending = 0.0

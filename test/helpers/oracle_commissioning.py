@@ -1,0 +1,84 @@
+"""Commissioning run on the nonlinear oracle (:mod:`helpers.nonlinear_sim`): the project's own
+excitation job inside its controller, the oracle as the gripper, then the project's analysis
+stages (identification, tuning) and backdrives of the tuned controller on the oracle.
+
+The family: each Table I parameter, sigma and F_c log-uniform in [0.5x, 2x] (as the
+commissioning family) and every nonlinear effect drawn within its range
+(:func:`helpers.nonlinear_sim.draw_effects`); :func:`draw` gives one draw.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from helpers.free_air_records import draw as draw_linear
+from helpers.nonlinear_sim import Unpowered, backdrive, draw_effects, free_air_excitation
+
+DT = 5e-4
+
+
+def draw(rng, effects=True):
+    """``(plant dict, dahl dict, Effects)`` of one draw (effects off with ``effects=False``,
+    the magnitudes still drawn so that the random stream is the same)."""
+    plant, dahl = draw_linear(rng)
+    drawn = draw_effects(rng)
+    if not effects:
+        from helpers.nonlinear_sim import linear_counterpart
+        drawn = linear_counterpart(drawn)
+    return plant, dahl, drawn
+
+
+def excite(plant, dahl, effects, config=None, seed=0, duration=None, band=None):
+    """The project's free-air excitation job (commissioning) run by its controller on the
+    oracle; returns the job's :class:`ExcitationRecord` (raises if the job did not succeed)."""
+    from seaforce_ros.commissioning.excitation import ExcitationGoal, FreeAirExcitation
+    from seaforce_ros.core.controller import ChannelController
+    from seaforce_ros.core.params import ControllerConfig
+    config = (config or ControllerConfig()).replace(mode="passive")
+    ctrl = ChannelController(config, DT)
+    job = FreeAirExcitation(ExcitationGoal("sim", band, duration), config, DT)
+    ctrl.request_job(job)
+    free_air_excitation(plant, dahl, effects, ctrl, job, job.capacity, seed=seed)
+    if job.outcome != "succeeded":
+        raise RuntimeError(f"the excitation ended {job.outcome}: {job.message}")
+    return job.record()
+
+
+def identify(record):
+    from seaforce_ros.commissioning.free_air import identify_free_air
+    return identify_free_air(record)
+
+
+def tuned_config(ident, record, config=None):
+    """The analysis' tuning stage on an identification; the tuned ControllerConfig."""
+    from seaforce_ros.commissioning.analyse import AnalysisRequest, loop_stage, tune_stage
+    from seaforce_ros.core.params import ControllerConfig
+    config = config or ControllerConfig()
+    _, loop = loop_stage(record, config)
+    return tune_stage(ident, loop, AnalysisRequest("sim", config)).config
+
+
+def figures(plant, dahl, effects, config, mode, omega=1.0, amplitude=0.5, seed=0):
+    """The impedance figures of a backdrive of ``mode`` on the oracle."""
+    from seaforce_ros.core.analysis import impedance_figures
+    from seaforce_ros.core.controller import ChannelController
+    ctrl = (Unpowered() if mode == "passive" and config is None
+            else ChannelController(config.replace(mode=mode), DT))
+    rec = backdrive(plant, dahl, effects, ctrl, amplitude, omega, periods=1,
+                    settle=max(1.0, 2.0 * math.pi / omega), seed=seed)
+    return impedance_figures(rec["f_e"], rec["x_e"], omega, rec["dt"])
+
+
+def truth(plant, dahl):
+    """The oracle's parameters as the identification names them."""
+    return dict(plant, **(dahl or {}))
+
+
+def relative_errors(ident, plant, dahl):
+    t = truth(plant, dahl)
+    return {k: ident.value(k) / t[k] - 1.0 for k in t if k in ident.parameters}
+
+
+__all__ = ["draw", "excite", "identify", "tuned_config", "figures", "truth",
+           "relative_errors", "np"]
