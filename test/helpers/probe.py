@@ -11,6 +11,13 @@ from seaforce_ros.nodes.ros_common import (RECORD_QOS, CONTROL_QOS, BackgroundNo
                                      request_until_answered)
 
 
+#: s of the loop's time per plant cycle (2 kHz: config/gripper.yaml's rate)
+CYCLE = 5e-4
+#: s without a new cycle after which a wait whose time is not up in the loop's clock still
+#: ends (a loop that stopped)
+STALL = 30.0
+
+
 class Probe:
     def __init__(self, name: str = 'test_probe'):
         self.background = BackgroundNode(name)
@@ -18,6 +25,8 @@ class Probe:
         self._lock = threading.Lock()
         self.records: Dict[str, List[Any]] = {}
         self._subscriptions: Dict[str, Any] = {}
+        self._cycles: Dict[str, int] = {}       # topic -> the newest cycle recorded on it
+        self._advanced = time.monotonic()       # when one of them last grew
 
     def close(self):
         # subscriptions first: a 2 kHz topic from a node that still runs (the processes
@@ -31,8 +40,12 @@ class Probe:
         self.records[topic] = []
 
         def callback(msg, topic=topic):
+            cycle = getattr(msg, 'cycle', None)
             with self._lock:
                 self.records[topic].append(msg)
+                if cycle is not None and cycle > self._cycles.get(topic, -1):
+                    self._cycles[topic] = cycle
+                    self._advanced = time.monotonic()
 
         self._subscriptions[topic] = self.node.create_subscription(msg_type, topic, callback,
                                                                    qos)
@@ -52,14 +65,35 @@ class Probe:
         with self._lock:
             self.records[topic].clear()
 
+    def loop_time(self, since: Dict[str, int]) -> float:
+        """s of the loop's time since ``since`` (a copy of the recorded topics' newest cycles):
+        the most any topic advanced, in plant cycles x :data:`CYCLE`."""
+        with self._lock:
+            return CYCLE * max((c - since.get(t, c) for t, c in self._cycles.items()),
+                               default=0)
+
     def wait_for(self, predicate: Callable[[], bool], timeout: float = 20.0,
                  what: str = 'condition') -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
+        """Until ``predicate()``; AssertionError once ``timeout`` s have passed both in wall
+        time and in the time of the loop whose cycles this probe records (a lockstep loop on
+        a busy host runs slower than the wall clock, not differently), or after ``timeout``
+        s of wall time when that loop has not advanced for :data:`STALL` s."""
+        start = time.monotonic()
+        with self._lock:
+            since = dict(self._cycles)
+        while True:
             if predicate():
                 return
+            now = time.monotonic()
+            if now - start >= timeout:
+                with self._lock:
+                    stalled = not self._cycles or now - self._advanced >= STALL
+                looped = self.loop_time(since)
+                if stalled or looped >= timeout:
+                    raise AssertionError(
+                        f'timed out after {now - start:.1f} s ({looped:.1f} s of the loop) '
+                        f'waiting for {what}')
             time.sleep(0.02)
-        raise AssertionError(f'timed out after {timeout} s waiting for {what}')
 
     def wait_messages(self, topic: str, count: int = 1, timeout: float = 20.0,
                       where: Optional[Callable[[Any], bool]] = None) -> List[Any]:
