@@ -6,6 +6,7 @@ from typing import Any, Callable, Dict, List, Optional
 
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
+from rclpy.serialization import deserialize_message
 
 from seaforce_ros.nodes.ros_common import (RECORD_QOS, CONTROL_QOS, BackgroundNode,
                                      request_until_answered)
@@ -19,14 +20,22 @@ STALL = 30.0
 
 
 class Probe:
+    """Records topics as their serialized bytes on the spin thread (cheap: a 2 kHz topic
+    taken in as messages fell behind on a busy host, and its subscription queue dropped
+    samples), turned into messages on the test's thread when it asks for them."""
+
     def __init__(self, name: str = 'test_probe'):
         self.background = BackgroundNode(name)
         self.node = self.background.node
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()           # the records: spin thread and test thread
+        self._taking = threading.Lock()         # one deserialization at a time
         self.records: Dict[str, List[Any]] = {}
+        self._raw: Dict[str, List[bytes]] = {}  # topic -> taken in, not yet deserialized
+        self._types: Dict[str, Any] = {}
         self._subscriptions: Dict[str, Any] = {}
         self._cycles: Dict[str, int] = {}       # topic -> the newest cycle recorded on it
         self._advanced = time.monotonic()       # when one of them last grew
+        self._cleared: Dict[str, int] = {}      # topic -> clear() calls
 
     def close(self):
         # subscriptions first: a 2 kHz topic from a node that still runs (the processes
@@ -37,18 +46,37 @@ class Probe:
 
     # --- topics ------------------------------------------------------------------------
     def record(self, msg_type, topic: str, qos=RECORD_QOS):
-        self.records[topic] = []
+        with self._lock:
+            self.records[topic] = []
+            self._raw[topic] = []
+            self._types[topic] = msg_type
+            self._cleared[topic] = self._cleared.get(topic, 0) + 1
 
-        def callback(msg, topic=topic):
-            cycle = getattr(msg, 'cycle', None)
+        def callback(data, topic=topic):
             with self._lock:
-                self.records[topic].append(msg)
-                if cycle is not None and cycle > self._cycles.get(topic, -1):
-                    self._cycles[topic] = cycle
-                    self._advanced = time.monotonic()
+                self._raw[topic].append(data)
 
         self._subscriptions[topic] = self.node.create_subscription(msg_type, topic, callback,
-                                                                   qos)
+                                                                   qos, raw=True)
+
+    def _take(self, topics=None) -> None:
+        """Deserialize what the spin thread took in, into ``records`` (and the loop's clock)."""
+        with self._taking:
+            for topic in list(self._raw) if topics is None else topics:
+                with self._lock:
+                    raw, self._raw[topic] = self._raw[topic], []
+                    msg_type, cleared = self._types[topic], self._cleared[topic]
+                if not raw:
+                    continue
+                msgs = [deserialize_message(data, msg_type) for data in raw]
+                cycle = max((getattr(m, 'cycle', -1) for m in msgs), default=-1)
+                with self._lock:
+                    if self._cleared[topic] != cleared:
+                        continue                # cleared meanwhile: these came before it
+                    self.records[topic].extend(msgs)
+                    if cycle > self._cycles.get(topic, -1):
+                        self._cycles[topic] = cycle
+                        self._advanced = time.monotonic()
 
     def stop_recording(self, topic: str) -> None:
         """Stop taking messages of ``topic`` (what was recorded stays): a 2 kHz topic costs a
@@ -58,12 +86,15 @@ class Probe:
             self.node.destroy_subscription(subscription)
 
     def messages(self, topic: str) -> List[Any]:
+        self._take([topic])
         with self._lock:
             return list(self.records[topic])
 
     def clear(self, topic: str) -> None:
         with self._lock:
             self.records[topic].clear()
+            self._raw[topic].clear()
+            self._cleared[topic] = self._cleared.get(topic, 0) + 1
 
     def loop_time(self, since: Dict[str, int]) -> float:
         """s of the loop's time since ``since`` (a copy of the recorded topics' newest cycles):
@@ -79,9 +110,11 @@ class Probe:
         a busy host runs slower than the wall clock, not differently), or after ``timeout``
         s of wall time when that loop has not advanced for :data:`STALL` s."""
         start = time.monotonic()
+        self._take()
         with self._lock:
             since = dict(self._cycles)
         while True:
+            self._take()
             if predicate():
                 return
             now = time.monotonic()
@@ -97,12 +130,24 @@ class Probe:
 
     def wait_messages(self, topic: str, count: int = 1, timeout: float = 20.0,
                       where: Optional[Callable[[Any], bool]] = None) -> List[Any]:
-        def matching():
-            msgs = self.messages(topic)
-            return [m for m in msgs if where is None or where(m)]
+        # scanned as they come (a 2 kHz record rescanned at every poll takes the interpreter
+        # lock from the thread that takes the messages in: it fell behind and lost samples)
+        found: List[Any] = []
+        scanned = [0, self._cleared.get(topic, 0)]       # messages looked at, clear()s seen
+
+        def matching() -> List[Any]:
+            self._take([topic])
+            with self._lock:
+                if self._cleared.get(topic, 0) != scanned[1]:
+                    found.clear()
+                    scanned[:] = [0, self._cleared.get(topic, 0)]
+                new = self.records[topic][scanned[0]:]
+                scanned[0] += len(new)
+            found.extend(m for m in new if where is None or where(m))
+            return found
         self.wait_for(lambda: len(matching()) >= count, timeout,
                       f'{count} message(s) on {topic}')
-        return matching()
+        return list(matching())
 
     def publisher(self, msg_type, topic: str, qos=CONTROL_QOS):
         return self.node.create_publisher(msg_type, topic, qos)
