@@ -78,6 +78,18 @@ class Probe:
                         self._cycles[topic] = cycle
                         self._advanced = time.monotonic()
 
+    def _tick(self) -> None:
+        """The loop's clock from the newest message each topic took in (one deserialized per
+        topic: the rest wait until they are asked for)."""
+        with self._lock:
+            newest = {t: (raw[-1], self._types[t]) for t, raw in self._raw.items() if raw}
+        for topic, (data, msg_type) in newest.items():
+            cycle = getattr(deserialize_message(data, msg_type), 'cycle', None)
+            with self._lock:
+                if cycle is not None and cycle > self._cycles.get(topic, -1):
+                    self._cycles[topic] = cycle
+                    self._advanced = time.monotonic()
+
     def stop_recording(self, topic: str) -> None:
         """Stop taking messages of ``topic`` (what was recorded stays): a 2 kHz topic costs a
         CPU-starved test process the time it needs to answer its own service calls."""
@@ -110,11 +122,11 @@ class Probe:
         a busy host runs slower than the wall clock, not differently), or after ``timeout``
         s of wall time when that loop has not advanced for :data:`STALL` s."""
         start = time.monotonic()
-        self._take()
+        self._tick()
         with self._lock:
             since = dict(self._cycles)
         while True:
-            self._take()
+            self._tick()
             if predicate():
                 return
             now = time.monotonic()
