@@ -2,17 +2,19 @@
 
 The benchmarks pass or fail nothing (their figures are in the docs); this only proves each one
 still runs end to end -- imports, command line, the nodes or the emulator it starts, its tables
--- in a few seconds: a short run of every row it prints, the figures meaningless. Per script:
+-- in a few seconds: a short run of every row it prints, the figures meaningless (three run at
+once, each in its own DDS domain). Per script:
 exit 0, no traceback, and the lines that carry its figures, with numbers in them. A script
 added to ``bench/`` without an entry here fails :func:`test_every_bench_has_a_smoke_run`.
 """
 import os
 import re
 import sys
+from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
-from helpers.processes import ROOT
+from helpers.processes import ROOT, ProcessGroup
 
 BENCH = ROOT / 'bench'
 NUM = r'-?\d+\.?\d*'
@@ -74,6 +76,10 @@ SMOKE = {
 PARTS = {'echo_pair.py': 'control_loop.py'}
 #: a bench that outlives this is hung (each takes 1-20 s on a quiet 2-core host)
 TIMEOUT = 300.0
+#: benches run at once (each its own DDS domain: their nodes do not meet): most wait on
+#: processes, sleeps and their loops, and the figures of a smoke run mean nothing
+AT_ONCE = 3
+RUNS = [(script, args, patterns) for script, runs in SMOKE.items() for args, patterns in runs]
 
 
 def test_every_bench_has_a_smoke_run():
@@ -85,16 +91,33 @@ def test_every_bench_has_a_smoke_run():
         assert '--quick' in (BENCH / script).read_text(), script
 
 
-@pytest.mark.parametrize('script, args, patterns', [
-    pytest.param(script, args, patterns, id=' '.join((script,) + args))
-    for script, runs in SMOKE.items() for args, patterns in runs])
-def test_bench_runs_quick(processes, script, args, patterns):
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-        p for p in (str(ROOT), os.environ.get('PYTHONPATH')) if p))
-    proc = processes.start([sys.executable, str(BENCH / script), '--quick', *args],
+@pytest.fixture(scope='module')
+def quick_runs():
+    """Every smoke run to its end, :data:`AT_ONCE` at a time: [(exit code, output)] in
+    :data:`RUNS`' order; each process ended by its PID whatever happens."""
+    group = ProcessGroup()
+    base = int(os.environ.get('ROS_DOMAIN_ID', '0'))
+
+    def run(index):
+        script, args, _ = RUNS[index]
+        env = dict(os.environ, ROS_DOMAIN_ID=str(101 + (base + index) % 100),
+                   PYTHONPATH=os.pathsep.join(
+                       p for p in (str(ROOT), os.environ.get('PYTHONPATH')) if p))
+        proc = group.start([sys.executable, str(BENCH / script), '--quick', *args],
                            name=f'bench_{script[:-3]}', env=env)
-    code = proc.wait(TIMEOUT)
-    out = proc.output()
+        return proc.wait(TIMEOUT), proc.output()
+    try:
+        with ThreadPoolExecutor(max_workers=AT_ONCE) as pool:
+            yield list(pool.map(run, range(len(RUNS))))
+    finally:
+        group.stop_all()
+
+
+@pytest.mark.parametrize('index', range(len(RUNS)),
+                         ids=[' '.join((script,) + args) for script, args, _ in RUNS])
+def test_bench_runs_quick(quick_runs, index):
+    script, _, patterns = RUNS[index]
+    code, out = quick_runs[index]
     assert code == 0, f'{script} exited {code}:\n{out[-4000:]}'
     assert 'Traceback' not in out, out[-4000:]
     for pattern in patterns:
