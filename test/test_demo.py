@@ -1,4 +1,6 @@
-"""The README's main job (`scripts/demo`): a short run end to end, as a user starts it."""
+"""The demos (`scripts/demo`, `... grasp`, `... commission`): short runs end to end, as a
+user starts them, the three at once (lockstep: what each measures is its own loop's)."""
+import collections
 import json
 import math
 import os
@@ -6,9 +8,11 @@ import pathlib
 import re
 import uuid
 
+import pytest
 from seaforce_msgs.msg import ControllerStatus
 
-from helpers.processes import ROOT
+from helpers.probe import Probe
+from helpers.processes import ROOT, ProcessGroup
 
 PNG = b'\x89PNG\r\n\x1a\n'
 
@@ -26,30 +30,72 @@ def _processes_with_marker(marker: str):
     return found
 
 
-def _demo(processes, probe, name, args, timeout):
-    """``scripts/demo <args>`` to its end: its output. Exit 0 and every process it started
-    ended (they carry a marker in their environment) are asserted. ``timeout``: s of wall
-    time and of the loop's time (the probe follows the demo's controller_status: a lockstep
-    loop on a busy host runs slower, not differently)."""
-    marker = f'SEAFORCE_DEMO_TEST={uuid.uuid4().hex}'
-    env = dict(os.environ)
-    env[marker.split('=')[0]] = marker.split('=')[1]
-    probe.record(ControllerStatus, 'controller_status')
-    demo = processes.start([str(ROOT / 'scripts' / 'demo'), *args], name=name, env=env)
-    probe.wait_for(lambda: demo.popen.poll() is not None, timeout, f'{name} to end')
-    text = demo.output()
-    assert demo.popen.returncode == 0, text
-    assert _processes_with_marker(marker) == []
-    return text
+#: The demos the tests judge, all in lockstep (each loop's figures are its own however busy
+#: the host): scripts/demo's arguments (``--out`` added) and the time each may take [s, of the
+#: wall clock and of its loop's].
+SEED = int(os.environ.get('SEAFORCE_DEMO_SEED', '1'))
+COMMISSION_MODES = ('hold', 'dob_full_ff')
+DEMOS = {
+    # the README's main job, one period of a 3 rad/s drive per mode (short), and its
+    # friction calibration
+    'impedance': (['--periods', '1', '--frequency', '3', '--lockstep'], 240.0),
+    'grasp': (['grasp', '--lockstep'], 300.0),
+    # the two modes of the Z-width (the predictor's figures for the others, passive among
+    # them, against the simulated backdrive: test/commissioning/test_predictor.py)
+    'commission': (['commission', '--seed', str(SEED), '--frequencies', '1,3', '--modes',
+                    ','.join(COMMISSION_MODES)], 400.0),
+}
+Demo = collections.namedtuple('Demo', 'code text out marker')
+# the first test waits for the three demos (about 2 min together on a quiet 2-core host, 5 at a
+# load average of 15): the suite's 300 s guard per test is too short for that
+pytestmark = pytest.mark.timeout(1200)
 
 
-def _run_demo(processes, probe, tmp_path, *extra):
-    """The README's main job, ``scripts/demo`` with one period of a 3 rad/s drive per mode
-    (short), and its friction calibration; -> (table rows {mode: |Z| dB}, impedance range dB,
-    output text, out dir)."""
-    out = tmp_path / 'demo'
-    text = _demo(processes, probe, 'demo', ['--periods', '1', '--frequency', '3', '--out',
-                                            str(out), *extra], 240.0)
+@pytest.fixture(scope='module')
+def demos(tmp_path_factory):
+    """The three demos run at once, to their ends: ``{name: Demo}``. Each in a DDS domain of
+    its own (their nodes do not meet), followed there by a probe on its controller_status
+    (its loop's clock for the wait); every process started here ended by its PID, pass or
+    fail. The demos' own processes carry a marker in their environment."""
+    group = ProcessGroup()
+    probes = []
+    base = int(os.environ.get('ROS_DOMAIN_ID', '0'))
+    try:
+        running = {}
+        for index, (name, (args, timeout)) in enumerate(DEMOS.items()):
+            domain = 101 + (base + index) % 100
+            marker = uuid.uuid4().hex
+            out = tmp_path_factory.mktemp(name)
+            probe = Probe(f'probe_demo_{name}', domain)
+            probes.append(probe)
+            probe.record(ControllerStatus, 'controller_status')
+            proc = group.start([str(ROOT / 'scripts' / 'demo'), *args, '--out', str(out)],
+                               name=f'demo_{name}', env=dict(
+                                   os.environ, ROS_DOMAIN_ID=str(domain),
+                                   SEAFORCE_DEMO_TEST=marker))
+            running[name] = (proc, probe, out, marker, timeout)
+        results = {}
+        for name, (proc, probe, out, marker, timeout) in running.items():
+            probe.wait_for(lambda: proc.popen.poll() is not None, timeout, f'the {name} demo')
+            results[name] = Demo(proc.popen.returncode, proc.output(), out,
+                                 f'SEAFORCE_DEMO_TEST={marker}')
+        yield results
+    finally:
+        for probe in probes:
+            probe.close()
+        group.stop_all()
+
+
+def _demo(demos, name):
+    """The demo's output: exit 0, and every process it started ended, asserted."""
+    demo = demos[name]
+    assert demo.code == 0, demo.text
+    assert _processes_with_marker(demo.marker) == []
+    return demo.text, demo.out
+
+
+def _impedance_table(text, out):
+    """-> (table rows {mode: |Z| dB}, impedance range dB) of the main job's output; its PNG."""
     rows = {}
     for mode in ('passive', 'hold', 'dob', 'dob_linear_ff', 'dob_full_ff'):
         match = re.search(rf'^{mode}\s+(-?\d+\.\d)\s+(-?\d+\.\d)\s+(\d+\.\d+)', text, re.M)
@@ -59,10 +105,10 @@ def _run_demo(processes, probe, tmp_path, *extra):
     png = out / 'work_loops.png'
     assert png.is_file() and png.read_bytes()[:8] == PNG
     assert png.stat().st_size > 20_000
-    return rows, width, text, out
+    return rows, width
 
 
-def test_demo_orders_the_modes_recalibrates_and_stops_its_nodes(processes, probe, tmp_path):
+def test_demo_orders_the_modes_recalibrates_and_stops_its_nodes(demos):
     """The README's main job with ``--lockstep`` (the plant steps only on the controller's
     answer, so the figures are the loop's own on any host, busy or not): the table with the
     paper's ordering hold >> passive > dob > dob_linear_ff > dob_full_ff, about 50 dB of
@@ -72,7 +118,8 @@ def test_demo_orders_the_modes_recalibrates_and_stops_its_nodes(processes, probe
     the model (the core sim: -39.7 -> -44.0 dB; test/core/test_friction_calibration.py
     asserts the recovery); every process ended. (Real time is the loop tests' subject:
     test_closed_loop, test_layouts_ros, the watchdogs in test_cycle_faults_ros.)"""
-    rows, width, text, _out = _run_demo(processes, probe, tmp_path, '--lockstep')
+    text, out = _demo(demos, 'impedance')
+    rows, width = _impedance_table(text, out)
     assert rows['hold'] > rows['passive'] + 10, rows
     assert rows['passive'] > rows['dob'] > rows['dob_linear_ff'] > rows['dob_full_ff'], rows
     assert width > 40.0, text
@@ -87,12 +134,12 @@ def test_demo_orders_the_modes_recalibrates_and_stops_its_nodes(processes, probe
     assert recalibrated < rows['dob_full_ff'] - 2.0, text
 
 
-def test_grasp_demo_measures_three_objects_and_stops_its_nodes(processes, probe, tmp_path):
-    """`scripts/demo grasp`: the friction recalibrated first, then three simulated objects
-    (soft, medium, stiff; the plant 10-20 % off the model) grasped over ROS; a table row each
-    (estimates within 2.5 of their 1-sigma), a plot each, every process ended."""
-    out = tmp_path / 'grasp'
-    text = _demo(processes, probe, 'demo_grasp', ['grasp', '--out', str(out)], 300.0)
+def test_grasp_demo_measures_three_objects_and_stops_its_nodes(demos):
+    """`scripts/demo grasp --lockstep`: the friction recalibrated first, then three simulated
+    objects (soft, medium, stiff; the plant 10-20 % off the model) grasped over ROS; a table
+    row each (estimates within 2.5 of their 1-sigma), a plot each, every process ended. (The
+    grasp in real time, in both layouts: test_grasp_ros.py.)"""
+    text, out = _demo(demos, 'grasp')
     for name in ('soft', 'medium', 'stiff'):
         row = re.search(rf'^{name}\s+(\d+\.\d+)\s+(\d+\.\d+)\s+(\d+\.\d+)\s+(\d+\.\d+)'
                         rf'\s+(-?\d+\.\d+)\s+(\d+\.\d+)\s+(\d+\.\d)\s+(\d+\.\d+)\s+(\d+\.\d+)$',
@@ -108,8 +155,7 @@ def test_grasp_demo_measures_three_objects_and_stops_its_nodes(processes, probe,
                      r'identified$', text, re.M), text
 
 
-def test_commission_demo_identifies_tunes_and_predicts_what_it_measures(processes, probe,
-                                                                        tmp_path):
+def test_commission_demo_identifies_tunes_and_predicts_what_it_measures(demos):
     """`scripts/demo commission` on a plant drawn 0.5x..2x (seed 1), with the default
     excitation (a 12 s chirp identifies the Dahl sigma 134 % off on this plant), two
     frequencies and the two modes of the Z-width (short): exit 0; the table and the files; the
@@ -117,20 +163,13 @@ def test_commission_demo_identifies_tunes_and_predicts_what_it_measures(processe
     sigma and F_c 25 %); every mode's predicted |Z| within 3 dB of the measured, before (where
     the mode held) and after (every one); the Z-width after at least the goals (65 dB at
     1 rad/s, 45 at 3) and wider than before; dob_full_ff within 3 dB of the true model's
-    figure (the tuned settings with the true plant) or below it; every process ended. (The
-    predictor's figures for the other modes, passive among them, against the simulated
-    backdrive: test/commissioning/test_predictor.py.)"""
-    # a fixed draw (lockstep: the run does not depend on the host); the random plants are the
-    # family, predictor and tuning tests' (SEAFORCE_DEMO_SEED runs another: seed 86275's
-    # dob_full_ff, unstable before, measured 4.2 dB below the prediction after)
-    seed = int(os.environ.get('SEAFORCE_DEMO_SEED', '1'))
-    out = tmp_path / 'commission'
-    modes = ('hold', 'dob_full_ff')
-    text = _demo(processes, probe, 'demo_commission', [
-        'commission', '--seed', str(seed), '--out', str(out), '--frequencies', '1,3',
-        '--modes', ','.join(modes)], 400.0)
-    where = f'seed {seed}:\n{text}'
-    for mode in modes:
+    figure (the tuned settings with the true plant) or below it; every process ended."""
+    # a fixed draw (the random plants are the family, predictor and tuning tests';
+    # SEAFORCE_DEMO_SEED runs another: seed 86275's dob_full_ff, unstable before, measured
+    # 4.2 dB below the prediction after)
+    text, out = _demo(demos, 'commission')
+    where = f'seed {SEED}:\n{text}'
+    for mode in COMMISSION_MODES:
         assert re.search(rf'^{mode}\s+[13] \|', text, re.M), where
     assert (out / 'zwidth_commission.png').read_bytes()[:8] == PNG
     results = json.loads((out / 'results.json').read_text())

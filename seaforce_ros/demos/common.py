@@ -152,10 +152,13 @@ def run_friction_calibration(observer, children, args):
     node = observer.node
     # held where the drive left it, then released (in dob_full_ff a model that
     # over-compensates k_e lets the free finger creep away, out of the joint range); a
-    # longer state_timeout while it runs: a loaded host's real-time loop stalls now and then,
-    # and a stall aborts a calibration (zero torque, nothing applied)
+    # longer state_timeout while it runs (never a shorter one: a lockstep loop has a long
+    # one): a loaded host's real-time loop stalls now and then, and a stall aborts a
+    # calibration (zero torque, nothing applied)
+    state_timeout = max(CALIBRATION_STATE_TIMEOUT,
+                        get_parameter(node, '/controller', 'state_timeout'))
     set_parameters(node, '/controller', {
-        f'{CHANNEL}.mode': 'hold', 'state_timeout': CALIBRATION_STATE_TIMEOUT,
+        f'{CHANNEL}.mode': 'hold', 'state_timeout': state_timeout,
         f'{CHANNEL}.friction.calibration_duration': float(args.calibration_time)})
     set_parameters(node, '/sim', {f'{CHANNEL}.environment.mode': 'free'})
     time.sleep(0.5)                                  # the released finger settles

@@ -24,8 +24,8 @@ class Probe:
     taken in as messages fell behind on a busy host, and its subscription queue dropped
     samples), turned into messages on the test's thread when it asks for them."""
 
-    def __init__(self, name: str = 'test_probe'):
-        self.background = BackgroundNode(name)
+    def __init__(self, name: str = 'test_probe', domain_id: Optional[int] = None):
+        self.background = BackgroundNode(name, domain_id)
         self.node = self.background.node
         self._lock = threading.Lock()           # the records: spin thread and test thread
         self._taking = threading.Lock()         # one deserialization at a time
