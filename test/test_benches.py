@@ -14,6 +14,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
+from helpers.nodes import domain_env, own_domain
 from helpers.processes import ROOT, ProcessGroup
 
 BENCH = ROOT / 'bench'
@@ -96,13 +97,11 @@ def quick_runs():
     """Every smoke run to its end, :data:`AT_ONCE` at a time: [(exit code, output)] in
     :data:`RUNS`' order; each process ended by its PID whatever happens."""
     group = ProcessGroup()
-    base = int(os.environ.get('ROS_DOMAIN_ID', '0'))
 
     def run(index):
         script, args, _ = RUNS[index]
-        env = dict(os.environ, ROS_DOMAIN_ID=str(101 + (base + index) % 100),
-                   PYTHONPATH=os.pathsep.join(
-                       p for p in (str(ROOT), os.environ.get('PYTHONPATH')) if p))
+        env = domain_env(own_domain(index), PYTHONPATH=os.pathsep.join(
+            p for p in (str(ROOT), os.environ.get('PYTHONPATH')) if p))
         proc = group.start([sys.executable, str(BENCH / script), '--quick', *args],
                            name=f'bench_{script[:-3]}', env=env)
         return proc.wait(TIMEOUT), proc.output()

@@ -11,6 +11,7 @@ import uuid
 import pytest
 from seaforce_msgs.msg import ControllerStatus
 
+from helpers.nodes import domain_env, own_domain
 from helpers.probe import Probe
 from helpers.processes import ROOT, ProcessGroup
 
@@ -59,20 +60,18 @@ def demos(tmp_path_factory):
     fail. The demos' own processes carry a marker in their environment."""
     group = ProcessGroup()
     probes = []
-    base = int(os.environ.get('ROS_DOMAIN_ID', '0'))
     try:
         running = {}
         for index, (name, (args, timeout)) in enumerate(DEMOS.items()):
-            domain = 101 + (base + index) % 100
+            domain = own_domain(index)
             marker = uuid.uuid4().hex
             out = tmp_path_factory.mktemp(name)
             probe = Probe(f'probe_demo_{name}', domain)
             probes.append(probe)
             probe.record(ControllerStatus, 'controller_status')
             proc = group.start([str(ROOT / 'scripts' / 'demo'), *args, '--out', str(out)],
-                               name=f'demo_{name}', env=dict(
-                                   os.environ, ROS_DOMAIN_ID=str(domain),
-                                   SEAFORCE_DEMO_TEST=marker))
+                               name=f'demo_{name}',
+                               env=domain_env(domain, SEAFORCE_DEMO_TEST=marker))
             running[name] = (proc, probe, out, marker, timeout)
         results = {}
         for name, (proc, probe, out, marker, timeout) in running.items():
