@@ -145,9 +145,15 @@ def observe(procs, listener, name, settle, seconds, answer_within=30.0):
     time.sleep(seconds)
     t1 = time.monotonic()
     c1 = {k: cpu_seconds(p.pid) for k, p in procs.items()}
-    tail = SETTLE['diagnostics_period'] + 0.2         # the row that covers the window's end
-    time.sleep(tail)
-    return (listener.window(name, t0 + SETTLE['diagnostics_period'], t1 + tail),
+    first = t0 + SETTLE['diagnostics_period']
+    end = t1 + SETTLE['diagnostics_period'] + 0.2      # the row that covers the window's end
+    time.sleep(max(0.0, end - time.monotonic()))
+    # (a busy host publishes the rows late: until two are in, at most answer_within s more)
+    deadline = time.monotonic() + answer_within
+    while len(listener.window(name, first, end)) < 2 and time.monotonic() < deadline:
+        time.sleep(0.1)
+        end = time.monotonic()
+    return (listener.window(name, first, end),
             {k: 100.0 * (c1[k] - c0[k]) / (t1 - t0) for k in procs})
 
 

@@ -44,7 +44,8 @@ SMOKE = {
     'friction_drift.py': [
         ((), [rf'^\s+recalibrated\s+{NUM}$', rf'^\s+calibration running\s+mean\s+{NUM}'])],
     'grasp_accuracy.py': [
-        ((), [r'^grip force error in a settled hold: max', rf'^\s+0\.30\s+{NUM} \(\s*{NUM}\) / {NUM}',
+        ((), [r'^grip force error in a settled hold: max',
+              rf'^\s+0\.30\s+{NUM} \(\s*{NUM}\) / {NUM}',
               rf'^\s+0\.30\s+\d+\s+{NUM} - {NUM}\s+{NUM}$'])],
     'gripper_actions.py': [
         ((), [rf'^contact -> result \[cycles\]\s+{NUM}\s+{NUM}', rf'^rejected \[ms\]\s+{NUM}'])],

@@ -95,8 +95,7 @@ def stack(tmp_path_factory):
         probe.wait_messages('actuator_state', 1, timeout=60, where=lambda m: m.cycle == 0)
         start_node(group, 'controller_node', 'controller', tmp, STACK_CONTROLLER,
                    domain=domain)
-        probe.wait_messages('actuator_state', 1, timeout=120,
-                            where=lambda m: m.cycle >= FIRST_CYCLES)
+        probe.wait_cycle('actuator_state', FIRST_CYCLES, timeout=120)
         yield probe, [m for m in probe.messages('actuator_state') if m.cycle < FIRST_CYCLES]
     finally:
         probe.close()

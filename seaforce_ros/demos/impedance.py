@@ -45,7 +45,7 @@ import numpy as np
 
 from ..core.plant_cycle import STATUS_COMMAND_TIMEOUT, STATUS_FAULT, STATUS_LIMIT
 from ..identification.zwidth_lib import DEFAULT_MODES as MODES  # the paper's Fig. 5 modes
-from .common import (CHANNEL, DT, get_parameter, prepare, print_calibration,
+from .common import (CHANNEL, DT, SERVICE_TIMEOUT, get_parameter, prepare, print_calibration,
                      run_friction_calibration, run_guarded, set_parameters, true_plant,
                      wait_until)
 
@@ -112,7 +112,7 @@ class Observer:
             cycles = [c for c, m in self.modes.items() if m == mode and c > after]
         return min(cycles) if cycles else None
 
-    def set_mode(self, mode, timeout=20.0):
+    def set_mode(self, mode, timeout=SERVICE_TIMEOUT):
         from rclpy.parameter import Parameter
         from rclpy.parameter_client import AsyncParameterClient
 

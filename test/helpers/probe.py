@@ -6,12 +6,19 @@ from typing import Any, Callable, Dict, List, Optional
 
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
+from rclpy.qos import QoSProfile
 from rclpy.serialization import deserialize_message
+
+from helpers.states import has_cycle, serialized_cycle
 
 from seaforce_ros.nodes.ros_common import (RECORD_QOS, CONTROL_QOS, BackgroundNode,
                                      request_until_answered)
 
 
+#: The probe's subscriptions: RECORD_QOS with 10 s of a 2 kHz topic queued (a test process
+#: starved for more than RECORD_QOS's second lost samples; only bytes are queued)
+PROBE_QOS = QoSProfile(history=RECORD_QOS.history, depth=20000,
+                       reliability=RECORD_QOS.reliability, durability=RECORD_QOS.durability)
 #: s of the loop's time per plant cycle (2 kHz: config/gripper.yaml's rate)
 CYCLE = 5e-4
 #: s without a new cycle after which a wait whose time is not up in the loop's clock still
@@ -45,16 +52,22 @@ class Probe:
         self.background.close()
 
     # --- topics ------------------------------------------------------------------------
-    def record(self, msg_type, topic: str, qos=RECORD_QOS):
+    def record(self, msg_type, topic: str, qos=PROBE_QOS):
         with self._lock:
             self.records[topic] = []
             self._raw[topic] = []
             self._types[topic] = msg_type
             self._cleared[topic] = self._cleared.get(topic, 0) + 1
 
+        counted = has_cycle(msg_type)
+
         def callback(data, topic=topic):
+            cycle = serialized_cycle(data) if counted else -1
             with self._lock:
                 self._raw[topic].append(data)
+                if cycle > self._cycles.get(topic, -1):
+                    self._cycles[topic] = cycle
+                    self._advanced = time.monotonic()
 
         self._subscriptions[topic] = self.node.create_subscription(msg_type, topic, callback,
                                                                    qos, raw=True)
@@ -69,26 +82,9 @@ class Probe:
                 if not raw:
                     continue
                 msgs = [deserialize_message(data, msg_type) for data in raw]
-                cycle = max((getattr(m, 'cycle', -1) for m in msgs), default=-1)
                 with self._lock:
-                    if self._cleared[topic] != cleared:
-                        continue                # cleared meanwhile: these came before it
-                    self.records[topic].extend(msgs)
-                    if cycle > self._cycles.get(topic, -1):
-                        self._cycles[topic] = cycle
-                        self._advanced = time.monotonic()
-
-    def _tick(self) -> None:
-        """The loop's clock from the newest message each topic took in (one deserialized per
-        topic: the rest wait until they are asked for)."""
-        with self._lock:
-            newest = {t: (raw[-1], self._types[t]) for t, raw in self._raw.items() if raw}
-        for topic, (data, msg_type) in newest.items():
-            cycle = getattr(deserialize_message(data, msg_type), 'cycle', None)
-            with self._lock:
-                if cycle is not None and cycle > self._cycles.get(topic, -1):
-                    self._cycles[topic] = cycle
-                    self._advanced = time.monotonic()
+                    if self._cleared[topic] == cleared:     # else: they came before a clear()
+                        self.records[topic].extend(msgs)
 
     def stop_recording(self, topic: str) -> None:
         """Stop taking messages of ``topic`` (what was recorded stays): a 2 kHz topic costs a
@@ -122,11 +118,9 @@ class Probe:
         a busy host runs slower than the wall clock, not differently), or after ``timeout``
         s of wall time when that loop has not advanced for :data:`STALL` s."""
         start = time.monotonic()
-        self._tick()
         with self._lock:
             since = dict(self._cycles)
         while True:
-            self._tick()
             if predicate():
                 return
             now = time.monotonic()
@@ -139,6 +133,17 @@ class Probe:
                         f'timed out after {now - start:.1f} s ({looped:.1f} s of the loop) '
                         f'waiting for {what}')
             time.sleep(0.02)
+
+    def newest_cycle(self, topic: str) -> int:
+        """The newest cycle taken in on ``topic`` (-1: none yet), without building messages."""
+        with self._lock:
+            return self._cycles.get(topic, -1)
+
+    def wait_cycle(self, topic: str, cycle: int, timeout: float = 20.0) -> None:
+        """Until a message of ``cycle`` or later came on ``topic`` (no message built while
+        waiting: the thread that takes them in keeps the interpreter lock to itself)."""
+        self.wait_for(lambda: self.newest_cycle(topic) >= cycle, timeout,
+                      f'cycle {cycle} on {topic}')
 
     def wait_messages(self, topic: str, count: int = 1, timeout: float = 20.0,
                       where: Optional[Callable[[Any], bool]] = None) -> List[Any]:
