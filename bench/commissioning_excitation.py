@@ -10,6 +10,7 @@ in the excitation phase, the contact test running), mean and p99 over chunks. Ti
 are printed, never asserted.
 
 Run:  PYTHONPATH=. python bench/commissioning_excitation.py [--draws 10] [--duration 40]
+      [--quick]      (one 4 s draw and a short cost loop: a smoke run, figures meaningless)
 """
 
 import argparse
@@ -29,7 +30,11 @@ def main() -> None:
     parser.add_argument("--draws", type=int, default=10)
     parser.add_argument("--duration", type=float, default=40.0)
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--quick", action="store_true",
+                        help="smoke run: one draw of 4 s, 10 chunks of the cost loop")
     args = parser.parse_args()
+    if args.quick:
+        args.draws, args.duration = 1, 4.0
     rng = np.random.default_rng(args.seed)
     model = ControllerConfig()
     c = model.commissioning
@@ -55,7 +60,7 @@ def main() -> None:
               f"{job.gain:5.2f} {seconds:6.2f}")
     print(f"simulation of {args.duration:g} s + rest: mean {np.mean(times):.2f} s, "
           f"max {np.max(times):.2f} s per record")
-    job_cost(model)
+    job_cost(model, chunks=10 if args.quick else 100)
 
 
 def job_cost(model: ControllerConfig, chunk: int = 200, chunks: int = 100) -> None:

@@ -24,6 +24,8 @@ of commands arrive in time (printed at the end). Columns:
   CPU %     per process, CPU time / wall time (one core = 100)
 
 Usage: source scripts/setup.sh; python bench/control_loop.py [--seconds 60] [--no-extras]
+       [--quick]   (one direct, one bare echo and one nodes row with the EventsExecutor, 1 s
+                    each after a short settling: a smoke run, figures meaningless)
 """
 import argparse
 import json
@@ -41,6 +43,9 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 LIB = ROOT / 'install' / 'seaforce_ros' / 'lib' / 'seaforce_ros'
 CONFIG = ROOT / 'config' / 'gripper.yaml'
+#: s of discovery and settling before a row's figures are taken (and its bare echo's warm-up);
+#: --quick shortens it, and /diagnostics then comes every 0.2 s
+SETTLE = {'nodes': 4.0, 'warmup': 4.0, 'diagnostics_period': 1.0}
 
 def start_hogs():
     """One busy-looping process per core (normal priority); end them with _stop()."""
@@ -73,6 +78,12 @@ class DiagnosticsListener:
             for status in msg.status:
                 self.items.append((now, status.name, {kv.key: kv.value for kv in status.values}))
 
+    def answered(self, name):
+        """The newest ``name`` row shows a round trip: commands answer the states."""
+        with self.lock:
+            rows = [v for _, n, v in self.items if n == name]
+        return bool(rows) and rows[-1].get('round_trip_p50_ms', 'nan') != 'nan'
+
     def window(self, name, t0, t1):
         with self.lock:
             return [v for t, n, v in self.items if n == name and t0 <= t < t1]
@@ -100,7 +111,8 @@ def start_scenario(layout, executor, qos, rate, workdir, prefix=()):
     {name: Popen}."""
     overrides = workdir / f'{layout}-{executor}-{qos}-{rate:.0f}-{len(prefix)}.yaml'
     # one section per node (the composed bringup reads both), given after gripper.yaml
-    common = (f'    executor: {executor}\n    control_qos: {qos}\n    rate: {rate}\n')
+    common = (f'    executor: {executor}\n    control_qos: {qos}\n    rate: {rate}\n'
+              f'    diagnostics_period: {SETTLE["diagnostics_period"]}\n')
     overrides.write_text(
         'sim:\n  ros__parameters:\n' + common
         + '    pinch.environment.mode: position_sine\n    pinch.environment.amplitude: 0.5\n'
@@ -119,17 +131,29 @@ def start_scenario(layout, executor, qos, rate, workdir, prefix=()):
             for k, a in argvs.items()}
 
 
-def observe(procs, listener, name, settle, seconds):
-    """After ``settle`` s (discovery, settling), ``seconds`` of the ``name`` diagnostics rows
-    and each process's CPU use over them [% of one core]: (rows, {key: percent})."""
+def observe(procs, listener, name, settle, seconds, answer_within=30.0):
+    """After ``settle`` s (discovery, settling) and once the ``name`` rows show commands
+    answering the states (a busy host starts a node slowly; at most ``answer_within`` s more),
+    ``seconds`` of the ``name`` diagnostics rows and each process's CPU use over them [% of one
+    core]: (rows, {key: percent})."""
     time.sleep(settle)
+    deadline = time.monotonic() + answer_within
+    while not listener.answered(name) and time.monotonic() < deadline:
+        time.sleep(0.1)
     c0 = {k: cpu_seconds(p.pid) for k, p in procs.items()}
     t0 = time.monotonic()
     time.sleep(seconds)
     t1 = time.monotonic()
     c1 = {k: cpu_seconds(p.pid) for k, p in procs.items()}
-    time.sleep(1.2)
-    return (listener.window(name, t0 + 1.0, t1 + 1.2),
+    first = t0 + SETTLE['diagnostics_period']
+    end = t1 + SETTLE['diagnostics_period'] + 0.2      # the row that covers the window's end
+    time.sleep(max(0.0, end - time.monotonic()))
+    # (a busy host publishes the rows late: until two are in, at most answer_within s more)
+    deadline = time.monotonic() + answer_within
+    while len(listener.window(name, first, end)) < 2 and time.monotonic() < deadline:
+        time.sleep(0.1)
+        end = time.monotonic()
+    return (listener.window(name, first, end),
             {k: 100.0 * (c1[k] - c0[k]) / (t1 - t0) for k in procs})
 
 
@@ -138,7 +162,7 @@ def run_nodes(layout, executor, qos, rate, seconds, workdir, prefix=()):
     procs = start_scenario(layout, executor, qos, rate, workdir, prefix)
     listener = DiagnosticsListener()
     try:
-        sim, cpu = observe(procs, listener, 'sim: cycle', 4.0, seconds)
+        sim, cpu = observe(procs, listener, 'sim: cycle', SETTLE['nodes'], seconds)
     finally:
         listener.close()
         _stop(procs.values())
@@ -168,11 +192,12 @@ def run_bare(executor, qos, rate, seconds, prefix=()):
                             start_new_session=True)
     time.sleep(1.0)
     src = subprocess.Popen(list(prefix) + [sys.executable, script, '--role', 'source', '--seconds',
-                            str(seconds), '--warmup', '4'] + common, stdout=subprocess.PIPE,
+                            str(seconds), '--warmup', str(SETTLE['warmup'])] + common,
+                           stdout=subprocess.PIPE,
                            stderr=subprocess.DEVNULL, text=True, start_new_session=True)
     procs = {'src': src, 'echo': echo}
     try:
-        time.sleep(4.0)
+        time.sleep(SETTLE['warmup'])
         c0 = {k: cpu_seconds(p.pid) for k, p in procs.items()}
         t0 = time.monotonic()
         out, _ = src.communicate(timeout=seconds + 60)
@@ -222,7 +247,12 @@ def main():
                         help='SCHED_FIFO priority of the "rt" rows (chrt -f)')
     parser.add_argument('--only-direct', action='store_true',
                         help='only the direct-layout rows (quiet and with a CPU hog per core)')
+    parser.add_argument('--quick', action='store_true',
+                        help='smoke run: direct, bare echo and nodes (events), 1 s each')
     args = parser.parse_args()
+    if args.quick:
+        args.seconds, args.rounds, args.no_extras = 1.0, 1, True
+        SETTLE.update(nodes=2.0, warmup=1.5, diagnostics_period=0.2)
     if not (LIB / 'bringup').exists():
         sys.exit('install/ is missing: run `source scripts/setup.sh` first')
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
@@ -235,7 +265,7 @@ def main():
         chunk = args.seconds / args.rounds
         fifo = ['chrt', '-f', str(args.fifo_priority)]
         # the direct layout (bringup loop:=direct): the sim's cycle thread calls the controller
-        for hog in (False, True):
+        for hog in (False,) if args.quick else (False, True):
             tag = ', a CPU hog per core' if hog else ''
             print(f'[bench] direct / events / 2000 Hz / SCHED_FIFO{tag}: {args.seconds:.0f} s',
                   flush=True)
@@ -245,7 +275,8 @@ def main():
             finally:
                 _stop(hogs)
             runs.append(('direct rt' + (' hog' if hog else ''), 'events', 'reliable', 2000.0, r))
-        for executor in (() if args.only_direct else ('events', 'single_threaded')):
+        executors = ('events',) if args.quick else ('events', 'single_threaded')
+        for executor in (() if args.only_direct else executors):
             parts = {'bare echo': [], 'nodes': []}
             for round_ in range(args.rounds):
                 for kind in (('bare echo', 'nodes') if round_ % 2 == 0 else ('nodes', 'bare echo')):

@@ -11,9 +11,11 @@ Amplitude: 0.5 rad (the paper's work-loop amplitude) for every mode except
 well below the torque limit (the hold loop is linear, so |Z| does not
 depend on the amplitude).
 
-Run:  PYTHONPATH=. python bench/core_impedance_table.py
+Run:  PYTHONPATH=. python bench/core_impedance_table.py [--quick]
+      (--quick: 3 rad/s only, a smoke run)
 """
 
+import argparse
 import math
 import sys
 import time
@@ -48,38 +50,43 @@ def measure(mode, extra, omega, plant, dahl, amplitude, sim_plant=None, sim_dahl
 
 
 def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true",
+                        help="smoke run: every row at 3 rad/s only")
+    args = parser.parse_args()
+    freqs, zw_freqs = ((3.0,), (3.0,)) if args.quick else (FREQS, ZW_FREQS)
     plant = PlantParams.table_i()
     dahl = DahlParams(sigma=12.8, coulomb_force=0.032, exponent=1.0)
     model = PlantModel(plant)
-    passive = frequency_response(model.passive_impedance(), FREQS)
+    passive = frequency_response(model.passive_impedance(), freqs)
     t0 = time.perf_counter()
     table = {}
     for mode, extra in MODES:
         amp = 0.05 if mode == "hold" else 0.5
-        table[mode] = np.array([measure(mode, extra, w, plant, dahl, amp) for w in FREQS])
+        table[mode] = np.array([measure(mode, extra, w, plant, dahl, amp) for w in freqs])
     # sensitivity rows: what limits the minimum impedance on hardware
     mismatch_plant = plant.scaled(endpoint_damping=1.2, endpoint_stiffness=1.2)
     mismatch_dahl = DahlParams(sigma=12.8 * 1.2, coulomb_force=0.032 * 1.2)
     extra_rows = {
         "full_ff, +20% b_e k_e F_c sigma": np.array([
             measure("dob_full_ff", {}, w, plant, dahl, 0.5, sim_plant=mismatch_plant,
-                    sim_dahl=mismatch_dahl) for w in FREQS]),
+                    sim_dahl=mismatch_dahl) for w in freqs]),
         "full_ff, +5 mNm endpt Coulomb": np.array([
             measure("dob_full_ff", {}, w, plant, dahl, 0.5, endpoint_coulomb=0.005)
-            for w in FREQS]),
+            for w in freqs]),
         "passive, +20 mNm motor Coulomb": np.array([
-            measure("passive", {}, w, plant, dahl, 0.5, motor_coulomb=0.02) for w in FREQS]),
+            measure("passive", {}, w, plant, dahl, 0.5, motor_coulomb=0.02) for w in freqs]),
         "dob, +20 mNm motor Coulomb": np.array([
-            measure("dob", {}, w, plant, dahl, 0.5, motor_coulomb=0.02) for w in FREQS]),
+            measure("dob", {}, w, plant, dahl, 0.5, motor_coulomb=0.02) for w in freqs]),
         "dob, lambda = 20 rad/s": np.array([
             measure("dob", {"dob": DobParams(cutoff=20.0)}, w, plant, dahl, 0.5)
-            for w in FREQS]),
+            for w in freqs]),
     }
     elapsed = time.perf_counter() - t0
 
     print("Simulated endpoint impedance |Z(jw)| [dB re 1 N m s/rad], Table I + Dahl")
     print("(position-sine drive 0.5 rad, hold 0.05 rad; delta = change vs 'passive')\n")
-    head = "mode".ljust(16) + "".join(f"{w:>9.1f}" for w in FREQS) + "   rad/s"
+    head = "mode".ljust(16) + "".join(f"{w:>9.1f}" for w in freqs) + "   rad/s"
     print(head)
     print("-" * len(head))
     print("analytic passive".ljust(16) + "".join(f"{v:9.2f}" for v in magnitude_db(passive)))
@@ -100,8 +107,8 @@ def main():
               + "   delta:" + "".join(f"{v:7.1f}" for v in d))
     print()
     print("Z-width dob_full_ff vs hold [dB]:")
-    for w in ZW_FREQS:
-        i = FREQS.index(w)
+    for w in zw_freqs:
+        i = freqs.index(w)
         zw = magnitude_db(table["hold"][i]) - magnitude_db(table["dob_full_ff"][i])
         zw_mm = magnitude_db(table["hold"][i]) - magnitude_db(
             extra_rows["full_ff, +20% b_e k_e F_c sigma"][i])
@@ -109,7 +116,8 @@ def main():
     print()
     print("Paper (hardware, Fig. 9C): DOB -7 to -10 dB vs passive up to 10 rad/s;")
     print("DOB + linear + Dahl ff up to -17 dB; Z-width ~50 dB up to 3 rad/s, >30 dB up to 10 rad/s.")
-    print(f"\n(simulated {(len(MODES) + len(extra_rows)) * len(FREQS)} experiments in {elapsed:.1f} s)")
+    print(f"\n(simulated {(len(MODES) + len(extra_rows)) * len(freqs)} experiments in "
+          f"{elapsed:.1f} s)")
     return 0
 
 

@@ -27,7 +27,8 @@ grow).
 
 Timing figures are printed, never asserted.
 
-Run:  PYTHONPATH=. python bench/core_sim_speed.py [--baseline main]
+Run:  PYTHONPATH=. python bench/core_sim_speed.py [--baseline main] [--quick]
+      (--quick: every row on a few thousand samples, the closed loop 3 s: a smoke run)
 """
 
 import argparse
@@ -147,12 +148,17 @@ def main(argv=None):
                         help="compare the per-sample rows with this git revision (e.g. main)")
     parser.add_argument("--repeats", type=int, default=5,
                         help="repetitions of each compared row (default 5)")
+    parser.add_argument("--quick", action="store_true",
+                        help="smoke run: 2000 samples per row, one repetition, a 3 s loop")
     args = parser.parse_args(argv)
     print(f"Python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}")
+    n = 2000 if args.quick else 40000
     if args.baseline:
-        return compare_rows(args.baseline, args.repeats)
+        return compare_rows(args.baseline, 1 if args.quick else args.repeats,
+                            2000 if args.quick else 20000)
     env = position_sine(0.5, 1.0)
-    n = 40000
+    best_of = 1 if args.quick else 3
+    loop_seconds = 3.0 if args.quick else 60.0
 
     # --- throughput --------------------------------------------------------------
     def plant_alone():
@@ -174,13 +180,13 @@ def main(argv=None):
         return n / (time.perf_counter() - t0)
 
     # best of 3 runs of 20 s simulated time each (the machine may be shared)
-    plant_rate = max(plant_alone() for _ in range(3))
-    print(f"\nthroughput, best of 3 x {n} samples")
+    plant_rate = max(plant_alone() for _ in range(best_of))
+    print(f"\nthroughput, best of {best_of} x {n} samples")
     print(f"simulator alone (position drive, Dahl, sensors): {plant_rate:8.0f} samples/s"
           f"  ({1e6 / plant_rate:5.1f} us/sample)")
     print("simulator + controller, plain loop (no recording):")
     for mode in MODES:
-        rate = max(with_controller(mode) for _ in range(3))
+        rate = max(with_controller(mode) for _ in range(best_of))
         print(f"  {mode:15s} {rate:8.0f} samples/s  ({1e6 / rate:5.1f} us/sample)")
 
     # --- per-call timing: controller update ----------------------------------------
@@ -207,7 +213,7 @@ def main(argv=None):
     print(f"  naive numpy baseline          {fmt(t_sim_naive)}")
 
     # --- 60 s closed loop -------------------------------------------------------------
-    n60 = int(round(60.0 / DT))
+    n60 = int(round(loop_seconds / DT))
     sim = ChannelSimulator(PLANT, DAHL, environment=env)
     t0 = time.perf_counter()
     run_closed_loop(sim, ChannelController(cfg), n60)
@@ -221,11 +227,13 @@ def main(argv=None):
         y = nsim.step(u)
         log[i] = (y[0], y[1], y[2], u)
     wall_naive = time.perf_counter() - t0
-    print("\n60 s closed-loop simulation at 2 kHz, dob_full_ff, recording (goal <= 3 s):")
-    print(f"  run_closed_loop               {wall:6.2f} s  ({60.0 / wall:5.1f}x real time)")
-    print(f"  naive numpy baseline          {wall_naive:6.2f} s  ({60.0 / wall_naive:5.1f}x real time)")
+    print(f"\n{loop_seconds:g} s closed-loop simulation at 2 kHz, dob_full_ff, recording "
+          f"(goal <= {loop_seconds / 20.0:g} s):")
+    print(f"  run_closed_loop               {wall:6.2f} s  ({loop_seconds / wall:5.1f}x real time)")
+    print(f"  naive numpy baseline          {wall_naive:6.2f} s  "
+          f"({loop_seconds / wall_naive:5.1f}x real time)")
     grasp_rows()
-    guard_rows()
+    guard_rows(n // 2)
     return 0
 
 
@@ -286,9 +294,10 @@ def grasp_rows():
 
 
 # --- passivity guard ---------------------------------------------------------------------------
-def guard_rows():
-    """The guard alone per cycle on the inputs it saw in a run where it acts, vs the controller
-    update (dob, guard disabled) on the same samples, and the whole update with it active."""
+def guard_rows(n=20000):
+    """The guard alone per cycle on the inputs it saw in a run where it acts (``n`` samples),
+    vs the controller update (dob, guard disabled) on the same samples, and the whole update
+    with it active."""
     light = DobParams(cutoff=2 * math.pi * 50, nominal_inertia=0.1 * PLANT.motor_inertia)
     xe = -0.3 * 50.0 / (PLANT.endpoint_stiffness + 50.0)     # pressed in by k_e, kicked
     env = contact_object(-0.3, 50.0, 0.005)
@@ -296,7 +305,6 @@ def guard_rows():
     sim.reset(state=(xe, 0.0, xe, 0.2), environment=env)
     active = ControllerConfig(mode="dob", dob=light, passivity=GuardParams(mode="active"))
     ctl = ChannelController(active)
-    n = 20000
     rows = []
     m = sim.measurement()
     for _ in range(n):
@@ -311,7 +319,7 @@ def guard_rows():
     t_plain = timed_calls(plain.update, lambda i: (x[i], v[i], fp[i]), n)
     full = ChannelController(active)
     t_full = timed_calls(full.update, lambda i: (x[i], v[i], fp[i]), n)
-    print(f"\npassivity guard per cycle, over a recorded {n * DT:.0f} s run in stiff contact with "
+    print(f"\npassivity guard per cycle, over a recorded {n * DT:.1f} s run in stiff contact with "
           f"m_n = 0.1 m (the guard dissipated {acting * 1e3:.2f} mJ):")
     for name, t in (("controller update, dob, guard disabled           ", t_plain),
                     ("PassivityGuard.update                            ", t_guard),
@@ -394,13 +402,13 @@ def kept_memory(update, samples):
     return n, first, second
 
 
-def compare_rows(rev, repeats):
-    """The per-sample rows of ``rev`` and of the working tree, interleaved (module docstring)."""
+def compare_rows(rev, repeats, n=20000):
+    """The per-sample rows of ``rev`` and of the working tree, interleaved (module docstring),
+    on ``n`` samples."""
     directory = tempfile.mkdtemp(prefix="seaforce-baseline-")
     try:
         old = load_core(rev, directory)
         sides = (("before", old), ("after", sys.modules["seaforce_ros.core"]))
-        n = 20000
         env = position_sine(0.5, 1.0)
         sim = ChannelSimulator(PLANT, DAHL, environment=env)
         rec = run_closed_loop(sim, ChannelController(ControllerConfig(mode="dob_full_ff")), n)

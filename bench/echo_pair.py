@@ -4,8 +4,9 @@
 `--role source` publishes seaforce_msgs/ActuatorState (two channels) from a thread with
 absolute deadlines at `--rate` and listens for ActuatorCommand; `--role echo` answers every
 state with a command carrying its cycle and nothing else. The source measures the same
-figures the sim node reports (round trip, commands in time before the next cycle) and prints
-them as one JSON line when `--seconds` have passed. Used by bench/control_loop.py.
+figures the sim node reports (round trip, commands in time before the next cycle) over
+`--seconds` from the end of `--warmup` or, later, the first answer, and prints them as one JSON
+line. Used by bench/control_loop.py.
 """
 import argparse
 import json
@@ -49,11 +50,16 @@ def source(node, args):
     def loop():
         deadline = Deadline(dt)
         cycle = 0
-        t_end = time.monotonic() + args.warmup + args.seconds
+        # the measurement starts after the warm-up once the echo answers (a busy host starts
+        # it slowly), or 30 s later without it
+        t_start = time.monotonic() + args.warmup
+        t_end = t_start + 30.0 + args.seconds
         measuring = False
         while time.monotonic() < t_end:
             now = deadline.wait()
-            if not measuring and now > t_end - args.seconds:
+            if not measuring and now > t_start and (state['answered'] >= 0
+                                                    or now > t_start + 30.0):
+                t_end = now + args.seconds
                 measuring = True
                 rtts.clear()
                 late[0] = 0

@@ -3,6 +3,7 @@
 on a veth pair, with absolute deadlines.
 
     sudo -E python bench/ethercat_cycle.py [--duration 20] [--rate 2000] [--realtime]
+        [--quick]      (1 s: a smoke run)
 
 Creates its own network namespace and veth pair (test/ethercat/harness.py), starts the
 emulator (wrist drive, pinch drive, pressure terminal) in its own process, brings the
@@ -143,7 +144,11 @@ def main():
                         help="busy-wait the last N us before each deadline (default 0)")
     parser.add_argument("--realtime", type=int, default=0, metavar="PRIO",
                         help="SCHED_FIFO priority for master and emulator (default 0: off)")
-    return run(parser.parse_args())
+    parser.add_argument("--quick", action="store_true", help="smoke run: 1 s")
+    args = parser.parse_args()
+    if args.quick:
+        args.duration = 1.0
+    return run(args)
 
 
 if __name__ == "__main__":

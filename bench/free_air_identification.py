@@ -10,6 +10,7 @@ over the reported 1-sigma, and the fit's CPU time per record (goal <= 20 s on th
 machine).
 
     python bench/free_air_identification.py [--draws 40] [--seed 1] [--sim both|second|core]
+        [--quick]      (one draw on each simulator: a smoke run)
 """
 import argparse
 import math
@@ -33,7 +34,10 @@ def main() -> None:
     ap.add_argument("--draws", type=int, default=40)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--sim", choices=("both", "second", "core"), default="both")
+    ap.add_argument("--quick", action="store_true", help="smoke run: two draws")
     args = ap.parse_args()
+    if args.quick:
+        args.draws = 2
     rng = np.random.default_rng(args.seed)
     errs = {k: [] for k in GOALS}
     zs = {k: [] for k in GOALS}

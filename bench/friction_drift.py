@@ -12,7 +12,9 @@ while the controller keeps the Table I model. Printed:
   in the same run (a ratio; the absolute times depend on the machine).
 
 Run:  PYTHONPATH=. python bench/friction_drift.py [--random N] [--duration S]
-          [--amplitude A] [--speed V]
+          [--amplitude A] [--speed V] [--quick]
+      (--quick: the default drift only, a 3 s calibration, |Z| at 3 rad/s, 1000 samples of
+      cost: a smoke run)
 """
 
 import argparse
@@ -71,7 +73,7 @@ def per_sample_cost(config, calibrate_too, n=6000):
     return float(np.mean(times)), float(np.percentile(times, 99.9))
 
 
-def one_case(base, factors, amplitude, speed):
+def one_case(base, factors, amplitude, speed, freqs=FREQS):
     fb, fk, ff, fs = factors
     plant = base.plant.scaled(endpoint_damping=fb, endpoint_stiffness=fk)
     dahl = DahlParams(sigma=base.dahl.sigma * fs, coulomb_force=base.dahl.coulomb_force * ff)
@@ -95,15 +97,16 @@ def one_case(base, factors, amplitude, speed):
         print(f"{name:18s} {t:10.5g} {b:10.5g} {a:10.5g} {s:9.2g} {100 * (a / t - 1):+7.2f}% "
               f"{100 * (b / t - 1):+9.1f}%")
     true_cfg = with_friction(base, truth)
-    print(f"{'|Z| dob_full_ff [dB]':22s} " + " ".join(f"{w:>8g} r/s" for w in FREQS))
+    print(f"{'|Z| dob_full_ff [dB]':22s} " + " ".join(f"{w:>8g} r/s" for w in freqs))
     rows = {}
     for label, cfg in (("true parameters", true_cfg), ("drifted (old model)", base),
                        ("recalibrated", recalibrated)):
-        rows[label] = [z_db(cfg, plant, dahl, w) for w in FREQS]
+        rows[label] = [z_db(cfg, plant, dahl, w) for w in freqs]
         print(f"  {label:20s} " + " ".join(f"{z:12.2f}" for z in rows[label]))
-    i = FREQS.index(1.0)
+    w = 1.0 if 1.0 in freqs else freqs[0]
+    i = freqs.index(w)
     true_z = rows["true parameters"][i]
-    print(f"  at 1 rad/s: the drift costs {rows['drifted (old model)'][i] - true_z:+.1f} dB; "
+    print(f"  at {w:g} rad/s: the drift costs {rows['drifted (old model)'][i] - true_z:+.1f} dB; "
           f"after recalibration {rows['recalibrated'][i] - true_z:+.2f} dB from the true "
           "parameters")
     return cal
@@ -116,7 +119,12 @@ def main():
     ap.add_argument("--amplitude", type=float, default=0.5)
     ap.add_argument("--speed", type=float, default=1.0)
     ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke run: the default drift, 3 s, 3 rad/s, 1000 samples of cost")
     args = ap.parse_args()
+    if args.quick:
+        args.random, args.duration = 0, 3.0
+    freqs = (3.0,) if args.quick else FREQS
     base = ControllerConfig(mode="dob_full_ff", plant=PlantParams.table_i(), dahl=DahlParams())
     base = base.replace(friction=dataclasses.replace(base.friction,
                                                      calibration_duration=args.duration))
@@ -127,7 +135,7 @@ def main():
     cases += [tuple(float(f) for f in np.round(r, 2)) for r in rng.uniform(
         [0.6, 0.6, 0.6, 0.7], [1.6, 1.4, 1.6, 1.4], size=(args.random, 4))]
     for factors in cases:
-        one_case(base, factors, args.amplitude, args.speed)
+        one_case(base, factors, args.amplitude, args.speed, freqs)
     rows = (("dob_full_ff", base, False),
             ("dob_full_ff + adaptation", base.replace(friction=dataclasses.replace(
                 base.friction, adaptation=True)), False),
@@ -137,7 +145,7 @@ def main():
           "candidate sigma/F_c in a calibration, 3 in the adaptation)")
     reference = None
     for label, cfg, calibrating in rows:
-        mean, tail = per_sample_cost(cfg, calibrating)
+        mean, tail = per_sample_cost(cfg, calibrating, n=1000 if args.quick else 6000)
         reference = reference or mean
         print(f"  {label:26s} mean {1e6 * mean:7.1f}  p99.9 {1e6 * tail:7.1f}  "
               f"(x{mean / reference:.2f} of dob_full_ff's mean)")

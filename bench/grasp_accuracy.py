@@ -28,7 +28,8 @@ default) -- the grasps on a commissioned
 model. ``--estimates-only`` prints the object estimates and grip figures only.
 
 Run:  PYTHONPATH=. python bench/grasp_accuracy.py [--draws N] [--error 0.15] [--seed S]
-      [--calibrate | --commission] [--estimates-only]
+      [--calibrate | --commission] [--estimates-only] [--quick]
+      (--quick: two objects, one detection cell, one free-motion plant: a smoke run)
 """
 import argparse
 import dataclasses
@@ -263,7 +264,11 @@ def main():
                         help='the model self-identified in free air before each grasp')
     parser.add_argument('--estimates-only', action='store_true',
                         help='only the object estimates and grip figures')
+    parser.add_argument('--quick', action='store_true',
+                        help='smoke run: two objects, one detection cell, one free plant')
     args = parser.parse_args()
+    if args.quick:
+        args.draws, args.worst_of, args.free = 2, 1, 1
     global CALIBRATE, COMMISSION
     if args.calibrate and args.commission:
         parser.error('--calibrate or --commission, not both')
@@ -298,6 +303,10 @@ def main():
     print(f'grasps that did not reach a settled hold: {len(ended)} {ended if ended else ""}')
     print(f'contacts detected before the true contact: {sum(r["early"] for r in rows)}')
     if args.estimates_only:
+        return 0
+    if args.quick:
+        table_contact(rng, args.error, (0.3,), (1.0,), 0.04, args.worst_of)
+        table_free(rng, args.error, (0.3,), args.free)
         return 0
     for b in (0.04, 0.1):
         table_contact(rng, args.error, (0.05, 0.1, 0.2, 0.3, 0.6, 1.0), (0.2, 1.0, 5.0, 20.0),

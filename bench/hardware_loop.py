@@ -17,6 +17,7 @@ the plant processes and the emulator (at PRIO + 10) under SCHED_FIFO, as a real 
 CPU-burning process per core at normal priority for the whole run.
 
 Usage: source scripts/setup.sh; python bench/hardware_loop.py [--seconds 60] [--rt 40] [--hog]
+       [--quick]   (the two hardware rows, 1 s each after a short settling: a smoke run)
 """
 import argparse
 import os
@@ -30,8 +31,8 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / 'test'))
 sys.path.insert(0, str(ROOT / 'bench'))
 
-from control_loop import (CONFIG, LIB, DiagnosticsListener, _stop, observe,  # noqa: E402
-                          start_hogs)
+from control_loop import (CONFIG, LIB, SETTLE, DiagnosticsListener, _stop,  # noqa: E402
+                          observe, start_hogs)
 
 BUS = ROOT / 'test' / 'data' / 'bus_emulated.yaml'
 
@@ -41,7 +42,7 @@ def measure(argvs, name, seconds, listener):
                                  stdin=subprocess.DEVNULL, start_new_session=True)
              for k, a in argvs.items()}
     try:
-        rows, cpu = observe(procs, listener, name, 5.0, seconds)
+        rows, cpu = observe(procs, listener, name, SETTLE['nodes'] + 1.0, seconds)
     finally:
         _stop(procs.values())
     if len(rows) < 2:
@@ -68,7 +69,12 @@ def main():
                         help='run only these rows')
     parser.add_argument('--hog', action='store_true',
                         help='one CPU-burning process per core (normal priority) meanwhile')
+    parser.add_argument('--quick', action='store_true',
+                        help='smoke run: the hardware rows, 1 s each')
     args = parser.parse_args()
+    if args.quick:
+        args.seconds, args.only = 1.0, args.only or 'hardware'
+        SETTLE.update(nodes=2.0, diagnostics_period=0.2)
     hogs = start_hogs() if args.hog else []
     try:
         run(args)
@@ -91,7 +97,8 @@ def run(args):
         tmp = pathlib.Path(tmp)
         common = ('    pinch.mode: dob_full_ff\n    wrist.mode: dob\n    state_timeout: 1.0\n'
                   '    torque_limit: 5.0\n    pinch.environment.mode: position_sine\n'
-                  '    pinch.environment.amplitude: 0.5\n')
+                  '    pinch.environment.amplitude: 0.5\n'
+                  f'    diagnostics_period: {SETTLE["diagnostics_period"]}\n')
         config = default_config()
         config['channels']['pinch']['environment'] = {
             'mode': 'position_sine', 'amplitude': 0.5, 'frequency': 1.0}

@@ -32,9 +32,13 @@ All |Z| are in dB re 1 N m s/rad. ``design_hold_gains`` scans a
 Run (from the repository root, environment sourced)::
 
     source scripts/setup.sh
-    python bench/hold_gains.py
+    python bench/hold_gains.py [--quick]
+
+``--quick``: a 3 x 3 design grid, delays 1-3 (scanned to 10), |Z| at 3 rad/s only: a smoke
+run whose figures mean nothing.
 """
 
+import argparse
 import collections
 import math
 import sys
@@ -337,11 +341,20 @@ def print_conclusion(designed, yaml_set, sim, analytic, tolerance):
 
 # --- main ---------------------------------------------------------------------
 def main():
+    global DELAYS, MAX_SCAN_DELAY, FREQS, ZW_FREQS
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true",
+                        help="smoke run: a 3 x 3 design grid, delays 1-3, 3 rad/s only")
+    args = parser.parse_args()
+    grids = {}
+    if args.quick:
+        DELAYS, MAX_SCAN_DELAY, FREQS, ZW_FREQS = (1, 2, 3), 10, (3.0,), (3.0,)
+        grids = {"stiffness_grid": (20.0, 60.0, 150.0), "damping_grid": (0.1, 0.3, 0.5)}
     t_start = time.perf_counter()
     plant = PlantParams.table_i()
 
     t0 = time.perf_counter()
-    kp, kd = design_hold_gains(plant, dt=DT, delay=DESIGN_DELAY)
+    kp, kd = design_hold_gains(plant, dt=DT, delay=DESIGN_DELAY, **grids)
     t_design = time.perf_counter() - t0
     designed = GainSet(f"designed {kp:g}/{kd:g}", kp, kd)
     default = GainSet(f"core {DEFAULT_HOLD_STIFFNESS:g}/{DEFAULT_HOLD_DAMPING:g}",

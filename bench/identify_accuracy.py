@@ -17,6 +17,7 @@ made offline with the core simulator and written in 10 s mcap splits; ``identify
 it (wall clock, the executable as a user runs it).
 
     python bench/identify_accuracy.py [--draws 40] [--seed N] [--jobs 2] [--no-soak]
+        [--quick]      (one draw of 30 s, a 30 s soak bag: a smoke run)
 """
 import argparse
 import math
@@ -61,14 +62,14 @@ def hysteresis_report(text):
 
 
 def run_draw(args):
-    seed, i, workdir = args
+    seed, i, workdir, duration = args
     rng = np.random.default_rng([seed, i])
     plant, dahl = draw_family(rng)
-    data = simulate_chirp(plant, dahl, duration=120.0, seed=int(rng.integers(2 ** 31)))
+    data = simulate_chirp(plant, dahl, duration=duration, seed=int(rng.integers(2 ** 31)))
     keep = drop_mask(data["x"].size, 0.01, rng)
     # the decoy: the same simulator, the next draw's plant
     prng = np.random.default_rng([seed, i + 1])
-    decoy = simulate_chirp(*draw_family(prng), duration=120.0, seed=i + 1)
+    decoy = simulate_chirp(*draw_family(prng), duration=duration, seed=i + 1)
     bag = pathlib.Path(workdir) / f"bag_{i}"
     write_bag(bag, ["wrist", "pinch"], {"pinch": data, "wrist": decoy}, keep=keep)
     out = pathlib.Path(workdir) / f"params_{i}.yaml"
@@ -82,11 +83,11 @@ def run_draw(args):
     return i, plant, dahl, got, proc.stdout, wall
 
 
-def accuracy(n, seed, jobs):
-    print(f"=== {n} draws of the family, seed {seed} (independent simulator, 120 s chirp, "
+def accuracy(n, seed, jobs, duration=120.0):
+    print(f"=== {n} draws of the family, seed {seed} (independent simulator, {duration:g} s chirp, "
           "bag with a decoy channel and ~1 % of the cycles lost) ===")
     with tempfile.TemporaryDirectory() as tmp, ProcessPoolExecutor(jobs) as pool:
-        rows = list(pool.map(run_draw, [(seed, i, tmp) for i in range(n)]))
+        rows = list(pool.map(run_draw, [(seed, i, tmp, duration) for i in range(n)]))
     errors = {k: [] for k in KEYS}
     passed = 0
     dahl_err = {"sigma": [], "F_c": []}
@@ -136,7 +137,7 @@ def accuracy(n, seed, jobs):
             print(f"Dahl {name} from the chirp: identified in {a.size}/{m}, |error| median "
                   f"{100 * np.median(a):.1f} %, 95th pct {100 * np.percentile(a, 95):.1f} %, "
                   f"worst {100 * a.max():.1f} %; not identified in {not_identified[name]}")
-    print(f"identify wall time per 120 s bag ({m} runs, {jobs} at a time): median "
+    print(f"identify wall time per {duration:g} s bag ({m} runs, {jobs} at a time): median "
           f"{np.median(walls):.1f} s")
 
 
@@ -175,10 +176,13 @@ def main():
     ap.add_argument("--no-soak", action="store_true")
     ap.add_argument("--no-accuracy", action="store_true")
     ap.add_argument("--keep", help="make the soak bag in this directory and keep it")
+    ap.add_argument("--quick", action="store_true", help="smoke run: one draw, a 30 s bag")
     args = ap.parse_args()
+    if args.quick:
+        args.draws, args.jobs, args.soak_minutes = 1, 1, 0.5
     seed = args.seed if args.seed is not None else int.from_bytes(os.urandom(4), "little")
     if not args.no_accuracy:
-        accuracy(args.draws, seed, args.jobs)
+        accuracy(args.draws, seed, args.jobs, 30.0 if args.quick else 120.0)
     if not args.no_soak:
         if args.keep:
             pathlib.Path(args.keep).mkdir(parents=True, exist_ok=True)

@@ -12,7 +12,8 @@ right, and how far the two conventions' parameters are apart (the largest relati
 of the eight) -- what a wrong choice would cost. Then the time of ``identify_plant`` with one
 convention and with ``auto`` (process time, best of 3).
 
-    python bench/identify_external_force.py [--draws 3] [--durations 30 60 120]
+    python bench/identify_external_force.py [--draws 3] [--durations 30 60 120] [--quick]
+        (--quick: Table I only, 30 s, band top 400 rad/s, timings best of 1: a smoke run)
 """
 import argparse
 import math
@@ -55,9 +56,9 @@ def _records(draws, durations):
         yield "core sim Table I", duration, "held", _series(data)
 
 
-def _cpu(fn):
+def _cpu(fn, repeats=3):
     best = math.inf
-    for _ in range(3):
+    for _ in range(repeats):
         t0 = time.process_time()
         fn()
         best = min(best, time.process_time() - t0)
@@ -69,7 +70,11 @@ def main(argv=None):
     ap.add_argument("--draws", type=int, default=3)
     ap.add_argument("--durations", type=float, nargs="+", default=(30.0, 60.0, 120.0))
     ap.add_argument("--tops", type=float, nargs="+", default=(400.0, 200.0, 100.0, 40.0))
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke run: Table I only, 30 s, band top 400 rad/s")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.draws, args.durations, args.tops = 0, (30.0,), (400.0,)
     print(f"{'record':22s} {'T [s]':>6s} {'truth':>7s} {'top':>5s} {'held':>9s} "
           f"{'instant':>9s} {'ratio':>7s} {'auto':>7s} {'max dp':>7s}")
     ratios = {}
@@ -91,8 +96,9 @@ def main(argv=None):
                   f"{ratio:7.3g} {choice.convention + ('' if choice.clear else '?'):>7s} "
                   f"{100 * dp:6.2f}%", flush=True)
             if timing is None and top == args.tops[0] and duration == max(args.durations):
-                timing = (duration, _cpu(lambda: identify_plant(series, external_force="held")),
-                          _cpu(lambda: identify_plant(series)))
+                repeats = 1 if args.quick else 3
+                timing = (duration, _cpu(lambda: identify_plant(series, external_force="held"),
+                                         repeats), _cpu(lambda: identify_plant(series), repeats))
     print("\nratio wrong/right misfit per band top: min / median / max")
     for top, rs in ratios.items():
         print(f"  0.5-{top:g} rad/s: {min(rs):.3g} / {float(np.median(rs)):.3g} / "
@@ -100,7 +106,8 @@ def main(argv=None):
     if timing:
         d, one, both = timing
         print(f"\nidentify_plant on a {d:.0f} s record: one convention {one:.2f} s, auto "
-              f"{both:.2f} s (process time, best of 3; +{100 * (both / one - 1):.0f} %)")
+              f"{both:.2f} s (process time, best of {1 if args.quick else 3}; "
+              f"+{100 * (both / one - 1):.0f} %)")
 
 
 if __name__ == "__main__":

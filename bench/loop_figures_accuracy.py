@@ -8,7 +8,8 @@ of the estimate's relative error over the seeds against the std of what was adde
 minus clean, quantisation included), and the mean reported 1-sigma. Encoder: the quantum
 found on positions rounded to 2^20, 2^14 and 40,000 counts/rev and unrounded.
 
-    python bench/loop_figures_accuracy.py [--seeds 5] [--orders 4 6 8]
+    python bench/loop_figures_accuracy.py [--seeds 5] [--orders 4 6 8] [--quick]
+        (--quick: one seed, order 4: a smoke run)
 """
 import argparse
 import math
@@ -42,7 +43,10 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--orders", type=int, nargs="+", default=(4, 6, 8))
+    ap.add_argument("--quick", action="store_true", help="smoke run: one seed, order 4")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.seeds, args.orders = 1, (4,)
     t = np.arange(N) * DT
     signals = {"smooth 2+13 Hz": 0.5 * np.sin(2 * math.pi * 2 * t)
                + 0.2 * np.sin(2 * math.pi * 13 * t),

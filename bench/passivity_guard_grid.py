@@ -28,7 +28,9 @@ the guard against the passive ``dob`` (m_n = m, lambda = 2 pi 20), in the bonded
 with the endpoint free, driven by a 0.01 N m torque sine, next to the continuous model
 (:meth:`PlantModel.dob_impedance`).
 
-Run:  PYTHONPATH=. python bench/passivity_guard_grid.py [--quick]
+Run:  PYTHONPATH=. python bench/passivity_guard_grid.py [--inside] [--quick]
+      (--inside: b_n in {0, -k/(2 lambda)} only; --quick: one setting of the grid and one
+      of the gain, a smoke run)
 """
 
 import argparse
@@ -139,9 +141,14 @@ def passive(dob):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--quick", action="store_true", help="b_n in {0, -k/(2 lambda)} only")
+    parser.add_argument("--inside", action="store_true", help="b_n in {0, -k/(2 lambda)} only")
+    parser.add_argument("--quick", action="store_true",
+                        help="smoke run: 20 Hz, m_n 0.5 m, b_n -k/(2 lambda) only")
     args = parser.parse_args()
-    dampings = (0.0, -0.5) if args.quick else (0.0, -0.5, -2.0)
+    dampings = (0.0, -0.5) if args.inside else (0.0, -0.5, -2.0)
+    cutoffs, fractions = (10, 20, 50), (0.1, 0.25, 0.5, 0.75, 1.0)
+    if args.quick:
+        dampings, cutoffs, fractions = (-0.5,), (20,), (0.5,)
     t0 = time.perf_counter()
     envs = ("free", "soft", "stiff", "drive")
     print("DOB grid without / with the passivity guard (Table I, dob mode; verdicts: ok, LC "
@@ -154,9 +161,9 @@ def main():
     print(head)
     print("-" * len(head))
     rows = []
-    for cutoff_hz in (10, 20, 50):
+    for cutoff_hz in cutoffs:
         for damping in dampings:
-            for fraction in (0.1, 0.25, 0.5, 0.75, 1.0):
+            for fraction in fractions:
                 dob = setting(fraction, cutoff_hz, damping)
                 verdicts = {}
                 for guard in ("disabled", "active"):
@@ -180,7 +187,7 @@ def main():
                       + f" | {alpha:.3f}", flush=True)
     print("(* : the response does not repeat with the drive: |Z| of a limit cycle)")
     summary(rows)
-    gain()
+    gain(((20,), (0.5,)) if args.quick else ((20, 50), (0.5, 0.25, 0.1)))
     print(f"\n({time.perf_counter() - t0:.0f} s)")
     return 0
 
@@ -211,7 +218,8 @@ def summary(rows):
         print(f"passive settings (eq. 28 holds): within {max(passive_deltas)[0]:.3f} dB")
 
 
-def gain():
+def gain(settings):
+    """``settings``: (cut-offs [Hz], m_n fractions) of the settings compared."""
     model = PlantModel(PLANT)
     reference = DobParams()          # the passive dob: m_n = m, lambda = 2 pi 20
     print("\nthe gain: |Z| [dB] at 10 / 30 rad/s, m_n below the bound with the guard vs the "
@@ -221,7 +229,7 @@ def gain():
     ref = {}
     for name, dob in [("passive dob", reference)] + [
             (f"{cutoff} Hz, m_n {fraction} m", setting(fraction, cutoff, -0.5))
-            for cutoff in (20, 50) for fraction in (0.5, 0.25, 0.1)]:
+            for cutoff in settings[0] for fraction in settings[1]]:
         zm = frequency_response(model.dob_impedance(dob), [10.0, 30.0])
         guard = "disabled" if name == "passive dob" else "active"
         zb = [driven(dob, guard, w, 8.0)[1] for w in (10.0, 30.0)]

@@ -13,7 +13,8 @@ sample) for ``--seconds``. For each process it prints:
 * the hottest leaf frames (self time) and the hottest project / rclpy functions (total time).
 
 py-spy is in the project's pinned requirements; it needs ptrace rights (root, or
-``kernel.yama.ptrace_scope`` = 0). Usage: ``source scripts/setup.sh; python bench/profile_loop.py``.
+``kernel.yama.ptrace_scope`` = 0). Usage: ``source scripts/setup.sh; python bench/profile_loop.py
+[--seconds 20] [--quick]`` (``--quick``: 1 s after a short settling, a smoke run).
 """
 import argparse
 import collections
@@ -28,7 +29,7 @@ import time
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / 'bench'))
 
-from control_loop import _stop, start_scenario  # noqa: E402
+from control_loop import SETTLE, _stop, start_scenario  # noqa: E402
 
 # Without native frames a sample taken while C/C++ code runs shows the Python line that called
 # into it; these leaves name what that C/C++ code is.
@@ -120,7 +121,11 @@ def main():
     parser.add_argument('--native', action='store_true',
                         help='also native frames (rcl/rmw/Fast DDS); py-spy must then stop '
                              'the process for each sample, which perturbs the loop')
+    parser.add_argument('--quick', action='store_true', help='smoke run: 1 s of samples')
     args = parser.parse_args()
+    settle = SETTLE['nodes'] + 1.0
+    if args.quick:
+        args.seconds, settle = 1.0, 2.0
     pyspy = shutil.which('py-spy') or str(pathlib.Path(sys.executable).parent / 'py-spy')
     if not os.path.exists(pyspy):
         sys.exit('py-spy is missing: run `source scripts/setup.sh` (it is a pinned requirement)')
@@ -132,7 +137,7 @@ def main():
         procs = {'sim': procs['sim'], 'controller': procs['ctl']}
         spies = {}
         try:
-            time.sleep(5.0)
+            time.sleep(settle)
             for name, proc in procs.items():
                 if proc.poll() is not None:
                     sys.exit(f'{name} exited early (code {proc.returncode})')

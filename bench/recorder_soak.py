@@ -12,6 +12,7 @@ cycles missing in the bag (gaps against the sim's own numbering, after the first
 discovery); splits, bag size, recorder CPU and memory; identify wall time and its table.
 
     source scripts/setup.sh && python bench/recorder_soak.py [--duration 600] [--keep DIR]
+        [--quick]      (3 s in 1 s splits: a smoke run; identify refuses so short a record)
 """
 import argparse
 import os
@@ -84,7 +85,10 @@ def main():
     ap.add_argument('--storage', default='mcap', choices=('mcap', 'sqlite3'))
     ap.add_argument('--split', type=float, default=10.0, help='split_duration [s]')
     ap.add_argument('--keep', help='keep the bag in this directory (default: delete)')
+    ap.add_argument('--quick', action='store_true', help='smoke run: 3 s in 1 s splits')
     args = ap.parse_args()
+    if args.quick:
+        args.duration, args.split = 3.0, 1.0
     os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(101, 200)))
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     work = pathlib.Path(tempfile.mkdtemp(prefix='recorder_soak_'))
@@ -148,7 +152,8 @@ def main():
         cyc = rec_data.cycle
         span = int(cyc[-1] - cyc[0] + 1)
         settled = cyc[cyc >= cyc[0] + 2000]
-        missing_settled = int(settled[-1] - settled[0] + 1 - settled.size)
+        missing_settled = (int(settled[-1] - settled[0] + 1 - settled.size) if settled.size
+                           else 0)       # (a record shorter than the discovery second)
         print(f'recorded for {elapsed:.1f} s wall time; bag: {len(splits)} files, '
               f'{size:.1f} MB ({args.storage})')
         for topic, n in sorted(counts.items()):

@@ -6,8 +6,9 @@ repetition, the size of each file, and the wall time of a headless Chromium scre
 page (``/usr/bin/chromium``, the render test's flags). Timing figures are printed, never
 asserted.
 
-Run:  PYTHONPATH=. python bench/report_render.py [--repeats 3] [--out DIR]
-(``--out`` keeps the last report and its screenshot there, for a look.)
+Run:  PYTHONPATH=. python bench/report_render.py [--repeats 3] [--out DIR] [--quick]
+(``--out`` keeps the last report and its screenshot there, for a look; ``--quick``: one
+repetition, a smoke run.)
 """
 import argparse
 import pathlib
@@ -28,7 +29,10 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--repeats', type=int, default=3)
     ap.add_argument('--out', type=pathlib.Path, default=None)
+    ap.add_argument('--quick', action='store_true', help='smoke run: one repetition')
     args = ap.parse_args()
+    if args.quick:
+        args.repeats = 1
     data = example_report()
     with tempfile.TemporaryDirectory() as tmp:
         out = args.out or pathlib.Path(tmp) / 'out'

@@ -18,9 +18,12 @@ identified model) and after, and the CPU time of a tune.
 
 Run (from the repository root, environment sourced)::
 
-    python bench/zwidth_prediction.py [N] [seed]
+    python bench/zwidth_prediction.py [N] [seed] [--quick]
+
+``--quick``: one plant at 10 rad/s and one tune, a smoke run whose figures mean nothing.
 """
 
+import argparse
 import math
 import pathlib
 import sys
@@ -73,9 +76,15 @@ def simulated_delay_limit(plant, dahl, config, max_delay=40):
 
 
 def main():
-    n = int(sys.argv[1]) if len(sys.argv) > 1 else 20
-    rng = np.random.default_rng(int(sys.argv[2]) if len(sys.argv) > 2 else 1)
-    errors = {m: {w: [] for w in OMEGAS} for m in PREDICTED_MODES}
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("n", type=int, nargs="?", default=20, help="random plants")
+    parser.add_argument("seed", type=int, nargs="?", default=1)
+    parser.add_argument("--quick", action="store_true", help="smoke run: one plant, one tune")
+    args = parser.parse_args()
+    n = 1 if args.quick else args.n
+    omegas = (10.0,) if args.quick else OMEGAS
+    rng = np.random.default_rng(args.seed)
+    errors = {m: {w: [] for w in omegas} for m in PREDICTED_MODES}
     limits = []
     cpu_pred = 0.0
     t0 = time.process_time()
@@ -86,11 +95,11 @@ def main():
         modes = PREDICTED_MODES if predicted_limit >= 1 else tuple(
             m for m in PREDICTED_MODES if m != "hold")
         t = time.process_time()
-        pred = predict_modes(true, dahl, config, modes, OMEGAS, amplitude=AMPLITUDE)
+        pred = predict_modes(true, dahl, config, modes, omegas, amplitude=AMPLITUDE)
         cpu_pred += time.process_time() - t
-        meas = simulate_impedance(true, dahl, config, modes, OMEGAS, amplitude=AMPLITUDE)
+        meas = simulate_impedance(true, dahl, config, modes, omegas, amplitude=AMPLITUDE)
         for m in modes:
-            for i, w in enumerate(OMEGAS):
+            for i, w in enumerate(omegas):
                 errors[m][w].append(20 * math.log10(abs(pred[m][i]) / abs(meas[m][i])))
         limits.append((predicted_limit, simulated_delay_limit(true, dahl, config)))
         print(f"case {case + 1}/{n}: hold delay limit predicted {limits[-1][0]}, "
@@ -99,7 +108,7 @@ def main():
           "model 10-20 % off), drive 0.5 rad:")
     print(f"{'mode':16s}{'w':>6s}{'median':>9s}{'p90 |e|':>9s}{'max |e|':>9s}{'<=3 dB':>9s}")
     for m in PREDICTED_MODES:
-        for w in OMEGAS:
+        for w in omegas:
             e = np.asarray(errors[m][w])
             if e.size == 0:
                 continue
@@ -111,8 +120,9 @@ def main():
           f"samples: {dict(zip(*np.unique(diff, return_counts=True)))}; within one sample: "
           f"{sum(abs(d) <= 1 for d in diff)}/{len(diff)}")
     print(f"CPU: {cpu_pred / n * 1e3:.0f} ms per prediction of {len(PREDICTED_MODES)} modes "
-          f"x {len(OMEGAS)} frequencies; whole run {time.process_time() - t0:.0f} s")
-    print_tuning([random_case(np.random.default_rng(100 + i))[:2] for i in range(5)])
+          f"x {len(omegas)} frequencies; whole run {time.process_time() - t0:.0f} s")
+    print_tuning([random_case(np.random.default_rng(100 + i))[:2]
+                  for i in range(1 if args.quick else 5)])
     return 0
 
 

@@ -7,7 +7,8 @@
 # 3. colcon build of msg_defs/ (seaforce_msgs) and this package into install/, with
 #    compat/control_msgs (the gripper actions' interfaces) only when the distribution's
 #    control_msgs cannot be imported (compat/README.md: on a ROS machine it never is built),
-# 4. the environment: install/setup.bash, localhost-only discovery, a ROS_DOMAIN_ID.
+# 4. the environment: install/setup.bash, localhost-only discovery, a ROS_DOMAIN_ID, BLAS on
+#    one thread.
 # Each step is skipped when a stamp of its inputs says nothing changed, so a second run takes
 # a few seconds. SEAFORCE_PYTHON selects the interpreter (default python3.11, else python3).
 
@@ -93,6 +94,10 @@ if _sf_setup; then
   export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
   export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$(( (RANDOM % 100) + 1 ))}"
   export SEAFORCE_ROOT="$_sf_root"
+  # numpy/scipy's BLAS on one thread: the project's matrices are a few rows wide, and on a
+  # busy 2-core host BLAS's threads spend their time waiting for each other (the commissioning
+  # prediction took 7 s instead of 1.3 s beside the tests' nodes)
+  export OPENBLAS_NUM_THREADS="${OPENBLAS_NUM_THREADS:-1}"
   _sf_ok=0
 else
   _sf_ok=1

@@ -12,6 +12,9 @@ sys.path.insert(0, str(ROOT / 'test'))
 # anywhere, and inherited by every process the tests start).
 os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+# numpy's BLAS on one thread here and in every process a test starts (scripts/setup.sh says
+# why; before numpy is first imported)
+os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 
 from helpers.processes import ProcessGroup, stop_leftovers  # noqa: E402
 from ethercat.fixtures import ecat_bus, ecat_emulator, soem_master  # noqa: E402,F401

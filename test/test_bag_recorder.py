@@ -33,6 +33,7 @@ from seaforce_msgs.msg import ActuatorCommand, ActuatorState, ControllerStatus
 
 from helpers.nodes import start_node
 from helpers.processes import ROOT, executable
+from helpers.states import serialized_cycle
 
 from seaforce_ros import bags
 from seaforce_ros.bags.typestore import message_definition
@@ -63,19 +64,11 @@ def bag_dir(tmp_path):
         yield tmp_path / 'bag'
 
 
-def _cycle_of(data):
-    """``cycle`` of a serialised ActuatorState/ActuatorCommand/ControllerStatus (all start
-    with a Header and the uint64 cycle)."""
-    flen = struct.unpack_from('<I', data, 12)[0]
-    pos = 16 + flen
-    pos = 4 + -(-(pos - 4) // 8) * 8
-    return struct.unpack_from('<Q', data, pos)[0]
-
-
 def _witness(probe, msg_type, topic):
     """Cycle numbers seen by an independent subscriber (light: raw messages, no objects)."""
     cycles = []
-    probe.node.create_subscription(msg_type, topic, lambda data: cycles.append(_cycle_of(data)),
+    probe.node.create_subscription(msg_type, topic,
+                                   lambda data: cycles.append(serialized_cycle(data)),
                                    RECORD_QOS, raw=True)
     return cycles
 
@@ -106,7 +99,7 @@ def _bag_cycles(directory):
         'rosbag2_bagfile_information']['relative_file_paths']
     with Reader(directory) as reader:
         for conn, _ts, data in reader.messages():
-            out.setdefault(conn.topic, []).append(_cycle_of(data))
+            out.setdefault(conn.topic, []).append(serialized_cycle(data))
     return out, files
 
 
@@ -246,8 +239,10 @@ def _check_jazzy_metadata(out, n_messages):
 
 
 #: The soak: long enough for many splits (a file closes, metadata.yaml is rewritten and the
-#: next opens while messages arrive) at 2 kHz; bench/recorder_soak.py runs 10 minutes.
-SOAK_TIME, SOAK_SPLIT = 10.5, 1.5
+#: next opens while messages arrive) at 2 kHz; bench/recorder_soak.py runs 10 minutes. It
+#: lasts SOAK_TIME and until a witness has seen SOAK_STATES states (a busy host's real-time
+#: sim publishes fewer than 2000 a second), SOAK_LIMIT at most.
+SOAK_TIME, SOAK_SPLIT, SOAK_STATES, SOAK_LIMIT = 10.5, 1.5, 10500, 60.0
 
 
 def test_records_a_soak_published_equals_received_equals_written(processes, tmp_path, probe,
@@ -260,7 +255,8 @@ def test_records_a_soak_published_equals_received_equals_written(processes, tmp_
     out = bag_dir
     rec = _start_recorder(processes, out, '-p', f'split_duration:={SOAK_SPLIT}')
     t0 = time.monotonic()
-    while time.monotonic() - t0 < SOAK_TIME:
+    while time.monotonic() - t0 < SOAK_TIME or (
+            len(w_state) < SOAK_STATES and time.monotonic() - t0 < SOAK_LIMIT):
         time.sleep(1.0)
         assert rec.popen.poll() is None, rec.output()[-2000:]
     # stop the publishers first (everything they published reaches the recorder), then it
@@ -297,7 +293,7 @@ def test_records_a_soak_published_equals_received_equals_written(processes, tmp_
     print(f'\nrecorded {states.size} states (cycles {states[0]}..{states[-1]}, '
           f'{states[-1] - states[0] + 1 - states.size} missing in the first second), '
           f'counts {counts}, {n_splits} files')
-    assert states.size > 0.5 * SOAK_TIME * 2000, states.size  # the sim's realtime rate, loaded
+    assert states.size > 0.9 * SOAK_STATES, states.size    # (the first second: discovery)
     # command and status: the same messages as an independent subscriber, over the window
     # both were subscribed
     for topic, witness in (('/actuator_command', w_cmd), ('/controller_status', w_status)):
@@ -361,10 +357,11 @@ def test_sigkill_keeps_one_bag_of_the_closed_files_and_the_open_one_is_recovered
     assert len(files) >= 3 and files == [f'bag_{i}{ext}' for i in range(len(files))]
     states = np.array(cycles['/actuator_state'])
     _assert_split_loses_nothing(states, _file_counts(out, files, storage), files)
-    assert states.size > 0.5 * 2000 * split_s * len(files)
     with Reader(out) as reader:
         span_s = [(reader.end_time - reader.start_time) * 1e-9]
-    assert span_s[0] <= 1.1 * split_s * len(files)
+    # the closed files hold their split_s each (their samples: as many as the sim published
+    # meanwhile, every one of them -- above)
+    assert split_s * (len(files) - 1) <= span_s[0] <= 1.1 * split_s * len(files), span_s
     open_file = out / f'bag_{len(files)}{ext}'
     assert open_file.exists()
     # 2. the package's reader: every closed file plus what the open one kept, with a note

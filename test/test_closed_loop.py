@@ -10,7 +10,9 @@ from diagnostic_msgs.msg import DiagnosticArray
 from seaforce_msgs.msg import ActuatorState, ControllerStatus, ActuatorCommand
 from std_srvs.srv import Trigger
 
-from helpers.nodes import start_node
+from helpers.nodes import own_domain, start_node
+from helpers.probe import Probe
+from helpers.processes import ProcessGroup
 from helpers.states import (by_cycle, counted_past, stamp_ns, torque_off_after_commands_stop,
                             value)
 
@@ -19,28 +21,42 @@ DRIVE = {'pinch.environment.mode': 'position_sine', 'pinch.environment.amplitude
 # a loaded 2-core machine delays single samples by 10-20 ms now and then; these tests are
 # about behaviour, not about the stale-state check (which has its own test)
 RELAXED = {'state_timeout': 0.5}
+# tests that are not about real time run the sim in lockstep: one sample per answer, however
+# busy the host (the plant's stamps are wall time: the controller's state_timeout must allow
+# for a state held back by the scheduler)
+LOCKSTEP = {'clock_mode': 'lockstep'}
+LOCKSTEP_CONTROLLER = {'state_timeout': 5.0}
 
 
 def pinch(msg, field):
     return value(msg, 'pinch', field)
 
 
-@pytest.mark.parametrize('executor', ['events', 'single_threaded'])
-def test_mode_change_by_parameter_changes_behaviour(processes, tmp_path, probe, executor):
-    """With either executor the parameter services answer; the first change goes through
-    SetParameters (what `ros2 param set` calls), the second through SetParametersAtomically."""
-    # (a generous command watchdog: a loaded host delays commands now and then, and each
-    # plant-side stop makes hold re-capture its target where the finger is)
-    start_node(processes, 'sim_node', 'sim', tmp_path, {**DRIVE, 'command_timeout': 0.1})
-    start_node(processes, 'controller_node', 'controller', tmp_path,
-               {**RELAXED, 'executor': executor})
+#: The shared lockstep stack: the sim (seed 7, the drive at 0.5 rad) and the controller
+#: (pinch dob_full_ff, wrist dob) as the offline equivalence test needs them from state 0.
+STACK_SIM = {**DRIVE, **LOCKSTEP, 'pinch.environment.amplitude': 0.5, 'seed': 7}
+STACK_CONTROLLER = {**LOCKSTEP_CONTROLLER, 'pinch.mode': 'dob_full_ff', 'wrist.mode': 'dob'}
+
+
+#: states of the shared stack kept from its start (the equivalence test's record)
+FIRST_CYCLES = 3000
+
+
+def _modes_change_behaviour(probe):
+    """The parameter services of the running stack answer and change what the finger feels:
+    passive, then hold through SetParameters (what `ros2 param set` calls), then dob through
+    SetParametersAtomically. ``probe`` records actuator_state."""
     probe.record(ControllerStatus, 'controller_status')
-    probe.record(ActuatorState, 'actuator_state')
-    probe.wait_messages('controller_status', 5)
-    assert pinch(probe.messages('controller_status')[-1], 'mode') == 'passive'
-    # passive: zero torque while the finger is backdriven
-    probe.wait_messages('actuator_state', 200)
-    assert all(pinch(m, 'motor_effort') == 0.0 for m in probe.messages('actuator_state')[-200:])
+    ok, reason = probe.set_parameters('/sim', {'pinch.environment.amplitude': 0.2})
+    assert ok, reason
+    ok, reason = probe.set_parameters('/controller', {'pinch.mode': 'passive'})
+    assert ok, reason
+    passive = probe.wait_messages('controller_status', 1,
+                                  where=lambda m: pinch(m, 'mode') == 'passive')[0].cycle
+    # passive: zero torque while the finger is backdriven (from the cycle after the status
+    # said so: the torque applied in a state is the answer to the one before)
+    states = probe.wait_messages('actuator_state', 200, where=lambda m: m.cycle > passive + 1)
+    assert all(pinch(m, 'motor_effort') == 0.0 for m in states)
 
     ok, reason = probe.set_parameters('/controller', {'pinch.mode': 'hold'}, atomic=False)
     assert ok, reason
@@ -61,38 +77,119 @@ def test_mode_change_by_parameter_changes_behaviour(processes, tmp_path, probe, 
     assert math.isfinite(pinch(st[-1], 'disturbance'))  # the DOB is running
 
 
-def test_environment_changes_at_run_time_and_standard_topics_flow(processes, tmp_path, probe):
-    """The sim's environment is a run-time parameter; joint_states and /diagnostics flow."""
-    from sensor_msgs.msg import JointState
-    start_node(processes, 'sim_node', 'sim', tmp_path)
-    start_node(processes, 'controller_node', 'controller', tmp_path, RELAXED)
+@pytest.fixture(scope='class')
+def stack(tmp_path_factory):
+    """:class:`TestOneLockstepStack`'s sim_node + controller_node (the class's: it runs
+    while its tests do), in a DDS domain of its own, and a probe there recording
+    actuator_state: ``(probe, the states of the first FIRST_CYCLES cycles)``; every process
+    ended by its PID, pass or fail."""
+    domain = own_domain(0)
+    group = ProcessGroup()
+    probe = Probe('probe_closed_loop_stack', domain)
+    try:
+        tmp = tmp_path_factory.mktemp('stack')
+        probe.record(ActuatorState, 'actuator_state')
+        start_node(group, 'sim_node', 'sim', tmp, STACK_SIM, domain=domain)
+        # the sim re-publishes state 0 until a controller answers: the loop seen from its
+        # start (discovery can take seconds on a loaded host)
+        probe.wait_messages('actuator_state', 1, timeout=60, where=lambda m: m.cycle == 0)
+        start_node(group, 'controller_node', 'controller', tmp, STACK_CONTROLLER,
+                   domain=domain)
+        probe.wait_cycle('actuator_state', FIRST_CYCLES, timeout=120)
+        yield probe, [m for m in probe.messages('actuator_state') if m.cycle < FIRST_CYCLES]
+    finally:
+        probe.close()
+        group.stop_all()
+
+
+class TestOneLockstepStack:
+    """The tests that watch a loop and change only what they set first share one lockstep
+    sim_node + controller_node (the class's fixture: it runs while they do)."""
+
+    def test_lockstep_loop_reproduces_offline_simulation(self, stack):
+        """Same config, same seeds: the ROS loop and run_closed_loop give identical samples."""
+        from seaforce_ros.core.controller import ChannelController
+        from seaforce_ros.core.environment import position_sine
+        from seaforce_ros.core.params import ControllerConfig, DahlParams, PlantParams
+        from seaforce_ros.core.simulator import ChannelSimulator, run_closed_loop
+
+        n_cycles = FIRST_CYCLES
+        by_cycle = {}
+        for m in stack[1]:
+            by_cycle.setdefault(m.cycle, m)
+        received = sorted(c for c in by_cycle if c < n_cycles)
+        assert len(received) > 0.9 * n_cycles, len(received)
+
+        plant = PlantParams.table_i()
+        offline = {}
+        for index, (channel, mode, env) in enumerate(
+                [('wrist', 'dob', None), ('pinch', 'dob_full_ff', position_sine(0.5, 1.0))]):
+            sim = ChannelSimulator(plant, dahl=DahlParams(), seed=7 + index, environment=env,
+                                   torque_saturation=20.0)
+            ctrl = ChannelController(ControllerConfig(plant=plant, mode=mode, max_torque=20.0))
+            offline[channel] = run_closed_loop(sim, ctrl, n_cycles)
+        worst = 0.0
+        for channel in ('wrist', 'pinch'):
+            rec = offline[channel]
+            for field, key in (('motor_position', 'x'), ('motor_velocity', 'v'),
+                               ('pressure_force', 'f_p'), ('endpoint_position', 'x_e'),
+                               ('external_force', 'f_e'), ('motor_effort', 'f_a')):
+                ros = np.array([value(by_cycle[c], channel, field) for c in received])
+                ref = np.asarray(rec[key])[np.array(received)]
+                diff = np.max(np.abs(ros - ref))
+                worst = max(worst, diff)
+                assert diff <= 1e-9, (channel, field, diff)
+        # the drive really moved the finger and the controller really acted
+        xe = np.array([pinch(by_cycle[c], 'endpoint_position') for c in received])
+        assert np.ptp(xe) > 0.2
+
+    def test_mode_change_by_parameter_changes_behaviour_events_executor(self, stack):
+        """The default executor (events, spun so that services answer)."""
+        _modes_change_behaviour(stack[0])
+
+    def test_environment_changes_at_run_time_and_standard_topics_flow(self, stack):
+        """The sim's environment is a run-time parameter; joint_states and /diagnostics flow."""
+        from sensor_msgs.msg import JointState
+        probe = stack[0]
+        probe.record(JointState, 'joint_states')
+        probe.record(DiagnosticArray, '/diagnostics')
+        ok, reason = probe.set_parameters('/sim', {'pinch.environment.mode': 'free'})
+        assert ok, reason
+        free = probe.messages('actuator_state')[-1].cycle + 200     # the change is in by then
+        states = probe.wait_messages('actuator_state', 100, where=lambda m: m.cycle > free)
+        assert all(pinch(m, 'external_force') == 0.0 for m in states)
+        ok, reason = probe.set_parameters('/sim', {'pinch.environment.mode': 'torque_sine',
+                                                   'pinch.environment.amplitude': 0.3,
+                                                   'pinch.environment.frequency': 10.0})
+        assert ok, reason
+        moved = probe.wait_messages('actuator_state', 1, where=lambda m: abs(
+            pinch(m, 'external_force')) > 0.1)
+        assert abs(pinch(moved[-1], 'external_force')) <= 0.3
+        # a bad environment value is rejected by the descriptor range / choices
+        ok, reason = probe.set_parameters('/sim', {'pinch.environment.mode': 'earthquake'})
+        assert not ok and 'one of' in reason
+        js = probe.wait_messages('joint_states', 3)[-1]
+        assert list(js.name) == ['wrist_motor', 'wrist_endpoint', 'pinch_motor', 'pinch_endpoint']
+        assert len(js.position) == len(js.velocity) == len(js.effort) == 4
+        assert all(math.isfinite(v) for v in (*js.position, *js.velocity, *js.effort))
+        # the torque-driven pinch finger moves: its endpoint effort is the external torque
+        moving = probe.wait_messages('joint_states', 1, where=lambda j: abs(j.effort[3]) > 0.05)
+        assert abs(moving[-1].effort[3]) <= 0.3
+        diag = probe.wait_messages('/diagnostics', 1, timeout=5, where=lambda d: any(
+            s.name == 'sim: cycle' for s in d.status))[-1]
+        keys = {kv.key for s in diag.status if s.name == 'sim: cycle' for kv in s.values}
+        assert {'rate_hz', 'period_p99_ms', 'missed_deadlines', 'command_timeouts',
+                'round_trip_p50_ms'} <= keys
+
+
+def test_mode_change_by_parameter_changes_behaviour_single_threaded_executor(
+        processes, tmp_path, probe):
+    """The single-threaded executor (read-only: a controller of its own)."""
+    start_node(processes, 'sim_node', 'sim', tmp_path, {**DRIVE, **LOCKSTEP})
+    start_node(processes, 'controller_node', 'controller', tmp_path,
+               {**LOCKSTEP_CONTROLLER, 'executor': 'single_threaded'})
     probe.record(ActuatorState, 'actuator_state')
-    probe.record(JointState, 'joint_states')
-    probe.record(DiagnosticArray, '/diagnostics')
-    probe.wait_messages('actuator_state', 100)
-    assert all(pinch(m, 'external_force') == 0.0 for m in probe.messages('actuator_state'))
-    ok, reason = probe.set_parameters('/sim', {'pinch.environment.mode': 'torque_sine',
-                                               'pinch.environment.amplitude': 0.3,
-                                               'pinch.environment.frequency': 10.0})
-    assert ok, reason
-    moved = probe.wait_messages('actuator_state', 1, where=lambda m: abs(
-        pinch(m, 'external_force')) > 0.1)
-    assert abs(pinch(moved[-1], 'external_force')) <= 0.3
-    # a bad environment value is rejected by the descriptor range / choices
-    ok, reason = probe.set_parameters('/sim', {'pinch.environment.mode': 'earthquake'})
-    assert not ok and 'one of' in reason
-    js = probe.wait_messages('joint_states', 3)[-1]
-    assert list(js.name) == ['wrist_motor', 'wrist_endpoint', 'pinch_motor', 'pinch_endpoint']
-    assert len(js.position) == len(js.velocity) == len(js.effort) == 4
-    assert all(math.isfinite(v) for v in (*js.position, *js.velocity, *js.effort))
-    # the torque-driven pinch finger moves: its endpoint effort is the external torque
-    moving = probe.wait_messages('joint_states', 1, where=lambda j: abs(j.effort[3]) > 0.05)
-    assert abs(moving[-1].effort[3]) <= 0.3
-    diag = probe.wait_messages('/diagnostics', 1, timeout=5, where=lambda d: any(
-        s.name == 'sim: cycle' for s in d.status))[-1]
-    keys = {kv.key for s in diag.status if s.name == 'sim: cycle' for kv in s.values}
-    assert {'rate_hz', 'period_p99_ms', 'missed_deadlines', 'command_timeouts',
-            'round_trip_p50_ms'} <= keys
+    _modes_change_behaviour(probe)
 
 
 def test_non_passive_dob_is_rejected_with_reason_and_old_values_stay(processes, tmp_path, probe):
@@ -223,53 +320,3 @@ def test_nan_state_latches_fault_until_reset(processes, tmp_path, probe):
     send(0.04, n=5)
     probe.wait_for(lambda: last_answer().cycle == cycle[0], what='answer after reset')
     assert pinch(last_answer(), 'effort') < -0.1
-
-
-def test_lockstep_loop_reproduces_offline_simulation(processes, tmp_path, probe):
-    """Same config, same seeds: the ROS loop and run_closed_loop give identical samples."""
-    from seaforce_ros.core.controller import ChannelController
-    from seaforce_ros.core.environment import position_sine
-    from seaforce_ros.core.params import ControllerConfig, DahlParams, PlantParams
-    from seaforce_ros.core.simulator import ChannelSimulator, run_closed_loop
-
-    n_cycles = 3000
-    probe.record(ActuatorState, 'actuator_state')
-    start_node(processes, 'sim_node', 'sim', tmp_path,
-               {**DRIVE, 'pinch.environment.amplitude': 0.5, 'clock_mode': 'lockstep',
-                'seed': 7})
-    # the sim re-publishes state 0 until a controller answers: make sure we see the loop from
-    # its start (discovery can take seconds on a loaded host)
-    probe.wait_messages('actuator_state', 1, timeout=60, where=lambda m: m.cycle == 0)
-    start_node(processes, 'controller_node', 'controller', tmp_path,
-               {'pinch.mode': 'dob_full_ff', 'wrist.mode': 'dob', 'state_timeout': 5.0})
-    probe.wait_messages('actuator_state', 1, timeout=120,
-                        where=lambda m: m.cycle >= n_cycles)
-    by_cycle = {}
-    for m in probe.messages('actuator_state'):
-        by_cycle.setdefault(m.cycle, m)
-    received = sorted(c for c in by_cycle if c < n_cycles)
-    assert len(received) > 0.9 * n_cycles, len(received)
-
-    plant = PlantParams.table_i()
-    offline = {}
-    for index, (channel, mode, env) in enumerate(
-            [('wrist', 'dob', None), ('pinch', 'dob_full_ff', position_sine(0.5, 1.0))]):
-        sim = ChannelSimulator(plant, dahl=DahlParams(), seed=7 + index, environment=env,
-                               torque_saturation=20.0)
-        ctrl = ChannelController(ControllerConfig(plant=plant, mode=mode, max_torque=20.0))
-        offline[channel] = run_closed_loop(sim, ctrl, n_cycles)
-    worst = 0.0
-    for channel in ('wrist', 'pinch'):
-        rec = offline[channel]
-        for field, key in (('motor_position', 'x'), ('motor_velocity', 'v'),
-                           ('pressure_force', 'f_p'), ('endpoint_position', 'x_e'),
-                           ('external_force', 'f_e'), ('motor_effort', 'f_a')):
-            ros = np.array([getattr(by_cycle[c], field)[list(by_cycle[c].name).index(channel)]
-                            for c in received])
-            ref = np.asarray(rec[key])[np.array(received) ]
-            diff = np.max(np.abs(ros - ref))
-            worst = max(worst, diff)
-            assert diff <= 1e-9, (channel, field, diff)
-    # the drive really moved the finger and the controller really acted
-    xe = np.array([pinch(by_cycle[c], 'endpoint_position') for c in received])
-    assert np.ptp(xe) > 0.2

@@ -76,6 +76,7 @@ def test_commission_over_ros(processes, tmp_path, probe):
     start_node(processes, 'sim_node', 'sim', tmp_path, {
         'clock_mode': 'lockstep', **{f'pinch.sim.{k}': v for k, v in truth.items()}})
     probe.wait_messages('actuator_state', 1, timeout=60, where=lambda m: m.cycle == 0)
+    probe.stop_recording('actuator_state')      # the commands say where the loop is
     start_node(processes, 'controller_node', 'controller', tmp_path, {
         'state_timeout': 5.0, 'commissioning.directory': str(runs), **EXCITATION,
         'pinch.mode': 'passive', 'wrist.mode': 'force', 'wrist.target.force': 2.0,
@@ -130,7 +131,7 @@ def test_commission_over_ros(processes, tmp_path, probe):
     assert any(abs(e) > 1e-3 for _, e in _efforts_after(probe, 0, pinch)), 'no excitation'
     answer = client.cancel(handle)
     assert answer.status == GoalStatus.STATUS_CANCELED, answer.result.message
-    ended = probe.messages('actuator_state')[-1].cycle
+    ended = probe.messages('actuator_command')[-1].cycle
     probe.wait_messages('actuator_command', 200, timeout=60, where=lambda m: m.cycle > ended)
     after = _efforts_after(probe, ended, pinch)
     assert after and all(e == 0.0 for _, e in after), after[:5]
@@ -192,7 +193,7 @@ def test_commission_over_ros(processes, tmp_path, probe):
     params = probe.get_parameters('/controller', [f'pinch.{k}' for k in names])
     for key, new in zip(names, result.new_values):
         assert params[f'pinch.{key}'] == new, key
-    done = probe.messages('actuator_state')[-1].cycle
+    done = probe.messages('actuator_command')[-1].cycle
     probe.wait_messages('actuator_command', 400, timeout=60, where=lambda m: m.cycle > done)
     efforts = np.array([e for _, e in _efforts_after(probe, done - 400, pinch)])
     assert np.all(np.isfinite(efforts)) and np.max(np.abs(efforts)) < 0.2, efforts

@@ -33,7 +33,7 @@ def test_impedance_and_chirp_modes_over_ros(processes, tmp_path, probe):
                 'wrist.mode': 'chirp', 'wrist.chirp.amplitude': 0.2,
                 'wrist.chirp.start_frequency': 1.0, 'wrist.chirp.end_frequency': 100.0,
                 'wrist.chirp.duration': 2.0})
-    probe.wait_messages('actuator_state', 1, timeout=180, where=lambda m: m.cycle >= n_cycles)
+    probe.wait_cycle('actuator_state', n_cycles, timeout=180)
     by_cycle = {}
     for m in probe.messages('actuator_state'):
         by_cycle.setdefault(m.cycle, m)

@@ -111,7 +111,7 @@ def test_calibrate_friction_after_a_random_drift(processes, tmp_path, probe):
     switched = probe.wait_messages('actuator_state', 1, where=lambda m: m.cycle > start)
     first = switched[-1].cycle + int(SETTLE / DT) + 200
     last = first + int(2.0 * math.pi / DT)
-    probe.wait_messages('actuator_state', 1, timeout=120, where=lambda m: m.cycle >= last)
+    probe.wait_cycle('actuator_state', last, timeout=120)
     msgs = [m for m in by_cycle(probe.messages('actuator_state')) if first <= m.cycle <= last]
     assert len(msgs) > 0.9 * (last - first), 'too many states lost to measure |Z|'
     cycles = np.array([m.cycle for m in msgs], float)

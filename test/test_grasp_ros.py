@@ -68,7 +68,8 @@ def draw_objects(rng, n):
 
 
 def wait_cycle(probe, topic, cycle, timeout=120.0):
-    return probe.wait_messages(topic, 1, timeout=timeout, where=lambda m: m.cycle >= cycle)
+    probe.wait_cycle(topic, cycle, timeout)
+    return [m for m in probe.messages(topic) if m.cycle >= cycle]
 
 
 def _grasp_once(probe, client, obj, where):
@@ -270,7 +271,7 @@ def test_rejections_cancel_and_faults_in_the_direct_layout(processes, tmp_path, 
     assert answer.result.message == 'released (goal canceled)'
     back = probe.wait_messages('controller_status', 1, where=lambda m: value(
         m, 'pinch', 'grasp_phase') == '' and value(m, 'pinch', 'mode') == 'hold')[-1].cycle
-    probe.wait_messages('actuator_state', 1, where=lambda m: m.cycle > back + 2000)
+    probe.wait_cycle('actuator_state', back + 2001)
     after = [value(m, 'pinch', 'motor_effort') for m in probe.messages('actuator_state')
              if m.cycle > back]
     assert max(abs(e) for e in after) < 0.15 * grip_torque
@@ -287,7 +288,7 @@ def test_rejections_cancel_and_faults_in_the_direct_layout(processes, tmp_path, 
     assert answer.result.message.startswith('fault latched: torque'), answer.result.message
     faulted = probe.wait_messages('controller_status', 1, where=lambda m: value(
         m, 'pinch', 'fault') != '')[-1].cycle
-    probe.wait_messages('actuator_state', 1, where=lambda m: m.cycle > faulted + 100)
+    probe.wait_cycle('actuator_state', faulted + 101)
     assert all(value(m, 'pinch', 'motor_effort') == 0.0
                for m in probe.messages('actuator_state') if m.cycle > faulted + 5)
 

@@ -45,12 +45,13 @@ from ..commissioning.analyse import backdrive_amplitude
 from ..commissioning.tuning import contact_damping_within
 from ..core.plant_cycle import STATUS_FAULT
 from .common import (CHANNEL, DT, drawn_plant, prepare, run_action, run_guarded,
-                     set_parameters)
+                     set_parameters, wait_until)
 from .impedance import Observer, measure, status_note
 
 MODES = ('passive', 'hold', 'dob', 'dob_linear_ff', 'dob_full_ff', 'impedance')
 SETTLE = 1.0            # s of drive before a mode's measured period
 ATTEMPTS = 3            # measurements of a mode at most when the recorded states have gaps
+RELEASE_TIME = 10.0     # s of the loop's time at most for the released finger to read free
 COMMISSION_TIMEOUT = 600.0
 #: The drive's amplitude at omega [rad]: min(0.5, 0.5/omega), as the rms predictions'
 amplitude = backdrive_amplitude
@@ -163,23 +164,23 @@ def reset_plant(observer, targets=('/sim/reset', '/controller/reset')) -> None:
 
 def release(observer, children) -> None:
     """Passive, the drive off, and wait until the contact estimator has seen 1 s free -- at
-    most 10 s: with the model this far off, the drive's contact can stand at rest (the model's
-    error times the finger's deflection), and ``~/commission`` takes a contact that stands
-    with the finger still for its ``STANDING_TIME`` for the model's error (the excitation's
-    contact test aborts at a real one); a goal it turns away says why."""
+    most :data:`RELEASE_TIME` of the loop's time (cycles: a busy host slows a lockstep loop,
+    not what it does): with the model this far off, the drive's contact can stand at rest (the
+    model's error times the finger's deflection), and ``~/commission`` takes a contact that
+    stands with the finger still for its ``STANDING_TIME`` for the model's error (the
+    excitation's contact test aborts at a real one); a goal it turns away says why."""
     observer.set_mode('passive')
     set_parameters(observer.node, '/sim', {f'{CHANNEL}.environment.mode': 'free'})
     if observer.latest_fault():
         # a latched fall-back turns the commissioning goal away: clear it first
         reset_plant(observer, ('/controller/reset',))
-    deadline = time.monotonic() + 10.0
-    while not observer.free_for(int(round(1.0 / DT))):
-        children.check()
-        if time.monotonic() > deadline:
-            print('[commission] the contact estimator still reports a contact with the finger '
-                  'released (the model\'s error at rest)', flush=True)
-            return
-        time.sleep(0.1)
+    free = int(round(1.0 / DT))
+    limit = (observer.latest_cycle() or 0) + int(round(RELEASE_TIME / DT))
+    wait_until(children, lambda: observer.free_for(free) or (observer.latest_cycle() or 0)
+               >= limit, math.inf, 'the released finger', poll=0.1)
+    if not observer.free_for(free):
+        print('[commission] the contact estimator still reports a contact with the finger '
+              'released (the model\'s error at rest)', flush=True)
 
 
 def commission(observer, children):

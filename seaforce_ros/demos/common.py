@@ -21,6 +21,8 @@ PLANT_KEYS = ('motor_inertia', 'motor_damping', 'motor_stiffness', 'endpoint_ine
 FRICTION_LABELS = ('b_e [N m s/rad]', 'k_e [N m/rad]', 'F_c [N m]', 'sigma [N m/rad]')
 CALIBRATION_ATTEMPTS = 3
 CALIBRATION_STATE_TIMEOUT = 0.25   # s, controller state_timeout while calibrating
+#: s for a node to answer a parameter request: a busy host held a sim's answer back 20 s
+SERVICE_TIMEOUT = 60.0
 
 
 def prepare(out):
@@ -107,7 +109,7 @@ def run_guarded(label, out, work):
         children.stop_all()
 
 
-def set_parameters(node, target, values, timeout=20.0, atomically=False):
+def set_parameters(node, target, values, timeout=SERVICE_TIMEOUT, atomically=False):
     """Set ``values`` (name -> value) on ``target``'s node, all or none if ``atomically``;
     RuntimeError with the node's reason if it refuses or does not answer."""
     from rclpy.parameter import Parameter
@@ -129,7 +131,7 @@ def set_parameters(node, target, values, timeout=20.0, atomically=False):
         raise RuntimeError(f'{target} rejected {list(values)}: {failed[0]}')
 
 
-def get_parameter(node, target, name, timeout=20.0):
+def get_parameter(node, target, name, timeout=SERVICE_TIMEOUT):
     from rclpy.parameter import parameter_value_to_python
     from rclpy.parameter_client import AsyncParameterClient
 
@@ -152,10 +154,13 @@ def run_friction_calibration(observer, children, args):
     node = observer.node
     # held where the drive left it, then released (in dob_full_ff a model that
     # over-compensates k_e lets the free finger creep away, out of the joint range); a
-    # longer state_timeout while it runs: a loaded host's real-time loop stalls now and then,
-    # and a stall aborts a calibration (zero torque, nothing applied)
+    # longer state_timeout while it runs (never a shorter one: a lockstep loop has a long
+    # one): a loaded host's real-time loop stalls now and then, and a stall aborts a
+    # calibration (zero torque, nothing applied)
+    state_timeout = max(CALIBRATION_STATE_TIMEOUT,
+                        get_parameter(node, '/controller', 'state_timeout'))
     set_parameters(node, '/controller', {
-        f'{CHANNEL}.mode': 'hold', 'state_timeout': CALIBRATION_STATE_TIMEOUT,
+        f'{CHANNEL}.mode': 'hold', 'state_timeout': state_timeout,
         f'{CHANNEL}.friction.calibration_duration': float(args.calibration_time)})
     set_parameters(node, '/sim', {f'{CHANNEL}.environment.mode': 'free'})
     time.sleep(0.5)                                  # the released finger settles

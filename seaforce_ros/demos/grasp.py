@@ -27,9 +27,9 @@ import time
 import numpy as np
 import yaml
 
-from .common import (CHANNEL, DT, PLANT_KEYS, get_parameter, prepare, print_calibration,
-                     run_friction_calibration, run_guarded, set_parameters, true_plant,
-                     wait_until)
+from .common import (CHANNEL, DT, PLANT_KEYS, SERVICE_TIMEOUT, get_parameter, prepare,
+                     print_calibration, run_friction_calibration, run_guarded, set_parameters,
+                     true_plant, wait_until)
 
 #: name, stiffness k_o [N m/rad], damping b_o [N m s/rad]
 OBJECTS = (('soft', 0.5, 0.05), ('medium', 3.0, 0.06), ('stiff', 12.0, 0.08))
@@ -81,7 +81,7 @@ class Observer:
         wait_until(children, lambda: (self.latest()[0] or 0) >= cycle, timeout,
                    f'the simulation did not reach cycle {cycle}')
 
-    def set_sim(self, values, timeout=20.0):
+    def set_sim(self, values, timeout=SERVICE_TIMEOUT):
         """The sim's parameters ``values``, all at once (an object moves with its spring)."""
         set_parameters(self.node, '/sim', values, timeout, atomically=True)
 

@@ -47,7 +47,7 @@ import numpy as np
 
 from ..core.plant_cycle import STATUS_COMMAND_TIMEOUT, STATUS_FAULT, STATUS_LIMIT
 from ..identification.zwidth_lib import DEFAULT_MODES as MODES  # the paper's Fig. 5 modes
-from .common import (CHANNEL, DT, get_parameter, prepare, print_calibration,
+from .common import (CHANNEL, DT, SERVICE_TIMEOUT, get_parameter, prepare, print_calibration,
                      run_friction_calibration, run_guarded, set_parameters, true_plant,
                      wait_until)
 
@@ -146,7 +146,7 @@ class Observer:
         self.set_mode(mode)
         return self.wait_mode(mode, before, children, timeout)
 
-    def set_mode(self, mode, timeout=20.0):
+    def set_mode(self, mode, timeout=SERVICE_TIMEOUT):
         from rclpy.parameter import Parameter
         from rclpy.parameter_client import AsyncParameterClient
 
@@ -266,14 +266,17 @@ def main(argv=None):
         f'    {CHANNEL}.environment.mode: position_sine\n'
         f'    {CHANNEL}.environment.amplitude: {args.amplitude}\n'
         f'    {CHANNEL}.environment.frequency: {args.frequency}\n'
-        + ''.join(f'    {key}: {v!r}\n' for key, v in model_error(args).items()))
+        + ''.join(f'    {key}: {v!r}\n' for key, v in model_error(args).items())
+        # lockstep: the stamps are the plant's wall time, and a busy host can hold a state
+        # back longer than the real-time loop's 50 ms without the loop losing a step
+        + ('controller:\n  ros__parameters:\n    state_timeout: 5.0\n' if args.lockstep
+           else ''))
     period_cycles = int(math.ceil(2 * math.pi / args.frequency / DT)) + 1
 
     def work(children):
         for name in ('sim_node', 'controller_node'):
-            argv_node = [str(lib / name), '--ros-args', '--params-file', str(config)]
-            if name == 'sim_node':
-                argv_node += ['--params-file', str(overrides)]
+            argv_node = [str(lib / name), '--ros-args', '--params-file', str(config),
+                         '--params-file', str(overrides)]
             children.start(argv_node, name)
         observer = Observer()
         children.observers.append(observer)

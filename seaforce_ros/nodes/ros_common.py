@@ -462,12 +462,13 @@ class BackgroundNode:
     and shuts the context down.
     """
 
-    def __init__(self, name: str):
+    def __init__(self, name: str, domain_id: Optional[int] = None):
+        """``domain_id``: the DDS domain (default: ``ROS_DOMAIN_ID``'s)."""
         from rclpy.context import Context
         from rclpy.experimental import EventsExecutor
 
         self.context = Context()
-        rclpy.init(context=self.context)
+        rclpy.init(context=self.context, domain_id=domain_id)
         self.node = rclpy.create_node(name, context=self.context)
         self.executor = EventsExecutor(context=self.context)
         self.executor.add_node(self.node)

@@ -127,6 +127,9 @@ def _family_draw(seed, i):
     return plant, dahl, errors(result, plant, dahl)
 
 
+# 40 fits of ~1.4 s CPU, two at a time: beside a CPU-burning process per core and other work
+# the suite's 300 s guard is too short
+@pytest.mark.timeout(900)
 def test_randomised_family_meets_the_goals():
     seed = int(os.environ.get("SEAFORCE_FREEAIR_SEED", np.random.SeedSequence().entropy % 2 ** 32))
     print(f"SEAFORCE_FREEAIR_SEED={seed}")

@@ -141,3 +141,19 @@ def test_a_cancel_before_the_child_starts_starts_none(tmp_path):
     gate.set()
     _wait(proc)
     assert (proc.outcome, proc.message, proc.pid) == ('canceled', 'canceled early', None)
+
+
+@pytest.mark.parametrize('user, seen', [(None, '1'), ('3', '3')])
+def test_the_child_runs_blas_on_one_thread_unless_told(tmp_path, monkeypatch, user, seen):
+    """The analysis' matrices are small: BLAS threads on a busy 2-core host only wait for each
+    other. The child gets OPENBLAS_NUM_THREADS=1, a count the user set is kept."""
+    if user is None:
+        monkeypatch.delenv('OPENBLAS_NUM_THREADS', raising=False)
+    else:
+        monkeypatch.setenv('OPENBLAS_NUM_THREADS', user)
+    argv = _child(tmp_path, 'import os\n'
+                            'say(result={"threads": os.environ.get("OPENBLAS_NUM_THREADS")})\n')
+    proc = AnalysisProcess(argv, tmp_path / 'log.txt')
+    _wait(proc)
+    assert proc.outcome == 'succeeded', proc.message
+    assert proc.result == {'threads': seen}

@@ -6,7 +6,17 @@ from rclpy.action import ActionClient
 from seaforce_msgs.action import CalibrateFriction
 
 
-def wait_future(future, timeout, what):
+#: s the probe's spin thread may take to run a request (a busy host's backlog of 2 kHz
+#: messages in front of it took more than 10 s)
+CALL_TIMEOUT = 60.0
+
+
+def wait_future(future, timeout, what, probe=None):
+    """The future's result; AssertionError after ``timeout`` s -- with a ``probe``, s of its
+    clock (:meth:`~helpers.probe.Probe.wait_for`: wall time and the loop's time)."""
+    if probe is not None:
+        probe.wait_for(future.done, timeout, what)
+        return future.result()
     deadline = time.monotonic() + timeout
     while not future.done():
         assert time.monotonic() < deadline, f'no {what} within {timeout} s'
@@ -21,7 +31,7 @@ class ActionTestClient:
     before rclpy registers the future waiting for it, and is dropped."""
 
     def __init__(self, probe, action_type, name):
-        self._call = probe.background.call
+        self.probe = probe
         self.action_type = action_type
         self.client = ActionClient(probe.node, action_type, name)
         assert self.client.wait_for_server(timeout_sec=30.0)
@@ -29,20 +39,23 @@ class ActionTestClient:
     def goal(self, **fields):
         raise NotImplementedError
 
+    def _call(self, request):
+        return self.probe.background.call(request, timeout=CALL_TIMEOUT)
+
     def send(self, **fields):
         feedback = []
         goal = self.goal(**fields)
         handle = wait_future(self._call(lambda: self.client.send_goal_async(
             goal, feedback_callback=lambda m: feedback.append(m.feedback))),
-            30.0, 'goal answer')
+            30.0, 'goal answer', self.probe)
         assert handle.accepted
         return handle, feedback
 
     def result(self, handle, timeout=30.0):
-        return wait_future(self._call(handle.get_result_async), timeout, 'result')
+        return wait_future(self._call(handle.get_result_async), timeout, 'result', self.probe)
 
     def cancel(self, handle, timeout=30.0):
-        wait_future(self._call(handle.cancel_goal_async), timeout, 'cancel answer')
+        wait_future(self._call(handle.cancel_goal_async), timeout, 'cancel answer', self.probe)
         return self.result(handle, timeout)
 
     def rejected(self, **fields):

@@ -1,8 +1,25 @@
 """Reading recorded ActuatorState messages in tests."""
+import struct
 from typing import Iterable, List
 
 import numpy as np
 from seaforce_msgs.msg import ActuatorState
+
+
+def serialized_cycle(data: bytes) -> int:
+    """``cycle`` of a serialised ActuatorState/ActuatorCommand/ControllerStatus (all start
+    with a Header and the uint64 cycle): read from the CDR bytes, no message built."""
+    flen = struct.unpack_from('<I', data, 12)[0]
+    pos = 16 + flen
+    pos = 4 + -(-(pos - 4) // 8) * 8
+    return struct.unpack_from('<Q', data, pos)[0]
+
+
+def has_cycle(msg_type) -> bool:
+    """Whether ``msg_type`` starts with a Header and the uint64 cycle
+    (:func:`serialized_cycle` reads it)."""
+    fields = list(getattr(msg_type, 'get_fields_and_field_types', dict)())
+    return fields[:2] == ['header', 'cycle']
 
 
 def value(msg, channel: str, field: str):

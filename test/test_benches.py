@@ -1,0 +1,124 @@
+"""Every benchmark in ``bench/`` runs in its ``--quick`` form and prints its figures.
+
+The benchmarks pass or fail nothing (their figures are in the docs); this only proves each one
+still runs end to end -- imports, command line, the nodes or the emulator it starts, its tables
+-- in a few seconds: a short run of every row it prints, the figures meaningless (three run at
+once, each in its own DDS domain). Per script:
+exit 0, no traceback, and the lines that carry its figures, with numbers in them. A script
+added to ``bench/`` without an entry here fails :func:`test_every_bench_has_a_smoke_run`.
+"""
+import os
+import re
+import sys
+from concurrent.futures import ThreadPoolExecutor
+
+import pytest
+
+from helpers.nodes import domain_env, own_domain
+from helpers.processes import ROOT, ProcessGroup
+
+BENCH = ROOT / 'bench'
+NUM = r'-?\d+\.?\d*'
+#: (arguments after the script, regular expressions its output must match (multiline))
+SMOKE = {
+    'commissioning_excitation.py': [
+        ((), [rf'^\s+0\s+(succeeded|aborted)\s+{NUM}\s+{NUM}',
+              rf'^FreeAirExcitation\.update per sample \[us\]: mean {NUM}'])],
+    'control_loop.py': [
+        ((), [rf'^{row}\s+events\s+reliable\s+2000\s+\d+\s+{NUM}%\s+{NUM}\s+{NUM}\s+{NUM}'
+              for row in ('direct rt', 'bare echo', 'nodes')])],
+    'core_impedance_table.py': [
+        ((), [rf'^dob_full_ff\s+{NUM}$', rf'^\s+3\.0 rad/s:\s+{NUM} dB\s+\(with \+20% model '
+              rf'error:\s+{NUM} dB\)'])],
+    'core_sim_speed.py': [
+        ((), [rf'ChannelController\.update\s+mean\s+{NUM} us',
+              rf'run_closed_loop\s+{NUM} s', rf'ContactEstimator\.update\s+mean\s+{NUM} us',
+              rf'PassivityGuard\.update\s+mean\s+{NUM} us']),
+        (('--baseline', 'HEAD'), [
+            rf'^ChannelSimulator\.step \(same code: noise\)\s+{NUM}\s+{NUM}',
+            r'^\s+after\s+N = [1-9]\d*: \d+ B'])],
+    'ethercat_cycle.py': [
+        ((), [rf'achieved rate\s+{NUM} Hz', r'emulator\s+[1-9]\d* process frames served'])],
+    'free_air_identification.py': [
+        ((), [r'^all ten within their goals: \d/2', rf'fit CPU time per record: median {NUM} s'])],
+    'friction_drift.py': [
+        ((), [rf'^\s+recalibrated\s+{NUM}$', rf'^\s+calibration running\s+mean\s+{NUM}'])],
+    'grasp_accuracy.py': [
+        ((), [r'^grip force error in a settled hold: max',
+              rf'^\s+0\.30\s+{NUM} \(\s*{NUM}\) / {NUM}',
+              rf'^\s+0\.30\s+\d+\s+{NUM} - {NUM}\s+{NUM}$'])],
+    'gripper_actions.py': [
+        ((), [rf'^contact -> result \[cycles\]\s+{NUM}\s+{NUM}', rf'^rejected \[ms\]\s+{NUM}'])],
+    'hardware_loop.py': [
+        ((), [rf'^hardware {layout}\s+\d+\s+{NUM}\s+{NUM}' for layout in ('topics', 'direct')])],
+    'hold_gains.py': [
+        ((), [r'^Conclusion$', rf'designed {NUM}/{NUM}:\s+3 rad/s\s+{NUM}'])],
+    'identify_accuracy.py': [
+        ((), [rf'^\s+0\s+[-+]{NUM}%', rf'identify on the 0\.5-minute bag: {NUM} s wall'])],
+    'identify_external_force.py': [
+        ((), [rf'^core sim Table I\s+30\s+held\s+400\s+{NUM}',
+              rf'identify_plant on a 30 s record: one convention {NUM} s'])],
+    'loop_figures_accuracy.py': [
+        ((), [rf'k=4 chirp to 1 kHz\s+std 5e-04 N m: error [-+]{NUM} %',
+              rf'^\s+1048576 chirp\s+: q {NUM}'])],
+    'passivity_guard_grid.py': [
+        ((), [r'^\s+20Hz\s+0\.50\s+-0\.5k/l', rf'^20 Hz, m_n 0\.5 m\s+\|\s+{NUM}'])],
+    'profile_loop.py': [
+        ((), [r'^== sim: [1-9]\d* samples', r'^== controller: [1-9]\d* samples'])],
+    'recorder_soak.py': [
+        ((), [r'^recorder exit code 0; final counts',
+              r'/actuator_state: [1-9]\d* messages in the bag'])],
+    'report_render.py': [
+        ((), [rf'^write_report \(4 figures, json, html\): median {NUM} s',
+              rf'^chromium screenshot \S+:\s+median {NUM} s'])],
+    'zwidth_prediction.py': [
+        ((), [r'^Hold delay limit', rf'^\s+lambda\s+{NUM} Hz, m_n/m'])],
+}
+#: scripts that are parts of another benchmark (run by it, covered by its smoke run)
+PARTS = {'echo_pair.py': 'control_loop.py'}
+#: a bench that outlives this is hung (each takes 1-20 s on a quiet 2-core host)
+TIMEOUT = 300.0
+#: benches run at once (each its own DDS domain: their nodes do not meet): most wait on
+#: processes, sleeps and their loops, and the figures of a smoke run mean nothing
+AT_ONCE = 3
+RUNS = [(script, args, patterns) for script, runs in SMOKE.items() for args, patterns in runs]
+
+
+def test_every_bench_has_a_smoke_run():
+    scripts = {p.name for p in BENCH.glob('*.py')}
+    assert scripts == set(SMOKE) | set(PARTS), (
+        f'without a smoke run: {sorted(scripts - set(SMOKE) - set(PARTS))}; '
+        f'gone: {sorted(set(SMOKE) | set(PARTS) - scripts)}')
+    for script in SMOKE:
+        assert '--quick' in (BENCH / script).read_text(), script
+
+
+@pytest.fixture(scope='module')
+def quick_runs():
+    """Every smoke run to its end, :data:`AT_ONCE` at a time: [(exit code, output)] in
+    :data:`RUNS`' order; each process ended by its PID whatever happens."""
+    group = ProcessGroup()
+
+    def run(index):
+        script, args, _ = RUNS[index]
+        env = domain_env(own_domain(index), PYTHONPATH=os.pathsep.join(
+            p for p in (str(ROOT), os.environ.get('PYTHONPATH')) if p))
+        proc = group.start([sys.executable, str(BENCH / script), '--quick', *args],
+                           name=f'bench_{script[:-3]}', env=env)
+        return proc.wait(TIMEOUT), proc.output()
+    try:
+        with ThreadPoolExecutor(max_workers=AT_ONCE) as pool:
+            yield list(pool.map(run, range(len(RUNS))))
+    finally:
+        group.stop_all()
+
+
+@pytest.mark.parametrize('index', range(len(RUNS)),
+                         ids=[' '.join((script,) + args) for script, args, _ in RUNS])
+def test_bench_runs_quick(quick_runs, index):
+    script, _, patterns = RUNS[index]
+    code, out = quick_runs[index]
+    assert code == 0, f'{script} exited {code}:\n{out[-4000:]}'
+    assert 'Traceback' not in out, out[-4000:]
+    for pattern in patterns:
+        assert re.search(pattern, out, re.M), f'{pattern!r} not in the output:\n{out[-4000:]}'
