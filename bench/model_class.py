@@ -14,7 +14,7 @@ Run (from the repository root, environment sourced)::
 
     python bench/model_class.py [N] [seed] [--each] [--quick]
 
-``--quick``: 4 draws.
+``--quick``: 1 draw, a 20 s chirp (a smoke run: its figures mean little).
 """
 import math
 import pathlib
@@ -29,6 +29,8 @@ from helpers.oracle_commissioning import draw, excite, identify, relative_errors
 
 from seaforce_ros.commissioning.analyse import model_class_stage  # noqa: E402
 
+QUICK_DURATION = 20.0    # s of chirp in --quick (the default: commissioning.duration, 40 s)
+
 
 def term_truth(plant, e):
     """The oracle's value of each candidate term's coefficient (0: the effect is off)."""
@@ -42,7 +44,7 @@ def term_truth(plant, e):
 def main(argv):
     flags = {a for a in argv if a.startswith("--")}
     args = [a for a in argv if not a.startswith("--")]
-    n = 4 if "--quick" in flags else int(args[0]) if args else 20
+    n = 1 if "--quick" in flags else int(args[0]) if args else 20
     seed0 = int(args[1]) if len(args) > 1 else 1
     classes = ["linear", "all effects"] + (list(EFFECTS) if "--each" in flags else [])
     rows = {c: [] for c in classes}
@@ -54,7 +56,8 @@ def main(argv):
             if label not in ("linear", "all effects"):
                 effects = effects.only(label)
             try:
-                record = excite(plant, dahl, effects, seed=i)
+                record = excite(plant, dahl, effects, seed=i, duration=QUICK_DURATION if "--quick" in flags
+                                else None)
             except RuntimeError as exc:
                 print(f"draw {i} {label}: {exc}")
                 continue

@@ -23,7 +23,7 @@ Run (from the repository root, environment sourced)::
 
     python bench/nonlinear_commissioning.py [N] [seed] [--quick]
 
-``--quick``: 2 draws, 1 and 3 rad/s.
+``--quick``: 1 draw, a 20 s chirp, 1 and 3 rad/s (a smoke run: its figures mean little).
 """
 import math
 import pathlib
@@ -44,9 +44,10 @@ from seaforce_ros.core.params import ControllerConfig  # noqa: E402
 MODES = ("passive", "hold", "dob", "dob_linear_ff", "dob_full_ff")
 
 
-def commission(plant, dahl, effects, seed):
-    """(analysis, its CPU time [s], the excitation's duration [s])."""
-    record = excite(plant, dahl, effects, seed=seed)
+def commission(plant, dahl, effects, seed, duration=None):
+    """(analysis, its CPU time [s], the excitation's duration [s]); ``duration``: the chirp's
+    [s] (None: commissioning.duration)."""
+    record = excite(plant, dahl, effects, seed=seed, duration=duration)
     t = time.process_time()
     a = analyse(record, AnalysisRequest("sim", ControllerConfig()), None)
     return a, time.process_time() - t, len(record) * record.dt
@@ -65,15 +66,16 @@ def zwidth_rms(meas, omega):
 def main(argv):
     quick = "--quick" in argv
     args = [a for a in argv if not a.startswith("--")]
-    n = 2 if quick else int(args[0]) if args else 8
+    n = 1 if quick else int(args[0]) if args else 8
     seed0 = int(args[1]) if len(args) > 1 else 1
     omegas = (1.0, 3.0) if quick else (1.0, 3.0, 10.0)
+    chirp = 20.0 if quick else None         # s (None: commissioning.duration, 40 s)
     rows = []
     for i in range(n):
         rng = np.random.default_rng([seed0, i])
         plant, dahl, effects = draw(rng)
         print(f"draw {i}: {effects.describe()}", flush=True)
-        a, cpu, rig = commission(plant, dahl, effects, i)
+        a, cpu, rig = commission(plant, dahl, effects, i, chirp)
         if not a.tuned:
             print(f"  not tuned: {a.message}")
             continue
@@ -104,7 +106,7 @@ def main(argv):
                   f"{f.z_rms_db:6.1f} (pred. {rms_pred.get((m, w), math.nan):6.1f}), dist. "
                   f"{100 * f.distortion:4.0f} %, peaks {f.peak:.3g}/{f.peak_centre:.3g}",
                   flush=True)
-        lin_a, _, _ = commission(plant, dahl, linear_counterpart(effects), 100 + i)
+        lin_a, _, _ = commission(plant, dahl, linear_counterpart(effects), 100 + i, chirp)
         lin = measure(plant, dahl, linear_counterpart(effects), lin_a.tuning.config,
                       ("hold", "dob_full_ff"), (1.0,), i)
         ff = meas[("dob_full_ff", 1.0)]

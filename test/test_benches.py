@@ -21,6 +21,9 @@ BENCH = ROOT / 'bench'
 NUM = r'-?\d+\.?\d*'
 #: (arguments after the script, regular expressions its output must match (multiline))
 SMOKE = {
+    'calibration_contact.py': [
+        ((), [r'^refused or aborted, nothing applied: \d+/\d+$',
+              rf'^succeeded \d+/\d+; largest contact-test level in free air {NUM}'])],
     'commissioning_excitation.py': [
         ((), [rf'^\s+0\s+(succeeded|aborted)\s+{NUM}\s+{NUM}',
               rf'^FreeAirExcitation\.update per sample \[us\]: mean {NUM}'])],
@@ -61,6 +64,12 @@ SMOKE = {
     'loop_figures_accuracy.py': [
         ((), [rf'k=4 chirp to 1 kHz\s+std 5e-04 N m: error [-+]{NUM} %',
               rf'^\s+1048576 chirp\s+: q {NUM}'])],
+    'model_class.py': [
+        ((), [r'^over 1 draws \(seed 1\); misfit', rf'^\s+all effects\s+motor\s+{NUM} /\s+{NUM}',
+              r'^CPU \d+ s'])],
+    'nonlinear_commissioning.py': [
+        ((), [rf'^\s+rms_vs_linear\s+{NUM}', rf'^\s+zw3\s+{NUM}',
+              r'^\s+model class flagged in \d/1'])],
     'passivity_guard_grid.py': [
         ((), [r'^\s+20Hz\s+0\.50\s+-0\.5k/l', rf'^20 Hz, m_n 0\.5 m\s+\|\s+{NUM}'])],
     'profile_loop.py': [
@@ -71,6 +80,9 @@ SMOKE = {
     'report_render.py': [
         ((), [rf'^write_report \(4 figures, json, html\): median {NUM} s',
               rf'^chromium screenshot \S+:\s+median {NUM} s'])],
+    'runaway_family.py': [
+        ((), [rf'^in range: \d+/\d+; peak \|V_e\| {NUM}',
+              r'^at rest in the last second: \d+/\d+'])],
     'zwidth_prediction.py': [
         ((), [r'^Hold delay limit', rf'^\s+lambda\s+{NUM} Hz, m_n/m'])],
 }
@@ -88,7 +100,7 @@ def test_every_bench_has_a_smoke_run():
     scripts = {p.name for p in BENCH.glob('*.py')}
     assert scripts == set(SMOKE) | set(PARTS), (
         f'without a smoke run: {sorted(scripts - set(SMOKE) - set(PARTS))}; '
-        f'gone: {sorted(set(SMOKE) | set(PARTS) - scripts)}')
+        f'gone: {sorted((set(SMOKE) | set(PARTS)) - scripts)}')
     for script in SMOKE:
         assert '--quick' in (BENCH / script).read_text(), script
 
