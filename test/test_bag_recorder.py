@@ -305,7 +305,7 @@ def test_records_a_soak_published_equals_received_equals_written(processes, tmp_
         in_seen = seen[(seen >= lo) & (seen <= hi)]
         assert in_bag.size > 0.8 * bag.size
         # every message the witness got is in the bag (a witness in this busy test process
-        # can itself lose a few from controller_status's 10-deep publisher history)
+        # can itself lose a few from controller_status's 100-deep publisher history)
         assert np.setdiff1d(in_seen, in_bag).size == 0, np.setdiff1d(in_seen, in_bag)[:10]
         assert np.all(np.diff(in_bag) > 0) and in_bag.size >= in_seen.size
     # the mcap library's default reader agrees file by file; Jazzy's fields, one by one
