@@ -41,9 +41,6 @@ __all__ = ["NonlinearEffects", "PLAUSIBLE", "COGGING_PERIODS", "TORQUE_RANGE", "
            "hose_force", "hose_energy", "diaphragm_force", "diaphragm_energy", "finger_ratio",
            "endpoint_of_finger", "finger_of_endpoint", "cogging_torque", "cogging_energy"]
 
-_RO = dict(read_only=True)
-
-
 @group("sim.nonlinear", nodes=(SIM,))
 class NonlinearEffects(ParameterGroup):
     """The simulated plant's nonlinear effects (module docstring); every one 0: the linear
@@ -52,36 +49,38 @@ class NonlinearEffects(ParameterGroup):
     hose_damping_rise: float = param(
         0.0, "s/rad", "rise of the hose damping with hose flow: b_s d' (1 + c_q |d'|), "
         "d' = V_e - V; the damping doubles at a flow of 1/c_q (plausible 0.33-1: doubling at "
-        "1-3 rad/s); 0: linear", symbol="c_q", ge=0.0, le=10.0, **_RO)
+        "1-3 rad/s); 0: linear", symbol="c_q", ge=0.0, le=2.0,
+        hint="beyond, the hose's flow term is too stiff for the 2 kHz step", read_only=True)
     hose_stiffening: float = param(
         0.0, "1/(N m)", "rise of the hose's tangent stiffness per N m of pressure force: "
         "F_p = k_s d (1 + s_p k_s |d|/2) (plausible 0.1-0.4); 0: linear", symbol="s_p",
-        ge=0.0, le=1.0, **_RO)
+        ge=0.0, le=1.0, read_only=True)
     stroke_stiffening: float = param(
         0.0, "-", "rise of the diaphragm force at the stroke's ends: k_e X_e (1 + a_1 u + "
         "a_2 u^2), u = X_e/L (plausible 0.1-0.3); 0: linear", symbol="a_2", ge=0.0, le=1.0,
-        **_RO)
+        read_only=True)
     stroke_asymmetry: float = param(
-        0.0, "-", "asymmetry a_1 of the diaphragm force (a_1^2 < 3 a_2: the force rises over "
-        "the whole stroke)", symbol="a_1", ge=-1.0, le=1.0, **_RO)
+        0.0, "-", "asymmetry of the diaphragm force's stroke dependence (a_1^2 < 3 a_2: the "
+        "force rises over the whole stroke)", symbol="a_1", ge=-1.0, le=1.0, read_only=True)
     finger_ratio: float = param(
         0.0, "-", "rise of the four-bar's ratio dX_e/dq = 1 + c_1 v + c_2 v^2 (v = q/L) from "
         "the centre to the stroke's ends; the endpoint encoder and an external force are on "
         "the finger joint q (plausible 0.05-0.15); 0: a ratio of 1", symbol="c_2", ge=0.0,
-        le=1.0, **_RO)
+        le=1.0, read_only=True)
     finger_asymmetry: float = param(
-        0.0, "-", "asymmetry c_1 of the four-bar's ratio (c_1^2 < 4 c_2: the ratio stays "
-        "positive)", symbol="c_1", ge=-1.0, le=1.0, **_RO)
+        0.0, "-", "asymmetry of the four-bar's ratio (c_1^2 < 4 c_2: the ratio stays "
+        "positive)", symbol="c_1", ge=-1.0, le=1.0, read_only=True)
     half_stroke: float = param(
-        0.5, "rad", "half-stroke L the stroke's and the finger's terms refer to", symbol="L",
-        gt=0.0, le=10.0, **_RO)
+        0.5, "rad", "half-stroke the diaphragm's and the finger's terms refer to", symbol="L",
+        gt=0.0, le=10.0, read_only=True)
     cogging: float = param(
         0.0, "N m", "motor cogging amplitude, F_cog = -T_cog sin(N X + phi) (plausible 0.5-1 "
-        "% of the torque range); 0: none", symbol="T_cog", ge=0.0, le=10.0, **_RO)
+        "% of the torque range); 0: none", symbol="T_cog", ge=0.0, le=10.0, read_only=True)
     cogging_periods: int = param(
-        84, "", "cogging periods per motor revolution", symbol="N", ge=1, le=1000, **_RO)
+        84, "", "cogging periods per motor revolution", symbol="N", ge=1, le=1000, read_only=True)
     cogging_phase: float = param(
-        0.0, "rad", "cogging phase at X = 0", symbol="phi", ge=0.0, le=2.0 * math.pi, **_RO)
+        0.0, "rad", "cogging phase at X = 0", symbol="phi", ge=0.0, le=2.0 * math.pi,
+        read_only=True)
 
     def check_rules(self) -> None:
         """The diaphragm force rises and the finger ratio stays positive everywhere."""
@@ -153,7 +152,8 @@ def hose_energy(delta: float, stiffness: float, effects: NonlinearEffects) -> fl
 def diaphragm_force(xe: float, stiffness: float, effects: NonlinearEffects) -> float:
     """F_k(X_e) [N m], the diaphragm's spring force with k_e = ``stiffness``."""
     u = xe / effects.half_stroke
-    return stiffness * xe * (1.0 + effects.stroke_asymmetry * u + effects.stroke_stiffening * u * u)
+    return stiffness * xe * (1.0 + effects.stroke_asymmetry * u
+                             + effects.stroke_stiffening * u * u)
 
 
 def diaphragm_energy(xe: float, stiffness: float, effects: NonlinearEffects) -> float:

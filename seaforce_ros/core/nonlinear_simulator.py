@@ -41,7 +41,7 @@ from typing import Any, Dict, NamedTuple, Optional, Tuple
 import numpy as np
 import numpy.typing as npt
 
-from .errors import NonFiniteInputError
+from .errors import NonFiniteInputError, SimulationDivergedError
 from .nonlinear_effects import (NonlinearEffects, cogging_torque, diaphragm_force,
                                 finger_of_endpoint, finger_ratio, hose_force)
 from .params import DahlParams, PlantParams
@@ -265,6 +265,9 @@ class NonlinearChannelSimulator(ChannelSimulator):
         ------
         NonFiniteInputError
             ``torque`` is NaN or inf.
+        SimulationDivergedError
+            The state left the finite numbers (effects too stiff for the step); the state
+            stays the last finite one.
         """
         applied = self._command(torque)
         engaged, c = self._engagement()
@@ -276,6 +279,8 @@ class NonlinearChannelSimulator(ChannelSimulator):
         predicted = self._with_friction(linear + gam @ start, gam)
         end = self._excess(predicted, link, c, env_torque)
         z1 = self._with_friction(linear + gam @ (0.5 * (start + end)), gam)
+        if not np.isfinite(z1).all():
+            raise SimulationDivergedError(self.t, tuple(self._z[:4]))
         self._z = z1.tolist()
         self._dahl.update(self._z[2])
         self.step_count += 1
