@@ -337,7 +337,7 @@ def nonlinear_plant(seed: int):
 
 
 def goal_figures(measured, report, truth, frequencies) -> Dict[str, Any]:
-    """The commissioning issue's goal figures of a run (after commissioning): ``dob_full_ff``
+    """The goal figures of a run on a nonlinear plant (after commissioning): ``dob_full_ff``
     at the lowest frequency (fundamental and rms |Z| [dB], the work loop's peaks [N m]), the
     Z-width on the fundamental and the rms [dB] at each frequency, the identified b_s and k_e
     against the sim's (linear) values, the model class's verdict."""
@@ -364,8 +364,10 @@ def goal_lines(goals: Dict[str, Any], nonlinear: bool) -> List[str]:
     """The goal figures as printed lines."""
     low = goals['omega']
     ratio = goals['peak'] / goals['peak_centre'] if goals['peak_centre'] else math.nan
-    widths = '; '.join(f'{w} rad/s {goals["zwidth_db"][w]:.1f} dB fundamental, '
-                       f'{goals["zwidth_rms_db"][w]:.1f} dB rms' for w in goals['zwidth_db'])
+    widths = '; '.join(
+        f'{w} rad/s {goals["zwidth_db"][w]:.1f} dB fundamental, {goals["zwidth_rms_db"][w]:.1f} '
+        'dB rms' if math.isfinite(goals['zwidth_db'][w]) else
+        f'{w} rad/s none (hold or every softer mode did not hold)' for w in goals['zwidth_db'])
     fits = goals['model_class_fits']
     verdict = ('not given' if fits is None else 'fits' if fits else 'DOES NOT FIT') + (
         ' (misfit ' + ', '.join(f'{k} {100 * v:.2g} %' for k, v in goals['misfit'].items())
