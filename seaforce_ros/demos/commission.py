@@ -22,9 +22,9 @@ Predictions (:func:`~..commissioning.predictor.predict_modes`, on the *identifie
 the run's report, with its loop delay): before with the starting configuration, after with
 the applied one; after, also the report's rms prediction (backdrives simulated on the
 identified model at 1, 3 and 10 rad/s). Prints measured (fundamental and rms) vs predicted
-per mode and frequency,
-the Z-width (hold less the softest other mode) before and after on both, ``dob_full_ff`` after vs ideal and the rig time;
-writes ``zwidth_commission.png`` and ``results.json`` to ``--out``.
+per mode and frequency, the Z-width (hold less the softest other mode) before and after on
+both, ``dob_full_ff`` after vs ideal and the rig time; writes ``zwidth_commission.png`` and
+``results.json`` to ``--out``.
 
 With ``--nonlinear`` the drawn plant also has the real gripper's nonlinear effects
 (``pinch.sim.nonlinear.*`` and ``pinch.sim.motor_coulomb``: the hose's flow- and
