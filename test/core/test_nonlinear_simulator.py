@@ -25,7 +25,8 @@ from helpers.nonlinear_sim import STROKE, NonlinearGripper, Unpowered, backdrive
 from helpers.nonlinear_sim import draw_effects as draw_oracle_effects
 from seaforce_ros.core import (ChannelController, ChannelSimulator, ControllerConfig,
                                DahlParams, InvalidParameterError, PlantParams, SensorParams,
-                               contact_object, free, position_sine, torque_chirp)
+                               contact_object, free, position_sine, run_closed_loop,
+                               torque_chirp)
 from seaforce_ros.core.analysis import impedance_figures
 from seaforce_ros.core.nonlinear_effects import (PLAUSIBLE, NonlinearEffects, cogging_energy,
                                                  diaphragm_energy, diaphragm_force,
@@ -94,6 +95,25 @@ def test_a_finger_ratio_in_free_air_moves_nothing_but_the_encoder():
     assert endpoint_of_finger(m.x_e, ratio) == pytest.approx(xe, abs=1e-12)
     assert abs(m.x_e - xe) > 1e-3
     assert m.f_e == 0.0
+
+
+def test_run_closed_loop_records_the_nonlinear_hose_force():
+    class Open:
+        k = 0
+
+        def update(self, x, v, f_p):
+            self.k += 1
+            return 2.0 * _torque(self.k)
+    sim = NonlinearChannelSimulator(TABLE_I, None, EVERY_EFFECT, sensors=IDEAL)
+    rec = run_closed_loop(sim, Open(), 2000)
+    expected = [hose_force(xe - x, ve - v, TABLE_I.hose_stiffness, TABLE_I.hose_damping,
+                           EVERY_EFFECT)
+                for x, v, xe, ve in zip(rec["x_true"], rec["v_true"], rec["x_e_true"],
+                                        rec["v_e_true"])]
+    np.testing.assert_allclose(rec["f_p_true"], expected, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(rec["f_p"], rec["f_p_true"], atol=1e-12)   # ideal sensors
+    assert np.max(np.abs(rec["f_p_true"] - TABLE_I.hose_stiffness
+                         * (rec["x_e_true"] - rec["x_true"]))) > 1e-3
 
 
 # --- quasi-static equilibria -------------------------------------------------------------------
