@@ -143,15 +143,23 @@ def test_a_constant_torque_rests_where_the_nonlinear_springs_balance():
     assert abs(xe / linear_xe - 1.0) > 0.01     # the nonlinear springs show
 
 
-@pytest.mark.parametrize("q0", [-0.4, 0.15, 0.45])
-def test_the_held_finger_feels_the_virtual_work_force(q0):
+@pytest.mark.parametrize("q0,drift", [(-0.4, False), (0.15, False), (0.45, False),
+                                       (0.3, True)])
+def test_the_held_finger_feels_the_virtual_work_force(q0, drift):
     """The drive holds the finger at q0 with the motor passive: at rest, the force on the
-    finger is r(q) (F_k(X_e) + F_p), X_e = X_e(q), the motor in balance with the hose."""
+    finger is r(q) (F_k(X_e) + F_p), X_e = X_e(q), the motor in balance with the hose (with
+    ``drift``: the plant changed on the way, as ``sim.plant.*`` at run time)."""
     effects = _effects(hose_stiffening=0.3, stroke_stiffening=0.25, stroke_asymmetry=-0.08,
                        finger_ratio=0.15, finger_asymmetry=0.05)
     p = TABLE_I
     env = position_sine(0.0, 0.0, offset=q0)
     sim = NonlinearChannelSimulator(p, None, effects, sensors=IDEAL, environment=env)
+    if drift:
+        for _ in range(4000):
+            sim.step(0.0)
+        p = dataclasses.replace(p, hose_stiffness=0.5 * p.hose_stiffness,
+                                endpoint_stiffness=2.0 * p.endpoint_stiffness)
+        sim.set_plant(p)
     for _ in range(12000):
         m = sim.step(0.0)
     q = sim.finger_position
