@@ -204,3 +204,45 @@ def test_commission_demo_identifies_tunes_and_predicts_what_it_measures(demos):
     assert ideal is None or math.isnan(ideal) and 'ideal model not measured' in text \
         or after <= ideal + 3.0, where
     assert pathlib.Path(results['report']).is_file()
+
+
+def test_commission_demo_draws_a_nonlinear_plant_the_sim_takes_and_reports_its_goals():
+    """``commission --nonlinear`` without a run (the run is the docs' output): the drawn
+    effects are the seed's, in their ranges, the rows the sim declares, and make the sim's
+    nonlinear plant; the goal figures come from the measurements and the report."""
+    from types import SimpleNamespace
+
+    from seaforce_ros.core.nonlinear_effects import PLAUSIBLE, NonlinearEffects
+    from seaforce_ros.core.nonlinear_simulator import NonlinearChannelSimulator, make_simulator
+    from seaforce_ros.core.params import PlantParams
+    from seaforce_ros.demos.commission import goal_figures, goal_lines, nonlinear_plant
+    from seaforce_ros.demos.common import CHANNEL, drawn_plant
+    values, described = nonlinear_plant(SEED)
+    assert nonlinear_plant(SEED) == (values, described)
+    assert nonlinear_plant(SEED + 1)[0] != values
+    effects = NonlinearEffects.from_values({k[len(CHANNEL) + 1:]: v for k, v in values.items()
+                                            if '.nonlinear.' in k})
+    coulomb = values[f'{CHANNEL}.sim.motor_coulomb']
+    assert PLAUSIBLE['motor_coulomb'][0] <= coulomb <= PLAUSIBLE['motor_coulomb'][1]
+    assert effects.any and 'motor Coulomb' in described
+    assert isinstance(make_simulator(PlantParams.table_i(), None, effects),
+                      NonlinearChannelSimulator)
+
+    truth, _ = drawn_plant(SEED, 0.5, 2.0)
+    figures = {'z_db': -40.0, 'z_rms_db': -37.0, 'distortion': 0.8, 'peak': 0.02,
+               'peak_centre': 0.01}
+    measured = {'after': {('hold', 1.0): dict(figures, z_db=30.0, z_rms_db=30.0),
+                          ('dob_full_ff', 1.0): figures,
+                          ('hold', 3.0): dict(figures, z_db=math.nan, z_rms_db=math.nan),
+                          ('dob_full_ff', 3.0): figures}}
+    identified = [SimpleNamespace(name=f'plant.{key}',
+                                  value=1.5 * truth[f'{CHANNEL}.sim.plant.{key}'])
+                  for key in ('hose_damping', 'endpoint_stiffness')]
+    report = SimpleNamespace(identification=identified, model_class=SimpleNamespace(
+        fits=False, misfit={'port': 0.22}))
+    goals = goal_figures(measured, report, truth, [1.0, 3.0])
+    assert goals['zwidth_db']['1'] == 70.0 and goals['zwidth_rms_db']['1'] == 67.0
+    assert math.isnan(goals['zwidth_db']['3'])
+    assert goals['hose_damping_error'] == pytest.approx(0.5)
+    text = '\n'.join(goal_lines(goals, True))
+    assert 'ratio 2.00' in text and 'DOES NOT FIT' in text and '3 rad/s none' in text

@@ -69,6 +69,12 @@ BAD_VALUES = [
     ('sim_node', 'sim', {'seed': 1.5}, ['seed', 'integer']),
     ('sim_node', 'sim', {'pinch.environment.mode': 'wobble'}, ['pinch.environment.mode',
                                                                 'position_sine']),
+    # the nonlinear plant's rows: a range, and the rule between two of them
+    ('sim_node', 'sim', {'pinch.sim.nonlinear.hose_stiffening': 5.0},
+     ['pinch.sim.nonlinear.hose_stiffening', '[0, 1]']),
+    ('sim_node', 'sim', {'pinch.sim.nonlinear.finger_ratio': 0.01,
+                         'pinch.sim.nonlinear.finger_asymmetry': 0.5},
+     ['pinch.sim.nonlinear.finger_asymmetry', 'dead point']),
     ('controller_node', 'controller', {'latched_faults': ['stale_state', 'gremlins']},
      ['latched_faults', 'gremlins']),
     ('controller_node', 'controller', {'status_rate': -1.0}, ['status_rate']),

@@ -30,6 +30,8 @@ plant_cycle          the plant side: what torque each channel may have this cycl
 sensors              sensor models
 environment          endpoint environments of the simulator
 simulator            ChannelSimulator, run_closed_loop
+nonlinear_effects    the sim's nonlinear effects (sim.nonlinear.*), their forces and draws
+nonlinear_simulator  NonlinearChannelSimulator, make_simulator
 backend              PlantBackend: the plant behind a plant node, with a lifecycle
 sim_backend          SimBackend: the simulator as a PlantBackend
 """

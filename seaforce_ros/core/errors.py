@@ -7,7 +7,7 @@ rejecting a parameter, and keep running.
 from typing import Any, Self
 
 __all__ = ["SeaforceError", "InvalidParameterError", "NonPassiveError",
-           "NonFiniteInputError"]
+           "NonFiniteInputError", "SimulationDivergedError"]
 
 
 class SeaforceError(Exception):
@@ -96,3 +96,17 @@ class NonFiniteInputError(SeaforceError, ValueError):
         self.name = name
         self.value = value
         super().__init__(f"non-finite input {name} = {value!r}")
+
+
+class SimulationDivergedError(SeaforceError, ArithmeticError):
+    """The simulated plant's state left the finite numbers: the nonlinear effects'
+    magnitudes with this motion are too stiff for the simulator's step (raised by
+    :class:`~seaforce_ros.core.nonlinear_simulator.NonlinearChannelSimulator`'s ``step``)."""
+
+    def __init__(self, t: float, state: Any) -> None:
+        self.t = t
+        self.state = state
+        super().__init__(
+            f"the simulated plant diverged at t = {t:.4f} s (state {state}): the nonlinear "
+            "effects (sim.nonlinear.*) are too stiff for this motion at the simulator's step; "
+            "lower sim.nonlinear.hose_damping_rise or hose_stiffening, or the drive's speed")

@@ -295,7 +295,7 @@ def builtins_type(value: Any) -> type:
 
 #: The core modules that define parameter groups.
 _GROUP_MODULES = ("params", "environment", "sensors", "plant_cycle", "control_cycle",
-                  "settings")
+                  "settings", "nonlinear_effects")
 #: Every group made by :func:`group`, in definition order.
 _GROUPS: List[Type[ParameterGroup]] = []
 

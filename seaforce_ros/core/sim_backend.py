@@ -84,7 +84,7 @@ class SimBackend(PlantBackend):
         for i, sim in enumerate(self.sims):
             m = sim.measurement()
             x[i], v[i], fp[i], fa[i], xe[i], fe[i] = m.x, m.v, m.f_p, m.f_a, m.x_e, m.f_e
-            ve[i] = sim.state[3]          # the simulator knows the true endpoint velocity
+            ve[i] = sim.endpoint_velocity     # the simulator knows the true one
             flags[i] = STATUS_LIMIT if sim.limited else 0
         return LINK_COMPLETE
 

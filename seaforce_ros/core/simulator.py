@@ -50,7 +50,7 @@ from .params import PlantParams, DahlParams
 from .sensors import SensorParams
 
 __all__ = ["Measurement", "ChannelSimulator", "run_closed_loop", "discretise",
-           "continuous_matrices", "SampleController"]
+           "continuous_matrices", "zero_order_hold", "SampleController"]
 
 
 class Measurement(NamedTuple):
@@ -118,11 +118,18 @@ def discretise(plant: PlantParams, dt: float, env_stiffness: float = 0.0,
     """Exact zero-order-hold discretisation ``(Phi, Gamma)`` of
     :func:`continuous_matrices` with step ``dt`` [s]."""
     A, B = continuous_matrices(plant, env_stiffness, env_damping, frequency)
-    M = np.zeros((8, 8))
-    M[:6, :6] = A
-    M[:6, 6:] = B
+    return zero_order_hold(A, B, dt)
+
+
+def zero_order_hold(A: _Matrix, B: _Matrix, dt: float) -> Tuple[_Matrix, _Matrix]:
+    """``(Phi, Gamma)`` of ``x' = A x + B u`` with ``u`` held over a step ``dt`` [s]
+    (one matrix exponential)."""
+    n, m = B.shape
+    M = np.zeros((n + m, n + m))
+    M[:n, :n] = A
+    M[:n, n:] = B
     E = scipy.linalg.expm(M * dt)
-    return E[:6, :6], E[:6, 6:]
+    return E[:n, :n], E[:n, n:]
 
 
 def _flatten(phi: _Matrix, gam: _Matrix) -> Tuple[float, ...]:
@@ -285,6 +292,11 @@ class ChannelSimulator:
         z = self._z
         ks, bs = self._hose
         return ks * (z[2] - z[0]) + bs * (z[3] - z[1])
+
+    @property
+    def endpoint_velocity(self) -> float:
+        """True velocity [rad/s] of the joint the endpoint encoder reads (V_e here)."""
+        return self._z[3]
 
     @property
     def dahl_force(self) -> float:
@@ -483,7 +495,8 @@ def run_closed_loop(
     dict of numpy arrays, all aligned to the sample times ``t`` [s]:
     measurement fields ``x v f_p f_a x_e f_e`` (what the controller saw),
     ``u`` (command), true ``x_true v_true x_e_true v_e_true f_p_true
-    dahl_true``, the controller's ``disturbance feedforward
+    dahl_true`` (X_e, V_e of the actuator: with a finger ratio the measured ``x_e`` is the
+    finger's), the controller's ``disturbance feedforward
     endpoint_velocity_estimate dahl_force`` when it has them, and its passivity guard's
     ``passivity_energy passivity_damping`` when it runs one.
     """
@@ -502,6 +515,8 @@ def run_closed_loop(
     each = None if isinstance(on_switch, dict) else on_switch
     update = controller.update
     ks, bs = sim.plant.hose_stiffness, sim.plant.hose_damping
+    # a simulator with its own hose (the nonlinear one) gives its F_p; the linear one inline
+    own_hose = type(sim).pressure_force is not ChannelSimulator.pressure_force
     r_t, r_x, r_v, r_fp, r_fa, r_xe, r_fe, r_u = (rec[n] for n in names[:8])
     r_X, r_V, r_XE, r_VE, r_FP, r_FD = (rec[n] for n in names[8:])
     m = sim.measurement()
@@ -528,7 +543,8 @@ def run_closed_loop(
         r_V.append(z[1])
         r_XE.append(z[2])
         r_VE.append(z[3])
-        r_FP.append(ks * (z[2] - z[0]) + bs * (z[3] - z[1]))
+        r_FP.append(sim.pressure_force if own_hose
+                    else ks * (z[2] - z[0]) + bs * (z[3] - z[1]))
         r_FD.append(sim._dahl.force)
         if has_status:
             for s in status:

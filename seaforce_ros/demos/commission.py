@@ -22,11 +22,21 @@ Predictions (:func:`~..commissioning.predictor.predict_modes`, on the *identifie
 the run's report, with its loop delay): before with the starting configuration, after with
 the applied one; after, also the report's rms prediction (backdrives simulated on the
 identified model at 1, 3 and 10 rad/s). Prints measured (fundamental and rms) vs predicted
-per mode and frequency,
-the Z-width (hold less the softest other mode) before and after on both, ``dob_full_ff`` after vs ideal and the rig time;
-writes ``zwidth_commission.png`` and ``results.json`` to ``--out``.
+per mode and frequency, the Z-width (hold less the softest other mode) before and after on
+both, ``dob_full_ff`` after vs ideal and the rig time; writes ``zwidth_commission.png`` and
+``results.json`` to ``--out``.
 
-Usage: python -m seaforce_ros.demos commission [--seed N] [--out DIR]
+With ``--nonlinear`` the drawn plant also has the real gripper's nonlinear effects
+(``pinch.sim.nonlinear.*`` and ``pinch.sim.motor_coulomb``: the hose's flow- and
+pressure-dependent terms, the stroke-dependent diaphragm force, the four-bar finger ratio,
+motor Coulomb friction and cogging; :mod:`~..core.nonlinear_effects`), each drawn within its
+plausible range with ``--seed`` (the linear coefficients drawn as without it: the same seed
+without ``--nonlinear`` is the same plant's linear class). Last, the goal figures: the
+fundamental and the rms |Z| of ``dob_full_ff``, the Z-width on both, its work loop's peak over
+the stroke against within +-0.2 rad, the identified b_s and k_e against the sim's linear
+coefficients, and the model class's verdict.
+
+Usage: python -m seaforce_ros.demos commission [--seed N] [--nonlinear] [--out DIR]
        [--frequencies 1,3,10] [--modes passive,hold,...] [--controller-params FILE]
 """
 from __future__ import annotations
@@ -37,7 +47,7 @@ import math
 import pathlib
 import sys
 import time
-from typing import Dict, List, Sequence, Tuple
+from typing import Any, Dict, List, Sequence, Tuple
 
 import numpy as np
 
@@ -316,11 +326,73 @@ def curves(predicted, modes) -> Dict[Tuple[str, str], Tuple[Sequence[float], Lis
             for label in ('before', 'after') for mode in modes}
 
 
+def nonlinear_plant(seed: int):
+    """The nonlinear effects drawn with ``seed`` (their own stream: the linear coefficients
+    stay the ones :func:`~.common.drawn_plant` draws); ``({'<ch>.sim.<key>': value}, one-line
+    description)``."""
+    from ..core.nonlinear_effects import draw_effects
+    effects, coulomb = draw_effects(np.random.default_rng([seed, 33]))
+    values = {**effects.key_values(f'{CHANNEL}.'), f'{CHANNEL}.sim.motor_coulomb': coulomb}
+    return values, f'{effects.describe()}; motor Coulomb {1e3 * coulomb:.1f} mN m'
+
+
+def goal_figures(measured, report, truth, frequencies) -> Dict[str, Any]:
+    """The goal figures of a run on a nonlinear plant (after commissioning): ``dob_full_ff``
+    at the lowest frequency (fundamental and rms |Z| [dB], the work loop's peaks [N m]), the
+    Z-width on the fundamental and the rms [dB] at each frequency, the identified b_s and k_e
+    against the sim's (linear) values, the model class's verdict."""
+    after = measured['after']
+    low = frequencies[0]
+    ff = after[('dob_full_ff', low)]
+    identified = {r.name: r.value for r in report.identification}
+
+    def error(key):
+        return identified.get(key, math.nan) / truth[f'{CHANNEL}.sim.{key}'] - 1.0
+    model = report.model_class
+    return {
+        'omega': low, 'z_db': ff['z_db'], 'z_rms_db': ff['z_rms_db'],
+        'distortion': ff['distortion'], 'peak': ff['peak'], 'peak_centre': ff['peak_centre'],
+        'zwidth_db': {f'{w:g}': zwidth(after, w) for w in frequencies},
+        'zwidth_rms_db': {f'{w:g}': zwidth(after, w, 'z_rms_db') for w in frequencies},
+        'hose_damping_error': error('plant.hose_damping'),
+        'endpoint_stiffness_error': error('plant.endpoint_stiffness'),
+        'model_class_fits': None if model is None else model.fits,
+        'misfit': {} if model is None else dict(model.misfit)}
+
+
+def goal_lines(goals: Dict[str, Any], nonlinear: bool) -> List[str]:
+    """The goal figures as printed lines."""
+    low = goals['omega']
+    ratio = goals['peak'] / goals['peak_centre'] if goals['peak_centre'] else math.nan
+    widths = '; '.join(
+        f'{w} rad/s {goals["zwidth_db"][w]:.1f} dB fundamental, {goals["zwidth_rms_db"][w]:.1f} '
+        'dB rms' if math.isfinite(goals['zwidth_db'][w]) else
+        f'{w} rad/s none (hold or every softer mode did not hold)' for w in goals['zwidth_db'])
+    fits = goals['model_class_fits']
+    verdict = ('not given' if fits is None else 'fits' if fits else 'DOES NOT FIT') + (
+        ' (misfit ' + ', '.join(f'{k} {100 * v:.2g} %' for k, v in goals['misfit'].items())
+        + ')' if goals['misfit'] else '')
+    return [f'\ngoal figures after commissioning ({"with" if nonlinear else "without"} the '
+            'nonlinear effects):',
+            f'  dob_full_ff at {low:g} rad/s: |Z| {goals["z_db"]:.1f} dB fundamental, '
+            f'{goals["z_rms_db"]:.1f} dB rms (distortion {100 * goals["distortion"]:.0f} %)',
+            f'  Z-width: {widths}',
+            f'  work loop of dob_full_ff at {low:g} rad/s: peak {goals["peak"]:.3g} N m over the '
+            f'stroke, {goals["peak_centre"]:.3g} N m within +-0.2 rad (ratio {ratio:.2f})',
+            f'  identified b_s {100 * goals["hose_damping_error"]:+.1f} %, k_e '
+            f'{100 * goals["endpoint_stiffness_error"]:+.1f} % (against the sim\'s linear '
+            'coefficients)',
+            f'  model class: {verdict}']
+
+
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--out', default='out/demo-commission', help='output directory')
     parser.add_argument('--seed', type=int, default=1, help="the sim's drawn plant")
+    parser.add_argument('--nonlinear', action='store_true',
+                        help="the sim's plant with the real gripper's nonlinear effects too, "
+                             'each drawn within its plausible range with --seed')
     parser.add_argument('--frequencies', default='1,3,10',
                         help='drive frequencies [rad/s], comma-separated')
     parser.add_argument('--modes', default=','.join(MODES), help='modes measured')
@@ -343,9 +415,11 @@ def main(argv=None):
 
     out, lib, config = prepare(args.out)
     truth, factors = drawn_plant(args.seed, 0.5, 2.0)
+    nonlinear, effects = nonlinear_plant(args.seed) if args.nonlinear else ({}, '')
     sim_overrides = out / 'sim-overrides.yaml'
     sim_overrides.write_text('sim:\n  ros__parameters:\n    clock_mode: lockstep\n'
-                             + ''.join(f'    {k}: {v!r}\n' for k, v in truth.items()))
+                             + ''.join(f'    {k}: {v!r}\n'
+                                       for k, v in {**truth, **nonlinear}.items()))
     ctl_overrides = out / 'controller-overrides.yaml'
     runs = (out / 'runs').resolve()
     ctl_overrides.write_text('controller:\n  ros__parameters:\n'
@@ -361,6 +435,10 @@ def main(argv=None):
         children.observers.append(observer)
         print(f'[commission] seed {args.seed}: the true plant, x Table I / the Dahl fit: '
               + ', '.join(f'{k} {f:.2f}' for k, f in factors.items()), flush=True)
+        if nonlinear:
+            print(f'[commission] seed {args.seed}: the nonlinear effects: {effects}\n'
+                  + ''.join(f'[commission]   {k} = {v:.6g}\n' for k, v in nonlinear.items()),
+                  flush=True)
         observer.wait_until_live(children)
         measured = {'before': measure_modes(observer, children, modes, frequencies, 'before')}
         release(observer, children)
@@ -413,10 +491,13 @@ def main(argv=None):
                   'rig time: ' + ', '.join(f'{k} {v:.1f} s' for k, v in phases.items())
                   + f' = {rig:.1f} s (goal {commission_wall:.1f} s wall)',
                   f'report: {result.report_path}']
+        goals = goal_figures(measured, report, truth, frequencies)
+        lines += goal_lines(goals, bool(nonlinear))
         print('\n'.join(lines))
         png = out / 'zwidth_commission.png'
         plot(measured, curves(predicted, modes), modes, png)
         results = {'seed': args.seed, 'factors': factors, 'frequencies': frequencies,
+                   'nonlinear': nonlinear, 'nonlinear_effects': effects, 'goals': goals,
                    'measured': {label: {f'{m}@{w:g}': v['z_db'] for (m, w), v in z.items()}
                                 for label, z in measured.items()},
                    'measured_figures': {label: {f'{m}@{w:g}': v for (m, w), v in z.items()}

@@ -26,6 +26,10 @@ The environment of each channel (``<channel>.environment.*``: free, torque sine 
 position drive, or an ``object`` to grasp) and the simulated plant (``<channel>.sim.plant.*``,
 ``<channel>.sim.dahl.*``; by default the model ``<channel>.plant.*`` / ``dahl.*`` the
 controller uses) can change at run time; a change takes effect at the start of the next cycle.
+The simulated plant's nonlinear effects (``<channel>.sim.nonlinear.*``: the hose's flow- and
+pressure-dependent terms, the stroke-dependent diaphragm force, the four-bar finger ratio,
+cogging; :mod:`~seaforce_ros.core.nonlinear_effects`) are set at start; with every one 0 (the
+default) the channel is the linear simulator.
 """
 from __future__ import annotations
 
@@ -41,6 +45,8 @@ from ..core.params import DahlParams, PlantParams
 from ..core.schema import SIM, Spec
 from ..core.sensors import SensorParams
 from ..core.settings import SIM_PREFIX, SimulatorParams
+from ..core.nonlinear_effects import NonlinearEffects
+from ..core.nonlinear_simulator import make_simulator
 from ..core.sim_backend import SimBackend
 from ..core.simulator import ChannelSimulator
 from .plant_node import PlantNode, plant_specs, prepare_process
@@ -102,13 +108,18 @@ class SimNode(PlantNode):
         return plant, (dahl if dahl.sigma > 0 else None)
 
     def _make_sim(self, values: Dict[str, Any], channel: str, seed: int) -> ChannelSimulator:
+        """The channel's simulator: the linear one, or the nonlinear one when an effect of
+        ``<channel>.sim.nonlinear.*`` is on."""
         plant, dahl = self._true_plant(values, channel)
-        sensors, physics = (group.from_values({
+        sensors, physics, effects = (group.from_values({
             spec.name: values[f'{channel}.{spec.name}'] for spec in group.SPECS
-            if f'{channel}.{spec.name}' in values}) for group in (SensorParams, SimulatorParams))
+            if f'{channel}.{spec.name}' in values})
+            for group in (SensorParams, SimulatorParams, NonlinearEffects))
         env = environment_from_dict(ps.channel_values(values, channel, 'environment.'))
-        return ChannelSimulator(
-            plant, dahl=dahl, dt=self.dt, seed=seed, environment=env, sensors=sensors,
+        if effects.any:
+            self.get_logger().info(f'{channel}: nonlinear plant: {effects.describe()}')
+        return make_simulator(
+            plant, dahl, effects, dt=self.dt, seed=seed, environment=env, sensors=sensors,
             **{spec.attribute: getattr(physics, spec.attribute) for spec in physics.SPECS})
 
     # --- parameters ----------------------------------------------------------------------
