@@ -32,14 +32,10 @@ Run:  PYTHONPATH=. python bench/core_sim_speed.py [--baseline main]
 
 import argparse
 import importlib
-import importlib.util
-import io
 import math
 import platform
 import shutil
-import subprocess
 import sys
-import tarfile
 import tempfile
 import time
 import tracemalloc
@@ -55,6 +51,9 @@ from seaforce_ros.core.grasp import Grasp, GraspGoal
 from seaforce_ros.core.params import DobParams, GuardParams
 from seaforce_ros.core.passivity_guard import PassivityGuard
 from seaforce_ros.core.simulator import discretise
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
+from helpers import baseline_core  # noqa: E402
 
 DT = 5e-4
 PLANT = PlantParams.table_i()
@@ -323,29 +322,12 @@ def guard_rows():
 
 # --- before / after, in one run ----------------------------------------------------------------
 def load_core(rev, directory):
-    """The ``seaforce_ros.core`` of git revision ``rev``, exported into ``directory`` and
-    imported as the package ``_baseline_core`` (it imports itself relatively only)."""
-    root = Path(__file__).resolve().parents[1]
+    """The ``seaforce_ros.core`` of git revision ``rev``, exported into ``directory``
+    (test/helpers/baseline_core.py)."""
     try:
-        archive = subprocess.run(["git", "-C", str(root), "archive", rev, "seaforce_ros/core"],
-                                 capture_output=True, check=True).stdout
-    except (OSError, subprocess.CalledProcessError) as err:
-        detail = getattr(err, "stderr", b"") or b""
-        raise SystemExit(f"--baseline {rev}: git archive failed: "
-                         f"{detail.decode(errors='replace').strip() or err}")
-    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
-        tar.extractall(directory, filter="data")
-    core = Path(directory) / "seaforce_ros" / "core"
-    for path in core.glob("*.py"):
-        if "from seaforce_ros" in path.read_text() or "import seaforce_ros" in path.read_text():
-            raise SystemExit(f"--baseline {rev}: {path.name} imports seaforce_ros by name; "
-                             "its core cannot be loaded beside the working tree's")
-    spec = importlib.util.spec_from_file_location("_baseline_core", core / "__init__.py",
-                                                  submodule_search_locations=[str(core)])
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["_baseline_core"] = module
-    spec.loader.exec_module(module)
-    return module
+        return baseline_core.load_core(rev, directory)
+    except baseline_core.BaselineUnavailable as err:
+        raise SystemExit(f"--baseline {err}")
 
 
 def interleaved(makers, samples, repeats, chunk=500):
