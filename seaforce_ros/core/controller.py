@@ -537,12 +537,13 @@ class ChannelController:
         if entry == _ENTER and guard is not None and not keep_ledger:
             guard.reset()           # a new port: the full reserve, no damping (bumpless)
         walls = self.walls
+        # clear of the walls at the last sample and now, the monitor's wall ledger empty:
+        # _walls would find no force and change nothing (its two calls skipped)
+        clear = walls.clear and not monitor.wall_work and \
+            walls.free_min <= x <= walls.free_max and walls.free_min <= obs.position <= walls.free_max
         if job is None and not self._walled:
             w = self._no_walls()
-        elif walls.clear and not monitor.wall_work and walls.free_min <= x <= walls.free_max \
-                and walls.free_min <= obs.position <= walls.free_max:
-            # clear of the walls at the last sample and now, the monitor's wall ledger empty:
-            # _walls would find no force and change nothing (its two calls skipped)
+        elif clear:
             w = 0.0
         else:
             w = self._walls(x, v, obs)
@@ -559,11 +560,14 @@ class ChannelController:
             # around the endpoint (a speed servo, then the object and the contact damping), so
             # it takes the model's friction in full, without the margin
             f_ref = obs.model_feedforward() + self._run_job(job, x, v, f_p, steps)
+            f_ref += self._walls(x, v, obs)     # (the job may have changed the configuration)
         else:
             ref = self._reference_mode
             assert ref is not None
             f_ref = ref.enter(obs) if entry == _ENTER else ref.update(obs)
-        f_ref += self._walls(x, v, obs)
+            # the walls' update runs a second time where it was not skipped: a sample in them
+            # counts twice in the monitor's wall ledger (as before: test_per_sample_exact)
+            f_ref += w if clear else self._walls(x, v, obs)
 
         # the guard: damping on the DOB's port (F_p + F_ref, V), Z -> Z + alpha
         if guard is not None:
