@@ -83,6 +83,7 @@ from .safety import JointWalls, RunawayMonitor
 __all__ = ["ChannelController"]
 
 _ENTER, _REENTER = 2, 1   # pending entry into the mode: full (targets captured) / re-entry
+_STILL_LOW = -REST_SPEED  # (a constant: negated per sample it would be a new float)
 _NAN = math.nan
 _isfinite = math.isfinite
 
@@ -502,51 +503,56 @@ class ChannelController:
         obs.update(x, v, f_p, steps)
         est = self.estimator
         est.update(obs.position, f_p, obs.dahl_force, steps)
-        job = self.job
-        if est.contact and job is None:
-            if -REST_SPEED < est.velocity < REST_SPEED:
-                self._standing_contact(est, steps)
-            else:
-                self._still = 0         # a contact that moves is no model error at rest
 
         # the job, or the friction adaptation
-        if job is not None and job.output == TORQUE:
+        job = self.job
+        if job is None:
+            if est.contact:
+                if _STILL_LOW < est.velocity < REST_SPEED:
+                    self._standing_contact(est, steps)
+                else:
+                    self._still = 0     # a contact that moves is no model error at rest
+            if self._adapting and self._uses_feedforward:
+                self._adapt(f_p, steps)
+            runs_dob = self._torque_mode is None
+        elif job.output == TORQUE:
             u = self._run_job(job, x, v, f_p, steps)     # (sees the last sample's walls)
             u += self._walls(x, v, obs)
             self.torque = u
             return u
-        if self._adapting and (self._uses_feedforward or job is not None):
-            self._adapt(f_p, steps)
+        else:
+            if self._adapting:
+                self._adapt(f_p, steps)
+            runs_dob = True
 
         # the runaway monitor, wherever the DOB runs: a trip falls back in this sample (calm
         # and V_e_hat within its limit, its update would change nothing: skipped)
         monitor = self.monitor
-        if job is not None or self._torque_mode is None:
-            limit = monitor.max_speed
+        if runs_dob:
             ve = obs.velocity
-            if not (monitor.calm and -limit <= ve <= limit) and \
+            if not (monitor.calm and monitor.min_speed <= ve <= monitor.max_speed) and \
                     monitor.update(v, ve, steps):
                 self._trip(monitor.reason)
                 job = None
 
         # the mode: F_a itself, or the DOB's reference; the walls add to either
         entry = self._entry
-        self._entry = 0
         u_prev = self.torque
         guard = self.passivity_guard
-        if entry == _ENTER and guard is not None and not keep_ledger:
-            guard.reset()           # a new port: the full reserve, no damping (bumpless)
+        if entry:
+            self._entry = 0
+            if entry == _ENTER and guard is not None and not keep_ledger:
+                guard.reset()       # a new port: the full reserve, no damping (bumpless)
         walls = self.walls
-        # clear of the walls at the last sample and now, the monitor's wall ledger empty:
-        # _walls would find no force and change nothing (its two calls skipped)
-        clear = walls.clear and not monitor.wall_work and \
-            walls.free_min <= x <= walls.free_max and walls.free_min <= obs.position <= walls.free_max
-        if job is None and not self._walled:
-            w = self._no_walls()
-        elif clear:
+        if walls.clear and not monitor.wall_work and walls.free_min <= x <= walls.free_max \
+                and walls.free_min <= obs.position <= walls.free_max:
+            # clear of the walls at the last sample and now, the monitor's wall ledger empty:
+            # _walls would find no force and change nothing, nor would _no_walls (skipped)
+            clear = True
             w = 0.0
         else:
-            w = self._walls(x, v, obs)
+            clear = False
+            w = self._no_walls() if job is None and not self._walled else self._walls(x, v, obs)
         mode = self._torque_mode
         if job is None and mode is not None:
             self.disturbance = _NAN
