@@ -312,7 +312,8 @@ class ContactEstimator:
         self._cache: tuple[tuple | None, int, ObjectEstimate] | None = None
         self._S = np.zeros((6, 6))
         # x - p0, q, a, 1, z, F_d of each sample since the last fold: the first _filled values
-        self._block = [0.0] * _BLOCK_VALUES
+        # (the 1 of every sample written here, once)
+        self._block = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0] * BLOCK
         self._filled = 0
         self._skip = 0
         self._below = 0              # samples in a row below the release level
@@ -462,7 +463,6 @@ class ContactEstimator:
                 block[k] = p - self._p0
                 block[k + 1] = q
                 block[k + 2] = acc
-                block[k + 3] = 1.0
                 block[k + 4] = -f1
                 block[k + 5] = fd
                 k += 6
