@@ -196,13 +196,14 @@ class EndpointObserver:
         hw = self._half_width
         dahl = self.dahl
         dahl_ff = self.dahl_ff
+        moved = True
         if xe > xd + hw:
             xd = self.dahl_input = xe - hw
         elif xe < xd - hw:
             xd = self.dahl_input = xe + hw
         else:
-            xd = None               # the play did not move: neither did the Dahl states
-        if xd is None:
+            moved = False
+        if not moved:               # nor did the Dahl states
             fd = dahl.force
             fdf = dahl_ff.force
         elif self._relax:
