@@ -516,7 +516,7 @@ class ChannelController:
                     self._still = 0     # a contact that moves is no model error at rest
             if self._adapting and self._uses_feedforward:
                 self._adapt(f_p, steps)
-            runs_dob = self._torque_mode is None
+            mode = self._torque_mode        # (None: the DOB runs)
         elif job.output == TORQUE:
             u = self._run_job(job, x, v, f_p, steps)     # (sees the last sample's walls)
             u += self._walls(x, v, obs)
@@ -525,17 +525,18 @@ class ChannelController:
         else:
             if self._adapting:
                 self._adapt(f_p, steps)
-            runs_dob = True
+            mode = None
 
         # the runaway monitor, wherever the DOB runs: a trip falls back in this sample (calm
         # and V_e_hat within its limit, its update would change nothing: skipped)
         monitor = self.monitor
-        if runs_dob:
+        if mode is None:
             ve = obs.velocity
             if not (monitor.calm and monitor.min_speed <= ve <= monitor.max_speed) and \
                     monitor.update(v, ve, steps):
                 self._trip(monitor.reason)
                 job = None
+                mode = self._torque_mode
 
         # the mode: F_a itself, or the DOB's reference; the walls add to either
         entry = self._entry
@@ -554,8 +555,7 @@ class ChannelController:
         else:
             clear = False
             w = self._no_walls() if job is None and not self._walled else self._walls(x, v, obs)
-        mode = self._torque_mode
-        if job is None and mode is not None:
+        if mode is not None:               # (no job)
             self.disturbance = _NAN
             # the mode's own part of the last torque: entries stay bumpless in the walls
             u = (mode.enter(x, v, f_p, steps, self.torque - w, entry == _ENTER) if entry else
