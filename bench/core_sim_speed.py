@@ -25,9 +25,13 @@ repetition that ran fastest (the least disturbed by other processes), averaged. 
 memory the update keeps, traced over N and 2N samples (no allocation per sample: it does not
 grow).
 
+With ``--stages`` it prints where the time of the ``dob_full_ff`` update goes: its parts alone
+on the inputs they had in it (observer, estimator, the DOB step, the walls, the monitor), the
+rest, and the update / simulator step ratio.
+
 Timing figures are printed, never asserted.
 
-Run:  PYTHONPATH=. python bench/core_sim_speed.py [--baseline main]
+Run:  PYTHONPATH=. python bench/core_sim_speed.py [--baseline main | --stages]
 """
 
 import argparse
@@ -146,8 +150,12 @@ def main(argv=None):
                         help="compare the per-sample rows with this git revision (e.g. main)")
     parser.add_argument("--repeats", type=int, default=5,
                         help="repetitions of each compared row (default 5)")
+    parser.add_argument("--stages", action="store_true",
+                        help="time the stages of the dob_full_ff update instead")
     args = parser.parse_args(argv)
     print(f"Python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}")
+    if args.stages:
+        return stage_rows(args.repeats)
     if args.baseline:
         return compare_rows(args.baseline, args.repeats)
     env = position_sine(0.5, 1.0)
@@ -318,6 +326,84 @@ def guard_rows():
         print(f"  {name} {fmt(t)}   median {np.median(t):5.2f} us")
     print(f"  guard / controller update without it (medians): "
           f"{np.median(t_guard) / np.median(t_plain):.2f}")
+
+
+# --- the stages of the update -------------------------------------------------------------------
+def stage_rows(repeats):
+    """Where the time of a dob_full_ff update goes: each part alone on the inputs it had in the
+    update (the free-motion samples of the compared rows: a hand moves the finger, which the
+    estimator sees as a contact), next to the whole update and the simulator step, interleaved
+    like the compared rows; every row less a call that does nothing."""
+    n = 20000
+    sim = ChannelSimulator(PLANT, DAHL, environment=position_sine(0.5, 1.0))
+    rec = run_closed_loop(sim, ChannelController(ControllerConfig(mode="dob_full_ff")), n)
+    x, v, fp, u = (rec[k].tolist() for k in ("x", "v", "f_p", "u"))
+    cfg = ControllerConfig(mode="dob_full_ff")
+    ctl = ChannelController(cfg)
+    seen = []                           # what the parts saw: X_e_hat, F_d, F_ref, V_e_hat
+    for i in range(n):
+        ui = ctl.update(x[i], v[i], fp[i])
+        obs = ctl.observer
+        seen.append((obs.position, obs.dahl_force, ui - ctl.disturbance, obs.velocity))
+    xe, fd, f_ref, ve = (list(c) for c in zip(*seen))
+
+    def part(build):
+        def make():
+            return build(ChannelController(cfg))
+        return make
+
+    def nothing(i):
+        pass
+
+    def observer(c):
+        update = c.observer.update
+        return lambda i: update(x[i], v[i], fp[i])
+
+    def estimator(c):
+        update = c.estimator.update
+        return lambda i: update(xe[i], fp[i], fd[i])
+
+    def dob(c):
+        update = c._dob.update
+        return lambda i: update(f_ref[i], x[i], v[i], fp[i])
+
+    def walls(c):
+        update = c.walls.update
+        return lambda i: update(x[i], v[i], xe[i], ve[i])
+
+    def monitor(c):
+        update = c.monitor.update
+        return lambda i: update(v[i], ve[i])
+
+    def whole(c):
+        update = c.update
+        return lambda i: update(x[i], v[i], fp[i])
+
+    def simulator(c):
+        step = ChannelSimulator(PLANT, DAHL, environment=position_sine(0.5, 1.0)).step
+        return lambda i: step(u[i])
+
+    makers = {"a call that does nothing": lambda: nothing,
+              "ChannelController.update, dob_full_ff": part(whole),
+              "  EndpointObserver.update": part(observer),
+              "  ContactEstimator.update": part(estimator),
+              "  DisturbanceObserver.update (written out)": part(dob),
+              "  JointWalls.update (skipped while clear)": part(walls),
+              "  RunawayMonitor.update (skipped while calm)": part(monitor),
+              "ChannelSimulator.step": part(simulator)}
+    res = interleaved(makers, [(i,) for i in range(n)], repeats)
+    empty = res["a call that does nothing"][1]
+    floors = {label: floor - empty for label, (_, floor) in res.items()}
+    print(f"\nthe stages of a dob_full_ff update, each alone on its inputs in the update "
+          f"(floor per call [us], less {empty:.2f} us of a call that does nothing)")
+    for label, floor in floors.items():
+        if label != "a call that does nothing":
+            print(f"  {label:46s} {floor:6.2f}")
+    whole_t = floors["ChannelController.update, dob_full_ff"]
+    rest = whole_t - floors["  EndpointObserver.update"] - floors["  ContactEstimator.update"]
+    print(f"  {'the rest (hand-overs, mode, checks, DOB step)':46s} {rest:6.2f}")
+    print(f"  update / simulator step: {whole_t / floors['ChannelSimulator.step']:.2f}")
+    return 0
 
 
 # --- before / after, in one run ----------------------------------------------------------------
