@@ -25,22 +25,22 @@ repetition that ran fastest (the least disturbed by other processes), averaged. 
 memory the update keeps, traced over N and 2N samples (no allocation per sample: it does not
 grow).
 
+With ``--stages`` it prints where the time of the ``dob_full_ff`` update goes: its parts alone
+on the inputs they had in it (observer, estimator, the DOB step, the walls, the monitor), the
+rest, and the update / simulator step ratio.
+
 Timing figures are printed, never asserted.
 
-Run:  PYTHONPATH=. python bench/core_sim_speed.py [--baseline main] [--quick]
+Run:  PYTHONPATH=. python bench/core_sim_speed.py [--baseline main | --stages] [--quick]
       (--quick: every row on a few thousand samples, the closed loop 3 s: a smoke run)
 """
 
 import argparse
 import importlib
-import importlib.util
-import io
 import math
 import platform
 import shutil
-import subprocess
 import sys
-import tarfile
 import tempfile
 import time
 import tracemalloc
@@ -56,6 +56,9 @@ from seaforce_ros.core.grasp import Grasp, GraspGoal
 from seaforce_ros.core.params import DobParams, GuardParams
 from seaforce_ros.core.passivity_guard import PassivityGuard
 from seaforce_ros.core.simulator import discretise
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
+from helpers import baseline_core  # noqa: E402
 
 DT = 5e-4
 PLANT = PlantParams.table_i()
@@ -150,9 +153,13 @@ def main(argv=None):
                         help="repetitions of each compared row (default 5)")
     parser.add_argument("--quick", action="store_true",
                         help="smoke run: 2000 samples per row, one repetition, a 3 s loop")
+    parser.add_argument("--stages", action="store_true",
+                        help="time the stages of the dob_full_ff update instead")
     args = parser.parse_args(argv)
     print(f"Python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}")
     n = 2000 if args.quick else 40000
+    if args.stages:
+        return stage_rows(1 if args.quick else args.repeats)
     if args.baseline:
         return compare_rows(args.baseline, 1 if args.quick else args.repeats,
                             2000 if args.quick else 20000)
@@ -329,31 +336,92 @@ def guard_rows(n=20000):
           f"{np.median(t_guard) / np.median(t_plain):.2f}")
 
 
+# --- the stages of the update -------------------------------------------------------------------
+def stage_rows(repeats):
+    """Where the time of a dob_full_ff update goes: each part alone on the inputs it had in the
+    update (the free-motion samples of the compared rows: a hand moves the finger, which the
+    estimator sees as a contact), next to the whole update and the simulator step, interleaved
+    like the compared rows; every row less a call that does nothing."""
+    n = 20000
+    sim = ChannelSimulator(PLANT, DAHL, environment=position_sine(0.5, 1.0))
+    rec = run_closed_loop(sim, ChannelController(ControllerConfig(mode="dob_full_ff")), n)
+    x, v, fp, u = (rec[k].tolist() for k in ("x", "v", "f_p", "u"))
+    cfg = ControllerConfig(mode="dob_full_ff")
+    ctl = ChannelController(cfg)
+    seen = []                           # what the parts saw: X_e_hat, F_d, F_ref, V_e_hat
+    for i in range(n):
+        ui = ctl.update(x[i], v[i], fp[i])
+        obs = ctl.observer
+        seen.append((obs.position, obs.dahl_force, ui - ctl.disturbance, obs.velocity))
+    xe, fd, f_ref, ve = (list(c) for c in zip(*seen))
+
+    def part(build):
+        def make():
+            return build(ChannelController(cfg))
+        return make
+
+    def nothing(i):
+        pass
+
+    def observer(c):
+        update = c.observer.update
+        return lambda i: update(x[i], v[i], fp[i])
+
+    def estimator(c):
+        update = c.estimator.update
+        return lambda i: update(xe[i], fp[i], fd[i])
+
+    def dob(c):
+        update = c._dob.update
+        return lambda i: update(f_ref[i], x[i], v[i], fp[i])
+
+    def walls(c):
+        update = c.walls.update
+        return lambda i: update(x[i], v[i], xe[i], ve[i])
+
+    def monitor(c):
+        update = c.monitor.update
+        return lambda i: update(v[i], ve[i])
+
+    def whole(c):
+        update = c.update
+        return lambda i: update(x[i], v[i], fp[i])
+
+    def simulator(c):
+        step = ChannelSimulator(PLANT, DAHL, environment=position_sine(0.5, 1.0)).step
+        return lambda i: step(u[i])
+
+    makers = {"a call that does nothing": lambda: nothing,
+              "ChannelController.update, dob_full_ff": part(whole),
+              "  EndpointObserver.update": part(observer),
+              "  ContactEstimator.update": part(estimator),
+              "  DisturbanceObserver.update (written out)": part(dob),
+              "  JointWalls.update (skipped while clear)": part(walls),
+              "  RunawayMonitor.update (skipped while calm)": part(monitor),
+              "ChannelSimulator.step": part(simulator)}
+    res = interleaved(makers, [(i,) for i in range(n)], repeats)
+    empty = res["a call that does nothing"][1]
+    floors = {label: floor - empty for label, (_, floor) in res.items()}
+    print(f"\nthe stages of a dob_full_ff update, each alone on its inputs in the update "
+          f"(floor per call [us], less {empty:.2f} us of a call that does nothing)")
+    for label, floor in floors.items():
+        if label != "a call that does nothing":
+            print(f"  {label:46s} {floor:6.2f}")
+    whole_t = floors["ChannelController.update, dob_full_ff"]
+    rest = whole_t - floors["  EndpointObserver.update"] - floors["  ContactEstimator.update"]
+    print(f"  {'the rest (hand-overs, mode, checks, DOB step)':46s} {rest:6.2f}")
+    print(f"  update / simulator step: {whole_t / floors['ChannelSimulator.step']:.2f}")
+    return 0
+
+
 # --- before / after, in one run ----------------------------------------------------------------
 def load_core(rev, directory):
-    """The ``seaforce_ros.core`` of git revision ``rev``, exported into ``directory`` and
-    imported as the package ``_baseline_core`` (it imports itself relatively only)."""
-    root = Path(__file__).resolve().parents[1]
+    """The ``seaforce_ros.core`` of git revision ``rev``, exported into ``directory``
+    (test/helpers/baseline_core.py)."""
     try:
-        archive = subprocess.run(["git", "-C", str(root), "archive", rev, "seaforce_ros/core"],
-                                 capture_output=True, check=True).stdout
-    except (OSError, subprocess.CalledProcessError) as err:
-        detail = getattr(err, "stderr", b"") or b""
-        raise SystemExit(f"--baseline {rev}: git archive failed: "
-                         f"{detail.decode(errors='replace').strip() or err}")
-    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
-        tar.extractall(directory, filter="data")
-    core = Path(directory) / "seaforce_ros" / "core"
-    for path in core.glob("*.py"):
-        if "from seaforce_ros" in path.read_text() or "import seaforce_ros" in path.read_text():
-            raise SystemExit(f"--baseline {rev}: {path.name} imports seaforce_ros by name; "
-                             "its core cannot be loaded beside the working tree's")
-    spec = importlib.util.spec_from_file_location("_baseline_core", core / "__init__.py",
-                                                  submodule_search_locations=[str(core)])
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["_baseline_core"] = module
-    spec.loader.exec_module(module)
-    return module
+        return baseline_core.load_core(rev, directory)
+    except baseline_core.BaselineUnavailable as err:
+        raise SystemExit(f"--baseline {err}")
 
 
 def interleaved(makers, samples, repeats, chunk=500):

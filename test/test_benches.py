@@ -37,6 +37,8 @@ SMOKE = {
         ((), [rf'ChannelController\.update\s+mean\s+{NUM} us',
               rf'run_closed_loop\s+{NUM} s', rf'ContactEstimator\.update\s+mean\s+{NUM} us',
               rf'PassivityGuard\.update\s+mean\s+{NUM} us']),
+        (('--stages',), [rf'^\s+ContactEstimator\.update\s+{NUM}$',
+                         rf'^\s+update / simulator step: {NUM}$']),
         (('--baseline', 'HEAD'), [
             rf'^ChannelSimulator\.step \(same code: noise\)\s+{NUM}\s+{NUM}',
             r'^\s+after\s+N = [1-9]\d*: \d+ B'])],

@@ -59,8 +59,14 @@ still raises :class:`~.errors.NonFiniteInputError` (nothing is latched).
 The hot path uses Python floats only (no numpy, no allocation beyond float boxing, no
 logging); a disabled guard or adaptation costs one test per sample, and so do the walls clear
 of the finger and a calm runaway monitor (their updates, which would change nothing, are
-skipped). Its classes have slots: an instance with more than 30 attributes in a dict would
-make every attribute access a hashed look-up (CPython 3.11).
+skipped, in every mode). Its classes have slots: an instance with more than 30 attributes in a
+dict would make every attribute access a hashed look-up (CPython 3.11). :meth:`update` writes
+the DOB's step and dob_full_ff's reference out (a Python call costs about 0.45k of the 24k
+machine instructions of a dob_full_ff update, counted with valgrind), and decides with
+comparisons in an ``if``: a float comparison whose result goes to a variable is not
+specialised (the walls' skip cost 0.45k more that way). ``bench/core_sim_speed.py --stages``
+says where the time goes; test/core/test_per_sample_exact.py holds every float to the code
+before these speed-ups.
 """
 
 from __future__ import annotations
@@ -74,7 +80,8 @@ from .friction_calibration import FrictionAdaptation
 from .grasp import Grasp
 from .handover import Mailbox
 from .jobs import TORQUE, Job, JobSample, busy_reason
-from .modes import MODE_TYPES, Dob, Mode, Passive, ReferenceMode, TorqueMode
+from .modes import (MODE_TYPES, Dob, DobFullFeedforward, Mode, Passive, ReferenceMode,
+                    TorqueMode)
 from .observer import EndpointObserver
 from .params import ControllerConfig, DahlParams
 from .passivity_guard import PassivityGuard
@@ -83,6 +90,7 @@ from .safety import JointWalls, RunawayMonitor
 __all__ = ["ChannelController"]
 
 _ENTER, _REENTER = 2, 1   # pending entry into the mode: full (targets captured) / re-entry
+_STILL_LOW = -REST_SPEED  # (a constant: negated per sample it would be a new float)
 _NAN = math.nan
 _isfinite = math.isfinite
 
@@ -160,8 +168,8 @@ class ChannelController:
         "observer", "estimator", "adaptation", "walls", "monitor", "passivity_guard", "_dob",
         "_modes", "_config",
         # the mode in force and its entry
-        "_torque_mode", "_reference_mode", "_uses_feedforward", "_walled", "_adapting",
-        "_entry",
+        "_torque_mode", "_reference_mode", "_reads_feedforward", "_uses_feedforward", "_walled",
+        "_adapting", "_entry",
         # the walls, the monitor's fall-back, a standing contact
         "_wall", "beyond", "fallback", "fallback_reason", "tripped", "_still", "_standing")
 
@@ -247,6 +255,7 @@ class ChannelController:
         self._reference_mode = mode if isinstance(mode, ReferenceMode) else None
         self._uses_feedforward = mode.uses_feedforward
         self._walled = not isinstance(mode, Passive)
+        self._reads_feedforward = type(mode) is DobFullFeedforward     # F_ref = obs.feedforward
 
     def _select(self, c: ControllerConfig) -> None:
         """Apply a configuration handed to :meth:`configure`: its mode is selected (anew)."""
@@ -502,55 +511,60 @@ class ChannelController:
         obs.update(x, v, f_p, steps)
         est = self.estimator
         est.update(obs.position, f_p, obs.dahl_force, steps)
-        job = self.job
-        if est.contact and job is None:
-            if -REST_SPEED < est.velocity < REST_SPEED:
-                self._standing_contact(est, steps)
-            else:
-                self._still = 0         # a contact that moves is no model error at rest
 
         # the job, or the friction adaptation
-        if job is not None and job.output == TORQUE:
+        job = self.job
+        if job is None:
+            if est.contact:
+                if _STILL_LOW < est.velocity < REST_SPEED:
+                    self._standing_contact(est, steps)
+                else:
+                    self._still = 0     # a contact that moves is no model error at rest
+            if self._adapting and self._uses_feedforward:
+                self._adapt(f_p, steps)
+            mode = self._torque_mode        # (None: the DOB runs)
+        elif job.output == TORQUE:
             u = self._run_job(job, x, v, f_p, steps)     # (sees the last sample's walls)
             u += self._walls(x, v, obs)
             self.torque = u
             return u
-        if self._adapting and (self._uses_feedforward or job is not None):
-            self._adapt(f_p, steps)
+        else:
+            if self._adapting:
+                self._adapt(f_p, steps)
+            mode = None
 
         # the runaway monitor, wherever the DOB runs: a trip falls back in this sample (calm
         # and V_e_hat within its limit, its update would change nothing: skipped)
         monitor = self.monitor
-        if job is not None or self._torque_mode is None:
-            limit = monitor.max_speed
+        if mode is None:
             ve = obs.velocity
-            if not (monitor.calm and -limit <= ve <= limit) and \
+            if not (monitor.calm and monitor.min_speed <= ve <= monitor.max_speed) and \
                     monitor.update(v, ve, steps):
                 self._trip(monitor.reason)
                 job = None
+                mode = self._torque_mode
 
         # the mode: F_a itself, or the DOB's reference; the walls add to either
         entry = self._entry
-        self._entry = 0
-        u_prev = self.torque
         guard = self.passivity_guard
-        if entry == _ENTER and guard is not None and not keep_ledger:
-            guard.reset()           # a new port: the full reserve, no damping (bumpless)
+        if entry:
+            self._entry = 0
+            if entry == _ENTER and guard is not None and not keep_ledger:
+                guard.reset()       # a new port: the full reserve, no damping (bumpless)
         walls = self.walls
-        if job is None and not self._walled:
-            w = self._no_walls()
-        elif walls.clear and not monitor.wall_work and walls.free_min <= x <= walls.free_max \
+        if walls.clear and not monitor.wall_work and walls.free_min <= x <= walls.free_max \
                 and walls.free_min <= obs.position <= walls.free_max:
             # clear of the walls at the last sample and now, the monitor's wall ledger empty:
-            # _walls would find no force and change nothing (its two calls skipped)
+            # _walls would find no force and change nothing, nor would _no_walls (skipped)
+            clear = True
             w = 0.0
         else:
-            w = self._walls(x, v, obs)
-        mode = self._torque_mode
-        if job is None and mode is not None:
+            clear = False
+            w = self._no_walls() if job is None and not self._walled else self._walls(x, v, obs)
+        if mode is not None:               # (no job)
             self.disturbance = _NAN
             # the mode's own part of the last torque: entries stay bumpless in the walls
-            u = (mode.enter(x, v, f_p, steps, u_prev - w, entry == _ENTER) if entry else
+            u = (mode.enter(x, v, f_p, steps, self.torque - w, entry == _ENTER) if entry else
                  mode.update(x, v, f_p, steps)) + w
             self.torque = u
             return u
@@ -559,11 +573,17 @@ class ChannelController:
             # around the endpoint (a speed servo, then the object and the contact damping), so
             # it takes the model's friction in full, without the margin
             f_ref = obs.model_feedforward() + self._run_job(job, x, v, f_p, steps)
+            f_ref += self._walls(x, v, obs)     # (the job may have changed the configuration)
         else:
-            ref = self._reference_mode
-            assert ref is not None
-            f_ref = ref.enter(obs) if entry == _ENTER else ref.update(obs)
-        f_ref += self._walls(x, v, obs)
+            if entry != _ENTER and self._reads_feedforward:
+                f_ref = obs.feedforward     # DobFullFeedforward.update without the call (0.4k)
+            else:
+                ref = self._reference_mode
+                assert ref is not None
+                f_ref = ref.enter(obs) if entry == _ENTER else ref.update(obs)
+            # the walls' update runs a second time where it was not skipped: a sample in them
+            # counts twice in the monitor's wall ledger (as before: test_per_sample_exact)
+            f_ref += w if clear else self._walls(x, v, obs)
 
         # the guard: damping on the DOB's port (F_p + F_ref, V), Z -> Z + alpha
         if guard is not None:
@@ -572,8 +592,18 @@ class ChannelController:
         # the DOB, then the output
         dob = self._dob
         if entry:
-            dob.enter(u_prev, f_ref, x, v, f_p, steps)
-        u = dob.update(f_ref, x, v, f_p, steps)
+            dob.enter(self.torque, f_ref, x, v, f_p, steps)
+        if steps == 1:
+            # DisturbanceObserver.update written out for one step: the same arithmetic without
+            # the call (0.6k of the 25k instructions of a dob_full_ff update)
+            e = f_ref + f_p - dob.kn * x
+            ramp = dob.lam_mn * v + dob.lam_bn * x
+            integ = dob.integral + dob.lam_half_dt * (e + dob.error)
+            dob.error = e
+            dob.integral = integ
+            u = f_ref + integ - ramp
+        else:
+            u = dob.update(f_ref, x, v, f_p, steps)
         self.disturbance = u - f_ref
         self.torque = u
         return u

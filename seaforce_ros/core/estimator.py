@@ -224,7 +224,7 @@ class ContactEstimator:
         "_factor2", "_floor2", "_block_decay", "_moving", "_kappa",
         # the filters and the residual
         "_first", "_x_in", "_g_in", "position", "velocity", "_f1", "_f2", "force", "bias",
-        "_drift", "_recent", "detection", "detection_mean", "_spread2", "_on2", "_off",
+        "_drift", "_recent", "detection", "detection_mean", "_spread2", "_on2", "_release",
         # contact and quiet periods
         "contact", "direction", "_side", "onset_position", "_onset_before", "contacts",
         "_frozen", "_quiet", "quiet", "_settling", "_at_rest", "_skip", "_below",
@@ -292,11 +292,12 @@ class ContactEstimator:
         self.detection = 0.0
         # the detection residual's mean and SPREAD_FACTOR^2 times its mean square deviation
         # in free motion (the first threshold is the largest), the threshold squared, the
-        # release level
+        # release level negated (d * side above it is below the level; kept negated, not
+        # negated per sample)
         self.detection_mean = 0.0
         self._spread2 = self._ceiling2
         self._on2 = self._ceiling2
-        self._off = 0.5 * self._on
+        self._release = -(0.5 * self._on)
         self._frozen = False         # between freeze() and let_go()
         self._quiet = 0              # samples still to be skipped (QUIET_TIME's)
         self.quiet = False           # this sample was skipped
@@ -311,7 +312,8 @@ class ContactEstimator:
         self._cache: tuple[tuple | None, int, ObjectEstimate] | None = None
         self._S = np.zeros((6, 6))
         # x - p0, q, a, 1, z, F_d of each sample since the last fold: the first _filled values
-        self._block = [0.0] * _BLOCK_VALUES
+        # (the 1 of every sample written here, once)
+        self._block = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0] * BLOCK
         self._filled = 0
         self._skip = 0
         self._below = 0              # samples in a row below the release level
@@ -450,7 +452,7 @@ class ContactEstimator:
             self.quiet = False
         elif self.contact:
             self.quiet = False
-            if d * self._side > -self._off or self._skip:
+            if d * self._side > self._release or self._skip:
                 self._in_contact(d, steps)
             else:
                 # a sample of the object (the most frequent case in contact: in line)
@@ -461,7 +463,6 @@ class ContactEstimator:
                 block[k] = p - self._p0
                 block[k + 1] = q
                 block[k + 2] = acc
-                block[k + 3] = 1.0
                 block[k + 4] = -f1
                 block[k + 5] = fd
                 k += 6
@@ -547,7 +548,7 @@ class ContactEstimator:
         """A sample in contact that is no sample of the object (:meth:`update` puts those in
         the fit's block): the contact ends when ``d`` stays below the release level; the first
         samples after its start are skipped (the filters still hold free motion)."""
-        if d * self._side > -self._off:
+        if d * self._side > self._release:
             # below the release level: not a sample of the object; the contact ends when
             # that lasts (noise on a light touch must not end it)
             self._below += steps
@@ -563,7 +564,7 @@ class ContactEstimator:
         self.contact = True
         self.direction = 1 if excess < 0.0 else -1
         self._side = float(self.direction)      # (d * side: a product of two floats)
-        self._off = 0.5 * math.sqrt(self._on2)
+        self._release = -(0.5 * math.sqrt(self._on2))
         self._onset_before = self.onset_position
         self.onset_position = p
         self.contacts += 1

@@ -108,7 +108,8 @@ class EndpointObserver:
     __slots__ = ("dt", "_ks", "_inv_bs", "_a", "_c0", "_c1", "damping", "stiffness", "_rest",
                  "_half_width", "dahl", "_first", "_delta", "_fp_prev", "dahl_input",
                  "position", "velocity", "dahl_force", "compensation", "feedforward",
-                 "_scales", "_kb", "_kk", "_ff", "dahl_ff", "dahl_feedforward", "_relax")
+                 "_scales", "_kb", "_kk", "_ff", "dahl_ff", "dahl_feedforward", "_relax",
+                 "_coulomb", "_minus_coulomb", "_sigma", "_minus_sigma")
 
     def __init__(self, plant: PlantParams, feedforward: FeedforwardParams, dahl: DahlParams,
                  dt: float = 5e-4) -> None:
@@ -142,8 +143,13 @@ class EndpointObserver:
         self.dahl_ff.set_params(self._ff.dahl(dahl))
         # both Dahl states relax exponentially (n = 1, eq. 15; sigma > 0): update updates them
         # itself (DahlState.update's arithmetic), otherwise it calls DahlState.update
-        self._relax = all(d.exponent == 1.0 and d.sigma != 0.0
-                          for d in (self.dahl, self.dahl_ff))
+        states = (self.dahl, self.dahl_ff)
+        self._relax = all(d.exponent == 1.0 and d.sigma != 0.0 for d in states)
+        # (negated here, not per sample: the same floats, -sigma dx being (-sigma) dx)
+        self._coulomb = tuple(d.coulomb_force for d in states)
+        self._minus_coulomb = tuple(-d.coulomb_force for d in states)
+        self._sigma = tuple(d.sigma for d in states)
+        self._minus_sigma = tuple(-d.sigma for d in states)
 
     def model_feedforward(self) -> float:
         """``b_e V_e_hat + k_e (X_e_hat - rest) + F_d`` [N m]: the model's friction in full,
@@ -182,41 +188,46 @@ class EndpointObserver:
         self._fp_prev = f_p
         xe = x + delta
         ve = v + (f_p - self._ks * delta) * self._inv_bs
-        # the play operator: sensor noise on X_e_hat must not drive spurious Dahl reversals
+        self.position = xe
+        self.velocity = ve
+        # the play operator: sensor noise on X_e_hat must not drive spurious Dahl reversals;
+        # both Dahl states are at its output, dahl_input, since the last sample
         xd = self.dahl_input
         hw = self._half_width
+        dahl = self.dahl
+        dahl_ff = self.dahl_ff
+        moved = True
         if xe > xd + hw:
             xd = self.dahl_input = xe - hw
         elif xe < xd - hw:
             xd = self.dahl_input = xe + hw
-        self.position = xe
-        self.velocity = ve
-        if self._relax:
-            # DahlState.update (n = 1) written out for the model's state and the
-            # feed-forward's: the same arithmetic without two calls (a fifth of this update)
-            dahl = self.dahl
-            dx = xd - dahl.position
-            dahl.position = xd
-            fd = dahl.force
-            if dx != 0.0:
-                f_c = dahl.coulomb_force
-                if dx > 0.0:
-                    fd = dahl.force = f_c - (f_c - fd) * _exp(-dahl.sigma * dx / f_c)
-                else:
-                    fd = dahl.force = -f_c + (f_c + fd) * _exp(dahl.sigma * dx / f_c)
-            dahl = self.dahl_ff
-            dx = xd - dahl.position
-            dahl.position = xd
-            fdf = dahl.force
-            if dx != 0.0:
-                f_c = dahl.coulomb_force
-                if dx > 0.0:
-                    fdf = dahl.force = f_c - (f_c - fdf) * _exp(-dahl.sigma * dx / f_c)
-                else:
-                    fdf = dahl.force = -f_c + (f_c + fdf) * _exp(dahl.sigma * dx / f_c)
         else:
-            fd = self.dahl.update(xd)
-            fdf = self.dahl_ff.update(xd)
+            moved = False
+        if not moved:               # nor did the Dahl states
+            fd = dahl.force
+            fdf = dahl_ff.force
+        elif self._relax:
+            # DahlState.update (n = 1) written out for the model's state and the
+            # feed-forward's, with one increment and their parameters cached by set_friction:
+            # the same arithmetic without two calls (a fifth of this update)
+            dx = xd - dahl.position
+            dahl.position = dahl_ff.position = xd
+            fd = dahl.force
+            fdf = dahl_ff.force
+            if dx != 0.0:
+                f_c, f_c_ff = self._coulomb
+                if dx > 0.0:
+                    sigma, sigma_ff = self._minus_sigma
+                    fd = dahl.force = f_c - (f_c - fd) * _exp(sigma * dx / f_c)
+                    fdf = dahl_ff.force = f_c_ff - (f_c_ff - fdf) * _exp(sigma_ff * dx / f_c_ff)
+                else:
+                    sigma, sigma_ff = self._sigma
+                    low, low_ff = self._minus_coulomb
+                    fd = dahl.force = low + (f_c + fd) * _exp(sigma * dx / f_c)
+                    fdf = dahl_ff.force = low_ff + (f_c_ff + fdf) * _exp(sigma_ff * dx / f_c_ff)
+        else:
+            fd = dahl.update(xd)
+            fdf = dahl_ff.update(xd)
         self.dahl_force = fd
         self.dahl_feedforward = fdf
         fc = self.compensation = self._kb * ve + self._kk * (xe - self._rest)

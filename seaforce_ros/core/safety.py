@@ -166,12 +166,12 @@ class RunawayMonitor:
     calm : bool
         Nothing is counted: ``over`` 0, armed, ``wall_work`` 0. An update with V_e_hat
         within ``max_speed`` then changes nothing and returns False (the controller skips it).
-    max_speed : float
-        ``monitor.max_speed`` [rad/s].
+    max_speed, min_speed : float
+        ``monitor.max_speed`` and its negative [rad/s].
     """
 
-    __slots__ = ("dt", "max_speed", "_trip", "over", "reason", "armed", "wall_work", "_budget",
-                 "_forget", "_grace", "_memory", "calm")
+    __slots__ = ("dt", "max_speed", "min_speed", "_trip", "over", "reason", "armed", "wall_work",
+                 "_budget", "_forget", "_grace", "_memory", "calm")
 
     def __init__(self, monitor: MonitorParams, dt: float) -> None:
         self.dt = float(dt)
@@ -181,6 +181,7 @@ class RunawayMonitor:
     def configure(self, monitor: MonitorParams) -> None:
         """New (validated) settings; the count goes on."""
         self.max_speed = monitor.max_speed
+        self.min_speed = -monitor.max_speed
         self._budget = monitor.wall_energy
         self._forget = math.exp(-self.dt / WALL_MEMORY)
         self._memory = int(round(WALL_MEMORY / self.dt))

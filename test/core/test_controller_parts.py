@@ -4,8 +4,8 @@ import math
 
 import pytest
 
-from seaforce_ros.core import (DOB_MODES, MODES, ControllerConfig, DahlParams, PlantParams,
-                               TargetParams)
+from seaforce_ros.core import (DOB_MODES, MODES, ChannelController, ControllerConfig,
+                               DahlParams, PlantParams, TargetParams)
 from seaforce_ros.core.dahl import DahlState
 from seaforce_ros.core.dob import DisturbanceObserver
 from seaforce_ros.core.modes import MODE_TYPES, ReferenceMode, TorqueMode
@@ -97,6 +97,28 @@ def test_the_observers_dahl_states_are_dahl_states_driven_by_the_play(exponent):
         assert obs.dahl_force == model.update(obs.dahl_input)
         assert obs.dahl_feedforward == feedforward.update(obs.dahl_input)
         assert obs.feedforward == obs.compensation + obs.dahl_feedforward
+
+
+@pytest.mark.parametrize("mode", ["force", "dob_linear_ff", "dob_full_ff"])
+def test_the_controllers_dob_step_is_the_dobs(mode):
+    """ChannelController.update writes the DOB's step out (and dob_full_ff's reference): its
+    torque is exactly (==) what DisturbanceObserver.update gives on the reference, one sample
+    or several at a time (walls clear, no guard: F_ref + 0.0 is the mode's reference)."""
+    ctl = ChannelController(CONFIG.replace(mode=mode), DT)
+    dob = DisturbanceObserver(CONFIG.dob, DT)
+    reference = {"force": lambda: CONFIG.target.force,
+                 "dob_linear_ff": lambda: ctl.observer.compensation,
+                 "dob_full_ff": lambda: ctl.observer.feedforward}[mode]
+    for k in range(3000):
+        t = k * DT
+        x, v, f_p = 0.3 * math.sin(7.0 * t), 2.1 * math.cos(7.0 * t), 0.05 * math.cos(11.0 * t)
+        steps = 3 if k % 500 == 7 else 1
+        u = ctl.update(x, v, f_p, steps)
+        f_ref = reference() + 0.0
+        if k == 0:
+            dob.enter(0.0, f_ref, x, v, f_p, steps)
+        assert u == dob.update(f_ref, x, v, f_p, steps)
+        assert ctl.disturbance == u - f_ref
 
 
 def test_hose_coefficients_over_n_periods_are_n_single_ones_for_a_ramp():
