@@ -551,39 +551,39 @@ class ChannelController:
             self._entry = 0
             if entry == _ENTER and guard is not None and not keep_ledger:
                 guard.reset()       # a new port: the full reserve, no damping (bumpless)
-        walls = self.walls
-        if walls.clear and not monitor.wall_work and walls.free_min <= x <= walls.free_max \
-                and walls.free_min <= obs.position <= walls.free_max:
-            # clear of the walls at the last sample and now, the monitor's wall ledger empty:
-            # _walls would find no force and change nothing, nor would _no_walls (skipped)
-            clear = True
-            w = 0.0
-        else:
-            clear = False
-            w = self._no_walls() if job is None and not self._walled else self._walls(x, v, obs)
-        if mode is not None:               # (no job)
-            self.disturbance = _NAN
-            # the mode's own part of the last torque: entries stay bumpless in the walls
-            u = (mode.enter(x, v, f_p, steps, self.torque - w, entry == _ENTER) if entry else
-                 mode.update(x, v, f_p, steps)) + w
-            self.torque = u
-            return u
         if job is not None:
             # the job's endpoint force on minimum impedance: a grasp closes its own loop
             # around the endpoint (a speed servo, then the object and the contact damping), so
-            # it takes the model's friction in full, without the margin
+            # it takes the model's friction in full, without the margin; the walls after it
+            # (the job may have changed the configuration)
             f_ref = obs.model_feedforward() + self._run_job(job, x, v, f_p, steps)
-            f_ref += self._walls(x, v, obs)     # (the job may have changed the configuration)
+            f_ref += self._walls(x, v, obs)
         else:
+            walls = self.walls
+            if walls.clear and not monitor.wall_work and walls.free_min <= x <= walls.free_max \
+                    and walls.free_min <= obs.position <= walls.free_max:
+                # clear of the walls at the last sample and now, the monitor's wall ledger
+                # empty: _walls would find no force and change nothing, nor would _no_walls
+                w = 0.0
+            else:
+                w = self._walls(x, v, obs) if self._walled else self._no_walls()
+            if mode is not None:
+                self.disturbance = _NAN
+                # the mode's own part of the last torque: entries stay bumpless in the walls
+                u = (mode.enter(x, v, f_p, steps, self.torque - w, entry == _ENTER) if entry
+                     else mode.update(x, v, f_p, steps)) + w
+                self.torque = u
+                return u
             if entry != _ENTER and self._reads_feedforward:
                 f_ref = obs.feedforward     # DobFullFeedforward.update without the call (0.4k)
             else:
                 ref = self._reference_mode
                 assert ref is not None
                 f_ref = ref.enter(obs) if entry == _ENTER else ref.update(obs)
-            # the walls' update runs a second time where it was not skipped: a sample in them
-            # counts twice in the monitor's wall ledger (as before: test_per_sample_exact)
-            f_ref += w if clear else self._walls(x, v, obs)
+            # the walls once per sample (until 2026-12-05 a sample in them ran their update a
+            # second time here: counted twice in the monitor's wall ledger, its grace after a
+            # trip spent twice as fast)
+            f_ref += w
 
         # the guard: damping on the DOB's port (F_p + F_ref, V), Z -> Z + alpha
         if guard is not None:
