@@ -32,8 +32,11 @@ import pytest
 import seaforce_ros.core as now_core
 from helpers.baseline_core import BaselineUnavailable, load_core
 
-#: The core before the speed-ups of the per-sample path that this test guards.
-BASELINE = "8e7ccaf"
+#: The core whose behaviour the per-sample path keeps: 8e7ccaf (before the speed-ups of
+#: 2026-12-05, which this test proved exact against it) until the walls ran once per sample
+#: (2660397, the one intended change since: the monitor's wall ledger no longer counts a
+#: sample twice). A deliberate change of behaviour moves it; a speed-up never does.
+BASELINE = "2660397"
 DT = 5e-4
 _T0_NS = 1_700_000_000_000_000_000
 FIELDS = ("motor_inertia", "motor_damping", "motor_stiffness", "endpoint_inertia",
