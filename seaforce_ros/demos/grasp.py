@@ -142,7 +142,11 @@ def grasp_one(obs, children, name, k, b, speed, grip):
             'max_force': max_force, 'k_half': half[1], 'k_sigma_half': half[2],
             'b_half': half[3], 'b_sigma_half': half[4], 'result': r,
             'delay_ms': (detected - touched) * DT * 1e3,
-            'peak_approach': float(force[(cycles >= touched) & (cycles < squeeze)].max()),
+            # (from the touch to the squeeze: at least the touch's own sample -- the squeeze can
+            # be reported at a cycle whose states the demo did not receive, before the first
+            # positive force it has)
+            'peak_approach': float(force[(cycles >= touched)
+                                         & (cycles < max(squeeze, touched + 1))].max()),
             'peak': float(force.max()), 'held': float(held.mean()),
             'xe': xe, 'force': force, 'cycles': cycles, 'touched': touched,
             'canceled': canceled}
