@@ -11,6 +11,12 @@ sys.path.insert(0, str(ROOT / 'test'))
 # Every test run gets its own DDS domain and stays on this host (set before rclpy is imported
 # anywhere, and inherited by every process the tests start).
 os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
+# Under pytest-xdist (scripts/test runs two workers) each worker is a test run of its own: its
+# domain is the session's moved by 50 per worker, and so are the stacks' own (helpers.nodes)
+_WORKER = os.environ.get('PYTEST_XDIST_WORKER', '')
+if _WORKER.startswith('gw'):
+    os.environ['ROS_DOMAIN_ID'] = str(
+        1 + (int(os.environ['ROS_DOMAIN_ID']) - 1 + 50 * int(_WORKER[2:])) % 100)
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 # numpy's BLAS on one thread here and in every process a test starts (scripts/setup.sh says
 # why; before numpy is first imported)
@@ -26,9 +32,16 @@ def pytest_addoption(parser):
                           '(normal priority): the tests must pass on a busy host')
 
 
-def _start_hogs(group):
-    """One busy-looping process per core, ended by PID with the group."""
-    for _ in range(os.cpu_count() or 1):
+def _start_hogs(group, shared=False):
+    """One busy-looping process per core, ended by PID with the group; ``shared``: the
+    session's, shared out among the xdist workers (one per core in all)."""
+    cores = os.cpu_count() or 1
+    count = cores
+    if shared:
+        workers = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1'))
+        index = int(_WORKER[2:]) if _WORKER.startswith('gw') else 0
+        count = cores // workers + (1 if index < cores % workers else 0)
+    for _ in range(count):
         group.start([sys.executable, '-c', 'while True: pass'], name='cpu_hog')
 
 
@@ -36,7 +49,7 @@ def _start_hogs(group):
 def _session_cpu_hog(request):
     group = ProcessGroup()
     if request.config.getoption('--cpu-hog'):
-        _start_hogs(group)
+        _start_hogs(group, shared=True)
     try:
         yield
     finally:
@@ -86,6 +99,25 @@ def ros_context():
         rclpy.try_shutdown(context=context)
 
 
+# --- order ---------------------------------------------------------------------------------
+#: The longest test files (--durations), run first: xdist hands files to its workers in
+#: collection order, and a long one handed out last ends the run alone.
+LONGEST_FIRST = ('test_demo.py', 'test_commission_ros.py', 'commissioning/test_free_air.py',
+                 'test_benches.py', 'test_grasp_ros.py', 'commissioning/test_nonlinear_terms.py',
+                 'test_identification_random.py', 'test_friction_calibration_ros.py',
+                 'test_bag_recorder.py', 'test_safety_ros.py', 'test_hardware_node.py',
+                 'commissioning/test_analyse.py', 'test_cycle_faults_ros.py')
+
+
+def pytest_collection_modifyitems(items):
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+
+    def key(item):
+        path = item.nodeid.split('::', 1)[0].removeprefix('test/')
+        return rank.get(path, len(rank))
+    items.sort(key=key)   # stable: each file's own order is kept
+
+
 # --- session end ---------------------------------------------------------------------------
 _session = {}
 
@@ -105,6 +137,18 @@ def pytest_terminal_summary(terminalreporter):
 
 def pytest_sessionfinish(session, exitstatus):
     _session['status'] = int(exitstatus)
+    workeroutput = getattr(session.config, 'workeroutput', None)
+    if workeroutput is not None:          # an xdist worker: its slow stops go to the controller
+        from helpers.processes import slow_stops
+        workeroutput['slow_stops'] = [list(stop) for stop in slow_stops]
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    """(xdist controller) a worker's slow process stops, for the summary above."""
+    from helpers.processes import slow_stops
+    slow_stops.extend(tuple(stop) for stop in getattr(node, 'workeroutput', {}).get(
+        'slow_stops', []))
 
 
 @pytest.hookimpl(trylast=True)
