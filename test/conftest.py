@@ -99,23 +99,31 @@ def ros_context():
         rclpy.try_shutdown(context=context)
 
 
-# --- order ---------------------------------------------------------------------------------
-#: The longest test files (--durations), run first: xdist hands files to its workers in
-#: collection order, and a long one handed out last ends the run alone.
-LONGEST_FIRST = ('test_demo.py', 'test_commission_ros.py', 'commissioning/test_free_air.py',
-                 'test_benches.py', 'test_grasp_ros.py', 'commissioning/test_nonlinear_terms.py',
-                 'test_identification_random.py', 'test_friction_calibration_ros.py',
-                 'test_bag_recorder.py', 'test_safety_ros.py', 'test_hardware_node.py',
-                 'commissioning/test_analyse.py', 'test_cycle_faults_ros.py')
+# --- xdist: which worker runs what ----------------------------------------------------------
+#: The test files that start ROS stacks and measure them (nodes, demos, benches, the EtherCAT
+#: emulator), longest first. Under xdist (scripts/test) they form one group that runs on one
+#: worker, one file after another, while the other worker takes the rest file by file: two
+#: stacks never share the 2 cores, each runs beside at most one single-threaded test.
+STACKS = ('test_demo.py', 'test_benches.py', 'test_commission_ros.py', 'test_grasp_ros.py',
+          'test_friction_calibration_ros.py', 'test_bag_recorder.py', 'test_safety_ros.py',
+          'test_hardware_node.py', 'test_cycle_faults_ros.py', 'test_closed_loop.py',
+          'test_controller_modes_ros.py', 'test_passivity_guard_ros.py', 'test_layouts_ros.py',
+          'test_gripper_actions_ros.py', 'test_identification_ros.py',
+          'test_identification_random.py', 'ethercat/test_backend.py',
+          'ethercat/test_emulator.py', 'ethercat/test_harness.py')
 
 
-def pytest_collection_modifyitems(items):
-    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+@pytest.hookimpl(tryfirst=True)     # before xdist's own, which reads the groups
+def pytest_collection_modifyitems(config, items):
+    if not os.environ.get('PYTEST_XDIST_WORKER'):
+        return
+    rank = {name: i for i, name in enumerate(STACKS)}
 
-    def key(item):
-        path = item.nodeid.split('::', 1)[0].removeprefix('test/')
-        return rank.get(path, len(rank))
-    items.sort(key=key)   # stable: each file's own order is kept
+    def path(item):
+        return item.nodeid.split('::', 1)[0].removeprefix('test/')
+    items.sort(key=lambda item: rank.get(path(item), len(rank)))   # stable within a file
+    for item in items:
+        item.add_marker(pytest.mark.xdist_group('stacks' if path(item) in rank else path(item)))
 
 
 # --- session end ---------------------------------------------------------------------------

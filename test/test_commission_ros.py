@@ -153,9 +153,10 @@ def test_commission_over_ros(processes, tmp_path, probe):
         raise AssertionError(f'{exc}: {contact_history()} ({where})') from None
     cli = processes.start([str(executable('commission')), '--channel', 'pinch', '--dry-run'],
                           name='commission')
-    assert cli.wait(timeout=300) == 0, cli.output()
-    text = cli.output()
-    assert 'dry run (nothing applied)' in text and 'identified 10 of 10' in text, text
+    assert cli.wait(timeout=300) == 0, f'{cli.output()}\n{where}'   # the seed last: CI keeps
+    text = cli.output()                                              # the tail
+    assert 'dry run (nothing applied)' in text and 'identified 10 of 10' in text, \
+        f'{text}\n{where}'
     assert 'params file:' not in text and 'rollback file:' not in text, text
     for phase in ('excite', 'identify', 'predict'):
         assert f'[commission] {phase}' in text, text

@@ -173,7 +173,8 @@ class Observer:
         if len(rows) < 2:          # nothing recorded there (a lost stretch of messages)
             nan = np.full(grid.size, np.nan)
             return {'cycle': grid, 'received': len(rows), 'expected': grid.size, 'status': 0,
-                    'timeouts': 0, 'fault': '', **{name: nan for name in ('x', 'f_p', 'f_a', 'x_e', 'f_e')}}
+                    'timeouts': 0, 'fault': '',
+                    **{name: nan for name in ('x', 'f_p', 'f_a', 'x_e', 'f_e')}}
         data = np.array(rows, dtype=float)
         status = data[:, 6].astype(int)
         out = {'cycle': grid, 'received': len(rows), 'expected': grid.size,
@@ -232,8 +233,6 @@ def plot(results, path, amplitude):
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
-
-
 
 
 def main(argv=None):
@@ -308,7 +307,7 @@ def main(argv=None):
         plot(results, png, args.amplitude)
         print(f'\nwork loops: {png}')
         if not args.no_calibration:
-            recalibrate(observer, children, args, results['dob_full_ff'][1]['z_db'])
+            recalibrate(observer, children, args, results['dob_full_ff'][1])
         return 0
 
     return run_guarded('demo', out, work)
@@ -360,34 +359,39 @@ def model_error(args):
     return {key: float(v) for key, v in true_plant(args.seed)[0].items()}
 
 
+def recalibrate(observer, children, args, before):
+    """Calibrate, then measure dob_full_ff as the sweep did, print what was recovered.
 
-
-
-
-
-
-
-
-def recalibrate(observer, children, args, z_before):
-    """Calibrate, drive the finger again, measure dob_full_ff, print what was recovered."""
+    ``before``: the sweep's figures of dob_full_ff with the model. The drive runs again before
+    the mode is entered (through passive) and the window starts a second later, as in the
+    sweep: a drive started under dob_full_ff begins with a step in velocity, and its
+    transient (0.09 N m decaying over about 1.5 s) would be measured as the mode's impedance.
+    """
     state_timeout = get_parameter(observer.node, '/controller', 'state_timeout')
     result = run_friction_calibration(observer, children, args)
     set_parameters(observer.node, '/controller', {'state_timeout': state_timeout})
-    observer.enter_mode('dob_full_ff', children)
     if not result.applied:
         print(f'\nfriction calibration: {result.message}')
         return
-    before = observer.latest_cycle()
     set_parameters(observer.node, '/sim', {f'{CHANNEL}.environment.mode': 'position_sine'})
-    first = before + int(round(1.0 / DT))
+    first = observer.enter_mode('dob_full_ff', children) + int(round(1.0 / DT))
     last = first + args.periods * (int(math.ceil(2 * math.pi / args.frequency / DT)) + 1) - 1
     observer.wait_cycle(children, last)
     window = observer.window(first, last)
     after = measure(window, args.frequency, args.amplitude)
     print_calibration(result, model_error(args), args.calibration_time)
     print(f'recalibrated dob_full_ff |Z| at {args.frequency} rad/s: {after["z_db"]:.1f} dB '
-          f'(was {z_before:.1f} dB with the model); rms {after["z_rms_db"]:.1f} dB, '
-          f'distortion {100 * after["distortion"]:.0f} %{status_note(window)}')
+          f'(was {before["z_db"]:.1f} dB with the model); rms {after["z_rms_db"]:.1f} dB '
+          f'(was {before["z_rms_db"]:.1f}), distortion {100 * after["distortion"]:.0f} %'
+          f'{status_note(window)}')
+    stiffness = dict(zip(result.names, zip(result.old_values, result.new_values)))
+    k_model, k_new = stiffness.get('plant.endpoint_stiffness', (0.0, 0.0))
+    if after['z_rms_db'] > before['z_rms_db'] and k_model > k_new > 0.0:
+        print(f'  stiffer than with the model: the model\'s k_e is '
+              f'{100 * (k_model / k_new - 1):.0f} % above the calibrated one. That\n'
+              '  over-compensation happens to cancel part of the hose and motor errors on the '
+              'drive,\n  but for a free finger it is a negative stiffness that pushes it away '
+              '(docs/safety-and-layouts.md).')
 
 
 if __name__ == '__main__':
