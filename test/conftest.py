@@ -101,29 +101,44 @@ def ros_context():
 
 # --- xdist: which worker runs what ----------------------------------------------------------
 #: The test files that start ROS stacks and measure them (nodes, demos, benches, the EtherCAT
-#: emulator), longest first. Under xdist (scripts/test) they form one group that runs on one
-#: worker, one file after another, while the other worker takes the rest file by file: two
-#: stacks never share the 2 cores, each runs beside at most one single-threaded test.
+#: emulator), longest first. Under xdist with ``--dist loadfile`` (scripts/test) they are one
+#: unit of work: one worker runs them one file after another while the other takes the rest
+#: file by file, so that two stacks never share the 2 cores (two at once failed the
+#: commissioning tests) and each runs beside at most one single-threaded test.
 STACKS = ('test_demo.py', 'test_benches.py', 'test_commission_ros.py', 'test_grasp_ros.py',
           'test_friction_calibration_ros.py', 'test_bag_recorder.py', 'test_safety_ros.py',
-          'test_hardware_node.py', 'test_cycle_faults_ros.py', 'test_closed_loop.py',
-          'test_controller_modes_ros.py', 'test_passivity_guard_ros.py', 'test_layouts_ros.py',
-          'test_gripper_actions_ros.py', 'test_identification_ros.py',
+          'test_hardware_node.py', 'commissioning/test_analyse.py', 'test_cycle_faults_ros.py',
+          'test_closed_loop.py', 'test_controller_modes_ros.py', 'test_passivity_guard_ros.py',
+          'test_layouts_ros.py', 'test_gripper_actions_ros.py', 'test_identification_ros.py',
           'test_identification_random.py', 'ethercat/test_backend.py',
           'ethercat/test_emulator.py', 'ethercat/test_harness.py')
 
 
-@pytest.hookimpl(tryfirst=True)     # before xdist's own, which reads the groups
-def pytest_collection_modifyitems(config, items):
-    if not os.environ.get('PYTEST_XDIST_WORKER'):
-        return
-    rank = {name: i for i, name in enumerate(STACKS)}
+def _test_path(nodeid):
+    return nodeid.split('::', 1)[0].removeprefix('test/')
 
-    def path(item):
-        return item.nodeid.split('::', 1)[0].removeprefix('test/')
-    items.sort(key=lambda item: rank.get(path(item), len(rank)))   # stable within a file
-    for item in items:
-        item.add_marker(pytest.mark.xdist_group('stacks' if path(item) in rank else path(item)))
+
+def pytest_collection_modifyitems(items):
+    if os.environ.get('PYTEST_XDIST_WORKER'):          # the stacks in STACKS' order
+        rank = {name: i for i, name in enumerate(STACKS)}
+        items.sort(key=lambda item: rank.get(_test_path(item.nodeid), len(rank)))
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """(xdist controller, ``--dist loadfile``) every file its own unit of work, but the
+    STACKS one unit. (xdist's ``loadgroup`` would say the same with marks, but it renames
+    the test's node id, which pytest 9 no longer lets it do: its groups are lost.)"""
+    if config.getvalue('dist') != 'loadfile':
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class StacksTogether(LoadFileScheduling):
+        def _split_scope(self, nodeid):
+            path = _test_path(nodeid)
+            return 'stacks' if path in STACKS else super()._split_scope(nodeid)
+
+    return StacksTogether(config, log)
 
 
 # --- session end ---------------------------------------------------------------------------
@@ -177,3 +192,5 @@ def pytest_unconfigure(config):
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(_session['status'])
+
+

@@ -72,17 +72,35 @@ class Observer:
         self.background = BackgroundNode('seaforce_demo')
         self.node = self.background.node
         self.lock = threading.Lock()
+        self.states_lock = threading.Lock()
         self.states = []
+        # actuator_state as it arrives, serialized: the callback only keeps the bytes (a
+        # lockstep loop publishes faster than 2 kHz, and a busy host's subscriber that
+        # builds each message falls behind and loses some: their gaps, interpolated, bent
+        # the measured velocity); read on demand (:meth:`_drain`)
+        self._raw: list = []
+        self._state_type = ActuatorState
         self.modes: Dict[int, str] = {}
         self.fault: Dict[int, str] = {}
         self.param_client = None
-        self.node.create_subscription(ActuatorState, 'actuator_state', self._on_state, RECORD_QOS)
+        self.node.create_subscription(ActuatorState, 'actuator_state', self._on_state, RECORD_QOS,
+                                      raw=True)
         self.node.create_subscription(ControllerStatus, 'controller_status', self._on_status,
                                       STATUS_QOS)
 
-    def _on_state(self, msg):
-        i = list(msg.name).index(CHANNEL)
+    def _on_state(self, data):
         with self.lock:
+            self._raw.append(data)
+
+    def _drain(self):
+        """Deserialize what arrived since the last call into ``states`` (the caller holds
+        ``states_lock``; the subscription's thread is kept waiting only for the swap)."""
+        from rclpy.serialization import deserialize_message
+        with self.lock:
+            raw, self._raw = self._raw, []
+        for data in raw:
+            msg = deserialize_message(data, self._state_type)
+            i = list(msg.name).index(CHANNEL)
             self.states.append((msg.cycle, msg.motor_position[i], msg.pressure_force[i],
                                 msg.motor_effort[i], msg.endpoint_position[i],
                                 msg.external_force[i], msg.status[i]))
@@ -125,7 +143,8 @@ class Observer:
         return self.first_cycle_in_mode(mode, after)
 
     def latest_cycle(self):
-        with self.lock:
+        with self.states_lock:
+            self._drain()
             return self.states[-1][0] if self.states else None
 
     def first_cycle_in_mode(self, mode, after):
@@ -166,7 +185,8 @@ class Observer:
 
     def window(self, first, last):
         """Recorded samples with first <= cycle <= last as arrays on a uniform cycle grid."""
-        with self.lock:
+        with self.states_lock:
+            self._drain()
             rows = [r for r in self.states if first <= r[0] <= last]
         rows = sorted({r[0]: r for r in rows}.values())
         grid = np.arange(first, last + 1, dtype=float)
