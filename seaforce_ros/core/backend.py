@@ -228,9 +228,10 @@ class PlantBackend(abc.ABC):
         """Fill ``sample`` with the newest sample of the plant; its values count only when
         the returned status is complete (``received`` and ``counter == expected``)."""
 
-    def drives(self) -> Optional[Sequence[Tuple[bool, bool]]]:
-        """Per channel ``(torque_allowed, faulted)`` of the drives after the newest read (the
-        ``drives`` of :meth:`~.plant_cycle.PlantCycle.step`); None: no drives (simulation)."""
+    def drives(self) -> Optional[Sequence[Tuple[bool, bool] | Tuple[bool, bool, str]]]:
+        """Per channel ``(torque_allowed, faulted)`` of the drives after the newest read, with
+        the fault's reason as a third element where the backend knows it (the ``drives`` of
+        :meth:`~.plant_cycle.PlantCycle.step`); None: no drives and no fault (simulation)."""
         return None
 
     @abc.abstractmethod

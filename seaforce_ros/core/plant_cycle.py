@@ -307,7 +307,8 @@ class PlantCycle:
 
     # --- the cycle -------------------------------------------------------------------------
     def step(self, now: float, velocity: Sequence[float] | None = None,
-             drives: Sequence[tuple[bool, bool]] | None = None) -> PlantOutput:
+             drives: Sequence[tuple[bool, bool] | tuple[bool, bool, str]] | None = None
+             ) -> PlantOutput:
         """Decide this cycle's torques.
 
         Parameters
@@ -316,9 +317,10 @@ class PlantCycle:
             Monotonic time of the cycle's start [s].
         velocity : sequence of float, optional
             Newest measured motor velocity per channel [rad/s] (the velocity trip).
-        drives : sequence of (bool, bool), optional
-            Per channel ``(torque_allowed, faulted)`` of the drive (hardware); without it
-            every channel may have torque and none is faulted.
+        drives : sequence of (bool, bool) or (bool, bool, str), optional
+            Per channel ``(torque_allowed, faulted)`` of the drive (hardware), and what the
+            fault is when the backend knows (the latched reason; else the statusword's);
+            without it every channel may have torque and none is faulted.
 
         Returns
         -------
@@ -398,14 +400,15 @@ class PlantCycle:
         elif vmax > 0.0 and not -vmax <= v <= vmax:
             self._latch(i, f"motor speed {v:.2f} rad/s beyond max_velocity {vmax:g}")
 
-    def _check_drive(self, i: int, ch: _PlantChannel, allowed: bool, faulted: bool) -> bool:
+    def _check_drive(self, i: int, ch: _PlantChannel, allowed: bool, faulted: bool,
+                     reason: str = "") -> bool:
         """Channel ``i``'s drive: a fault (after the reset's grace period) or leaving Operation
         enabled untold latches the channel's fault; returns whether it may have torque."""
         if faulted:
             if ch.grace > 0:
                 ch.grace -= 1
             elif not ch.fault:
-                self._latch(i, "drive reports a fault (statusword bit 3)")
+                self._latch(i, reason or "drive reports a fault (statusword bit 3)")
         else:
             ch.grace = 0
             if ch.was_allowed and not allowed and self.out.enable[i] and not ch.fault:

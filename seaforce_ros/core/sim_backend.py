@@ -6,6 +6,12 @@ physics still: nothing to open or check, and nothing runs while the backend is n
 true-plant change (:meth:`SimBackend.set_environment`, :meth:`SimBackend.set_plant`, from the
 node's parameter callbacks on another thread) takes effect at the next :meth:`SimBackend.write`,
 i.e. at the start of a simulated step.
+
+A channel whose physics leaves the finite numbers (:class:`~.errors.SimulationDivergedError`:
+a nonlinear plant too stiff for the step) is a drive that faults: :meth:`SimBackend.drives`
+reports it with the reason, the plant cycle latches it (zero torque, ``STATUS_FAULT``) and the
+channel stays at its last finite state, stepping no more, until the cycle's fault reset
+(``~/reset``) restarts it at rest. The other channels run on.
 """
 from __future__ import annotations
 
@@ -14,6 +20,7 @@ from typing import Dict, Optional, Sequence, Tuple
 from .backend import (LINK_COMPLETE, BackendReport, ChannelReport, LinkStatus, PlantBackend,
                       PlantSample)
 from .environment import Environment
+from .errors import SimulationDivergedError
 from .params import DahlParams, PlantParams
 from .plant_cycle import STATUS_COMMAND_TIMEOUT, STATUS_LIMIT, PlantOutput
 from .simulator import ChannelSimulator
@@ -49,6 +56,8 @@ class SimBackend(PlantBackend):
         self._pending_env: Dict[int, Environment] = {}
         self._pending_plant: Dict[int, Tuple[PlantParams, Optional[DahlParams]]] = {}
         self._status: Sequence[int] = [STATUS_COMMAND_TIMEOUT] * len(self.channels)
+        #: per channel: why its simulation stopped ('' while it runs)
+        self.diverged: list[str] = [""] * len(self.channels)
 
     # --- run-time changes (any thread) -------------------------------------------------------
     def set_environment(self, index: int, environment: Environment) -> None:
@@ -98,9 +107,25 @@ class SimBackend(PlantBackend):
         if plants:
             for index in list(plants):
                 self.sims[index].set_plant(*plants.pop(index))
-        for sim, torque in zip(self.sims, command.torque):
-            sim.step(torque)
+        diverged = self.diverged
+        for i, (sim, torque) in enumerate(zip(self.sims, command.torque)):
+            if diverged[i]:
+                if command.fault_reset[i]:       # ~/reset: the channel restarts at rest
+                    sim.reset()
+                    diverged[i] = ""
+                continue
+            try:
+                sim.step(torque)
+            except SimulationDivergedError as exc:
+                diverged[i] = f"{exc}; stopped at its last finite state until ~/reset"
         self._status = command.status
+
+    def drives(self) -> Optional[Sequence[Tuple[bool, bool, str]]]:
+        """None while every channel's simulation runs; else each channel's (torque allowed,
+        faulted, reason): a diverged one is a faulted drive (module docstring)."""
+        if not any(self.diverged):
+            return None
+        return [(not d, bool(d), d) for d in self.diverged]
 
     # --- monitoring -----------------------------------------------------------------------------
     def diagnostics(self) -> BackendReport:

@@ -105,9 +105,12 @@ def measure_modes(observer, children, modes: Sequence[str], frequencies: Sequenc
     for omega in frequencies:
         a = amplitude(omega)
         observer.set_mode('passive')        # the drive changes under the softest mode
+        # atomically: one set at a time would install the drive three times, each restarting
+        # its sine at 0 (a step of the set point) and the first with the old amplitude
         set_parameters(node, '/sim', {f'{CHANNEL}.environment.mode': 'position_sine',
                                       f'{CHANNEL}.environment.amplitude': a,
-                                      f'{CHANNEL}.environment.frequency': float(omega)})
+                                      f'{CHANNEL}.environment.frequency': float(omega)},
+                       atomically=True)
         period = int(math.ceil(2.0 * math.pi / omega / DT)) + 1
         for mode in modes:
             for attempt in range(1, ATTEMPTS + 1):

@@ -504,7 +504,11 @@ def rarely(value, normal, one_in=40):
 
 
 VELOCITY = rarely(math.nan, rarely(35.0, rarely(-31.0, st.floats(-29.0, 29.0), 300), 300), 300)
-DRIVE = st.tuples(rarely(False, st.just(True), 20), rarely(True, st.just(False), 300))
+DRIVE = st.one_of(
+    st.tuples(rarely(False, st.just(True), 20), rarely(True, st.just(False), 300)),
+    # a backend that knows what the fault is (the simulator's divergence) says so
+    st.tuples(rarely(False, st.just(True), 20), rarely(True, st.just(False), 300),
+              st.sampled_from(('', 'the simulated plant diverged'))))
 OPS = st.one_of(
     commands(), commands(), commands(),
     st.tuples(st.just('advance'), rarely(0.02, st.floats(min_value=0.0, max_value=0.004), 8)),

@@ -5,9 +5,10 @@ import pytest
 
 from seaforce_ros.core.backend import LINK_COMPLETE, PlantBackend, PlantSample
 from seaforce_ros.core.environment import torque_sine
+from seaforce_ros.core.errors import SimulationDivergedError
 from seaforce_ros.core.params import PlantParams
-from seaforce_ros.core.plant_cycle import (STATUS_COMMAND_TIMEOUT, STATUS_LIMIT, PlantCycle,
-                                           PlantLimits)
+from seaforce_ros.core.plant_cycle import (STATUS_COMMAND_TIMEOUT, STATUS_FAULT, STATUS_LIMIT,
+                                           PlantCycle, PlantLimits)
 from seaforce_ros.core.sim_backend import SimBackend
 from seaforce_ros.core.simulator import ChannelSimulator
 
@@ -76,3 +77,55 @@ def test_diagnostics_warn_of_command_timeouts_only_in_realtime():
         assert report.running == f'running ({mode})'
         assert bool(report.warning) is warns, report.warning
         assert [c.values['environment'] for c in report.channels] == ['free', 'free']
+
+
+class DivergingSimulator(ChannelSimulator):
+    """A simulator whose physics leaves the finite numbers at its ``at``-th step and at every
+    step after it (until reset): what NonlinearChannelSimulator raises on effects too stiff
+    for the step (they are not reached within the parameters' ranges: the failure is
+    stood in for, the backend's answer to it is what is tested)."""
+
+    def __init__(self, at, *args, **kwargs):
+        self.at = at
+        super().__init__(*args, **kwargs)
+
+    def step(self, torque):
+        if self.step_count + 1 >= self.at:
+            raise SimulationDivergedError(self.t, tuple(self.state))
+        return super().step(torque)
+
+
+def test_a_diverged_channel_is_a_faulted_drive_until_reset():
+    """The channel whose simulation diverges latches its fault with the reason (zero torque,
+    STATUS_FAULT), stays where it was without stepping, the other channel runs on; the
+    cycle's reset restarts it at rest and it takes torque again. Nothing raises out of
+    write() (it stopped the sim node's cycle thread before)."""
+    sims = [ChannelSimulator(PlantParams(), dt=DT, seed=0),
+            DivergingSimulator(99, PlantParams(), dt=DT, seed=1)]
+    backend = SimBackend(CHANNELS, sims)
+    plant = PlantCycle(CHANNELS, DT, PlantLimits(torque_limit=5.0))
+    for _ in range(98):
+        cycle(backend, plant, (0.2, 0.2))
+    assert backend.drives() is None and not plant.latched_faults()
+    cycle(backend, plant, (0.2, 0.2))                  # the 99th step diverges
+    frozen = sims[1].state
+    assert backend.diverged[1] and not backend.diverged[0]
+    assert backend.drives()[0] == (True, False, '')
+    wrist_before = sims[0].state
+    for _ in range(20):
+        cycle(backend, plant, (0.2, 0.2))
+        assert plant.out.torque[1] == 0.0 and plant.out.status[1] & STATUS_FAULT
+        assert plant.out.torque[0] == 0.2 and not plant.out.status[0] & STATUS_FAULT
+    assert sims[1].state == frozen and sims[0].state != wrist_before
+    latched = plant.latched_faults()
+    assert len(latched) == 1 and latched[0].startswith('pinch: the simulated plant diverged')
+    assert 'until ~/reset' in latched[0]
+    sims[1].at = math.inf                              # the physics is fine after the restart
+    plant.request_reset()
+    cycle(backend, plant, (0.2, 0.2))                  # the reset's cycle: still no torque
+    assert plant.out.torque[1] == 0.0
+    assert sims[1].state == (0.0, 0.0, 0.0, 0.0) and backend.drives() is None
+    for _ in range(50):
+        cycle(backend, plant, (0.2, 0.2))
+    assert plant.out.torque[1] == 0.2 and not plant.latched_faults()
+    assert sims[1].state[0] > 0.0
