@@ -124,6 +124,28 @@ def pytest_collection_modifyitems(items):
         items.sort(key=lambda item: rank.get(_test_path(item.nodeid), len(rank)))
 
 
+#: The niceness of the worker's main thread (and what it starts) while it runs a test file
+#: that is not in STACKS: the stacks' loops wait on each other (a lockstep step is a round
+#: trip through three processes), so a CPU-bound test beside them at the same priority slowed
+#: one 20 s test to 120 s; niced, it takes the CPU they leave.
+REST_NICENESS = 10
+
+
+@pytest.fixture(scope='module', autouse=True)
+def _stacks_first(request):
+    """(xdist workers) the module's niceness: 0 for a STACKS file, REST_NICENESS else (set
+    before the module's own fixtures start anything: a higher scope's autouse fixture runs
+    first). Without the right to lower it again (not root, no CAP_SYS_NICE) a worker stays
+    at the higher one, as if nothing were niced."""
+    if _WORKER:
+        want = 0 if _test_path(request.node.nodeid) in STACKS else REST_NICENESS
+        try:
+            os.setpriority(os.PRIO_PROCESS, 0, want)
+        except PermissionError:
+            pass
+    yield
+
+
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config, log):
     """(xdist controller, ``--dist loadfile``) every file its own unit of work, but the
