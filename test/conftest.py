@@ -107,11 +107,10 @@ def ros_context():
 #: commissioning tests) and each runs beside at most one single-threaded test.
 STACKS = ('test_demo.py', 'test_benches.py', 'test_commission_ros.py', 'test_grasp_ros.py',
           'test_friction_calibration_ros.py', 'test_bag_recorder.py', 'test_safety_ros.py',
-          'test_hardware_node.py', 'commissioning/test_analyse.py', 'test_cycle_faults_ros.py',
-          'test_closed_loop.py', 'test_controller_modes_ros.py', 'test_passivity_guard_ros.py',
-          'test_layouts_ros.py', 'test_gripper_actions_ros.py', 'test_identification_ros.py',
-          'test_identification_random.py', 'ethercat/test_backend.py',
-          'ethercat/test_emulator.py', 'ethercat/test_harness.py')
+          'test_hardware_node.py', 'test_cycle_faults_ros.py', 'test_closed_loop.py',
+          'test_controller_modes_ros.py', 'test_passivity_guard_ros.py', 'test_layouts_ros.py',
+          'test_gripper_actions_ros.py', 'test_identification_ros.py',
+          'ethercat/test_backend.py', 'ethercat/test_emulator.py', 'ethercat/test_harness.py')
 
 
 def _test_path(nodeid):
