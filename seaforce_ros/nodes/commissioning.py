@@ -55,6 +55,10 @@ DEFAULT_DIRECTORY = "seaforce_commissioning"
 
 #: The share of the goal's progress the excitation takes (the analysis takes the rest).
 EXCITATION_SHARE = 0.7
+#: A contact reported this long ago [s] still counts at a goal: a finger pushed back and forth
+#: drops its contact flag around each reversal of the force (and the estimator re-arms after
+#: STANDING_TIME still), and a goal must not slip through there.
+RECENT_CONTACT = 0.5
 
 
 def run_directory(base: str, channel: str, now: datetime.datetime | None = None
@@ -143,19 +147,28 @@ class CommissionAction:
         self._node = node
         self._runs: dict[int, _Run] = {}
         # per channel: the status cycle since which the endpoint has been still (or None),
-        # and the latest status cycle
+        # the latest status cycle with a contact, and the latest status cycle
         self._still_since: dict[int, int | None] = {}
+        self._contact_at: dict[int, int] = {}
         self._cycle = 0
 
-    def observe(self, cycle: int, velocities: list[float]) -> None:
+    def observe(self, cycle: int, velocities: list[float], contacts: list[bool]) -> None:
         """(at the status rate) Whether each channel's filtered endpoint speed is below
-        :data:`~..core.estimator.REST_SPEED` -- since when."""
+        :data:`~..core.estimator.REST_SPEED` -- since when; when it last had a contact."""
         self._cycle = cycle
         for i, v in enumerate(velocities):
             if not -REST_SPEED < v < REST_SPEED:
                 self._still_since[i] = None
             elif self._still_since.get(i) is None:
                 self._still_since[i] = cycle
+        for i, contact in enumerate(contacts):
+            if contact:
+                self._contact_at[i] = cycle
+
+    def _contact_within(self, index: int, seconds: float) -> bool:
+        """A status of the last ``seconds`` reported a contact on the channel."""
+        at = self._contact_at.get(index)
+        return at is not None and (self._cycle - at) * self._node.dt <= seconds
 
     def _still_for(self, index: int) -> float:
         """How long the channel's endpoint has been still [s] (0 if it moves)."""
@@ -196,10 +209,11 @@ class CommissionAction:
                                   "passivity_margin": c.passivity_margin}, node.dt)
         estimator = node.controllers[index].estimator
         still = self._still_for(index)
-        if estimator.contact and still < STANDING_TIME:
+        if (estimator.contact or self._contact_within(index, RECENT_CONTACT)) \
+                and still < STANDING_TIME:
             raise InvalidJobGoalError("the finger is not free: the contact estimator reports "
-                                      f"a contact ({estimator.force:.3g} N m) and the finger "
-                                      "moves; release it into free air first")
+                                      f"a contact ({estimator.force:.3g} N m now) and the "
+                                      "finger moves; release it into free air first")
         if estimator.contact:
             # a contact standing with the finger still: an object at rest, or the model's
             # error at rest (a model 2x off left one in the demo): the excitation's own

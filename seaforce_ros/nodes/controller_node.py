@@ -285,7 +285,8 @@ class ControllerNode(Node):
          s.fault, s.contact, s.contact_force, s.grasp_phase, s.passivity_energy,
          s.passivity_dissipated, s.passivity_damping) = values
         estimates = [c.estimator.estimate() for c in self.controllers]
-        self.commissioning.observe(cycle, [c.estimator.velocity for c in self.controllers])
+        self.commissioning.observe(cycle, [c.estimator.velocity for c in self.controllers],
+                                   [c.estimator.contact for c in self.controllers])
         s.contact_position = [e.contact_position for e in estimates]
         s.object_stiffness = [e.stiffness for e in estimates]
         s.object_stiffness_sigma = [e.stiffness_sigma for e in estimates]

@@ -15,7 +15,7 @@ from seaforce_ros.commissioning.excitation import FreeAirExcitation
 from seaforce_ros.core.estimator import REST_SPEED
 from seaforce_ros.core.jobs import InvalidJobGoalError
 from seaforce_ros.core.params import ControllerConfig
-from seaforce_ros.nodes.commissioning import STANDING_TIME, CommissionAction
+from seaforce_ros.nodes.commissioning import RECENT_CONTACT, STANDING_TIME, CommissionAction
 
 DT = 5e-4
 
@@ -49,11 +49,13 @@ class FakeNode:
         return types.SimpleNamespace(value=self.parameters[name])
 
 
-def status_stream(action, velocities, start=0, every=20):
-    """The status loop (every 20 cycles: 100 Hz) seeing these endpoint velocities."""
+def status_stream(action, velocities, start=0, every=20, contacts=None):
+    """The status loop (every 20 cycles: 100 Hz) seeing these endpoint velocities (and
+    contact flags: the estimator's own by default)."""
     cycle = start
-    for v in velocities:
-        action.observe(cycle, [v])
+    for k, v in enumerate(velocities):
+        contact = action._node.estimator.contact if contacts is None else contacts[k]
+        action.observe(cycle, [v], [contact])
         cycle += every
     return cycle
 
@@ -87,9 +89,26 @@ def test_a_contact_standing_still_is_logged_and_the_goal_accepted(setup):
     assert isinstance(job, FreeAirExcitation)
     assert node.logger.warnings and 'taken for the model' in node.logger.warnings[0]
     # a motion again restarts the clock
-    action.observe(10 ** 6, [2.0 * REST_SPEED])
+    action.observe(10 ** 6, [2.0 * REST_SPEED], [True])
     with pytest.raises(InvalidJobGoalError):
         action._make(0, Commission.Goal(channel='pinch'))
+
+
+def test_a_contact_that_flickers_off_at_a_reversal_still_turns_the_goal_away(setup):
+    """A finger pushed back and forth drops its contact flag around each reversal of the
+    force: a goal there is refused while a contact was reported within RECENT_CONTACT, and
+    accepted once none was for longer (and the finger moves on, free)."""
+    node, action = setup
+    node.estimator.force = 0.0
+    n = 300
+    cycle = status_stream(action, [0.3] * n, contacts=[k % 100 < 80 for k in range(n - 1)]
+                          + [False])                  # off for the last 0.2 s of statuses
+    node.estimator.contact = False                       # the flag is off right now
+    with pytest.raises(InvalidJobGoalError, match='the finger is not free'):
+        action._make(0, Commission.Goal(channel='pinch'))
+    quiet = int(math.ceil(RECENT_CONTACT / (20 * DT))) + 1
+    status_stream(action, [0.3] * quiet, start=cycle, contacts=[False] * quiet)
+    assert isinstance(action._make(0, Commission.Goal(channel='pinch')), FreeAirExcitation)
 
 
 def test_no_contact_is_accepted_at_once(setup):
