@@ -105,7 +105,7 @@ def ros_context():
 #: unit of work: one worker runs them one file after another while the other takes the rest
 #: file by file, so that two stacks never share the 2 cores (two at once failed the
 #: commissioning tests) and each runs beside at most one single-threaded test.
-STACKS = ('test_demo.py', 'test_benches.py', 'test_commission_ros.py', 'test_grasp_ros.py',
+STACKS = ('test_demo.py', 'test_benches_live.py', 'test_commission_ros.py', 'test_grasp_ros.py',
           'test_friction_calibration_ros.py', 'test_bag_recorder.py', 'test_safety_ros.py',
           'test_hardware_node.py', 'test_cycle_faults_ros.py', 'test_closed_loop.py',
           'test_controller_modes_ros.py', 'test_passivity_guard_ros.py', 'test_layouts_ros.py',

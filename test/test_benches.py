@@ -3,7 +3,8 @@
 The benchmarks pass or fail nothing (their figures are in the docs); this only proves each one
 still runs end to end -- imports, command line, the nodes or the emulator it starts, its tables
 -- in a few seconds: a short run of every row it prints, the figures meaningless (three run at
-once, each in its own DDS domain). Per script:
+once, each in its own DDS domain; the ones that start nodes or the emulator in
+test_benches_live.py). Per script:
 exit 0, no traceback, and the lines that carry its figures, with numbers in them. A script
 added to ``bench/`` without an entry here fails :func:`test_every_bench_has_a_smoke_run`.
 """
@@ -95,7 +96,13 @@ TIMEOUT = 300.0
 #: benches run at once (each its own DDS domain: their nodes do not meet): most wait on
 #: processes, sleeps and their loops, and the figures of a smoke run mean nothing
 AT_ONCE = 3
-RUNS = [(script, args, patterns) for script, runs in SMOKE.items() for args, patterns in runs]
+#: the benches that start ROS nodes or the EtherCAT emulator and time their loops: run by
+#: test_benches_live.py, on the stacks' worker (conftest.STACKS); the others here, beside them
+LIVE = {'control_loop.py', 'ethercat_cycle.py', 'gripper_actions.py', 'hardware_loop.py',
+        'profile_loop.py', 'recorder_soak.py'}
+ALL_RUNS = [(script, args, patterns) for script, runs in SMOKE.items()
+            for args, patterns in runs]
+RUNS = [run for run in ALL_RUNS if run[0] not in LIVE]
 
 
 def test_every_bench_has_a_smoke_run():
@@ -103,36 +110,50 @@ def test_every_bench_has_a_smoke_run():
     assert scripts == set(SMOKE) | set(PARTS), (
         f'without a smoke run: {sorted(scripts - set(SMOKE) - set(PARTS))}; '
         f'gone: {sorted((set(SMOKE) | set(PARTS)) - scripts)}')
+    assert LIVE <= set(SMOKE), sorted(LIVE - set(SMOKE))
     for script in SMOKE:
         assert '--quick' in (BENCH / script).read_text(), script
 
 
-@pytest.fixture(scope='module')
-def quick_runs():
-    """Every smoke run to its end, :data:`AT_ONCE` at a time: [(exit code, output)] in
-    :data:`RUNS`' order; each process ended by its PID whatever happens."""
+def run_all(runs, domain_offset=0):
+    """Generator for a module fixture: every smoke run of ``runs`` to its end,
+    :data:`AT_ONCE` at a time: [(exit code, output)] in their order; each process ended by its
+    PID whatever happens."""
     group = ProcessGroup()
 
     def run(index):
-        script, args, _ = RUNS[index]
-        env = domain_env(own_domain(index), PYTHONPATH=os.pathsep.join(
+        script, args, _ = runs[index]
+        env = domain_env(own_domain(domain_offset + index), PYTHONPATH=os.pathsep.join(
             p for p in (str(ROOT), os.environ.get('PYTHONPATH')) if p))
         proc = group.start([sys.executable, str(BENCH / script), '--quick', *args],
                            name=f'bench_{script[:-3]}', env=env)
         return proc.wait(TIMEOUT), proc.output()
     try:
         with ThreadPoolExecutor(max_workers=AT_ONCE) as pool:
-            yield list(pool.map(run, range(len(RUNS))))
+            yield list(pool.map(run, range(len(runs))))
     finally:
         group.stop_all()
 
 
-@pytest.mark.parametrize('index', range(len(RUNS)),
-                         ids=[' '.join((script,) + args) for script, args, _ in RUNS])
-def test_bench_runs_quick(quick_runs, index):
-    script, _, patterns = RUNS[index]
-    code, out = quick_runs[index]
+def check(run, result):
+    """Exit 0, no traceback, every pattern of the run in its output."""
+    script, _, patterns = run
+    code, out = result
     assert code == 0, f'{script} exited {code}:\n{out[-4000:]}'
     assert 'Traceback' not in out, out[-4000:]
     for pattern in patterns:
         assert re.search(pattern, out, re.M), f'{pattern!r} not in the output:\n{out[-4000:]}'
+
+
+def ids(runs):
+    return [' '.join((script,) + args) for script, args, _ in runs]
+
+
+@pytest.fixture(scope='module')
+def quick_runs():
+    yield from run_all(RUNS)
+
+
+@pytest.mark.parametrize('index', range(len(RUNS)), ids=ids(RUNS))
+def test_bench_runs_quick(quick_runs, index):
+    check(RUNS[index], quick_runs[index])
