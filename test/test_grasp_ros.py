@@ -310,7 +310,10 @@ def test_grasps_in_the_default_layout_in_real_time(processes, tmp_path, probe, c
     start_node(processes, 'controller_node', 'controller', tmp_path, {'state_timeout': 0.5})
     probe.record(ActuatorState, 'actuator_state')
     probe.record(ControllerStatus, 'controller_status')
-    probe.wait_messages('controller_status', 5, timeout=60)
+    # 2 s of the loop running before the first goal (a fresh clone's run beside the hog and the
+    # other worker starved the just-started controller for 545 ms: the first approach aborted
+    # 'stale state'; the loop settled, the test's subject is how the grasp rides such load)
+    probe.wait_messages('controller_status', 200, timeout=60)
     client = Client(probe)
     for n in range(4):
         handle, _ = client.send(closing_velocity=0.3 * (-1) ** n, grip_force=0.3,
