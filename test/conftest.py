@@ -2,6 +2,7 @@
 import os
 import pathlib
 import sys
+import time
 
 import pytest
 
@@ -56,12 +57,57 @@ def _session_cpu_hog(request):
         group.stop_all()
 
 
+#: How long a real-time test beside the hogs waits for the other xdist worker to pause at its
+#: next test boundary [s], and how long a worker pauses for one at most (a bound against a
+#: worker that died holding its flag).
+PAUSE_ACK, PAUSE_MAX = 30.0, 300.0
+
+
+def _pause_dir(request):
+    """A directory the xdist workers of this run share (their basetemps' parent)."""
+    path = request.config._tmp_path_factory.getbasetemp().parent / 'realtime-pause'
+    path.mkdir(exist_ok=True)
+    return path
+
+
 @pytest.fixture
 def cpu_hog(request, processes):
     """One CPU-burning process per core, at normal priority, for this test (unless the whole
-    session already runs next to them: --cpu-hog)."""
-    if not request.config.getoption('--cpu-hog'):
-        _start_hogs(processes)
+    session already runs next to them: --cpu-hog). Under xdist the other worker pauses at its
+    next test boundary first (up to PAUSE_ACK s): the test runs beside the hogs, not beside
+    the hogs and another worker's tests."""
+    flag = None
+    if _WORKER:
+        pause = _pause_dir(request)
+        flag = pause / f'hold-{_WORKER}'
+        flag.touch()
+        deadline = time.monotonic() + PAUSE_ACK
+        while time.monotonic() < deadline and not any(
+                p.name != f'idle-{_WORKER}' for p in pause.glob('idle-*')):
+            time.sleep(0.1)
+    try:
+        if not request.config.getoption('--cpu-hog'):
+            _start_hogs(processes)
+        yield
+    finally:
+        if flag is not None:
+            flag.unlink(missing_ok=True)
+
+
+@pytest.fixture(autouse=True)
+def _pause_for_realtime(request):
+    """(xdist) wait at this test's start while another worker's real-time test holds its
+    flag (:func:`cpu_hog`), at most PAUSE_MAX s."""
+    if _WORKER:
+        pause = _pause_dir(request)
+        idle = pause / f'idle-{_WORKER}'
+        deadline = time.monotonic() + PAUSE_MAX
+        while time.monotonic() < deadline and any(
+                p.name != f'hold-{_WORKER}' for p in pause.glob('hold-*')):
+            idle.touch()
+            time.sleep(0.1)
+        idle.unlink(missing_ok=True)
+    yield
 
 
 @pytest.fixture
