@@ -15,9 +15,10 @@ os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
 # Under pytest-xdist (scripts/test runs two workers) each worker is a test run of its own: its
 # domain is the session's moved by 50 per worker, and so are the stacks' own (helpers.nodes)
 _WORKER = os.environ.get('PYTEST_XDIST_WORKER', '')
-if _WORKER.startswith('gw'):
+_WORKER_INDEX = int(_WORKER[2:]) if _WORKER.startswith('gw') else 0
+if _WORKER:
     os.environ['ROS_DOMAIN_ID'] = str(
-        1 + (int(os.environ['ROS_DOMAIN_ID']) - 1 + 50 * int(_WORKER[2:])) % 100)
+        1 + (int(os.environ['ROS_DOMAIN_ID']) - 1 + 50 * _WORKER_INDEX) % 100)
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 # numpy's BLAS on one thread here and in every process a test starts (scripts/setup.sh says
 # why; before numpy is first imported)
@@ -40,8 +41,7 @@ def _start_hogs(group, shared=False):
     count = cores
     if shared:
         workers = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1'))
-        index = int(_WORKER[2:]) if _WORKER.startswith('gw') else 0
-        count = cores // workers + (1 if index < cores % workers else 0)
+        count = cores // workers + (1 if _WORKER_INDEX < cores % workers else 0)
     for _ in range(count):
         group.start([sys.executable, '-c', 'while True: pass'], name='cpu_hog')
 
@@ -63,27 +63,27 @@ def _session_cpu_hog(request):
 PAUSE_ACK, PAUSE_MAX = 30.0, 300.0
 
 
-def _pause_dir(request):
+def _pause_dir(tmp_path_factory):
     """A directory the xdist workers of this run share (their basetemps' parent)."""
-    path = request.config._tmp_path_factory.getbasetemp().parent / 'realtime-pause'
+    path = tmp_path_factory.getbasetemp().parent / 'realtime-pause'
     path.mkdir(exist_ok=True)
     return path
 
 
 @pytest.fixture
-def cpu_hog(request, processes):
+def cpu_hog(request, processes, tmp_path_factory):
     """One CPU-burning process per core, at normal priority, for this test (unless the whole
     session already runs next to them: --cpu-hog). Under xdist the other worker pauses at its
     next test boundary first (up to PAUSE_ACK s): the test runs beside the hogs, not beside
     the hogs and another worker's tests."""
     flag = None
     if _WORKER:
-        pause = _pause_dir(request)
+        pause = _pause_dir(tmp_path_factory)
         flag = pause / f'hold-{_WORKER}'
         flag.touch()
-        deadline = time.monotonic() + PAUSE_ACK
-        while time.monotonic() < deadline and not any(
-                p.name != f'idle-{_WORKER}' for p in pause.glob('idle-*')):
+        deadline = time.monotonic() + PAUSE_ACK    # until no other worker is in a test
+        while time.monotonic() < deadline and any(
+                p.name != f'busy-{_WORKER}' for p in pause.glob('busy-*')):
             time.sleep(0.1)
     try:
         if not request.config.getoption('--cpu-hog'):
@@ -95,19 +95,23 @@ def cpu_hog(request, processes):
 
 
 @pytest.fixture(autouse=True)
-def _pause_for_realtime(request):
+def _pause_for_realtime(tmp_path_factory):
     """(xdist) wait at this test's start while another worker's real-time test holds its
     flag (:func:`cpu_hog`), at most PAUSE_MAX s."""
-    if _WORKER:
-        pause = _pause_dir(request)
-        idle = pause / f'idle-{_WORKER}'
-        deadline = time.monotonic() + PAUSE_MAX
-        while time.monotonic() < deadline and any(
-                p.name != f'hold-{_WORKER}' for p in pause.glob('hold-*')):
-            idle.touch()
-            time.sleep(0.1)
-        idle.unlink(missing_ok=True)
-    yield
+    if not _WORKER:
+        yield
+        return
+    pause = _pause_dir(tmp_path_factory)
+    deadline = time.monotonic() + PAUSE_MAX
+    while time.monotonic() < deadline and any(
+            p.name != f'hold-{_WORKER}' for p in pause.glob('hold-*')):
+        time.sleep(0.1)
+    busy = pause / f'busy-{_WORKER}'     # in a test (a worker with none left is not waited for)
+    busy.touch()
+    try:
+        yield
+    finally:
+        busy.unlink(missing_ok=True)
 
 
 @pytest.fixture
@@ -164,7 +168,7 @@ def _test_path(nodeid):
 
 
 def pytest_collection_modifyitems(items):
-    if os.environ.get('PYTEST_XDIST_WORKER'):          # the stacks in STACKS' order
+    if _WORKER:                                        # the stacks in STACKS' order
         rank = {name: i for i, name in enumerate(STACKS)}
         items.sort(key=lambda item: rank.get(_test_path(item.nodeid), len(rank)))
 
