@@ -15,7 +15,11 @@ them):
    command answering it; the torque acted for one sample before it was reported, so the
    predictor's delay (samples between a state and the sample its command acts from) is one
    less;
-3. :func:`tune_stage` -- lambda, the nominal plant and the hold gains (:func:`~.tuning.tune`);
+3. :func:`model_stage` -- the model the controller gets: the linear fit's, or, where the
+   record resolves the hose's or the diaphragm's nonlinear terms, the equations refitted with
+   them (``plant_terms``: the observer inverts the nonlinear hose, the feed-forward takes the
+   stroke terms); :func:`tune_stage` -- lambda, the nominal plant and the hold gains
+   (:func:`~.tuning.tune`) on it;
 4. :func:`predict_stage` -- |Z| of every mode with the tuned settings and its 1-sigma band,
    the Z-width chart with impedance mode's virtual-wall boundary, the DOB's torque noise
    against lambda (:mod:`.predictor`); :func:`work_loop_stage` -- the work loops of a
@@ -53,7 +57,9 @@ import numpy.typing as npt
 
 from ..core.analysis import ImpedanceFigures, impedance_figures
 from ..core.errors import SeaforceError
-from ..core.params import ControllerConfig, DahlParams, PlantParams, settable_order
+from ..core.nonlinear_effects import effects_of_terms
+from ..core.params import (ControllerConfig, DahlParams, PlantParams, PlantTermsParams,
+                           settable_order)
 from ..core.schema import by_key
 from ..identification.errors import IdentificationError
 from ..identification.output import write_values_file
@@ -73,7 +79,8 @@ from .tuning import TUNED_KEYS, InfeasibleTuningError, TuningResult, tune
 
 __all__ = ["AnalysisRequest", "Analysis", "AnalysisError", "Prediction", "analyse",
            "analyse_directory", "zwidth_at", "identification_rows",
-           "identify_stage", "model_class_stage", "loop_stage", "tune_stage", "predict_stage", "work_loop_stage",
+           "identify_stage", "model_class_stage", "loop_stage", "model_stage", "ControllerModel",
+           "tune_stage", "predict_stage", "work_loop_stage",
            "report_stage", "write_stage", "WORK_LOOP_MODES", "WORK_LOOP_OMEGA",
            "WORK_LOOP_AMPLITUDE", "BACKDRIVE_SPEED", "backdrive_amplitude", "Backdrives", "REQUEST_FILE", "RECORD_FILE", "ROLLBACK_FILE", "HEADLINE_OMEGA",
            "main"]
@@ -225,6 +232,7 @@ class Analysis:
     model_class: Optional[ModelClass] = None
     terms: Optional[NonlinearTerms] = None
     backdrives: Optional["Backdrives"] = None
+    model: Optional[ControllerModel] = None
 
     def result(self) -> Dict[str, Any]:
         """The JSON result the action's client gets (numeric keys only in the value arrays;
@@ -277,6 +285,110 @@ def _plant_sigma(ident: FreeAirIdentification) -> Dict[str, float]:
             if e.identified and math.isfinite(e.sigma)}
 
 
+# --- the controller's model ----------------------------------------------------------------
+@dataclass
+class ControllerModel:
+    """The model the tuning, the predictions and the controller use (:func:`model_stage`).
+
+    Attributes
+    ----------
+    plant : PlantParams
+        The linear coefficients (of the refitted equations where terms are used).
+    sigma : dict str -> float
+        Their 1-sigmas (PlantParams names; ``sigma``, ``coulomb_force`` for the Dahl model).
+    dahl : DahlParams
+    terms : PlantTermsParams
+        The nonlinear terms used (0: not resolved).
+    class_error : float
+        The model class's relative error the feed-forward's uncertainty takes
+        (:func:`~.tuning.feedforward_uncertainties`).
+    lines : list of str
+        What was used, and what was left out and why (for the report).
+    """
+
+    plant: PlantParams
+    sigma: Dict[str, float]
+    dahl: DahlParams
+    terms: PlantTermsParams
+    class_error: float
+    lines: List[str] = field(default_factory=list)
+
+
+def model_stage(ident: FreeAirIdentification, terms: Optional[NonlinearTerms]
+                ) -> ControllerModel:
+    """The linear identification's model, with -- per equation -- the resolved nonlinear terms
+    and the linear coefficients refitted beside them:
+
+    * port: the hose's flow and pressure terms, and k_s, b_s with them. The model class's
+      error becomes the linear fit's port misfit times the share of the port equation's
+      residual the terms leave (``model_misfit / misfit_linear``): the misfit the terms
+      explain is no longer an error of the model the controller uses;
+    * endpoint: the diaphragm's stroke terms, and b_e, k_e, F_c with them (k_2 clipped to
+      ``k_2^2 <= 3 k_e k_3``, a force rising over the whole stroke; a negative k_3 is left
+      out: no diaphragm softens towards its ends).
+
+    Raises CommissioningError (naming what is not identified) as the identification's
+    :meth:`~.free_air.FreeAirIdentification.plant`."""
+    plant, dahl = ident.plant(), ident.dahl()
+    sigma = _plant_sigma(ident)
+    class_error = ident.misfit.get("port", 0.0)
+    used: Dict[str, float] = {}
+    lines: List[str] = []
+    port = None if terms is None else terms.equations.get("port")
+    if port is not None and any(k in port.model for k in ("hose_flow", "hose_pressure")):
+        m = port.model
+        plant = dataclasses.replace(plant, hose_stiffness=m["hose_stiffness"][0],
+                                    hose_damping=m["hose_damping"][0])
+        sigma.update(hose_stiffness=m["hose_stiffness"][1], hose_damping=m["hose_damping"][1])
+        for key in ("hose_flow", "hose_pressure"):
+            if key in m:
+                if m[key][0] > 0.0:
+                    used[key] = m[key][0]
+                else:
+                    lines.append(f"{key.replace('_', ' ')} resolved but negative "
+                                 f"({m[key][0]:.3g}): left out")
+        share = port.model_misfit / port.misfit_linear if port.misfit_linear > 0 else 1.0
+        class_error *= min(1.0, share)
+        lines.append(f"port: k_s, b_s refitted with {', '.join(k for k in m if k in used)}; "
+                     f"the equation's misfit {100 * port.misfit_linear:.2g} % -> "
+                     f"{100 * port.model_misfit:.2g} %, the model class's error "
+                     f"{100 * ident.misfit.get('port', 0.0):.2g} % -> {100 * class_error:.2g} %")
+    end = None if terms is None else terms.equations.get("endpoint")
+    if end is not None and any(k in end.model for k in ("stroke_asymmetry", "stroke_stiffness")):
+        m = end.model
+        k3 = m.get("stroke_stiffness", (0.0, 0.0))[0]
+        k2 = m.get("stroke_asymmetry", (0.0, 0.0))[0]
+        if k3 < 0.0:
+            lines.append(f"stroke stiffness resolved but negative ({k3:.3g}): the endpoint "
+                         "stays linear")
+        else:
+            ke = m["endpoint_stiffness"][0]
+            plant = dataclasses.replace(plant, endpoint_damping=m["endpoint_damping"][0],
+                                        endpoint_stiffness=ke)
+            sigma.update(endpoint_damping=m["endpoint_damping"][1],
+                         endpoint_stiffness=m["endpoint_stiffness"][1])
+            if "coulomb_force" in m and m["coulomb_force"][0] > 0.0:
+                dahl = dataclasses.replace(dahl, coulomb_force=m["coulomb_force"][0])
+                sigma["coulomb_force"] = m["coulomb_force"][1]
+            bound = math.sqrt(max(3.0 * ke * k3, 0.0))
+            if abs(k2) > bound:
+                lines.append(f"stroke asymmetry {k2:.3g} clipped to {bound:.3g} N m/rad^2 "
+                             "(a diaphragm force rising over the whole stroke)")
+                k2 = math.copysign(bound, k2)
+            used.update({k: v for k, v in (("stroke_asymmetry", k2), ("stroke_stiffness", k3))
+                         if v})
+            sigma.update({k: m[k][1] for k in ("stroke_asymmetry", "stroke_stiffness")
+                          if k in m})
+            lines.append("endpoint: b_e, k_e, F_c refitted with the stroke terms; the "
+                         f"equation's misfit {100 * end.misfit_linear:.2g} % -> "
+                         f"{100 * end.model_misfit:.2g} %")
+    model_terms = PlantTermsParams(**used)
+    if used:
+        lines.insert(0, "the controller's model: " + ", ".join(
+            f"{k.replace('_', ' ')} {v:.4g}" for k, v in used.items()))
+    return ControllerModel(plant, sigma, dahl, model_terms, class_error, lines)
+
+
 # --- 2. sensors and loop --------------------------------------------------------------------
 def loop_stage(record: ExcitationRecord, config: ControllerConfig
                ) -> Tuple[LoopFigures, LoopModel]:
@@ -293,14 +405,14 @@ def loop_stage(record: ExcitationRecord, config: ControllerConfig
 
 
 # --- 3. tuning ------------------------------------------------------------------------------
-def tune_stage(ident: FreeAirIdentification, loop: LoopModel, request: AnalysisRequest
+def tune_stage(model: ControllerModel, loop: LoopModel, request: AnalysisRequest
                ) -> TuningResult:
-    """:func:`~.tuning.tune` on the identified model from the channel's settings; raises
-    CommissioningError (naming what is not identified) or InfeasibleTuningError."""
-    return tune(ident.plant(), _plant_sigma(ident), ident.dahl(), loop, band=request.band,
+    """:func:`~.tuning.tune` on the controller's model from the channel's settings; raises
+    InfeasibleTuningError."""
+    return tune(model.plant, model.sigma, model.dahl, loop, band=request.band,
                 noise_budget=request.noise_budget,
                 passivity_margin=request.passivity_margin, allow_guard=request.allow_guard,
-                config=request.config, class_error=ident.misfit.get("port", 0.0))
+                config=request.config, class_error=model.class_error, terms=model.terms)
 
 
 # --- 4. prediction --------------------------------------------------------------------------
@@ -408,15 +520,18 @@ class Backdrives:
 def work_loop_stage(plant: PlantParams, dahl: Optional[DahlParams], config: ControllerConfig,
                     modes: Sequence[str] = PREDICTED_MODES,
                     omegas: Sequence[float] = HEADLINE_OMEGA, motor_coulomb: float = 0.0,
-                    progress: Optional[Progress] = None) -> Backdrives:
+                    progress: Optional[Progress] = None,
+                    terms: Optional[PlantTermsParams] = None) -> Backdrives:
     """Backdrives simulated on the identified model (the core's simulator: ``plant``,
     ``dahl`` and the motor's ``motor_coulomb`` as the gripper, the tuned ``config`` as the
     controller, the simulator's sensors and one sample of delay), each mode at each of
     ``omegas`` with :func:`backdrive_amplitude`, one period after one of settling: the
     impedance figures -- the rms prediction, which counts the harmonics the Dahl hysteresis
     and the Coulomb friction give -- and the work loops of :data:`WORK_LOOP_MODES` at
-    :data:`WORK_LOOP_OMEGA`. A mode the simulation cannot run (its configuration refused) is
-    left out."""
+    :data:`WORK_LOOP_OMEGA`. With the model's nonlinear ``terms`` the simulated gripper has
+    them too (:func:`~seaforce_ros.core.nonlinear_effects.effects_of_terms`). A mode the
+    simulation cannot run (its configuration refused) is left out."""
+    effects = None if terms is None else effects_of_terms(terms, plant)
     from ..identification.experiments import work_loop_experiment
     loops: List[WorkLoop] = []
     figures: Dict[str, List[Optional[ImpedanceFigures]]] = {}
@@ -432,7 +547,7 @@ def work_loop_stage(plant: PlantParams, dahl: Optional[DahlParams], config: Cont
                 rec = work_loop_experiment(plant=plant, dahl=dahl, amplitude=amplitude,
                                            frequency=omega, cycles=1.0, mode=mode,
                                            config=config, settle_cycles=1.0,
-                                           motor_coulomb=motor_coulomb)
+                                           motor_coulomb=motor_coulomb, effects=effects)
             except SeaforceError:
                 figures[mode].append(None)
                 continue
@@ -713,17 +828,19 @@ def analyse(record: ExcitationRecord, request: AnalysisRequest,
         figures, analysis.loop = loop_stage(record, request.config)
         lap("loop")
         say("tune", 0.0, "lambda, the nominal plant and the hold gains")
-        tuning = analysis.tuning = tune_stage(ident, analysis.loop, request)
+        model = analysis.model = model_stage(ident, analysis.terms)
+        tuning = analysis.tuning = tune_stage(model, analysis.loop, request)
         lap("tune")
-        prediction = predict_stage(ident.plant(), _plant_sigma(ident), ident.dahl(),
+        prediction = predict_stage(model.plant, model.sigma, model.dahl,
                                    tuning.config, analysis.loop, request.noise_budget,
                                    noise_rel_sigma=figures.pressure.std_1s
                                    / max(figures.pressure.std, 1e-300), progress=say)
         coulomb = 0.0
         if analysis.terms is not None and analysis.terms.term("motor_coulomb").resolved:
             coulomb = analysis.terms.term("motor_coulomb").value
-        analysis.backdrives = work_loop_stage(ident.plant(), ident.dahl(), tuning.config,
-                                              motor_coulomb=coulomb, progress=say)
+        analysis.backdrives = work_loop_stage(model.plant, model.dahl, tuning.config,
+                                              motor_coulomb=coulomb, progress=say,
+                                              terms=model.terms)
         analysis.work_loops = analysis.backdrives.work_loops
         lap("predict")
         analysis.band = prediction.band

@@ -169,6 +169,12 @@ class EquationFit:
         The terms the criterion chose.
     samples, effective : int
         Samples fitted, and their effective number n/tau.
+    model : dict str -> (value, 1-sigma)
+        The equation refitted with the *resolved* terms only (what a controller may use):
+        the linear coefficients under the names of ``linear`` and each resolved term's
+        coefficient under its key; empty for the motor equation.
+    model_misfit : float
+        That fit's misfit (NaN: not refitted).
     """
 
     name: str
@@ -178,6 +184,8 @@ class EquationFit:
     chosen: List[str]
     samples: int
     effective: int
+    model: Dict[str, Tuple[float, float]] = field(default_factory=dict)
+    model_misfit: float = math.nan
 
 
 @dataclass
@@ -414,6 +422,19 @@ def _term(key: str, equation: str, label: str, unit: str, sel: _Selection,
     return Term(key, equation, label, unit, v, s, True, "", extra, sel.bic_change[key])
 
 
+def _resolved_model(y: _Real, cols: Dict[str, _Real], sel: _Selection, terms: List[Term],
+                    linear: Dict[str, str], columns: Dict[str, str]
+                    ) -> Tuple[Dict[str, Tuple[float, float]], float]:
+    """The equation refitted on its linear columns (``linear``: parameter name -> column) and
+    the columns of its resolved terms (``columns``: term key -> column)."""
+    keys = [t.key for t in terms if t.resolved and t.key in columns]
+    names = list(linear.values()) + [columns[k] for k in keys]
+    fit = _lstsq(y, cols, names, sel.lags)
+    model = {p: _coef(fit, c) for p, c in linear.items()}
+    model.update({k: _coef(fit, columns[k]) for k in keys})
+    return model, _misfit(fit, y)
+
+
 # --- the equations ---------------------------------------------------------------------------
 def _motor(sig: Dict[str, _Real], dt: float) -> Tuple[List[Term], EquationFit]:
     x, f_p, applied = sig["x"], sig["f_p"], sig["applied"]
@@ -536,9 +557,12 @@ def _port(sig: Dict[str, _Real], dt: float, ident: FreeAirIdentification
               "hose_damping": _coef(sel.final, "b_s")}
     endpoint = dict(zip(("endpoint_inertia", "endpoint_damping", "endpoint_stiffness"),
                         (float(t) for t in np.exp(z))))
+    model, model_misfit = _resolved_model(
+        y, cols, sel, terms, {"hose_stiffness": "k_s", "hose_damping": "b_s"},
+        {"hose_flow": "flow", "hose_pressure": "pressure"})
     eq = EquationFit("port", dict(linear, **{k: (v, math.nan) for k, v in endpoint.items()}),
                      _misfit(sel.base, y), _misfit(sel.final, y), list(sel.chosen), sel.n,
-                     int(sel.n / sel.tau))
+                     int(sel.n / sel.tau), model, model_misfit)
     return terms, eq, {**{k: v for k, (v, _) in linear.items()}, **endpoint}
 
 
@@ -573,8 +597,12 @@ def _endpoint(sig: Dict[str, _Real], dt: float, ident: FreeAirIdentification,
               "endpoint_stiffness": _coef(sel.final, "k_e")}
     if "F_c" in base:
         linear["coulomb_force"] = _coef(sel.final, "F_c")
+    model, model_misfit = _resolved_model(
+        y, cols, sel, terms, dict({"endpoint_damping": "b_e", "endpoint_stiffness": "k_e"},
+                                  **({"coulomb_force": "F_c"} if "F_c" in base else {})),
+        {"stroke_asymmetry": "x2", "stroke_stiffness": "x3"})
     eq = EquationFit("endpoint", linear, _misfit(sel.base, y), _misfit(sel.final, y),
-                     list(sel.chosen), sel.n, int(sel.n / sel.tau))
+                     list(sel.chosen), sel.n, int(sel.n / sel.tau), model, model_misfit)
     return terms, eq
 
 

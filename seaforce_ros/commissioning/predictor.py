@@ -57,7 +57,8 @@ __all__ = ["PREDICTED_MODES", "LoopModel", "PredictionError", "dahl_describing_f
            "controller_polynomials", "controller_gains", "closed_loop_radius",
            "predict_impedance", "predict_modes", "ImpedanceBand",
            "predict_band", "perturbed_plants", "torque_noise", "hold_delay_limit",
-           "HoldVerdict", "hold_verdict", "WallLimits", "wall_limits", "PLANT_FIELDS"]
+           "HoldVerdict", "hold_verdict", "WallLimits", "wall_limits", "PLANT_FIELDS",
+           "SIGMA_KEYS"]
 
 #: The modes :func:`predict_impedance` predicts.
 PREDICTED_MODES = ("passive", "hold", "force_feedback", "dob", "dob_linear_ff", "dob_full_ff",
@@ -478,8 +479,13 @@ def perturbed_plants(plant: PlantParams, plant_sigma: Mapping[str, float],
     return out
 
 
+#: The keys a ``plant_sigma`` may have: the plant's, the Dahl model's and the stroke terms'
+#: (``plant_terms``; the band leaves the terms out).
+SIGMA_KEYS = PLANT_FIELDS + ("sigma", "coulomb_force", "stroke_asymmetry", "stroke_stiffness")
+
+
 def _check_sigma(plant_sigma: Mapping[str, float]) -> None:
-    known = PLANT_FIELDS + ("sigma", "coulomb_force")
+    known = SIGMA_KEYS
     for key, value in plant_sigma.items():
         if key not in known:
             raise PredictionError(f"plant_sigma: unknown key {key!r}; known: "

@@ -41,11 +41,14 @@ from ..core.environment import DRIVE_DAMPING, DRIVE_STIFFNESS
 from ..core.errors import NonPassiveError
 from ..core.params import (MIN_UNCERTAINTY, ControllerConfig, DahlParams, DobParams,
                            GraspParams, GuardParams, HoldParams, PlantParams,
-                           check_dob_passivity, guard_carries)
+                           PlantTermsParams, check_dob_passivity, guard_carries)
 from ..core.simulator import discretise
 from .errors import CommissioningError
-from .predictor import (PLANT_FIELDS, LoopModel, closed_loop_radius, hold_verdict,
+from .predictor import (PLANT_FIELDS, SIGMA_KEYS, LoopModel, closed_loop_radius, hold_verdict,
                         predict_modes, torque_noise)
+
+#: The model terms (``plant_terms.*``) a tuning writes.
+TERM_FIELDS = tuple(spec.attribute for spec in PlantTermsParams.SPECS)
 
 __all__ = ["TuningResult", "InfeasibleTuningError", "tune", "worst_plant", "TUNED_KEYS",
            "HOLD_MODULUS_MARGIN", "DELAY_RESERVE", "contact_damping_within",
@@ -55,7 +58,9 @@ _Float = npt.NDArray[np.float64]
 
 #: The flat keys (relative to ``<channel>.``) a tuning sets.
 TUNED_KEYS = tuple(f"plant.{n}" for n in PLANT_FIELDS) + (
-    "dahl.sigma", "dahl.coulomb_force", "dob.cutoff", "dob.nominal_inertia",
+    "dahl.sigma", "dahl.coulomb_force") + tuple(
+    f"plant_terms.{n}" for n in TERM_FIELDS) + (
+    "dob.cutoff", "dob.nominal_inertia",
     "dob.nominal_damping", "dob.nominal_stiffness", "hold.stiffness", "hold.damping",
     "passivity_guard", "grasp.contact_damping", "feedforward.damping_uncertainty",
     "feedforward.stiffness_uncertainty", "feedforward.dahl_uncertainty")
@@ -149,9 +154,9 @@ def _check_inputs(plant: PlantParams, plant_sigma: Mapping[str, float], figures:
     if not isinstance(figures, LoopModel):
         raise CommissioningError("figures: a LoopModel (noise, resolution, delays)")
     for key, value in plant_sigma.items():
-        if key not in PLANT_FIELDS + ("sigma", "coulomb_force"):
+        if key not in SIGMA_KEYS:
             raise CommissioningError(f"plant_sigma: unknown key {key!r}; known: "
-                                     + ", ".join(PLANT_FIELDS + ("sigma", "coulomb_force")))
+                                     + ", ".join(SIGMA_KEYS))
         if not (math.isfinite(value) and value >= 0.0):
             raise CommissioningError(f"plant_sigma[{key!r}] = {value!r}: a 1-sigma must be "
                                      ">= 0 and finite")
@@ -297,7 +302,8 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
          figures: LoopModel, *, band: Tuple[float, float] = (0.3, 10.0),
          noise_budget: float = 0.01, passivity_margin: float = 2.0,
          allow_guard: bool = False, config: Optional[ControllerConfig] = None,
-         amplitude: float = 0.5, points: int = 8, class_error: float = 0.0) -> TuningResult:
+         amplitude: float = 0.5, points: int = 8, class_error: float = 0.0,
+         terms: Optional[PlantTermsParams] = None) -> TuningResult:
     """Choose the DOB and hold settings that widen the predicted Z-width (module docstring).
 
     Parameters
@@ -306,7 +312,8 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
         Identified m, b, k, m_e, b_e, k_e, b_s, k_s.
     plant_sigma : mapping str -> float >= 0
         Their 1-sigma, keyed by the PlantParams field names (missing: 0); ``'sigma'`` and
-        ``'coulomb_force'`` for the Dahl model's.
+        ``'coulomb_force'`` for the Dahl model's, ``'stroke_asymmetry'`` and
+        ``'stroke_stiffness'`` for the stroke terms'.
     dahl : DahlParams
         Identified sigma [N m/rad], F_c [N m], n.
     figures : LoopModel
@@ -331,6 +338,11 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
         The model class's relative error as the fit's misfit shows it (the port response's
         rms relative misfit): with each endpoint term's relative 1-sigma it makes the
         feed-forward's uncertainty (:func:`feedforward_uncertainties`).
+    terms : PlantTermsParams, optional
+        The model's nonlinear terms the record resolved (``plant_terms``; default none: the
+        linear model). They are written as they are (0: a term not resolved, which also
+        clears a term an earlier commissioning wrote); the predictions stay on the linear
+        model.
 
     Returns
     -------
@@ -354,9 +366,10 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     # the model it was set for): this config only predicts; every candidate is checked
     # (and the feed-forward's uncertainties from the identification: its margin sets the
     # feed-forward's gains, hence the torque noise of every candidate)
-    uncertainties = feedforward_uncertainties(plant, plant_sigma, dahl, class_error)
+    uncertainties = feedforward_uncertainties(plant, plant_sigma, dahl, class_error, terms)
+    terms = PlantTermsParams() if terms is None else terms
     model = ControllerConfig.from_dict(uncertainties, base=base.replace(
-        plant=plant, dahl=dahl, allow_non_passive=True,
+        plant=plant, dahl=dahl, plant_terms=terms, allow_non_passive=True,
         grasp=dataclasses.replace(base.grasp, contact_damping=(
             contact_damping_within(base.grasp.contact_damping, plant.hose_damping)))))
     omega = np.logspace(math.log10(band[0]), math.log10(band[1]), points)
@@ -448,6 +461,7 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
 
     # --- the result ------------------------------------------------------------------------
     values = _model_values(plant, dahl, base)
+    values.update({f"plant_terms.{n}": float(getattr(terms, n)) for n in TERM_FIELDS})
     values.update(uncertainties)
     m_n = best.dob.nominal_inertia
     assert m_n is not None
@@ -458,6 +472,9 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
                    "passivity_guard": "active" if best.guard else base.passivity.mode})
     for key in TUNED_KEYS[:len(PLANT_FIELDS) + 2]:
         bindings.setdefault(key, "identified value")
+    for n in TERM_FIELDS:
+        bindings.setdefault(f"plant_terms.{n}", "resolved by the record" if getattr(terms, n)
+                            else "not resolved: the linear model")
     bindings.setdefault("grasp.contact_damping", "range: at most 10 b_s")
     bindings.setdefault("passivity_guard", "passivity guard carries m_n below eq. 28"
                         if best.guard else "kept")
@@ -479,26 +496,49 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
                         margin_cost)
 
 
+#: Relative uncertainty of a resolved stroke term at least (the two halves of its record agree
+#: within this: :data:`~.nonlinear_terms.CONSISTENCY`; its statistical 1-sigma is smaller
+#: than its error on the oracle's family).
+TERM_UNCERTAINTY = 0.25
+#: The half-stroke [rad] over which a stroke term's uncertainty is counted in k_e's.
+TERM_STROKE = 0.5
+
+
 def feedforward_uncertainties(plant: PlantParams, plant_sigma: Mapping[str, float],
-                              dahl: DahlParams, class_error: float) -> Dict[str, float]:
+                              dahl: DahlParams, class_error: float,
+                              terms: Optional[PlantTermsParams] = None) -> Dict[str, float]:
     """The feed-forward's relative uncertainties (``feedforward.*_uncertainty``) after an
     identification: per term ``hypot(sigma_rel, class_error)`` -- the fit's statistical
     1-sigma, relative, and the model class's error the misfit shows (a parameter whose
     effect the fit cannot match is off by about that much: on a plant with the hose and
     finger nonlinearities of the paper's Section IV, k_e's statistical 1-sigma was 1.1 %
     and its error 7.4 %, the port misfit 8.5 %). The Dahl term is F_c's (sigma's margin is
-    ``feedforward.dahl_stiffness_share``). Each at least :data:`~seaforce_ros.core.params.MIN_UNCERTAINTY`, at most 1."""
+    ``feedforward.dahl_stiffness_share``). The stroke terms of ``terms`` (k_2, k_3) add
+    their uncertainty -- the larger of their 1-sigma (``plant_sigma``) and
+    :data:`TERM_UNCERTAINTY` of their value -- to k_e's, as a share of k_e's force at
+    :data:`TERM_STROKE` (``u_2 |k_2| L/k_e``, ``u_3 k_3 L^2/k_e``): the feed-forward takes
+    them with k_e's margin. Each at least :data:`~seaforce_ros.core.params.MIN_UNCERTAINTY`,
+    at most 1."""
     def rel(name: str, value: float) -> float:      # (missing: 0, as for eq. 28's margin)
         sd = float(plant_sigma.get(name, 0.0))
         return sd / value if value > 0.0 and math.isfinite(sd) else 1.0
 
-    def term(r: float) -> float:
-        return min(1.0, max(MIN_UNCERTAINTY, math.hypot(r, class_error)))
+    def term(r: float, *more: float) -> float:
+        return min(1.0, max(MIN_UNCERTAINTY, math.hypot(r, class_error, *more)))
+
+    stroke = []
+    ke = plant.endpoint_stiffness
+    for name, power in (("stroke_asymmetry", 1), ("stroke_stiffness", 2)):
+        value = 0.0 if terms is None else abs(getattr(terms, name))
+        if value and ke > 0.0:
+            sd = float(plant_sigma.get(name, 0.0))
+            u = max(sd / value if math.isfinite(sd) else 1.0, TERM_UNCERTAINTY)
+            stroke.append(u * value * TERM_STROKE ** power / ke)
 
     return {"feedforward.damping_uncertainty": term(rel("endpoint_damping",
                                                         plant.endpoint_damping)),
             "feedforward.stiffness_uncertainty": term(rel("endpoint_stiffness",
-                                                          plant.endpoint_stiffness)),
+                                                          plant.endpoint_stiffness), *stroke),
             "feedforward.dahl_uncertainty": term(rel("coulomb_force", dahl.coulomb_force))}
 
 

@@ -190,7 +190,7 @@ class ChannelController:
         self.passivity_guard: PassivityGuard | None = None
         self.mode = config.mode
         self.observer = EndpointObserver(config.plant, config.feedforward, config.dahl,
-                                         self.dt)
+                                         self.dt, config.plant_terms)
         self._dob = DisturbanceObserver(config.dob, self.dt)
         self._modes: dict[str, Mode] = {name: cls(config, self.dt)
                                         for name, cls in MODE_TYPES.items()}
@@ -240,7 +240,7 @@ class ChannelController:
         self.monitor.configure(c.monitor)
         self._use_mode(c.mode)
         self._adapting = c.friction.adaptation
-        self.observer.configure(c.plant, c.feedforward, c.dahl)
+        self.observer.configure(c.plant, c.feedforward, c.dahl, c.plant_terms)
         self._dob.configure(c.dob)
         self.estimator.configure(c.estimator, c.plant, c.feedforward.rest_position)
         self._configure_guard(c)

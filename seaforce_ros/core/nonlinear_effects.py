@@ -37,11 +37,13 @@ from typing import Dict, Tuple
 import numpy as np
 
 from .errors import InvalidParameterError
+from .params import PlantParams, PlantTermsParams
 from .schema import SIM, ParameterGroup, group, param
 
 __all__ = ["NonlinearEffects", "PLAUSIBLE", "COGGING_PERIODS", "TORQUE_RANGE", "draw_effects",
            "hose_force", "hose_energy", "diaphragm_force", "diaphragm_energy", "finger_ratio",
-           "endpoint_of_finger", "finger_of_endpoint", "cogging_torque", "cogging_energy"]
+           "endpoint_of_finger", "finger_of_endpoint", "cogging_torque", "cogging_energy",
+           "model_terms", "effects_of_terms"]
 
 @group("sim.nonlinear", nodes=(SIM,))
 class NonlinearEffects(ParameterGroup):
@@ -200,6 +202,40 @@ def cogging_energy(x: float, effects: NonlinearEffects) -> float:
     """The cogging's potential energy at X [J] (its force is minus its derivative)."""
     n = effects.cogging_periods
     return -effects.cogging * math.cos(n * x + effects.cogging_phase) / n
+
+
+def model_terms(effects: NonlinearEffects, plant: PlantParams) -> PlantTermsParams:
+    """The controller's model terms (``plant_terms``) that describe these effects exactly on
+    the plant ``plant`` (its k_s, b_s, k_e): the hose's ``c = b_s c_q``, ``kappa = k_s^2 s_p /
+    2``; the diaphragm's ``k_2 = k_e a_1/L``, ``k_3 = k_e a_2/L^2`` (rest at X_e = 0). The
+    finger ratio and the cogging have no model term."""
+    ks, L = plant.hose_stiffness, effects.half_stroke
+    return PlantTermsParams(
+        hose_flow=plant.hose_damping * effects.hose_damping_rise,
+        hose_pressure=0.5 * effects.hose_stiffening * ks * ks,
+        stroke_asymmetry=plant.endpoint_stiffness * effects.stroke_asymmetry / L,
+        stroke_stiffness=plant.endpoint_stiffness * effects.stroke_stiffening / (L * L))
+
+
+def effects_of_terms(terms: PlantTermsParams, plant: PlantParams,
+                     half_stroke: float = 0.5) -> NonlinearEffects:
+    """The inverse of :func:`model_terms`: the sim's effects that are the model's terms on
+    ``plant`` (to simulate an identified model), each within its parameter's range (an
+    identified term beyond it is clipped: the sim's 2 kHz step does not take a stiffer one)."""
+    L = half_stroke
+    ks, bs, ke = plant.hose_stiffness, plant.hose_damping, plant.endpoint_stiffness
+
+    def within(name: str, value: float) -> float:
+        spec = next(s for s in NonlinearEffects.SPECS if s.attribute == name)
+        return float(min(max(value, spec.low), spec.high))
+    a2 = within("stroke_stiffening", terms.stroke_stiffness * L * L / ke if ke > 0 else 0.0)
+    a1 = terms.stroke_asymmetry * L / ke if ke > 0 else 0.0
+    a1 = math.copysign(min(abs(a1), 0.999 * math.sqrt(3.0 * a2)), a1) if a2 > 0 else 0.0
+    return NonlinearEffects(
+        hose_damping_rise=within("hose_damping_rise", terms.hose_flow / bs if bs > 0 else 0.0),
+        hose_stiffening=within("hose_stiffening", 2.0 * terms.hose_pressure / (ks * ks)
+                               if ks > 0 else 0.0),
+        stroke_stiffening=a2, stroke_asymmetry=a1, half_stroke=L)
 
 
 # --- plausible magnitudes ----------------------------------------------------------------------

@@ -26,6 +26,14 @@ Inputs per sample: motor position X [rad], motor velocity V [rad/s], pressure fo
   the stiffness). So the feed-forward's Dahl force has its own state (:attr:`dahl_feedforward`);
   F_d itself (what the contact estimator and the friction adaptation see) is the model's.
 
+The identified model's nonlinear terms (``plant_terms``, :class:`~.params.PlantTermsParams`),
+when some are set: the hose ``F_p = k_s d + b_s d' + c |d'| d' + kappa |d| d`` is inverted
+in the same exact first-order hold with the secant stiffness and damping (``k_s + kappa |d|``,
+``b_s + c |d'|``) of the previous sample, then again with their mean over the step (predictor
+and corrector: stable for any deflection, and at a steady force the fixed point is the true
+deflection), the flow ``d'`` solved from the hose equation at the new deflection; the feed-forward adds ``s_k (k_2 u^2 + k_3 u^3)``, ``u = X_e_hat - rest``.
+With every term 0 the arithmetic is the linear one's, to the bit.
+
 A plant that skipped samples (``steps`` > 1) is integrated over the real elapsed time: the
 first-order hold spans ``steps * dt``. Plain Python floats, no allocation per sample.
 """
@@ -35,11 +43,27 @@ from __future__ import annotations
 import math
 
 from .dahl import DahlState
-from .params import DahlParams, FeedforwardParams, PlantParams
+from .params import DahlParams, FeedforwardParams, PlantParams, PlantTermsParams
 
-__all__ = ["EndpointObserver", "hose_coefficients"]
+__all__ = ["EndpointObserver", "hose_coefficients", "hose_deflection", "hose_flow"]
 
 _exp = math.exp
+_sqrt = math.sqrt
+_NO_TERMS = PlantTermsParams()
+
+
+def hose_deflection(force: float, stiffness: float, pressure: float) -> float:
+    """The static deflection d [rad] of ``force = k_s d + kappa |d| d`` [N m] (``pressure`` =
+    kappa >= 0, ``stiffness`` = k_s > 0)."""
+    a = abs(force)
+    d = 2.0 * a / (stiffness + _sqrt(stiffness * stiffness + 4.0 * pressure * a))
+    return d if force >= 0.0 else -d
+
+
+def hose_flow(residual: float, damping: float, flow: float) -> float:
+    """The flow d' [rad/s] of ``residual = b_s d' + c |d'| d'`` [N m] (``flow`` = c >= 0,
+    ``damping`` = b_s > 0)."""
+    return hose_deflection(residual, damping, flow)
 
 
 def hose_coefficients(stiffness: float, inverse_damping: float,
@@ -105,27 +129,33 @@ class EndpointObserver:
         The Dahl state behind F_d.
     """
 
-    __slots__ = ("dt", "_ks", "_inv_bs", "_a", "_c0", "_c1", "damping", "stiffness", "_rest",
+    __slots__ = ("_bs", "_flow_c", "_kappa", "_hose", "_k2", "_k3", "_stroke", "_dflow",
+                 "_k2_model", "_k3_model",
+                 "dt", "_ks", "_inv_bs", "_a", "_c0", "_c1", "damping", "stiffness", "_rest",
                  "_half_width", "dahl", "_first", "_delta", "_fp_prev", "dahl_input",
                  "position", "velocity", "dahl_force", "compensation", "feedforward",
                  "_scales", "_kb", "_kk", "_ff", "dahl_ff", "dahl_feedforward", "_relax",
                  "_coulomb", "_minus_coulomb", "_sigma", "_minus_sigma")
 
     def __init__(self, plant: PlantParams, feedforward: FeedforwardParams, dahl: DahlParams,
-                 dt: float = 5e-4) -> None:
+                 dt: float = 5e-4, terms: PlantTermsParams = _NO_TERMS) -> None:
         self.dt = float(dt)
         self.dahl = DahlState(dahl)
         self.dahl_ff = DahlState(dahl)
-        self.configure(plant, feedforward, dahl)
+        self.configure(plant, feedforward, dahl, terms)
         self.reset()
 
     def configure(self, plant: PlantParams, feedforward: FeedforwardParams,
-                  dahl: DahlParams) -> None:
+                  dahl: DahlParams, terms: PlantTermsParams = _NO_TERMS) -> None:
         """New (validated) parameters, effective at the next :meth:`update`; the state (hose
         deflection, Dahl state) is kept."""
         ks = plant.hose_stiffness
         self._ks, self._inv_bs = ks, 1.0 / plant.hose_damping
+        self._bs = plant.hose_damping
         self._a, self._c0, self._c1 = hose_coefficients(ks, self._inv_bs, self.dt)
+        self._flow_c, self._kappa = terms.hose_flow, terms.hose_pressure
+        self._hose = terms.hose
+        self._k2_model, self._k3_model = terms.stroke_asymmetry, terms.stroke_stiffness
         self._rest = feedforward.rest_position
         self._half_width = 0.5 * feedforward.dahl_deadband
         self._scales = feedforward.scales()
@@ -139,6 +169,8 @@ class EndpointObserver:
         self.damping, self.stiffness = damping, stiffness
         sb, sk, _ = self._scales
         self._kb, self._kk = sb * damping, sk * stiffness
+        self._k2, self._k3 = sk * self._k2_model, sk * self._k3_model
+        self._stroke = bool(self._k2 or self._k3)
         self.dahl.set_params(dahl)
         self.dahl_ff.set_params(self._ff.dahl(dahl))
         # both Dahl states relax exponentially (n = 1, eq. 15; sigma > 0): update updates them
@@ -155,14 +187,16 @@ class EndpointObserver:
         """``b_e V_e_hat + k_e (X_e_hat - rest) + F_d`` [N m]: the model's friction in full,
         without the margin (what a grasp, which closes its own loop around the endpoint, adds
         to its force)."""
-        return (self.damping * self.velocity + self.stiffness * (self.position - self._rest)
-                + self.dahl_force)
+        u = self.position - self._rest
+        return (self.damping * self.velocity + u * (self.stiffness + u * (
+            self._k2_model + u * self._k3_model)) + self.dahl_force)
 
     def reset(self) -> None:
         """Forget the state: the next :meth:`update` starts the hose inversion at rest (``delta
         = F_p/k_s``) and the Dahl state at F_d = 0 where X_e_hat is."""
         self._first = True
         self._delta = 0.0
+        self._dflow = 0.0
         self._fp_prev = 0.0
         self.dahl.reset(0.0, 0.0)
         self.dahl_ff.reset(0.0, 0.0)
@@ -173,21 +207,24 @@ class EndpointObserver:
     def update(self, x: float, v: float, f_p: float, steps: int = 1) -> None:
         """One sample: X [rad], V [rad/s], F_p [N m]; ``steps`` sample periods since the
         previous one. The results are the attributes."""
-        if self._first:
-            self._first = False
-            delta = f_p / self._ks
-            self.dahl_input = x + delta
-            self.dahl.reset(x + delta, 0.0)
-            self.dahl_ff.reset(x + delta, 0.0)
-        elif steps == 1:
-            delta = self._a * self._delta + self._c0 * self._fp_prev + self._c1 * f_p
+        if self._hose:
+            delta, ve = self._nonlinear_hose(x, v, f_p, steps)
         else:
-            a, c0, c1 = hose_coefficients(self._ks, self._inv_bs, steps * self.dt)
-            delta = a * self._delta + c0 * self._fp_prev + c1 * f_p
+            if self._first:
+                self._first = False
+                delta = f_p / self._ks
+                self.dahl_input = x + delta
+                self.dahl.reset(x + delta, 0.0)
+                self.dahl_ff.reset(x + delta, 0.0)
+            elif steps == 1:
+                delta = self._a * self._delta + self._c0 * self._fp_prev + self._c1 * f_p
+            else:
+                a, c0, c1 = hose_coefficients(self._ks, self._inv_bs, steps * self.dt)
+                delta = a * self._delta + c0 * self._fp_prev + c1 * f_p
+            ve = v + (f_p - self._ks * delta) * self._inv_bs
         self._delta = delta
         self._fp_prev = f_p
         xe = x + delta
-        ve = v + (f_p - self._ks * delta) * self._inv_bs
         self.position = xe
         self.velocity = ve
         # the play operator: sensor noise on X_e_hat must not drive spurious Dahl reversals;
@@ -230,5 +267,38 @@ class EndpointObserver:
             fdf = dahl_ff.update(xd)
         self.dahl_force = fd
         self.dahl_feedforward = fdf
-        fc = self.compensation = self._kb * ve + self._kk * (xe - self._rest)
+        if self._stroke:
+            u = xe - self._rest
+            fc = self.compensation = self._kb * ve + u * (self._kk + u * (self._k2 + u * self._k3))
+        else:
+            fc = self.compensation = self._kb * ve + self._kk * (xe - self._rest)
         self.feedforward = fc + fdf
+
+    def _nonlinear_hose(self, x: float, v: float, f_p: float, steps: int
+                        ) -> tuple[float, float]:
+        """The hose deflection and X_e_hat's velocity through the nonlinear hose (module
+        docstring)."""
+        ks, kappa = self._ks, self._kappa
+        if self._first:
+            self._first = False
+            delta = hose_deflection(f_p, ks, kappa)
+            self.dahl_input = x + delta
+            self.dahl.reset(x + delta, 0.0)
+            self.dahl_ff.reset(x + delta, 0.0)
+            flow = 0.0
+        else:
+            # predictor: the secant coefficients at the previous sample; corrector: at the
+            # mean of that and the predicted end (second order in the step)
+            d0, q0 = abs(self._delta), abs(self._dflow)
+            period = steps * self.dt
+            bs, c = self._bs, self._flow_c
+            fp0 = self._fp_prev
+            a, c0, c1 = hose_coefficients(ks + kappa * d0, 1.0 / (bs + c * q0), period)
+            delta = a * self._delta + c0 * fp0 + c1 * f_p
+            flow = hose_flow(f_p - (ks + kappa * abs(delta)) * delta, bs, c)
+            a, c0, c1 = hose_coefficients(ks + 0.5 * kappa * (d0 + abs(delta)),
+                                          1.0 / (bs + 0.5 * c * (q0 + abs(flow))), period)
+            delta = a * self._delta + c0 * fp0 + c1 * f_p
+            flow = hose_flow(f_p - (ks + kappa * abs(delta)) * delta, bs, c)
+        self._dflow = flow
+        return delta, v + flow

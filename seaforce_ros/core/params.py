@@ -21,7 +21,7 @@ from .errors import InvalidParameterError, NonPassiveError, SeaforceError
 from .schema import ParameterGroup, Spec, group, param
 
 __all__ = [
-    "MODES", "DOB_MODES", "PlantParams", "DahlParams", "DobParams", "TargetParams",
+    "MODES", "DOB_MODES", "PlantParams", "PlantTermsParams", "DahlParams", "DobParams", "TargetParams",
     "HoldParams", "ForceFeedbackParams", "ChirpParams", "FeedforwardParams", "EstimatorParams",
     "GraspParams", "FrictionParams", "CommissioningParams", "GUARD_MODES", "GuardParams",
     "LimitParams", "MonitorParams", "FALLBACK_MODES", "MIN_UNCERTAINTY",
@@ -105,6 +105,34 @@ class PlantParams(ParameterGroup):
         """Copy with some parameters multiplied, e.g. ``scaled(endpoint_damping=10)``."""
         return dataclasses.replace(
             self, **{n: getattr(self, n) * f for n, f in factors.items()})
+
+
+@group("plant_terms")
+class PlantTermsParams(ParameterGroup):
+    """The identified model's nonlinear terms beyond the linear plant (commissioning writes
+    the ones its record resolves; 0: the linear model). ``d = X_e - X`` the hose's
+    deflection, ``u = X_e - feedforward.rest_position`` the endpoint's stroke::
+
+        hose      F_p = k_s d + b_s d' + c |d'| d' + kappa |d| d     (the observer inverts it)
+        endpoint  F_k = k_e u + k_2 u^2 + k_3 u^3                      (the feed-forward)
+
+    The feed-forward takes the stroke terms times the margin's scale of k_e."""
+
+    hose_flow: float = param(0.0, "N m s^2/rad^2", "the hose's viscous loss rising with flow "
+                             "(c |d'| d'); 0: linear", symbol="c", ge=0.0, le=1e3)
+    hose_pressure: float = param(0.0, "N m/rad^2", "the hose's stiffening with deflection, i.e. "
+                                 "with pressure (kappa |d| d); 0: linear", symbol="kappa",
+                                 ge=0.0, le=1e6)
+    stroke_asymmetry: float = param(0.0, "N m/rad^2", "the diaphragm force's asymmetric stroke "
+                                    "term (k_2 u^2); k_2^2 <= 3 k_e k_3: the force rises over "
+                                    "the whole stroke", symbol="k_2", ge=-1e3, le=1e3)
+    stroke_stiffness: float = param(0.0, "N m/rad^3", "the diaphragm force's stiffening at the "
+                                    "stroke's ends (k_3 u^3)", symbol="k_3", ge=0.0, le=1e3)
+
+    @property
+    def hose(self) -> bool:
+        """The hose has a nonlinear term."""
+        return bool(self.hose_flow or self.hose_pressure)
 
 
 @group("dahl")
@@ -546,6 +574,7 @@ class ControllerConfig(ParameterGroup):
 
     mode: str = param("passive", "", "controller mode", choices=MODES, hint=MODE_RENAMED)
     plant: PlantParams = field(default_factory=PlantParams)
+    plant_terms: PlantTermsParams = field(default_factory=PlantTermsParams)
     dahl: DahlParams = field(default_factory=DahlParams)
     dob: DobParams = field(default_factory=DobParams)
     target: TargetParams = field(default_factory=TargetParams)
@@ -595,6 +624,14 @@ class ControllerConfig(ParameterGroup):
             value = getattr(self.plant, name)
             if not value > 0.0:
                 raise InvalidParameterError("plant." + name, value, "> 0 and finite")
+        terms = self.plant_terms
+        k2, k3 = terms.stroke_asymmetry, terms.stroke_stiffness
+        if k2 * k2 > 3.0 * self.plant.endpoint_stiffness * k3:
+            raise InvalidParameterError(
+                "plant_terms.stroke_asymmetry", k2,
+                f"k_2^2 <= 3 k_e k_3 = {3.0 * self.plant.endpoint_stiffness * k3:.6g} "
+                "(N m/rad^2)^2: else the diaphragm force falls somewhere along the stroke, and "
+                "the feed-forward would push the finger there")
         self._check_ranges()
         if self.allow_non_passive:
             return

@@ -25,6 +25,8 @@ from ..core.controller import ChannelController
 from ..core.environment import position_sine, torque_chirp
 from ..core.params import ChirpParams, ControllerConfig, DahlParams, PlantParams
 from ..core.simulator import ChannelSimulator, run_closed_loop
+from ..core.nonlinear_effects import NonlinearEffects
+from ..core.nonlinear_simulator import make_simulator
 
 if TYPE_CHECKING:
     from ..core.sensors import SensorParams
@@ -102,7 +104,8 @@ def work_loop_experiment(plant: Optional[PlantParams] = None, dahl: Optional[Dah
                          frequency: float = 1.0, cycles: float = 3.0, mode: str = "passive",
                          config: Optional[ControllerConfig] = None, seed: int = 0,
                          dt: float = 5e-4,
-                         settle_cycles: float = 1.0, motor_coulomb: float = 0.0) -> _WorkLoop:
+                         settle_cycles: float = 1.0, motor_coulomb: float = 0.0,
+                         effects: Optional[NonlinearEffects] = None) -> _WorkLoop:
     """Backdrive the endpoint with the stiff position drive in controller ``mode``.
 
     Parameters
@@ -122,6 +125,8 @@ def work_loop_experiment(plant: Optional[PlantParams] = None, dahl: Optional[Dah
         overrides the default config built from ``plant`` and ``dahl``.
     motor_coulomb : float >= 0
         The simulated motor's Coulomb friction [N m].
+    effects : NonlinearEffects, optional
+        The simulated plant's nonlinear effects (default none: the linear plant).
 
     Returns
     -------
@@ -130,9 +135,9 @@ def work_loop_experiment(plant: Optional[PlantParams] = None, dahl: Optional[Dah
     plant = PlantParams.table_i() if plant is None else plant
     period = 2.0 * math.pi / frequency
     n = int(round((cycles + settle_cycles) * period / dt))
-    sim = ChannelSimulator(plant, dahl=dahl, dt=dt, seed=seed,
-                           environment=position_sine(amplitude, frequency), sensors=sensors,
-                           motor_coulomb=motor_coulomb)
+    sim = make_simulator(plant, dahl, effects, dt=dt, seed=seed,
+                         environment=position_sine(amplitude, frequency), sensors=sensors,
+                         motor_coulomb=motor_coulomb)
     ctl: Union[ZeroTorque, ChannelController]
     if mode == "passive" and config is None:
         ctl = ZeroTorque()

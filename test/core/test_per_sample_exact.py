@@ -234,9 +234,19 @@ class Side:
                   tuple((job.phase, job.outcome, job.message) for job in self.jobs)]
         if full:
             values.append(tuple(est.estimate()))
-            values.append(ctl.config)
+            values.append(linear_config(ctl.config))
             values.extend(tuple(sorted(job.feedback(est).items())) for job in self.jobs)
         return exact(values)
+
+
+def linear_config(config):
+    """The config's fields but ``plant_terms`` while every term is 0 (the linear model: the
+    group came after the baseline, and at 0 it changes no float)."""
+    terms = getattr(config, "plant_terms", None)
+    if terms is not None and any(getattr(terms, f.name) for f in dataclasses.fields(terms)):
+        return config
+    return tuple((f.name, getattr(config, f.name)) for f in dataclasses.fields(config)
+                 if f.name != "plant_terms")
 
 
 def exact(values):

@@ -30,7 +30,11 @@ def load_core(rev, directory):
         raise BaselineUnavailable(f"{rev}: git archive failed: "
                                   f"{detail.decode(errors='replace').strip() or err}") from err
     with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
-        tar.extractall(directory, filter="data")
+        # (extraction filters came with Python 3.11.4; git archive's members are plain files)
+        if hasattr(tarfile, "data_filter"):
+            tar.extractall(directory, filter="data")
+        else:
+            tar.extractall(directory)
     core = Path(directory) / "seaforce_ros" / "core"
     for path in core.glob("*.py"):
         if "from seaforce_ros" in path.read_text() or "import seaforce_ros" in path.read_text():

@@ -50,13 +50,15 @@ def identify(record):
     return identify_free_air(record)
 
 
-def tuned_config(ident, record, config=None):
-    """The analysis' tuning stage on an identification; the tuned ControllerConfig."""
-    from seaforce_ros.commissioning.analyse import AnalysisRequest, loop_stage, tune_stage
+def tuned_config(ident, record, config=None, terms=None):
+    """The analysis' tuning stage on an identification (and the candidate nonlinear terms,
+    if given); the tuned ControllerConfig."""
+    from seaforce_ros.commissioning.analyse import (AnalysisRequest, loop_stage, model_stage,
+                                                    tune_stage)
     from seaforce_ros.core.params import ControllerConfig
     config = config or ControllerConfig()
     _, loop = loop_stage(record, config)
-    return tune_stage(ident, loop, AnalysisRequest("sim", config)).config
+    return tune_stage(model_stage(ident, terms), loop, AnalysisRequest("sim", config)).config
 
 
 def figures(plant, dahl, effects, config, mode, omega=1.0, amplitude=0.5, seed=0):
