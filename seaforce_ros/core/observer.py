@@ -31,7 +31,8 @@ when some are set: the hose ``F_p = k_s d + b_s d' + c |d'| d' + kappa |d| d`` i
 in the same exact first-order hold with the secant stiffness and damping (``k_s + kappa |d|``,
 ``b_s + c |d'|``) of the previous sample, then again with their mean over the step (predictor
 and corrector: stable for any deflection, and at a steady force the fixed point is the true
-deflection), the flow ``d'`` solved from the hose equation at the new deflection; the feed-forward adds ``s_k (k_2 u^2 + k_3 u^3)``, ``u = X_e_hat - rest``.
+deflection), the flow ``d'`` solved from the hose equation at the new deflection; the feed-forward adds ``s_s (k_2 u^2 + k_3 u^3)``, ``u = X_e_hat - rest``,
+``s_s`` the stroke terms' own margin scale (:meth:`~.params.FeedforwardParams.stroke_scale`).
 With every term 0 the arithmetic is the linear one's, to the bit.
 
 A plant that skipped samples (``steps`` > 1) is integrated over the real elapsed time: the
@@ -169,7 +170,8 @@ class EndpointObserver:
         self.damping, self.stiffness = damping, stiffness
         sb, sk, _ = self._scales
         self._kb, self._kk = sb * damping, sk * stiffness
-        self._k2, self._k3 = sk * self._k2_model, sk * self._k3_model
+        ss = self._ff.stroke_scale()
+        self._k2, self._k3 = ss * self._k2_model, ss * self._k3_model
         self._stroke = bool(self._k2 or self._k3)
         self.dahl.set_params(dahl)
         self.dahl_ff.set_params(self._ff.dahl(dahl))

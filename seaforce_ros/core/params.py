@@ -116,7 +116,8 @@ class PlantTermsParams(ParameterGroup):
         hose      F_p = k_s d + b_s d' + c |d'| d' + kappa |d| d     (the observer inverts it)
         endpoint  F_k = k_e u + k_2 u^2 + k_3 u^3                      (the feed-forward)
 
-    The feed-forward takes the stroke terms times the margin's scale of k_e."""
+    The feed-forward takes the stroke terms times their own margin's scale
+    (``feedforward.stroke_uncertainty``)."""
 
     hose_flow: float = param(0.0, "N m s^2/rad^2", "the hose's viscous loss rising with flow "
                              "(c |d'| d'); 0: linear", symbol="c", ge=0.0, le=1e3)
@@ -232,6 +233,10 @@ class FeedforwardParams(ParameterGroup):
     dahl_uncertainty: float = param(0.1, "-", "relative 1-sigma of the model's F_c (eq. 14, "
                                     "the Dahl force's amplitude), as damping_uncertainty",
                                     ge=0.0, le=1.0)
+    stroke_uncertainty: float = param(0.25, "-", "relative uncertainty of the model's stroke "
+                                      "terms (plant_terms.stroke_*; commissioning writes it: "
+                                      "a resolved term is known to within 25 %), as "
+                                      "damping_uncertainty", ge=0.0, le=1.0)
     dahl_stiffness_share: float = param(0.5, "-", "the share of the model's pre-sliding "
                                         "stiffness sigma the Dahl feed-forward cancels (its F_c "
                                         "in full, less the margin): cancelling sigma (200 times "
@@ -246,6 +251,11 @@ class FeedforwardParams(ParameterGroup):
         sd = self.scales()[2]
         return dataclasses.replace(model, sigma=self.dahl_stiffness_share * model.sigma,
                                    coulomb_force=max(sd, 1e-12) * model.coulomb_force)
+
+    def stroke_scale(self) -> float:
+        """The factor ``1 - margin u`` (at least 0) the feed-forward applies to the stroke
+        terms k_2, k_3."""
+        return max(0.0, 1.0 - self.margin * self.stroke_uncertainty)
 
     def scales(self) -> Tuple[float, float, float]:
         """The factors ``1 - margin u`` (at least 0) the feed-forward applies to b_e, k_e and
@@ -707,7 +717,8 @@ class ControllerConfig(ParameterGroup):
                 "feedforward.margin", ff.margin,
                 ">= 1 (the feed-forward's b_e, k_e, sigma, F_c at least one uncertainty "
                 "below the model: a free finger within it is not made active)")
-        for name in ("damping_uncertainty", "stiffness_uncertainty", "dahl_uncertainty"):
+        for name in ("damping_uncertainty", "stiffness_uncertainty", "dahl_uncertainty",
+                     "stroke_uncertainty"):
             value = getattr(ff, name)
             if value < MIN_UNCERTAINTY:
                 raise NonPassiveError(

@@ -96,15 +96,15 @@ def test_a_steady_force_settles_at_the_true_deflection():
 
 @settings(max_examples=40, deadline=None, derandomize=True)
 @given(k2=st.floats(-0.2, 0.2), k3=st.floats(0.0, 1.0), u=st.floats(-0.6, 0.6),
-       margin=st.floats(1.0, 3.0), unc=st.floats(0.01, 0.3))
-def test_the_feedforward_adds_the_stroke_terms_under_the_margin(k2, k3, u, margin, unc):
-    """F_cmp = s_b b_e V_e + s_k (k_e u + k_2 u^2 + k_3 u^3) with the margin's scales (a
+       margin=st.floats(1.0, 3.0), unc=st.floats(0.01, 0.3), stroke=st.floats(0.01, 0.5))
+def test_the_feedforward_adds_the_stroke_terms_under_the_margin(k2, k3, u, margin, unc, stroke):
+    """F_cmp = s_b b_e V_e + s_k k_e u + s_s (k_2 u^2 + k_3 u^3) with the margin's scales (a
     model whose force falls along the stroke is refused by the config's rule); the model's
     feed-forward (a grasp's) has the terms in full."""
     ke = TABLE_I.endpoint_stiffness
     terms = PlantTermsParams(stroke_asymmetry=k2, stroke_stiffness=k3)
     ff = FeedforwardParams(margin=margin, damping_uncertainty=unc, stiffness_uncertainty=unc,
-                           dahl_uncertainty=unc)
+                           dahl_uncertainty=unc, stroke_uncertainty=stroke)
     if k2 * k2 > 3.0 * ke * k3:
         try:
             ControllerConfig(plant_terms=terms, feedforward=ff)
@@ -118,9 +118,10 @@ def test_the_feedforward_adds_the_stroke_terms_under_the_margin(k2, k3, u, margi
     f_p = 0.0
     obs.update(u, 0.0, f_p)
     sb, sk, _ = ff.scales()
+    ss = ff.stroke_scale()
     xe = obs.position
-    want = sb * TABLE_I.endpoint_damping * obs.velocity + sk * (ke * xe + k2 * xe ** 2
-                                                                 + k3 * xe ** 3)
+    want = (sb * TABLE_I.endpoint_damping * obs.velocity + sk * ke * xe
+            + ss * (k2 * xe ** 2 + k3 * xe ** 3))
     assert math.isclose(obs.compensation, want, rel_tol=1e-12, abs_tol=1e-15)
     full = (TABLE_I.endpoint_damping * obs.velocity + ke * xe + k2 * xe ** 2 + k3 * xe ** 3
             + obs.dahl_force)
