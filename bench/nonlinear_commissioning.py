@@ -87,10 +87,10 @@ def main(argv):
               f" %); resolved: {', '.join(resolved) or '-'}; analysis {cpu:.1f} s CPU, "
               f"excitation {rig:.1f} s", flush=True)
         meas = measure(plant, dahl, effects, config, MODES, omegas, i)
-        ident = a.identification
+        model = a.model          # the controller's model (the linear fit's, or refitted)
         pred = {}
         for w in omegas:
-            z = predict_modes(ident.plant(), ident.dahl(), config, MODES, [w],
+            z = predict_modes(model.plant, model.dahl, config, MODES, [w],
                               delay=a.loop.delay_p50, amplitude=backdrive_amplitude(w))
             for m in MODES:
                 pred[(m, w)] = 20 * math.log10(abs(complex(z[m][0])))

@@ -84,3 +84,29 @@ def relative_errors(ident, plant, dahl):
 
 __all__ = ["draw", "excite", "identify", "tuned_config", "figures", "truth",
            "relative_errors", "np"]
+
+
+def release(plant, dahl, effects, config, start, seconds=6.0, seed=0):
+    """The free finger on the oracle, at rest at ``start`` [rad] (motor and endpoint there,
+    the hose relaxed), released under the project's controller with ``config``. Returns the
+    true ``x_e``, ``v_e`` per sample, ``dt`` and the controller's first ``fallback`` ('' if
+    none)."""
+    from helpers.nonlinear_sim import NonlinearGripper
+    from seaforce_ros.core.controller import ChannelController
+    g = NonlinearGripper(plant, dahl, effects, None, seed=seed)
+    g.state[0] = g.state[2] = float(start)
+    g._xq_prev = g._quantise(g.state[0], g._qx)
+    g._measurement = g._measure()
+    ctrl = ChannelController(config, g.dt)
+    n = int(round(seconds / g.dt))
+    xe, ve = np.empty(n), np.empty(n)
+    fallback = ""
+    m = g.measurement()
+    for k in range(n):
+        ctrl.cycle = k
+        ctrl.applied = m.f_a
+        u = ctrl.update(m.x, m.v, m.f_p)
+        fallback = fallback or ctrl.fallback
+        xe[k], ve[k] = g.state[2], g.state[3]
+        m = g.step(u)
+    return {"x_e": xe, "v_e": ve, "dt": g.dt, "fallback": fallback}
