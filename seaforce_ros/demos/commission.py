@@ -213,8 +213,9 @@ def commission(observer, children):
 
 
 def predictions(run_dir: pathlib.Path, result, modes, frequencies):
-    """Predicted |Z| [dB] before and after, on the identified plant with the run's delay;
-    also the configurations (flat dicts) before and after."""
+    """Predicted |Z| [dB] before and after -- on the identified plant and on the controller's
+    model (``plant.*`` as tuned) -- with the run's delay; also the configurations (flat dicts)
+    before and after."""
     from ..commissioning.predictor import predict_modes
     from ..commissioning.report import load_report
     from ..core.params import ControllerConfig
@@ -233,8 +234,11 @@ def predictions(run_dir: pathlib.Path, result, modes, frequencies):
     out = {}
     for label, values in (('before', before_values), ('after', after_values)):
         config = ControllerConfig.from_dict(values).replace(allow_non_passive=True)
+        # after: on the controller's model (the linear fit's, or refitted with the terms the
+        # record resolved: commissioning's analysis predicts on it too)
+        model = identified if label == 'before' else config
         for omega in frequencies:
-            z = predict_modes(identified.plant, identified.dahl, config, modes, [omega],
+            z = predict_modes(model.plant, model.dahl, config, modes, [omega],
                               delay=delay, amplitude=amplitude(omega))
             for mode in modes:
                 out[(label, mode, omega)] = 20.0 * math.log10(abs(complex(z[mode][0])))
@@ -339,11 +343,13 @@ def nonlinear_plant(seed: int):
     return values, f'{effects.describe()}; motor Coulomb {1e3 * coulomb:.1f} mN m'
 
 
-def goal_figures(measured, report, truth, frequencies) -> Dict[str, Any]:
+def goal_figures(measured, report, truth, frequencies, applied=None) -> Dict[str, Any]:
     """The goal figures of a run on a nonlinear plant (after commissioning): ``dob_full_ff``
     at the lowest frequency (fundamental and rms |Z| [dB], the work loop's peaks [N m]), the
     Z-width on the fundamental and the rms [dB] at each frequency, the identified b_s and k_e
-    against the sim's (linear) values, the model class's verdict."""
+    against the sim's (linear) values -- the linear fit's and, given the values the tuning
+    ``applied`` (``plant.*``, ``plant_terms.*`` keys), the controller's model's -- the model
+    class's verdict."""
     after = measured['after']
     low = frequencies[0]
     ff = after[('dob_full_ff', low)]
@@ -352,7 +358,16 @@ def goal_figures(measured, report, truth, frequencies) -> Dict[str, Any]:
     def error(key):
         return identified.get(key, math.nan) / truth[f'{CHANNEL}.sim.{key}'] - 1.0
     model = report.model_class
+    applied = applied or {}
+
+    def model_error(key):
+        return applied.get(key, math.nan) / truth[f'{CHANNEL}.sim.{key}'] - 1.0
+    terms = {k.split('.', 1)[1]: v for k, v in applied.items()
+             if k.startswith('plant_terms.') and v}
     return {
+        'model_hose_damping_error': model_error('plant.hose_damping'),
+        'model_endpoint_stiffness_error': model_error('plant.endpoint_stiffness'),
+        'model_terms': terms,
         'omega': low, 'z_db': ff['z_db'], 'z_rms_db': ff['z_rms_db'],
         'distortion': ff['distortion'], 'peak': ff['peak'], 'peak_centre': ff['peak_centre'],
         'zwidth_db': {f'{w:g}': zwidth(after, w) for w in frequencies},
@@ -383,9 +398,14 @@ def goal_lines(goals: Dict[str, Any], nonlinear: bool) -> List[str]:
             f'  work loop of dob_full_ff at {low:g} rad/s: peak {goals["peak"]:.3g} N m over the '
             f'stroke, {goals["peak_centre"]:.3g} N m within +-0.2 rad (ratio {ratio:.2f})',
             f'  identified b_s {100 * goals["hose_damping_error"]:+.1f} %, k_e '
-            f'{100 * goals["endpoint_stiffness_error"]:+.1f} % (against the sim\'s linear '
-            'coefficients)',
-            f'  model class: {verdict}']
+            f'{100 * goals["endpoint_stiffness_error"]:+.1f} % by the linear fit (against the '
+            'sim\'s linear coefficients)',
+            f'  model class: {verdict}'] + ([
+                f'  the controller\'s model: b_s {100 * goals["model_hose_damping_error"]:+.1f} '
+                f'%, k_e {100 * goals["model_endpoint_stiffness_error"]:+.1f} %, with '
+                + (', '.join(f'{k} {v:.4g}' for k, v in goals['model_terms'].items())
+                   or 'no nonlinear term')]
+                if math.isfinite(goals.get('model_endpoint_stiffness_error', math.nan)) else [])
 
 
 def main(argv=None):
@@ -494,7 +514,7 @@ def main(argv=None):
                   'rig time: ' + ', '.join(f'{k} {v:.1f} s' for k, v in phases.items())
                   + f' = {rig:.1f} s (goal {commission_wall:.1f} s wall)',
                   f'report: {result.report_path}']
-        goals = goal_figures(measured, report, truth, frequencies)
+        goals = goal_figures(measured, report, truth, frequencies, applied)
         lines += goal_lines(goals, bool(nonlinear))
         print('\n'.join(lines))
         png = out / 'zwidth_commission.png'
