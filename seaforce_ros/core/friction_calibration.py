@@ -143,6 +143,12 @@ class InvalidCalibrationError(InvalidJobGoalError):
     """A calibration goal that cannot be executed; the message says why."""
 
 
+def stroke_terms(config: ControllerConfig) -> tuple[float, float, float]:
+    """``(rest, k_2, k_3)`` of the model's stroke terms (:class:`FrictionFit`'s ``stroke``)."""
+    t = config.plant_terms
+    return (config.feedforward.rest_position, t.stroke_asymmetry, t.stroke_stiffness)
+
+
 class FrictionFit:
     """Variable-projection fit of the free endpoint's friction over candidate ratios.
 
@@ -160,10 +166,17 @@ class FrictionFit:
         Cut-off of the state-variable filter [Hz].
     forgetting_time : float > 0 or None
         Memory while the finger moves [s] (None: none).
+    stroke : (rest, k_2, k_3) or None
+        The model's stroke terms (``plant_terms``): their force ``k_2 u^2 + k_3 u^3``, ``u =
+        X_e - rest``, is known and taken off the pressure force before the fit, which then
+        fits the linear b_e, k_e beside them (else k_e would take the stroke stiffening in
+        and the feed-forward count it twice). None or zeros: the linear model.
     """
 
     def __init__(self, plant: PlantParams, exponent: float, ratios: Sequence[float], dt: float,
-                 filter_cutoff: float, forgetting_time: float | None = None) -> None:
+                 filter_cutoff: float, forgetting_time: float | None = None,
+                 stroke: tuple[float, float, float] | None = None) -> None:
+        self._stroke = stroke if stroke is not None and (stroke[1] or stroke[2]) else None
         self.dt = float(dt)
         self.ratios = [float(r) for r in ratios]
         self.exponent = float(exponent)
@@ -190,6 +203,10 @@ class FrictionFit:
                steps: int = 1) -> None:
         """One sample: X_e_hat [rad], the Dahl input [rad], F_p [N m]; the filters and Dahl
         states always run, the sample is fitted only if ``record``."""
+        if self._stroke is not None:
+            rest, k2, k3 = self._stroke
+            u = xe - rest
+            fp = fp + u * u * (k2 + k3 * u)
         if self._first:
             self._first = False
             self._p, self._q, self._xd, self._g1, self._g2 = xe, 0.0, xd, fp, 0.0
@@ -468,7 +485,7 @@ class FrictionCalibration(Job):
                                     d.sigma, nan, nan, nan, nan, 0.0, 0.0, 0.0, 0.0, "", "")
         center = d.sigma / d.coulomb_force if d.sigma > 0.0 else 400.0
         self.fit = FrictionFit(p, d.exponent, ratio_grid(center), self.dt,
-                               config.estimator.filter_cutoff)
+                               config.estimator.filter_cutoff, stroke=stroke_terms(config))
         self._limit = min(fp.torque_limit, config.max_torque)
         self._kp, self._kd = config.hold.stiffness, config.hold.damping
         self._amp = float(goal.amplitude)
@@ -703,6 +720,7 @@ class FrictionAdaptation:
         self.params = fp
         p, d = config.plant, config.dahl
         self._plant, self._exponent = p, d.exponent
+        self._stroke = stroke_terms(config)
         self._cutoff = config.estimator.filter_cutoff
         r = 1.0 + fp.adaptation_bound
         nominal = (p.endpoint_damping, p.endpoint_stiffness, d.coulomb_force, d.sigma)
@@ -719,7 +737,7 @@ class FrictionAdaptation:
         c = self._center
         ratios = [c / ADAPTATION_STEP, c, c * ADAPTATION_STEP] if c > 0.0 else [1.0]
         self.fit = FrictionFit(self._plant, self._exponent, ratios, self.dt, self._cutoff,
-                               self.params.adaptation_time)
+                               self.params.adaptation_time, self._stroke)
         self.fit.reset(force)
         self._settle = 0
         self._solving: list[Solution] | None = None   # candidates solved since the last fold

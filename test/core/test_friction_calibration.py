@@ -550,3 +550,28 @@ def test_sided_stiffness_against_analytic_forces():
     for k in range(1000):
         idle.update(1e-4 * math.sin(k * 0.01), 0.0)
     assert idle.judge() == 0.0 and math.isnan(idle.upper)
+
+
+@pytest.mark.parametrize("stiffening, asymmetry", [(0.3, 0.1), (0.2, -0.05)])
+def test_calibration_fits_the_linear_part_beside_the_models_stroke_terms(stiffening, asymmetry):
+    """A diaphragm force rising at the stroke's ends (the sim's nonlinear plant, 20-30 % at
+    0.5 rad), the model holding those stroke terms (``plant_terms``): the calibration fits
+    b_e and k_e beside them -- k_e within 5 % of the plant's linear k_e, where a fit that
+    ignored them took the stiffening into k_e (more than 5 % high), which the feed-forward,
+    adding the terms, would then count twice."""
+    from seaforce_ros.core.nonlinear_effects import NonlinearEffects, model_terms
+    from seaforce_ros.core.nonlinear_simulator import NonlinearChannelSimulator
+    effects = NonlinearEffects(stroke_stiffening=stiffening, stroke_asymmetry=asymmetry)
+    terms = model_terms(effects, PLANT)
+    results = {}
+    for name, cfg in (("with", CONFIG.replace(plant_terms=terms)), ("without", CONFIG)):
+        sim = NonlinearChannelSimulator(PLANT, DAHL, effects, dt=DT, seed=2)
+        ctl = ChannelController(cfg, DT)
+        cal = FrictionCalibration(CalibrationGoal("pinch", 0.5, 1.0, False), cfg, DT)
+        n0 = 400
+        n = n0 + int((cfg.friction.calibration_duration + 0.2) / DT)
+        run_closed_loop(sim, ctl, n, on_switch={n0: lambda s, c, cal=cal: c.request_job(cal)})
+        assert cal.outcome == "succeeded", (name, cal.message)
+        results[name] = cal.new.endpoint_stiffness / PLANT.endpoint_stiffness - 1.0
+    assert abs(results["with"]) < 0.05, results
+    assert results["without"] > 0.05, results
