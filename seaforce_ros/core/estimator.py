@@ -218,7 +218,7 @@ class ContactEstimator:
     # every attribute access in update a hashed look-up (about 15 % of its time)
     __slots__ = (
         # configuration (configure)
-        "dt", "params", "plant", "_rest", "_coef", "_be", "_ke", "_model", "_rate_time",
+        "dt", "params", "plant", "_rest", "_stroke", "_coef", "_be", "_ke", "_model", "_rate_time",
         "_rate_distance", "_on", "_settle", "_loss_samples", "_quiet_samples", "_rest_samples",
         "_rest_timeout", "_recent_alpha", "_detect_alpha", "_spread_alpha", "_ceiling2",
         "_factor2", "_floor2", "_block_decay", "_moving", "_kappa",
@@ -232,20 +232,28 @@ class ContactEstimator:
         "_stats", "_cache", "_S", "_block", "_filled", "_p0")
 
     def __init__(self, params: EstimatorParams | None = None, plant: PlantParams | None = None,
-                 dt: float = 5e-4, rest_position: float = 0.0) -> None:
+                 dt: float = 5e-4, rest_position: float = 0.0,
+                 stroke: tuple[float, float] = (0.0, 0.0)) -> None:
         self.dt = float(dt)
         self.configure(EstimatorParams() if params is None else params,
-                       PlantParams.table_i() if plant is None else plant, rest_position)
+                       PlantParams.table_i() if plant is None else plant, rest_position,
+                       stroke)
         self.reset()
 
     def configure(self, params: EstimatorParams, plant: PlantParams,
-                  rest_position: float = 0.0) -> None:
-        """New parameters (validated), effective now; the state is kept."""
+                  rest_position: float = 0.0, stroke: tuple[float, float] = (0.0, 0.0)
+                  ) -> None:
+        """New parameters (validated), effective now; the state is kept. ``stroke``: the
+        model's stroke terms (k_2, k_3) of ``plant_terms``, whose known force ``k_2 u^2 + k_3
+        u^3`` (``u = X_e - rest``) the residual takes off like the linear k_e's (else the
+        stroke's ends look like a push)."""
         if not isinstance(params, EstimatorParams) or not isinstance(plant, PlantParams):
             raise TypeError("params must be EstimatorParams and plant PlantParams")
         self.params = params
         self.plant = plant
         self._rest = float(rest_position)
+        k2, k3 = (float(v) for v in stroke)
+        self._stroke = (k2, k3) if (k2 or k3) else None
         w = 2.0 * math.pi * params.filter_cutoff
         dt = self.dt
         self._coef = svf_coefficients(params.filter_cutoff, dt)
@@ -412,6 +420,10 @@ class ContactEstimator:
         Allocates nothing that outlives the call (a fit's block is a preallocated list, folded
         into the information matrix every :data:`BLOCK` samples)."""
         g = fp + fd
+        if self._stroke is not None:
+            k2, k3 = self._stroke
+            u = xe - self._rest
+            g += u * u * (k2 + k3 * u)
         if self._first:
             self._start(xe, g)
         q0 = self.velocity

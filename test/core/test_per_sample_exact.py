@@ -240,13 +240,15 @@ class Side:
 
 
 def linear_config(config):
-    """The config's fields but ``plant_terms`` while every term is 0 (the linear model: the
-    group came after the baseline, and at 0 it changes no float)."""
+    """The config's flat keys and values but those that came after the baseline
+    (``plant_terms.*``, ``feedforward.stroke_uncertainty``) while every term is 0 (the
+    linear model: at 0 they change no float)."""
     terms = getattr(config, "plant_terms", None)
     if terms is not None and any(getattr(terms, f.name) for f in dataclasses.fields(terms)):
         return config
-    return tuple((f.name, getattr(config, f.name)) for f in dataclasses.fields(config)
-                 if f.name != "plant_terms")
+    return tuple(sorted((k, v) for k, v in config.to_dict().items()
+                        if not k.startswith("plant_terms.")
+                        and k != "feedforward.stroke_uncertainty"))
 
 
 def exact(values):
