@@ -416,3 +416,25 @@ def test_detection_is_never_less_sensitive_than_the_fixed_threshold(history, ste
         feed(force, n, steps)
     feed(-side * step, int(0.08 / DT))
     assert est.contact and est.direction == side, (est.force, est.threshold, est.bias)
+
+
+def test_the_models_stroke_terms_keep_the_stroke_ends_free_of_contacts():
+    """A free finger backdriven over +-0.5 rad whose diaphragm stiffens 30 % towards the
+    stroke's ends (the top of the plausible range): with the model's stroke terms
+    (``plant_terms``) in the residual nothing is touched; without them the stiffening reads
+    as a push at every end (4 contacts in 30 s)."""
+    plant = PlantParams()
+    dt = 5e-4
+    k3 = plant.endpoint_stiffness * 0.3 / 0.25
+    t = np.arange(int(30.0 / dt)) * dt
+    xe = 0.5 * np.sin(t) * np.where(t < 4.0, 0.5 * (1.0 - np.cos(np.pi * t / 4.0)), 1.0)
+    ve = np.gradient(xe, dt)
+    fp = -(plant.endpoint_damping * ve + plant.endpoint_stiffness * xe + k3 * xe ** 3
+           + plant.endpoint_inertia * np.gradient(ve, dt))
+    counts = {}
+    for name, stroke in (("with", (0.0, k3)), ("without", (0.0, 0.0))):
+        est = ContactEstimator(EstimatorParams(), plant, dt, 0.0, stroke)
+        for k in range(t.size):
+            est.update(float(xe[k]), float(fp[k]), 0.0)
+        counts[name] = est.contacts
+    assert counts["with"] == 0 and counts["without"] >= 2, counts
