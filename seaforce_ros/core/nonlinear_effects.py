@@ -227,7 +227,9 @@ def effects_of_terms(terms: PlantTermsParams, plant: PlantParams,
 
     def within(name: str, value: float) -> float:
         spec = next(s for s in NonlinearEffects.SPECS if s.attribute == name)
-        return float(min(max(value, spec.low), spec.high))
+        low = -math.inf if spec.low is None else spec.low
+        high = math.inf if spec.high is None else spec.high
+        return float(min(max(value, low), high))
     a2 = within("stroke_stiffening", terms.stroke_stiffness * L * L / ke if ke > 0 else 0.0)
     a1 = terms.stroke_asymmetry * L / ke if ke > 0 else 0.0
     a1 = math.copysign(min(abs(a1), 0.999 * math.sqrt(3.0 * a2)), a1) if a2 > 0 else 0.0

