@@ -786,8 +786,7 @@ def _summary(analysis: Analysis, request: AnalysisRequest) -> List[str]:
                      + (" and motor Coulomb friction" if analysis.terms is not None
                         and analysis.terms.term("motor_coulomb").resolved else "")
                      + (", and the terms of the controller's model" if analysis.model is not None
-                        and analysis.model.terms.hose or analysis.model is not None
-                        and analysis.model.terms.stroke_stiffness else "")
+                        and (analysis.model.terms.hose or analysis.model.terms.stroke) else "")
                      + "; not those of terms the controller's model lacks)")
     if analysis.model is not None:
         lines.extend(analysis.model.lines)
@@ -805,8 +804,7 @@ def _margin_line(t: TuningResult) -> str:
     dob_full_ff with it less without it at the headline frequencies."""
     ff = t.config.feedforward
     sb, sk, sd = ff.scales()
-    terms = t.config.plant_terms
-    stroke = bool(terms.stroke_asymmetry or terms.stroke_stiffness)
+    stroke = t.config.plant_terms.stroke
     cost = [float(np.interp(math.log(w), np.log(t.omega), t.margin_cost_db))
             for w in HEADLINE_OMEGA]
     return (f"feed-forward margin: b_e x{sb:.3g}, k_e x{sk:.3g}, Dahl F_c x{sd:.3g}, sigma "

@@ -565,7 +565,7 @@ def _port(sig: Dict[str, _Real], dt: float, ident: FreeAirIdentification
                      int(sel.n / sel.tau), model, model_misfit)
     hose = {k: _coef(sel.final, c)[0] for k, c in (("hose_flow", "flow"),
                                                     ("hose_pressure", "pressure"))
-            if {"hose_flow": "hose_flow", "hose_pressure": "hose_pressure"}[k] in sel.chosen}
+            if k in sel.chosen}
     return terms, eq, {**{k: v for k, (v, _) in linear.items()}, **endpoint,
                        **{k: max(v, 0.0) for k, v in hose.items()}}
 

@@ -95,11 +95,6 @@ _NAN = math.nan
 _isfinite = math.isfinite
 
 
-def _stroke(config: ControllerConfig) -> tuple[float, float]:
-    """The model's stroke terms (k_2, k_3) for the contact estimator."""
-    return (config.plant_terms.stroke_asymmetry, config.plant_terms.stroke_stiffness)
-
-
 def _non_finite(x: float, v: float, f_p: float) -> NonFiniteInputError:
     """The error naming the first non-finite input."""
     name, value = next((n, val) for n, val in (("x", x), ("v", v), ("f_p", f_p))
@@ -201,7 +196,7 @@ class ChannelController:
                                         for name, cls in MODE_TYPES.items()}
         self.estimator = ContactEstimator(config.estimator, config.plant, self.dt,
                                           config.feedforward.rest_position,
-                                          _stroke(config))
+                                          config.plant_terms)
         self._job_sample = JobSample(self.estimator)
         self.adaptation = FrictionAdaptation(config, self.dt)
         self.walls = JointWalls(config.limits, config.max_torque)
@@ -249,7 +244,7 @@ class ChannelController:
         self.observer.configure(c.plant, c.feedforward, c.dahl, c.plant_terms)
         self._dob.configure(c.dob)
         self.estimator.configure(c.estimator, c.plant, c.feedforward.rest_position,
-                                 _stroke(c))
+                                 c.plant_terms)
         self._configure_guard(c)
 
     def _use_mode(self, name: str) -> None:

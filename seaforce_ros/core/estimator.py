@@ -89,7 +89,7 @@ from collections import namedtuple
 import numpy as np
 import scipy.linalg
 
-from .params import EstimatorParams, PlantParams
+from .params import EstimatorParams, PlantParams, PlantTermsParams
 
 __all__ = ["ContactEstimator", "ObjectEstimate", "NO_ESTIMATE", "BLOCK", "LOSS_TIME",
            "DETECT_TIME", "SPREAD_FACTOR", "SPREAD_TIME", "FLOOR_FRACTION", "QUIET_GAP",
@@ -233,27 +233,27 @@ class ContactEstimator:
 
     def __init__(self, params: EstimatorParams | None = None, plant: PlantParams | None = None,
                  dt: float = 5e-4, rest_position: float = 0.0,
-                 stroke: tuple[float, float] = (0.0, 0.0)) -> None:
+                 terms: PlantTermsParams | None = None) -> None:
         self.dt = float(dt)
         self.configure(EstimatorParams() if params is None else params,
                        PlantParams.table_i() if plant is None else plant, rest_position,
-                       stroke)
+                       terms)
         self.reset()
 
     def configure(self, params: EstimatorParams, plant: PlantParams,
-                  rest_position: float = 0.0, stroke: tuple[float, float] = (0.0, 0.0)
+                  rest_position: float = 0.0, terms: PlantTermsParams | None = None
                   ) -> None:
-        """New parameters (validated), effective now; the state is kept. ``stroke``: the
-        model's stroke terms (k_2, k_3) of ``plant_terms``, whose known force ``k_2 u^2 + k_3
-        u^3`` (``u = X_e - rest``) the residual takes off like the linear k_e's (else the
-        stroke's ends look like a push)."""
+        """New parameters (validated), effective now; the state is kept. ``terms``: the
+        model's nonlinear terms (``plant_terms``), whose stroke force ``k_2 u^2 + k_3 u^3``
+        (``u = X_e - rest``) the residual takes off like the linear k_e's (else the stroke's
+        ends look like a push)."""
         if not isinstance(params, EstimatorParams) or not isinstance(plant, PlantParams):
             raise TypeError("params must be EstimatorParams and plant PlantParams")
         self.params = params
         self.plant = plant
         self._rest = float(rest_position)
-        k2, k3 = (float(v) for v in stroke)
-        self._stroke = (k2, k3) if (k2 or k3) else None
+        self._stroke = ((terms.stroke_asymmetry, terms.stroke_stiffness)
+                        if terms is not None and terms.stroke else None)
         w = 2.0 * math.pi * params.filter_cutoff
         dt = self.dt
         self._coef = svf_coefficients(params.filter_cutoff, dt)

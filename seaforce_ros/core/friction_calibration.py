@@ -143,10 +143,12 @@ class InvalidCalibrationError(InvalidJobGoalError):
     """A calibration goal that cannot be executed; the message says why."""
 
 
-def stroke_terms(config: ControllerConfig) -> tuple[float, float, float]:
-    """``(rest, k_2, k_3)`` of the model's stroke terms (:class:`FrictionFit`'s ``stroke``)."""
+def stroke_terms(config: ControllerConfig) -> tuple[float, float, float] | None:
+    """``(rest, k_2, k_3)`` of the model's stroke terms (:class:`FrictionFit`'s ``stroke``),
+    None without them."""
     t = config.plant_terms
-    return (config.feedforward.rest_position, t.stroke_asymmetry, t.stroke_stiffness)
+    return ((config.feedforward.rest_position, t.stroke_asymmetry, t.stroke_stiffness)
+            if t.stroke else None)
 
 
 class FrictionFit:
@@ -170,13 +172,13 @@ class FrictionFit:
         The model's stroke terms (``plant_terms``): their force ``k_2 u^2 + k_3 u^3``, ``u =
         X_e - rest``, is known and taken off the pressure force before the fit, which then
         fits the linear b_e, k_e beside them (else k_e would take the stroke stiffening in
-        and the feed-forward count it twice). None or zeros: the linear model.
+        and the feed-forward count it twice). None: the linear model.
     """
 
     def __init__(self, plant: PlantParams, exponent: float, ratios: Sequence[float], dt: float,
                  filter_cutoff: float, forgetting_time: float | None = None,
                  stroke: tuple[float, float, float] | None = None) -> None:
-        self._stroke = stroke if stroke is not None and (stroke[1] or stroke[2]) else None
+        self._stroke = stroke
         self.dt = float(dt)
         self.ratios = [float(r) for r in ratios]
         self.exponent = float(exponent)

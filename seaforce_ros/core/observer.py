@@ -173,7 +173,7 @@ class EndpointObserver:
         self._kb, self._kk = sb * damping, sk * stiffness
         ss = self._ff.stroke_scale()
         self._k2, self._k3 = ss * self._k2_model, ss * self._k3_model
-        self._stroke = bool(self._k2 or self._k3)
+        self._stroke = bool(self._k2 or self._k3)      # (0 with a zero stroke scale too)
         self.dahl.set_params(dahl)
         self.dahl_ff.set_params(self._ff.dahl(dahl))
         # both Dahl states relax exponentially (n = 1, eq. 15; sigma > 0): update updates them

@@ -135,6 +135,11 @@ class PlantTermsParams(ParameterGroup):
         """The hose has a nonlinear term."""
         return bool(self.hose_flow or self.hose_pressure)
 
+    @property
+    def stroke(self) -> bool:
+        """The diaphragm has a stroke term."""
+        return bool(self.stroke_asymmetry or self.stroke_stiffness)
+
 
 @group("dahl")
 class DahlParams(ParameterGroup):

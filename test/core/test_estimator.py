@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from seaforce_ros.core.estimator import (FLOOR_FRACTION, LOSS_TIME, QUIET_GAP, QUIET_TIME,
                                          REST_SPEED, REST_TIME, REST_TIMEOUT,
                                          ContactEstimator, _hose_sensitivity, _spd_inverse)
-from seaforce_ros.core.params import EstimatorParams, PlantParams
+from seaforce_ros.core.params import EstimatorParams, PlantParams, PlantTermsParams
 
 DT = 5e-4
 TABLE_I = PlantParams.table_i()
@@ -432,8 +432,9 @@ def test_the_models_stroke_terms_keep_the_stroke_ends_free_of_contacts():
     fp = -(plant.endpoint_damping * ve + plant.endpoint_stiffness * xe + k3 * xe ** 3
            + plant.endpoint_inertia * np.gradient(ve, dt))
     counts = {}
-    for name, stroke in (("with", (0.0, k3)), ("without", (0.0, 0.0))):
-        est = ContactEstimator(EstimatorParams(), plant, dt, 0.0, stroke)
+    for name, terms in (("with", PlantTermsParams(stroke_stiffness=k3)),
+                        ("without", PlantTermsParams())):
+        est = ContactEstimator(EstimatorParams(), plant, dt, 0.0, terms)
         for k in range(t.size):
             est.update(float(xe[k]), float(fp[k]), 0.0)
         counts[name] = est.contacts
