@@ -326,7 +326,11 @@ def model_stage(ident: FreeAirIdentification, terms: Optional[NonlinearTerms]
     * endpoint: when k_3 is resolved and positive, the diaphragm's stroke terms and b_e,
       k_e, F_c with them (k_2 clipped to ``k_2^2 <= 3 k_e k_3``, a force rising over the
       whole stroke; a k_3 <= 0 or a k_2 alone is left out: no diaphragm softens towards its
-      ends). The 1-sigmas of b_e and k_e take, beside the fit's, the difference between the
+      ends). With the port's terms used (and no stroke term left out), b_e, k_e, F_c come
+      from the endpoint equation -- on X_e through the nonlinear hose -- and m_e from the
+      port equation's search even without k_3: the linear identification left the hose's
+      terms out and its endpoint is biased by them (its m_e's 1-sigma stays: the search gives
+      none). The 1-sigmas of b_e and k_e take, beside the fit's, the difference between the
       values used and the endpoint equation's fit with every term its criterion chose.
 
     Raises CommissioningError (naming what is not identified) as the identification's
@@ -357,9 +361,16 @@ def model_stage(ident: FreeAirIdentification, terms: Optional[NonlinearTerms]
                      f"{100 * ident.misfit.get('port', 0.0):.2g} % -> {100 * class_error:.2g} %")
     end = None if terms is None else terms.equations.get("endpoint")
     k3 = end.model.get("stroke_stiffness", (0.0, 0.0))[0] if end is not None else 0.0
-    if end is not None and k3 > 0.0:
+    stroke_left_out = end is not None and k3 <= 0.0 and any(
+        k in end.model for k in ("stroke_asymmetry", "stroke_stiffness"))
+    # the port's terms used: the linear identification's endpoint is biased by the hose
+    # nonlinearity it left out (seed 69616 of the oracle's family, the hose damping doubled
+    # at 1.12 rad/s: m_e -48 %, k_e -20 %, the rms |Z| predicted 4.9 dB softer than measured);
+    # the port equation's search gives m_e beside the terms, the endpoint equation on X_e
+    # through the nonlinear hose b_e, k_e, F_c (there: within 5 %, 0.8 dB)
+    hose_used = bool(used)
+    if end is not None and (k3 > 0.0 or (hose_used and not stroke_left_out)):
         m = end.model
-        k2 = m.get("stroke_asymmetry", (0.0, 0.0))[0]
         ke = m["endpoint_stiffness"][0]
         plant = dataclasses.replace(plant, endpoint_damping=m["endpoint_damping"][0],
                                     endpoint_stiffness=ke)
@@ -368,17 +379,28 @@ def model_stage(ident: FreeAirIdentification, terms: Optional[NonlinearTerms]
         if "coulomb_force" in m and m["coulomb_force"][0] > 0.0:
             dahl = dataclasses.replace(dahl, coulomb_force=m["coulomb_force"][0])
             sigma["coulomb_force"] = m["coulomb_force"][1]
-        bound = math.sqrt(max(3.0 * ke * k3, 0.0))
-        if abs(k2) > bound:
-            lines.append(f"stroke asymmetry {k2:.3g} clipped to {bound:.3g} N m/rad^2 "
-                         "(a diaphragm force rising over the whole stroke)")
-            k2 = math.copysign(bound, k2)
-        used.update({k: v for k, v in (("stroke_asymmetry", k2), ("stroke_stiffness", k3))
-                     if v})
-        sigma.update({k: m[k][1] for k in ("stroke_asymmetry", "stroke_stiffness") if k in m})
-        lines.append("endpoint: b_e, k_e, F_c refitted with the stroke terms; the "
-                     f"equation's misfit {100 * end.misfit_linear:.2g} % -> "
-                     f"{100 * end.model_misfit:.2g} %")
+        me = port.linear.get("endpoint_inertia", (math.nan, 0.0))[0] if port else math.nan
+        if hose_used and math.isfinite(me) and me > 0.0:
+            plant = dataclasses.replace(plant, endpoint_inertia=me)
+        refit = "m_e from the port equation; " if hose_used else ""
+        if k3 > 0.0:
+            k2 = m.get("stroke_asymmetry", (0.0, 0.0))[0]
+            bound = math.sqrt(max(3.0 * ke * k3, 0.0))
+            if abs(k2) > bound:
+                lines.append(f"stroke asymmetry {k2:.3g} clipped to {bound:.3g} N m/rad^2 "
+                             "(a diaphragm force rising over the whole stroke)")
+                k2 = math.copysign(bound, k2)
+            used.update({k: v for k, v in (("stroke_asymmetry", k2),
+                                           ("stroke_stiffness", k3)) if v})
+            sigma.update({k: m[k][1] for k in ("stroke_asymmetry", "stroke_stiffness")
+                          if k in m})
+            lines.append(f"endpoint: {refit}b_e, k_e, F_c refitted with the stroke terms; "
+                         f"the equation's misfit {100 * end.misfit_linear:.2g} % -> "
+                         f"{100 * end.model_misfit:.2g} %")
+        else:
+            lines.append(f"endpoint: {refit}b_e, k_e, F_c from the endpoint equation through "
+                         "the nonlinear hose (the linear fit's left the hose's terms out); "
+                         f"its misfit {100 * end.model_misfit:.2g} %")
     elif end is not None and "stroke_stiffness" in end.model:
         lines.append(f"stroke stiffness resolved but not positive ({k3:.3g}): the endpoint "
                      "stays linear")
