@@ -484,17 +484,46 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     tuned = ControllerConfig.from_dict(values, base=base)
     after = predict_modes(plant, dahl, tuned, ("hold", "dob_full_ff"), omega,
                           delay=figures.delay_p50, dt=dt, amplitude=amplitude)
-    exact = tuned.replace(feedforward=dataclasses.replace(tuned.feedforward, margin=0.0,
-                                                          dahl_stiffness_share=1.0),
-                          allow_non_passive=True)
-    unmargined = predict_modes(plant, dahl, exact, ("dob_full_ff",), omega,
-                               delay=figures.delay_p50, dt=dt, amplitude=amplitude)
-    margin_cost = np.asarray(20.0 * np.log10(np.abs(after["dob_full_ff"])
-                                             / np.abs(unmargined["dob_full_ff"])), float)
+    margin_cost = _margin_cost(plant, dahl, tuned, terms, omega, figures.delay_p50, dt,
+                               amplitude)
     verdict = hold_verdict(plant, kp, kd, delay=figures.delay_p99, dt=dt)
     return TuningResult(values, tuned, omega, _zwidth(before), _zwidth(after), bindings,
                         best.noise, verdict.delay_limit, verdict.margins, guard_carries(tuned),
                         margin_cost)
+
+
+def _margin_cost(plant: PlantParams, dahl: DahlParams, tuned: ControllerConfig,
+                 terms: PlantTermsParams, omega: _Float, delay: int, dt: float,
+                 amplitude: float) -> _Float:
+    """``dob_full_ff``'s predicted |Z| with the tuned margin over the same with the model
+    inverted exactly [dB]. The stroke stiffening k_3 X_e^3 counts by its describing function
+    on the fundamental at the drive amplitude A, a stiffness ``c = 3/4 k_3 A^2`` in the plant,
+    of which the feed-forward cancels ``1 - margin u_s`` against ``1 - margin u_k`` of k_e:
+    the predictor's linear model gets ``k_e + c`` and the controller's model ``k_e + c (1 -
+    margin u_s)/(1 - margin u_k)`` (k_2's even force has no fundamental). Without it the
+    stroke margin's cost went unpredicted: on a plant whose diaphragm stiffens 33 % at 0.5 rad,
+    a model within 6 % put ``dob_full_ff`` 4.4 dB above the linear class's with 0.3 dB
+    predicted."""
+    ff = tuned.feedforward
+    stroke = 0.75 * terms.stroke_stiffness * amplitude ** 2
+    k_scale = ff.scales()[1]
+    if stroke > 0.0 and k_scale > 0.0:
+        k_e = plant.endpoint_stiffness
+        plant = dataclasses.replace(plant, endpoint_stiffness=k_e + stroke)
+        model = dataclasses.replace(tuned.plant, endpoint_stiffness=k_e + stroke
+                                    * ff.stroke_scale() / k_scale)
+        tuned = tuned.replace(plant=model)
+    after = predict_modes(plant, dahl, tuned, ("dob_full_ff",), omega, delay=delay, dt=dt,
+                          amplitude=amplitude)
+    exact = tuned.replace(plant=dataclasses.replace(tuned.plant,
+                                                    endpoint_stiffness=plant.endpoint_stiffness),
+                          feedforward=dataclasses.replace(ff, margin=0.0,
+                                                          dahl_stiffness_share=1.0),
+                          allow_non_passive=True)
+    unmargined = predict_modes(plant, dahl, exact, ("dob_full_ff",), omega, delay=delay,
+                               dt=dt, amplitude=amplitude)
+    return np.asarray(20.0 * np.log10(np.abs(after["dob_full_ff"])
+                                      / np.abs(unmargined["dob_full_ff"])), float)
 
 
 #: Relative 1-sigma of a resolved stroke term at least: its statistical 1-sigma is far smaller

@@ -12,20 +12,23 @@ On the draw and on the same plant with every effect off (the linear class), each
   what the terms leave;
 * ``dob_full_ff``'s rms |Z| at 1 rad/s within 3 dB of the linear class's, plus what the
   tuning predicts its larger margin costs (the richer model's residual misfit, which the
-  margin takes, is larger than the linear class's: on two draws of
-  ``bench/nonlinear_commissioning.py`` 4.1 and 6.4 dB stiffer, predicted 5.0 and 7.2 dB of
-  extra margin; over 14 draws 11 were within 3 dB; before the richer model it was 12-29 dB
-  stiffer);
+  margin takes, is larger than the linear class's, and the stroke terms have a margin of
+  their own: seed 18 of the family, a diaphragm 33 % stiffer at 0.5 rad, its model within
+  6 %, 4.4 dB stiffer, predicted 4.8; before the richer model it was 12-29 dB stiffer);
 * the rms |Z| the analysis predicts for ``dob_full_ff`` at 1 rad/s (its backdrive simulated on
   the identified model, terms included) within 3 dB of the measured;
 * with the tuned settings the free finger released anywhere on the +-0.45 rad stroke neither
   runs away nor oscillates, without tripping the monitor (the margins cover the model's
   errors, the unmodelled finger ratio and cogging included): it stays within its start + 0.1
-  rad and in the last second of 6 s it is at rest or slides one way towards its rest. (The
-  better the compensation, the less there is to bring a free finger home: on an accurate
-  model the Dahl hysteresis holds it near its start and it creeps, then breaks away and slides
-  back -- on 3 of 10 draws the slide came between 5 and 11.25 s, at up to 0.34 rad/s, once
-  across rest to +0.15 rad; a limit cycle reverses its velocity several times a second.)
+  rad and in the last second of 6 s it is at rest or slides towards its rest, reversing at
+  most once. (The better the compensation, the less there is to bring a free finger home: on
+  an accurate model the Dahl hysteresis holds it near its start, it creeps, then breaks away
+  and slides back -- on 3 of 10 draws the slide came between 5 and 11.25 s, at up to 0.53
+  rad/s, once across rest to +0.15 rad; a limit cycle reverses several times a second.)
+
+The gap's allowance is the tuning's predicted margin cost, the stroke margin's included
+(:func:`seaforce_ros.commissioning.tuning._margin_cost`): on 21 draws (seeds 1-10, 16-26)
+the gap was -0.2 to +7.4 dB, within 3 dB on 15; the prediction error -2.8 to +0.1 dB.
 """
 import math
 import os
@@ -96,12 +99,16 @@ def test_the_tuned_free_finger_comes_to_rest_anywhere_on_the_stroke(commissioned
     n = int(1.0 / rec["dt"])
     last, x = rec["v_e"][-n:], rec["x_e"][-n - 1:]
     at_rest = float(np.sqrt(np.mean(last ** 2))) < 0.01
-    sliding_home = _swings(last, 0.01) <= 1 and abs(x[-1]) < abs(x[0])
+    sliding_home = _reversals(last, 0.01) <= 1 and abs(x[-1]) < abs(x[0])
     assert at_rest or sliding_home, (where, float(np.sqrt(np.mean(last ** 2))),
-                                     _swings(last, 0.01), x[0], x[-1])
+                                     _reversals(last, 0.01), x[0], x[-1])
 
 
-def _swings(v, floor):
-    """The half-cycles of ``v`` (between its sign changes) whose peak speed exceeds ``floor``."""
+def _reversals(v, floor):
+    """How often ``v`` reverses between its half-cycles (the parts between its sign changes)
+    whose peak speed exceeds ``floor`` (a slide with a blip of the hysteresis in it: none; a
+    slide that overshoots rest and comes back: one; a limit cycle: several a second)."""
     edges = np.flatnonzero(np.diff(np.sign(v)) != 0) + 1
-    return sum(1 for part in np.split(v, edges) if part.size and np.max(np.abs(part)) > floor)
+    signs = [np.sign(part[0]) for part in np.split(v, edges)
+             if part.size and np.max(np.abs(part)) > floor]
+    return sum(1 for a, b in zip(signs, signs[1:]) if a != b)
