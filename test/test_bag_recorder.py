@@ -443,6 +443,14 @@ def test_write_failure_keeps_what_was_written_and_exits_non_zero(processes, tmp_
     assert len(data) == written
     assert np.all(np.diff(data.cycle[2000:]) == 1)
     if storage == 'mcap':
+        if 'has no summary' in output:
+            # the summary did not fit under the limit either (the cut fell within a summary's
+            # length of it: one fresh-clone run of many) -- the recorder said so and named the
+            # way back, which is what a user does once there is room
+            assert f'run bag_reindex {out}' in output, output[-3000:]
+            fix = subprocess.run([str(executable('bag_reindex')), str(out)],
+                                 capture_output=True, text=True, timeout=120)
+            assert fix.returncode == 0, fix.stdout + fix.stderr
         cycles, files = _bag_cycles(out)
         assert len(cycles['/actuator_state']) == written and files == ['bag_0.mcap']
     else:
