@@ -145,8 +145,17 @@ def test_commission_over_ros(processes, tmp_path, probe):
     assert all(0.0 <= f.progress <= 0.7 for f in feedback)
     # (the excitation's torque as the probe receives actuator_command: a topic of its own,
     # which a busy host may deliver after the action's feedback)
-    probe.wait_for(lambda: any(abs(e) > 1e-3 for _, e in _efforts_after(probe, 0, pinch)),
-                   timeout=60, what="the excitation's torque in actuator_command")
+    # (each poll reads only what came since the last: scanning every 2 kHz command so far
+    # on each poll holds the GIL the probe's spin thread needs to take them in -- the wait
+    # timed out once under scripts/test --cpu-hog)
+    scanned = [0]
+
+    def excitation_torque():
+        msgs = probe.messages('actuator_command')
+        new, scanned[0] = msgs[scanned[0]:], len(msgs)
+        return any(m.cycle > 0 and abs(m.effort[pinch]) > 1e-3 for m in new)
+    probe.wait_for(excitation_torque, timeout=60, what="the excitation's torque in "
+                   "actuator_command")
     answer = client.cancel(handle)
     assert answer.status == GoalStatus.STATUS_CANCELED, answer.result.message
     ended = probe.messages('actuator_command')[-1].cycle
