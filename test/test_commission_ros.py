@@ -145,9 +145,9 @@ def test_commission_over_ros(processes, tmp_path, probe):
     assert all(0.0 <= f.progress <= 0.7 for f in feedback)
     # (the excitation's torque as the probe receives actuator_command: a topic of its own,
     # which a busy host may deliver after the action's feedback)
-    # (each poll reads only what came since the last: scanning every 2 kHz command so far
-    # on each poll holds the GIL the probe's spin thread needs to take them in -- the wait
-    # timed out once under scripts/test --cpu-hog)
+    # (each poll reads only what came since the last: the cheaper poll for a starved probe.
+    # Under scripts/test --cpu-hog this wait timed out on 2 of 2 runs on 2026-12-05 with the
+    # loop at full speed -- the cause is not found yet)
     scanned = [0]
 
     def excitation_torque():
