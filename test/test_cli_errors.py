@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from helpers.nodes import CONFIG
-from helpers.processes import ProcessGroup, executable
+from helpers.processes import executable, run_until_exit
 
 from seaforce_ros.core.params import MODES, DahlParams, PlantParams
 from seaforce_ros.bags import write_state_bag
@@ -91,9 +91,8 @@ FILE_CASES = [(*option, kind) for option in FILE_OPTIONS for kind in (
 def file_case_runs(tmp_path_factory):
     """Every FILE_CASES case run to its end, four at a time (each is a Python start-up with
     numpy and scipy: one after another they took 93 s of the suite): [(directory, path, exit
-    code, output)]. The processes are ended by their PIDs afterwards, pass or fail."""
+    code, output)]."""
     directories = [tmp_path_factory.mktemp(f"file{i}") for i in range(len(FILE_CASES))]
-    group = ProcessGroup()
 
     def run(index):
         tool, option, args, kind = FILE_CASES[index]
@@ -101,13 +100,9 @@ def file_case_runs(tmp_path_factory):
         path = _bad_file(directory, kind)
         argv = [str(executable(tool)), option, str(path),
                 *(a.format(tmp=directory) for a in args), "--quiet"]
-        proc = group.start(argv, name=tool)
-        return directory, path, proc.wait(60.0), proc.output()
-    try:
-        with ThreadPoolExecutor(max_workers=4) as pool:
-            yield list(pool.map(run, range(len(FILE_CASES))))
-    finally:
-        group.stop_all()
+        return (directory, path, *run_until_exit(argv))
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        return list(pool.map(run, range(len(FILE_CASES))))
 
 
 @pytest.mark.parametrize("case", range(len(FILE_CASES)),

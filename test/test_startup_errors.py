@@ -16,7 +16,7 @@ import pytest
 import yaml
 
 from helpers.nodes import CONFIG, params_file, start_node
-from helpers.processes import executable
+from helpers.processes import executable, run_until_exit
 
 from seaforce_ros.nodes import bag_recorder, controller_node, hardware_node, param_specs, sim_node
 from seaforce_ros.core.environment import ENVIRONMENT_MODES
@@ -26,21 +26,6 @@ from seaforce_ros.ethercat.master import IFF_PROMISC, interface_flags
 #: YAML 1.1 reads these (any capitalisation) as booleans: no string value the package uses
 #: or suggests may be one of them.
 YAML_BOOLEAN_WORDS = {'y', 'n', 'yes', 'no', 'on', 'off', 'true', 'false'}
-
-
-def run_until_exit(argv, timeout=60, cwd=None):
-    """Run an installed executable to its end; (exit code, stdout + stderr). Ended by its own
-    PID if it outlives ``timeout`` (it must not: a bad configuration stops it at once)."""
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            stdin=subprocess.DEVNULL, start_new_session=True, text=True,
-                            cwd=cwd)
-    try:
-        out, _ = proc.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out, _ = proc.communicate()
-        pytest.fail(f'{argv} still ran after {timeout} s:\n{out}')
-    return proc.returncode, out
 
 
 def assert_refused(code, out, *names):

@@ -379,8 +379,8 @@ def model_stage(ident: FreeAirIdentification, terms: Optional[NonlinearTerms]
         if "coulomb_force" in m and m["coulomb_force"][0] > 0.0:
             dahl = dataclasses.replace(dahl, coulomb_force=m["coulomb_force"][0])
             sigma["coulomb_force"] = m["coulomb_force"][1]
-        me = port.linear.get("endpoint_inertia", (math.nan, 0.0))[0] if port else math.nan
-        if hose_used and math.isfinite(me) and me > 0.0:
+        me = port.linear["endpoint_inertia"][0] if hose_used and port is not None else 0.0
+        if math.isfinite(me) and me > 0.0:
             plant = dataclasses.replace(plant, endpoint_inertia=me)
         refit = "m_e from the port equation; " if hose_used else ""
         if k3 > 0.0:

@@ -73,8 +73,8 @@ import scipy.signal
 
 from ..core.params import DahlParams, PlantParams
 from ..identification.dahl_model import DahlPath
-from .free_air import (DAHL_INPUT_CUTOFF, FreeAirIdentification, _endpoint_estimate,
-                       _signals)
+from .free_air import (DAHL_INPUT_CUTOFF, DAHL_KEYS, FreeAirIdentification,
+                       _endpoint_estimate, _signals)
 from .record import ExcitationRecord
 
 __all__ = ["Term", "EquationFit", "NonlinearTerms", "identify_nonlinear_terms",
@@ -500,17 +500,16 @@ def _motor(sig: Dict[str, _Real], dt: float) -> Tuple[List[Term], EquationFit]:
     return terms, eq
 
 
-def _has_dahl(ident: FreeAirIdentification) -> bool:
-    sigma, fc = ident.value("sigma"), ident.value("coulomb_force")
-    return math.isfinite(sigma) and math.isfinite(fc) and sigma > 0 and fc > 0
+def _usable(ident: FreeAirIdentification, keys: Sequence[str]) -> bool:
+    """Every one of ``keys`` identified finite and positive."""
+    return all(math.isfinite(v) and v > 0 for v in (ident.value(k) for k in keys))
 
 
 def _dahl_shape(ident: FreeAirIdentification) -> Tuple[float, float]:
     """(sigma, F_c): the identified, or the nominal where the linear fit saw no hysteresis."""
-    if _has_dahl(ident):
+    if _usable(ident, DAHL_KEYS):
         return ident.value("sigma"), ident.value("coulomb_force")
-    nominal = DahlParams()
-    return nominal.sigma, nominal.coulomb_force
+    return DahlParams().sigma, DahlParams().coulomb_force
 
 
 def _spectral_derivative(x: _Real, dt: float) -> _Real:
@@ -524,20 +523,18 @@ def _port(sig: Dict[str, _Real], dt: float, ident: FreeAirIdentification
     n = x.size
     keys = ("endpoint_inertia", "endpoint_damping", "endpoint_stiffness", "hose_damping",
             "hose_stiffness")
-    me, be, ke, bs, ks = (ident.value(k) for k in keys)
-    identified = all(math.isfinite(p) and p > 0 for p in (me, be, ke, bs, ks))
-    if not identified:
-        # a hose whose loss rises steeply with flow can leave the linear fit of the port
-        # with nothing (seed 12 of the oracle's family: damping doubled at 1.01 rad/s, port
-        # misfit 41 %): the search starts from the nominal plant instead
-        nominal = PlantParams()
-        me, be, ke, bs, ks = (getattr(nominal, k) for k in keys)
+    # a hose whose loss rises steeply with flow can leave the linear fit of the port with
+    # nothing (seed 12 of the oracle's family: damping doubled at 1.01 rad/s, port misfit
+    # 41 %): the search starts from the nominal plant instead
+    identified = _usable(ident, keys)
+    me, be, ke, bs, ks = ((ident.value(k) for k in keys) if identified
+                          else (getattr(PlantParams(), k) for k in keys))
     xe_hat = _endpoint_estimate(x, f_p, bs, ks, dt)
     # the Dahl force on the hose-inverted path at the identified sigma/F_c; where the linear
     # fit did not give it, F_c and sigma/F_c searched beside m_e, b_e, k_e from the nominal
     # (without F_c the search put the friction into k_e: 2.1x on seed 12, the misfit 15 %; at
     # the nominal sigma/F_c k_e was 34 % high on seed 13)
-    searched_dahl = not (identified and _has_dahl(ident))
+    searched_dahl = not (identified and _usable(ident, DAHL_KEYS))
     sigma, fc = _dahl_shape(ident)
     sos_path = scipy.signal.butter(4, DAHL_INPUT_CUTOFF, fs=1.0 / dt, output="sos")
     dahl_path = DahlPath(scipy.signal.sosfiltfilt(sos_path, xe_hat))
@@ -580,9 +577,8 @@ def _port(sig: Dict[str, _Real], dt: float, ident: FreeAirIdentification
         return out
 
     first = np.log([me, be, ke, fc, sigma / fc])
-    start = first
     # the endpoint from the fullest model, then the selection with it held
-    z = search(["k_s", "b_s", "flow", "pressure"], start)
+    z = search(["k_s", "b_s", "flow", "pressure"], first)
     cols, reach = columns(z)
     sel = _select(y, cols, ["k_s", "b_s"], {"hose_flow": ["flow"],
                                             "hose_pressure": ["pressure"]})

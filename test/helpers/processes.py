@@ -8,6 +8,8 @@ import sys
 import time
 from typing import List, Optional, Sequence
 
+import pytest
+
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 INSTALL_LIB = ROOT / 'install' / 'seaforce_ros' / 'lib' / 'seaforce_ros'
 _log_counter = itertools.count()
@@ -128,3 +130,18 @@ class ProcessGroup:
     def stop_all(self) -> None:
         for proc in reversed(self._procs):
             proc.stop()
+
+
+def run_until_exit(argv, timeout=60, cwd=None):
+    """Run an installed executable to its end; (exit code, stdout + stderr). Ended by its own
+    PID if it outlives ``timeout`` (it must not: a bad configuration stops it at once)."""
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            stdin=subprocess.DEVNULL, start_new_session=True, text=True,
+                            cwd=cwd)
+    try:
+        out, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, _ = proc.communicate()
+        pytest.fail(f'{argv} still ran after {timeout} s:\n{out}')
+    return proc.returncode, out
