@@ -43,7 +43,11 @@ def _start_hogs(group, shared=False):
         workers = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1'))
         count = cores // workers + (1 if _WORKER_INDEX < cores % workers else 0)
     for _ in range(count):
-        group.start([sys.executable, '-c', 'while True: pass'], name='cpu_hog')
+        # SIGINT ends it even where the shell that started the run ignores SIGINT for its
+        # background jobs (a `nohup ... &` run: each hog then took SIGKILL after 5 s)
+        group.start([sys.executable, '-c', 'import signal\n'
+                     'signal.signal(signal.SIGINT, signal.SIG_DFL)\nwhile True: pass'],
+                    name='cpu_hog')
 
 
 @pytest.fixture(scope='session', autouse=True)

@@ -16,6 +16,7 @@ import math
 import os
 import pathlib
 import re
+import threading
 
 import numpy as np
 import yaml
@@ -62,6 +63,23 @@ class CommissionClient(ActionTestClient):
 def _efforts_after(probe, cycle, index):
     return [(m.cycle, m.effort[index]) for m in probe.messages('actuator_command')
             if m.cycle > cycle]
+
+
+def _command_history(probe, index):
+    """What the probe holds of actuator_command: count, cycles, gaps, the largest effort."""
+    msgs = probe.messages('actuator_command')
+    if not msgs:
+        return 'no actuator_command at all'
+    cycles = np.array([m.cycle for m in msgs])
+    efforts = np.array([m.effort[index] for m in msgs])
+    steps = np.diff(cycles)
+    big = np.flatnonzero(steps != 1)[-5:]
+    nonzero = np.flatnonzero(np.abs(efforts) > 1e-3)
+    return (f'{len(msgs)} commands, cycles {cycles[0]}..{cycles[-1]}, steps != 1 at '
+            f'{[(int(cycles[i]), int(steps[i])) for i in big]}, max |effort| '
+            f'{np.max(np.abs(efforts)):.3g}, non-zero at cycles '
+            f'{cycles[nonzero[:3]].tolist()}..{cycles[nonzero[-3:]].tolist()}; the test '
+            f'process\'s threads: {sorted(t.name for t in threading.enumerate())}')
 
 
 def test_commission_over_ros(processes, tmp_path, probe):
@@ -154,8 +172,12 @@ def test_commission_over_ros(processes, tmp_path, probe):
         msgs = probe.messages('actuator_command')
         new, scanned[0] = msgs[scanned[0]:], len(msgs)
         return any(m.cycle > 0 and abs(m.effort[pinch]) > 1e-3 for m in new)
-    probe.wait_for(excitation_torque, timeout=60, what="the excitation's torque in "
-                   "actuator_command")
+    try:
+        probe.wait_for(excitation_torque, timeout=60, what="the excitation's torque in "
+                       "actuator_command")
+    except AssertionError as exc:
+        raise AssertionError(f'{exc}: {_command_history(probe, pinch)}; feedback '
+                             f'{feedback[-2:]}') from None
     answer = client.cancel(handle)
     assert answer.status == GoalStatus.STATUS_CANCELED, answer.result.message
     ended = probe.messages('actuator_command')[-1].cycle

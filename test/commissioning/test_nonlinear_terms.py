@@ -11,13 +11,15 @@ class (the same plant with every effect off), the default 40 s excitation each:
 
 * with the effects the verdict flags the model class (``bench/model_class.py``: 24 of 24
   draws, port misfits 7.4-44 % against at most 1.4 % on the linear class, threshold 2.5 %);
-  the motor's Coulomb friction and cogging (its N too) and the hose's flow term are resolved,
-  every term said resolved is within its tolerance of the truth (the others -- the pressure
+  the motor's Coulomb friction and cogging (its N too) and the hose's flow term are resolved
+  (the flow term, on 1 in 80 draws, found within its tolerance but turned away by the
+  halves check, with that reason), every term said resolved is within its tolerance of the truth (the others -- the pressure
   and stroke terms where the record does not drive them far or another model error imitates
   them -- give their reason), and the linear parts the terms leave (m, b, k, b_s, k_s, m_e,
   k_e) are within their tolerance (15 %; b_s 35 %), where the linear fit's b_s is up to
   300 % off; the finger ratio is never resolved, with the reason;
-* on the linear class nothing is flagged and no term is resolved.
+* on the linear class nothing is flagged, no term is resolved, and the port equation's b_s
+  is within 5 % (at most 2.4 % over 163 draws; up to 6.2 % with the friction path at 100 Hz).
 
 Also the selection's statistics on synthetic regressions with correlated noise: the
 information criterion picks the term that is there and leaves the one that is not, and the
@@ -59,17 +61,19 @@ def _truth(plant, e):
 
 
 #: Tolerances of the resolved terms (relative), from the family itself: over 80 draws with
-#: the effects (seeds 1-40 of this test, 2026-12-05) every draw was flagged, the motor's
-#: Coulomb friction, its cogging and the hose's flow term were always resolved, and the
-#: resolved terms' errors were: Coulomb and cogging within 1.1 %; the flow term -1 to +43 %
-#: (median +4 %, 95th percentile +23 %: a bias upwards where the hose's loss rises steeply,
-#: traded against b_s, from the endpoint model the port equation needs); the pressure term
-#: -55 to +34 % (resolved on 50); k_2 -20 to +16 % (on 56); k_3 -17 to +27 % (on 74; earlier
-#: code had it 46 % low and 38 % high: high is what the controller's margin on the stroke
-#: terms must cover, 2 x 20 %: up to 67 %)
+#: the effects (seeds 1-40 of this test, 2026-12-05, the port's friction path at 600 Hz)
+#: every draw was flagged, the motor's Coulomb friction and its cogging were always
+#: resolved, the hose's flow term on 79 (on seed 18's second draw, +25 % with b_s -24 %,
+#: the halves gave 0.0159 and 0.0215), and the resolved terms' errors were: Coulomb and
+#: cogging within 1.1 %; the flow term -0.4 to +43 % (median +4 %, 95th percentile +21 %: a
+#: bias upwards where the hose's loss rises steeply, traded against b_s, from the endpoint
+#: model the port equation needs); the pressure term -28 to +35 % (resolved on 47; -55 % with
+#: the path at 100 Hz); k_2 -20 to +16 % (on 56); k_3 -17 to +27 % (on 74; earlier code had
+#: it 46 % low and 38 % high: high is what the controller's margin on the stroke terms must
+#: cover, 2 x 20 %: up to 67 %)
 TOLERANCE = {"motor_coulomb": 0.1, "cogging": 0.1, "hose_flow": (-0.25, 0.6),
              "hose_pressure": 0.75, "stroke_asymmetry": 0.3, "stroke_stiffness": (-0.6, 0.45)}
-#: ... and of the linear parts beside them: over the same 80 draws b_s within 25 % (the one
+#: ... and of the linear parts beside them: over the same 80 draws b_s within 24 % (the one
 #: the flow term trades against), every other within 7.3 %
 LINEAR_TOLERANCE = {"motor_inertia": 0.15, "motor_damping": 0.15, "motor_stiffness": 0.15,
                     "hose_damping": 0.35, "hose_stiffness": 0.15, "endpoint_inertia": 0.15,
@@ -83,9 +87,16 @@ def test_with_the_effects_the_class_is_flagged_and_the_terms_resolved(family):
         assert verdict.misfit["port"] > verdict.threshold["port"], where
         assert verdict.terms == terms.lines()
         truth = _truth(plant, e)
-        for key in ("motor_coulomb", "cogging", "hose_flow"):
-            term = terms.term(key)
-            assert term.resolved, (key, where)
+        for key in ("motor_coulomb", "cogging"):
+            assert terms.term(key).resolved, (key, where)
+        # the flow term: resolved, or (where the hose's loss rises steeply and the term's
+        # bias differs between the record's halves: 1 of 80 draws) chosen, its value still
+        # within its tolerance, and turned away by the halves check with that reason
+        flow = terms.term("hose_flow")
+        if not flow.resolved:
+            assert "two halves of the record" in flow.reason, where
+            low, high = TOLERANCE["hose_flow"]
+            assert low < flow.value / truth["hose_flow"] - 1.0 < high, where
         for term in terms.resolved():
             tol = TOLERANCE[term.key]
             low, high = tol if isinstance(tol, tuple) else (-tol, tol)
