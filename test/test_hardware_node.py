@@ -25,8 +25,12 @@ from seaforce_ros.core.analysis import impedance_from_position
 
 BUS = pathlib.Path(__file__).resolve().parent / 'data' / 'bus_emulated.yaml'
 RELAXED = {'state_timeout': 0.5}
-# The EtherCAT loop at the real rate, with a CPU-burning process per core beside every test of
-# this module (the cpu_hog fixture). The emulator (SCHED_FIFO 50, test/ethercat/fixtures.py)
+# The EtherCAT loop at the real rate; the tests whose subject is timing (the 2 kHz direct loop,
+# the watchdogs: a pulled cable, a killed controller, a channel's commands that stop) with a
+# CPU-burning process per core beside them (the cpu_hog fixture: the other xdist worker
+# pauses meanwhile); the others (identity, lifecycle, faults, SIGINT) beside the hogs under
+# scripts/test --cpu-hog only (beside them every test, 30 s of the quiet suite's run in all
+# went to them). The emulator (SCHED_FIFO 50, test/ethercat/fixtures.py)
 # and the plant (40) run at real-time priority, as on a rig (docs/ethercat-hardware.md). Most
 # tests run hardware_bringup loop:=direct, the layout for a 2 kHz rig: a separate 2 kHz controller
 # process costs about half a core more, and a 2-core host busy with the emulator and the
@@ -38,7 +42,6 @@ TIMEOUT = 30.0      # parameter and service calls of the (CPU-starved) test proc
 # would make the node's reliable writer wait for its acknowledgements.
 OBSERVE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000,
                          reliability=ReliabilityPolicy.BEST_EFFORT)
-pytestmark = pytest.mark.usefixtures('cpu_hog')
 
 
 def emulator_config():
@@ -117,6 +120,7 @@ def _diag(probe, name, predicate, timeout=10.0):
     return [s for s in msgs[-1].status if s.name == name][0]
 
 
+@pytest.mark.usefixtures('cpu_hog')
 def test_cable_pull_latches_bus_fault_and_drive_watchdog_drops_torque(
         ecat_emulator, processes, tmp_path, probe):
     harness = ecat_emulator(driven_config(amplitude=0.2))
@@ -144,6 +148,7 @@ def test_cable_pull_latches_bus_fault_and_drive_watchdog_drops_torque(
     assert not harness.client.torque_applied('pinch_drive')
 
 
+@pytest.mark.usefixtures('cpu_hog')
 def test_controller_killed_gives_zero_torque(ecat_emulator, processes, tmp_path, probe):
     harness = ecat_emulator(driven_config(amplitude=0.2))
     started_ns = time.time_ns()
@@ -254,6 +259,7 @@ def test_sigint_disables_drives_and_returns_bus_to_init(ecat_emulator, processes
     assert 'bus in INIT' in hw.output()
 
 
+@pytest.mark.usefixtures('cpu_hog')
 def test_commands_naming_only_wrist_do_not_keep_pinch_torque(ecat_emulator, processes, tmp_path,
                                                              probe):
     """Defect: any actuator_command fed one shared watchdog, so after the controller was gone
@@ -279,6 +285,7 @@ def test_commands_naming_only_wrist_do_not_keep_pinch_torque(ecat_emulator, proc
     assert not harness.client.torque_applied('pinch_drive')
 
 
+@pytest.mark.usefixtures('cpu_hog')
 def test_direct_layout_over_ethercat(ecat_emulator, processes, tmp_path, probe):
     """hardware_bringup loop:=direct: the cycle thread calls the controller between reading
     and writing the bus. The feed-forward lowers |Z| over real frames, every state and command

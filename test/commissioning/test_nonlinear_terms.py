@@ -10,10 +10,11 @@ effect drawn (:func:`helpers.oracle_commissioning.draw`); each run draws its own
 class (the same plant with every effect off), the default 40 s excitation each:
 
 * with the effects the verdict flags the model class (``bench/model_class.py``: 24 of 24
-  draws, port misfits 7.4-44 % against at most 1.4 % on the linear class, threshold 2.5 %);
+  draws, port misfits 7.4-44 % against at most 1.4 % on the linear class, threshold 2.5 %;
+  a draw with the weakest hose losses flagged by the motor's misfit instead);
   the motor's Coulomb friction and cogging (its N too) and the hose's flow term are resolved
-  (the flow term, on 1 in 80 draws, found within its tolerance but turned away by the
-  halves check, with that reason), every term said resolved is within its tolerance of the truth (the others -- the pressure
+  (or, rarely -- the flow term on 1 in 80 draws, the Coulomb friction once in CI -- found
+  within its tolerance but turned away by the halves check, with that reason), every term said resolved is within its tolerance of the truth (the others -- the pressure
   and stroke terms where the record does not drive them far or another model error imitates
   them -- give their reason), and the linear parts the terms leave (m, b, k, b_s, k_s, m_e,
   k_e) are within their tolerance (15 %; b_s 35 %), where the linear fit's b_s is up to
@@ -84,19 +85,25 @@ def test_with_the_effects_the_class_is_flagged_and_the_terms_resolved(family):
     for plant, dahl, e, ident, verdict, terms in family[:2]:
         where = f"seed {SEED}: {e.describe()}\n" + "\n".join(terms.lines())
         assert not verdict.fits and "does not describe this gripper" in verdict.warning, where
-        assert verdict.misfit["port"] > verdict.threshold["port"], where
+        # flagged by an equation's misfit (the port's on all but the weakest hose losses:
+        # seed 78340's first draw, its damping doubling only at 2.95 rad/s, had the port at
+        # 2.1 % and the motor at 3.3 %, its threshold 3 %)
+        assert any(verdict.misfit[k] > verdict.threshold[k] for k in verdict.misfit), where
         assert verdict.terms == terms.lines()
         truth = _truth(plant, e)
-        for key in ("motor_coulomb", "cogging"):
-            assert terms.term(key).resolved, (key, where)
-        # the flow term: resolved, or (where the hose's loss rises steeply and the term's
-        # bias differs between the record's halves: 1 of 80 draws) chosen, its value still
-        # within its tolerance, and turned away by the halves check with that reason
-        flow = terms.term("hose_flow")
-        if not flow.resolved:
-            assert "two halves of the record" in flow.reason, where
-            low, high = TOLERANCE["hose_flow"]
-            assert low < flow.value / truth["hose_flow"] - 1.0 < high, where
+        # the terms every draw has in measurable size: resolved, or chosen, their value
+        # within the tolerance, and turned away by the halves check with that reason (the
+        # flow term where the hose's loss rises steeply and the term's bias differs between
+        # the record's halves: 1 of 80 draws; the motor's Coulomb friction on seed 78340's
+        # first draw: 0.00997 and 0.00187 +- 0.0012 N m, the second half above the motor
+        # equation's 10 Hz band)
+        for key in ("motor_coulomb", "cogging", "hose_flow"):
+            term = terms.term(key)
+            if not term.resolved:
+                assert "two halves of the record" in term.reason, (key, where)
+                tol = TOLERANCE[key]
+                low, high = tol if isinstance(tol, tuple) else (-tol, tol)
+                assert low < term.value / truth[key] - 1.0 < high, (key, where)
         for term in terms.resolved():
             tol = TOLERANCE[term.key]
             low, high = tol if isinstance(tol, tuple) else (-tol, tol)
