@@ -89,8 +89,8 @@ MOTOR_CUTOFF = 10.0
 #: Upper edge [Hz] of the port equation's band (its lower edge: a third of the hose resonance).
 PORT_TOP = 300.0
 #: Zero-phase low-pass [Hz] of the estimated endpoint path that drives the port equation's Dahl
-#: force: above the port's band. Below the endpoint's friction is a spring sigma (170x k_e on
-#: the oracle's draws) at small motions, so the path's content near the hose resonance sets
+#: force: above the port's band. At small motions the endpoint's Dahl friction is a spring
+#: sigma (170x k_e on the oracle's draws), so the path's content near the hose resonance sets
 #: the friction force there: at the identification's 100 Hz (DAHL_INPUT_CUTOFF) the missing
 #: pre-sliding force went into the hose's damping (+6.2 % with a 42 Hz hose resonance on the
 #: linear class, the flow term chosen at 17 sigma) and into k_e (+2.3 %); at 200-900 Hz the
