@@ -28,9 +28,9 @@ RELAXED = {'state_timeout': 0.5}
 # The EtherCAT loop at the real rate; the tests whose subject is timing (the 2 kHz direct loop,
 # the watchdogs: a pulled cable, a killed controller, a channel's commands that stop) with a
 # CPU-burning process per core beside them (the cpu_hog fixture: the other xdist worker
-# pauses meanwhile); the others (identity, lifecycle, faults, SIGINT) beside the hogs under
-# scripts/test --cpu-hog only (beside them every test, 30 s of the quiet suite's run in all
-# went to them). The emulator (SCHED_FIFO 50, test/ethercat/fixtures.py)
+# pauses meanwhile); the others (identity, lifecycle, faults, SIGINT) beside the hogs only
+# under scripts/test --cpu-hog (with hogs beside every test the quiet suite spent about 30 s
+# more on them). The emulator (SCHED_FIFO 50, test/ethercat/fixtures.py)
 # and the plant (40) run at real-time priority, as on a rig (docs/ethercat-hardware.md). Most
 # tests run hardware_bringup loop:=direct, the layout for a 2 kHz rig: a separate 2 kHz controller
 # process costs about half a core more, and a 2-core host busy with the emulator and the

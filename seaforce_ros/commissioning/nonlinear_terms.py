@@ -517,7 +517,8 @@ def _dahl_shape(ident: FreeAirIdentification) -> Tuple[float, float]:
     """(sigma, F_c): the identified, or the nominal where the linear fit saw no hysteresis."""
     if _usable(ident, DAHL_KEYS):
         return ident.value("sigma"), ident.value("coulomb_force")
-    return DahlParams().sigma, DahlParams().coulomb_force
+    nominal = DahlParams()
+    return nominal.sigma, nominal.coulomb_force
 
 
 def _spectral_derivative(x: _Real, dt: float) -> _Real:
@@ -535,8 +536,8 @@ def _port(sig: Dict[str, _Real], dt: float, ident: FreeAirIdentification
     # nothing (seed 12 of the oracle's family: damping doubled at 1.01 rad/s, port misfit
     # 41 %): the search starts from the nominal plant instead
     identified = _usable(ident, keys)
-    me, be, ke, bs, ks = ((ident.value(k) for k in keys) if identified
-                          else (getattr(PlantParams(), k) for k in keys))
+    nominal = PlantParams()
+    me, be, ke, bs, ks = (ident.value(k) if identified else getattr(nominal, k) for k in keys)
     xe_hat = _endpoint_estimate(x, f_p, bs, ks, dt)
     # the Dahl force on the hose-inverted path at the identified sigma/F_c; where the linear
     # fit did not give it, F_c and sigma/F_c searched beside m_e, b_e, k_e from the nominal

@@ -13,9 +13,11 @@ class (the same plant with every effect off), the default 40 s excitation each:
   draws, port misfits 7.4-44 % against at most 1.4 % on the linear class, threshold 2.5 %;
   a draw with the weakest hose losses flagged by the motor's misfit instead);
   the motor's Coulomb friction and cogging (its N too) and the hose's flow term are resolved
-  (or, rarely -- the flow term on 1 in 80 draws, the Coulomb friction once in CI -- found
-  within its tolerance but turned away by the halves check, with that reason), every term said resolved is within its tolerance of the truth (the others -- the pressure
-  and stroke terms where the record does not drive them far or another model error imitates
+  (or, rarely -- the flow term on 1 in 80 draws, the Coulomb friction on 1 draw of a
+  --cpu-hog run -- found within its tolerance but turned away by the halves check, with that
+  reason), every term
+  said resolved is within its tolerance of the truth (the others -- the pressure and stroke
+  terms where the record does not drive them far or another model error imitates
   them -- give their reason), and the linear parts the terms leave (m, b, k, b_s, k_s, m_e,
   k_e) are within their tolerance (15 %; b_s 35 %), where the linear fit's b_s is up to
   300 % off; the finger ratio is never resolved, with the reason;
