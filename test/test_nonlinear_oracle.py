@@ -11,6 +11,10 @@ closed forms, so that what it says of the project is worth something:
 * the hose's flow-dependent damping b_s V (1 + |V|/q_2), the motor held still: the damping of
   the fundamental is b_e + b_s (1 + 8 V_0/(3 pi q_2)) and the 3rd and 5th harmonics are
   b_s V_0^2/q_2 times 8/(15 pi) and 8/(105 pi);
+* the Dahl force on a fast path (20 rad/s, sigma 2x and F_c 0.5x of the paper's: its
+  relaxation rate sigma |X_e'|/F_c is 32,000 /s) is the closed form over each sample, within
+  +-F_c (with a fixed 2 substeps RK4 left its stability region there and the oracle diverged:
+  seed 52584 of the compensation test);
 * every effect on, under the project's controller: over a period the work of the finger's
   force and of the motor's torque is what the losses took (the integration keeps energy);
 * the draws stay in the stated ranges, and an effect switched off is off.
@@ -21,8 +25,8 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from helpers.nonlinear_sim import (EFFECTS, RANGES, STROKE, Effects, Unpowered,
-                                   actuator_position, backdrive, diaphragm_force, draw_effects,
+from helpers.nonlinear_sim import (EFFECTS, RANGES, STROKE, Effects, NonlinearGripper,
+                                   SinePath, Unpowered, actuator_position, backdrive, diaphragm_force, draw_effects,
                                    finger_position, hose_force, linear_counterpart, ratio)
 from helpers.second_sim import DAHL, TABLE_I, transfer_functions
 from seaforce_ros.core.analysis import impedance_figures
@@ -97,6 +101,34 @@ def test_flow_dependent_hose_damping_has_its_describing_function(seed):
                                              rel=1e-3)
     assert fig.harmonics[4] == pytest.approx(bs * v0 ** 2 / q2 * 8.0 / (105.0 * math.pi),
                                              rel=1e-2)
+
+
+def _dahl_after(fd, dx, sigma, fc):
+    """The Dahl force (n = 1) after a monotone move dx from fd: the closed form of eq. 14-15."""
+    if dx > 0.0:
+        return fc - (fc - fd) * math.exp(-sigma * dx / fc)
+    return -fc + (fc + fd) * math.exp(sigma * dx / fc)
+
+
+def test_the_dahl_force_on_a_fast_path_is_its_closed_form():
+    dahl = {"sigma": 2.0 * DAHL["sigma"], "coulomb_force": 0.5 * DAHL["coulomb_force"]}
+    sigma, fc = dahl["sigma"], dahl["coulomb_force"]
+    amplitude, omega = 0.5, 40.0                # 20 rad/s at the centre
+    g = NonlinearGripper(TABLE_I, dahl, Effects(), SinePath(amplitude, omega), **EXACT)
+    xe, fd = g.state[2], g.state[4]
+    checked = 0
+    for _ in range(int(2 * 2 * math.pi / omega / g.dt)):
+        t0 = g.t
+        g.step(0.0)
+        xe_new, fd_new = g.state[2], g.state[4]
+        assert abs(fd_new) <= fc * (1.0 + 1e-9)
+        # a sample with no reversal of the path (its peaks at w t = pi/2 + n pi) in it
+        if math.floor(omega * t0 / math.pi - 0.5) == math.floor(omega * g.t / math.pi - 0.5):
+            assert fd_new == pytest.approx(_dahl_after(fd, xe_new - xe, sigma, fc),
+                                           abs=1e-3 * fc)
+            checked += 1
+        xe, fd = xe_new, fd_new
+    assert checked > 600
 
 
 @pytest.mark.parametrize("mode", ["passive", "dob_full_ff"])

@@ -48,10 +48,16 @@ period).
 
 Integration: classical Runge-Kutta (RK4) on (X, V, X_e, V_e, F_d) with ``substeps`` steps per
 sample, every force evaluated on the stage's state (nothing held over a step; the project's
-simulator is an exact zero-order hold with the nonlinear forces held). The motor torque is
-held over each sample and applied one sample after the sample it answers (the EtherCAT
-frame): :meth:`NonlinearGripper.step` follows the project simulator's protocol, so a
-controller runs on it the way it runs on ``sim_node`` in lockstep. The finger is either free
+simulator is an exact zero-order hold with the nonlinear forces held). The Dahl state is stiff
+where the endpoint is fast: it relaxes at the rate ``sigma |X_e'| / F_c``, 15,000 /s at
+12 rad/s on a draw with sigma 24 N m/rad and F_c 19 mN m, beyond RK4's stability limit (2.8/h)
+at 2 substeps, where the oracle itself diverged (seed 52584 of the compensation test: X_e
+24,000 rad in one sample). So a sample takes more substeps where that rate needs them:
+``h sigma |X_e'| / F_c <= 1`` with ``|X_e'|`` taken at twice its value at the sample's
+start (:data:`DAHL_STEP`). The motor torque is held over each sample and applied one sample
+after the sample it answers (the EtherCAT frame): :meth:`NonlinearGripper.step` follows the
+project simulator's protocol, so a controller runs on it the way it runs on ``sim_node`` in
+lockstep. The finger is either free
 (F_q = 0) or driven along a prescribed path q(t) (the bonded second finger, a kinematic drive:
 X_e, X_e' and X_e'' follow from q; F_q is the force that takes).
 
@@ -82,6 +88,9 @@ RANGES = {"hose_flow": (1.0, 3.0), "hose_pressure": (0.1, 0.4),
           "stroke_stiffness": (0.1, 0.3), "finger_ratio": (0.05, 0.15),
           "motor_coulomb": (0.005 * TORQUE_RANGE, 0.01 * TORQUE_RANGE),
           "cogging": (0.005 * TORQUE_RANGE, 0.01 * TORQUE_RANGE)}
+#: Largest ``h sigma |X_e'| / F_c`` of an RK4 substep h (module docstring: the Dahl state's
+#: stiffness; RK4 is stable to 2.8 on the negative real axis).
+DAHL_STEP = 1.0
 #: Cogging periods per revolution drawn from (slots x poles of common direct-drive motors).
 COGGING_PERIODS = (24, 36, 42, 48, 56, 72, 84)
 EFFECTS = tuple(RANGES)
@@ -363,12 +372,16 @@ class NonlinearGripper:
         self._pending = torque
         self.applied = u
         self._xq_prev = self._quantise(self.state[0], self._qx)
-        h = self.dt / self.substeps
         y = self.state
+        substeps = self.substeps
+        if self.dahl:       # the Dahl state's stiffness (module docstring)
+            rate = 2.0 * abs(y[3]) * self.dahl["sigma"] / self.dahl["coulomb_force"]
+            substeps = max(substeps, math.ceil(self.dt * rate / DAHL_STEP))
+        h = self.dt / substeps
         t = self.t
         f = self.forces
         lost = put = 0.0
-        for _ in range(self.substeps):
+        for _ in range(substeps):
             x, v, xe, ve, fd = y
             k1 = f(y, t, u)
             k2 = f((x + 0.5 * h * k1[0], v + 0.5 * h * k1[1], xe + 0.5 * h * k1[2],
