@@ -80,7 +80,7 @@ from .tuning import TUNED_KEYS, InfeasibleTuningError, TuningResult, tune
 __all__ = ["AnalysisRequest", "Analysis", "AnalysisError", "Prediction", "analyse",
            "analyse_directory", "zwidth_at", "identification_rows",
            "identify_stage", "model_class_stage", "loop_stage", "model_stage", "ControllerModel",
-           "tune_stage", "predict_stage", "work_loop_stage",
+           "tune_stage", "predict_stage", "work_loop_stage", "torque_lines", "TORQUE_WARNING",
            "report_stage", "write_stage", "WORK_LOOP_MODES", "WORK_LOOP_OMEGA",
            "WORK_LOOP_AMPLITUDE", "BACKDRIVE_SPEED", "backdrive_amplitude", "Backdrives", "REQUEST_FILE", "RECORD_FILE", "ROLLBACK_FILE", "HEADLINE_OMEGA",
            "main"]
@@ -534,6 +534,10 @@ WORK_LOOP_AMPLITUDE = 0.5
 BACKDRIVE_SPEED = 0.5
 #: Points kept of a work loop's period.
 _LOOP_POINTS = 400
+#: The summary warns where a simulated backdrive's peak motor torque exceeds this share of
+#: ``max_torque`` (the model lacks the finger ratio, free air cannot show it: up to 15 % more
+#: torque at the stroke's ends).
+TORQUE_WARNING = 0.8
 
 
 def backdrive_amplitude(omega: float) -> float:
@@ -551,6 +555,8 @@ class Backdrives:
     work_loops: List[WorkLoop]
     omega: Tuple[float, ...]
     figures: Dict[str, List[Optional[ImpedanceFigures]]]
+    #: per mode, the peak |F_a| [N m] of the recorded period at each frequency (None as above)
+    peak_torque: Dict[str, List[Optional[float]]] = field(default_factory=dict)
 
     def rms(self, mode: str) -> npt.NDArray[np.float64]:
         """The predicted rms |Z| [N m s/rad] of ``mode`` on :attr:`omega` (NaN: none)."""
@@ -576,9 +582,11 @@ def work_loop_stage(plant: PlantParams, dahl: Optional[DahlParams], config: Cont
     from ..identification.experiments import work_loop_experiment
     loops: List[WorkLoop] = []
     figures: Dict[str, List[Optional[ImpedanceFigures]]] = {}
+    torque: Dict[str, List[Optional[float]]] = {}
     total = len(modes) * len(omegas)
     for i, mode in enumerate(modes):
         figures[mode] = []
+        torque[mode] = []
         for j, omega in enumerate(omegas):
             if progress is not None:
                 progress("predict", 0.8 + 0.2 * (i * len(omegas) + j) / total,
@@ -591,11 +599,14 @@ def work_loop_stage(plant: PlantParams, dahl: Optional[DahlParams], config: Cont
                                            motor_coulomb=motor_coulomb, effects=effects)
             except SeaforceError:
                 figures[mode].append(None)
+                torque[mode].append(None)
                 continue
             dt = float(rec["t"][1] - rec["t"][0])  # type: ignore[index]
             fig = impedance_figures(rec["f_e"], rec["x_e"], omega, dt,
                                     float(rec["settle"]))
             figures[mode].append(fig)
+            settled = int(round(float(rec["settle"]) / dt))
+            torque[mode].append(float(np.max(np.abs(np.asarray(rec["f_a"])[settled:]))))
             if mode in WORK_LOOP_MODES and omega == WORK_LOOP_OMEGA:
                 n = int(round(2.0 * math.pi / omega / dt))
                 x = np.asarray(rec["x_e"])[-n:]
@@ -605,7 +616,35 @@ def work_loop_stage(plant: PlantParams, dahl: Optional[DahlParams], config: Cont
                                       fig.z_rms_db, fig.distortion, fig.peak, fig.peak_centre,
                                       fig.centre_band,
                                       "simulated on the identified model, tuned settings"))
-    return Backdrives(loops, tuple(float(w) for w in omegas), figures)
+    return Backdrives(loops, tuple(float(w) for w in omegas), figures, torque)
+
+
+def torque_lines(backdrives: Backdrives, max_torque: float) -> List[str]:
+    """The summary's lines on the motor torque the simulated backdrives took: one with each
+    mode's peak |F_a| (the largest over the frequencies), and a warning per mode and frequency
+    whose peak exceeds :data:`TORQUE_WARNING` of ``max_torque`` [N m] (there, a backdrive of
+    the gripper latches the torque fault: zero torque, no measurement)."""
+    peaks = {m: [(p, w) for p, w in zip(v, backdrives.omega) if p is not None]
+             for m, v in backdrives.peak_torque.items()}
+    peaks = {m: v for m, v in peaks.items() if v}
+    if not peaks:
+        return []
+    lines = ["predicted peak motor torque in these backdrives (max_torque "
+             f"{max_torque:g} N m): " + ", ".join(
+                 f"{m} {max(v)[0]:.3g} N m" + (f" (at {max(v)[1]:g} rad/s)"
+                                               if len(v) > 1 and max(v)[0] > 0.0 else "")
+                 for m, v in peaks.items())]
+    for m, v in peaks.items():
+        for p, w in v:
+            if p > TORQUE_WARNING * max_torque:
+                lines.append(
+                    f"WARNING: {m}'s backdrive at {w:g} rad/s ({backdrive_amplitude(w):g} rad) "
+                    f"is predicted to take {p:.3g} N m, {100 * p / max_torque:.0f} % of "
+                    f"max_torque ({max_torque:g} N m; the finger ratio the model lacks adds up "
+                    "to 15 %): on the gripper that backdrive would latch the torque fault (zero "
+                    f"torque) and measure nothing; measure {m} there with a smaller amplitude, "
+                    "or raise max_torque if the hardware allows it")
+    return lines
 
 
 # --- 5. the report --------------------------------------------------------------------------
@@ -810,6 +849,8 @@ def _summary(analysis: Analysis, request: AnalysisRequest) -> List[str]:
                      + (", and the terms of the controller's model" if analysis.model is not None
                         and (analysis.model.terms.hose or analysis.model.terms.stroke) else "")
                      + "; not those of terms the controller's model lacks)")
+    if b is not None and analysis.tuning is not None:
+        lines.extend(torque_lines(b, analysis.tuning.config.max_torque))
     if analysis.model is not None:
         lines.extend(analysis.model.lines)
     t = analysis.tuning

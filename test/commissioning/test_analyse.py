@@ -16,9 +16,10 @@ import numpy as np
 import pytest
 import yaml
 
-from seaforce_ros.commissioning.analyse import (RECORD_FILE, REQUEST_FILE, Analysis,
-                                                AnalysisError, AnalysisRequest, analyse,
-                                                analyse_directory, main, write_stage)
+from seaforce_ros.commissioning.analyse import (RECORD_FILE, REQUEST_FILE, TORQUE_WARNING,
+                                                Analysis, AnalysisError, AnalysisRequest,
+                                                analyse, analyse_directory, main,
+                                                torque_lines, write_stage)
 from seaforce_ros.commissioning.experiments import run_free_air_excitation
 from seaforce_ros.commissioning.record import save_record
 from seaforce_ros.commissioning.report import CommissioningReport, ReportMeta, load_report
@@ -107,6 +108,26 @@ def test_a_run_tunes_and_writes_its_files(record, tmp_path):
     assert len(loaded.zwidth.rms_db) == 3 and np.all(loaded.zwidth.rms_db > 20.0)
     assert 'dB rms; Z-width on the rms' in a.result()['summary']
     assert 'work loop (simulated on the identified model' in a.result()['summary']
+    # the motor torque those backdrives took: the hold's at 1 rad/s is the quasi-static one
+    # (the motor servo K_p + k in series with the hose k_s, the finger at 0.5 rad), within
+    # what its Dahl friction and inertia add; the summary says it, and warns where a backdrive
+    # would take more than TORQUE_WARNING of max_torque
+    plant, hold = a.model.plant, a.tuning.config.hold.stiffness
+    static = hold * plant.hose_stiffness * 0.5 / (hold + plant.motor_stiffness
+                                                  + plant.hose_stiffness)
+    peak = a.backdrives.peak_torque['hold'][a.backdrives.omega.index(1.0)]
+    assert peak == pytest.approx(static, rel=0.1)
+    assert a.backdrives.peak_torque['passive'] == [0.0, 0.0, 0.0]
+    line = next(x for x in a.report.summary if x.startswith('predicted peak motor torque'))
+    assert f'hold {peak:.3g} N m (at 1 rad/s)' in line, line
+    # (the default max_torque, 5 N m, is what this 0.8x-k_s plant's hold takes at 0.5 rad)
+    over = [(m, w) for m, peaks in a.backdrives.peak_torque.items()
+            for w, p in zip(a.backdrives.omega, peaks) if p > TORQUE_WARNING * 5.0]
+    assert over == [('hold', 1.0)]
+    warnings = [x for x in a.report.summary if x.startswith('WARNING')]
+    assert len(warnings) == 1 and warnings[0].startswith(
+        "WARNING: hold's backdrive at 1 rad/s (0.5 rad) is predicted to take"), warnings
+    assert torque_lines(a.backdrives, 100.0)[1:] == []
     # the tuned settings are a valid whole configuration
     assert ControllerConfig.from_dict(a.apply, base=config) == a.tuning.config
     assert a.after_db[1.0] >= a.before_db[1.0] - 3.0
