@@ -16,7 +16,9 @@ and summarised:
 * ``dob_full_ff``'s rms |Z| at 1 rad/s against the linear class's (goal: within 3 dB);
 * the Z-width on the rms at 1 and 3 rad/s (goals: >= 70 and >= 50 dB);
 * ``dob_full_ff``'s work loop at 1 rad/s: peak |F_e| over the stroke over the peak within
-  +-0.2 rad (goal: at most 2);
+  +-0.2 rad (goal: at most 2), the same without the stroke's ends (within 0.9 of the
+  half-stroke: the reversals, where the Dahl force re-sticks, left out) and the linear
+  class's;
 * the rig time (the excitation) and the analysis' CPU time (goals: <= 90 s, <= 20 s).
 
 Run (from the repository root, environment sourced)::
@@ -117,13 +119,17 @@ def main(argv):
                "zw1_fund": meas[("hold", 1.0)].z_db - min(
                    f.z_db for (m, w), f in meas.items() if w == 1.0 and m != "hold"),
                "peak_ratio": ff.peak_ratio if ff.amplitude > 0.45 else math.nan,
+               "away_ratio": ff.away_ratio if ff.amplitude > 0.45 else math.nan,
+               "lin_peak_ratio": lin[("dob_full_ff", 1.0)].peak_ratio,
                "pred_err": max(errs), "rms_pred_err": float(np.nanmax(rms_errs)),
                "cpu": cpu, "rig": rig, "flagged": not verdict.fits}
         rows.append(row)
         lin_ff = lin[("dob_full_ff", 1.0)].z_rms_db
         print(f"  dob_full_ff rms at 1 rad/s {ff.z_rms_db:.1f} dB vs {lin_ff:.1f} on the linear "
               f"class ({row['rms_vs_linear']:+.1f} dB); Z-width on the rms {row['zw1']:.1f} / "
-              f"{row['zw3']:.1f} dB at 1 / 3 rad/s (fundamental {row['zw1_fund']:.1f} at 1); work-loop peak ratio {row['peak_ratio']:.2f}; "
+              f"{row['zw3']:.1f} dB at 1 / 3 rad/s (fundamental {row['zw1_fund']:.1f} at 1); work-loop peak ratio {row['peak_ratio']:.2f} "
+              f"({row['away_ratio']:.2f} without the stroke's ends; linear class "
+              f"{row['lin_peak_ratio']:.2f}); "
               f"largest prediction error {row['pred_err']:.1f} dB fundamental, "
               f"{row['rms_pred_err']:.1f} dB rms", flush=True)
     if not rows:
@@ -131,7 +137,10 @@ def main(argv):
     print(f"\nover {len(rows)} draws (seed {seed0}): median [min .. max]")
     for key, goal in (("rms_vs_linear", "within 3 dB"), ("zw1", ">= 70 dB"),
                       ("zw3", ">= 50 dB"), ("zw1_fund", "(the fundamental's)"),
-                      ("peak_ratio", "<= 2"), ("pred_err", "<= 3 dB"),
+                      ("peak_ratio", "<= 2"),
+                      ("away_ratio", "(the same within 0.9 of the half-stroke)"),
+                      ("lin_peak_ratio", "(the linear class's peak ratio)"),
+                      ("pred_err", "<= 3 dB"),
                       ("rms_pred_err", "<= 3 dB"), ("cpu", "<= 20 s"), ("rig", "<= 90 s")):
         v = np.asarray([r[key] for r in rows], float)
         print(f"  {key:14s} {np.nanmedian(v):7.2f} [{np.nanmin(v):7.2f} .. {np.nanmax(v):7.2f}]"

@@ -238,7 +238,7 @@ def test_commission_demo_draws_a_nonlinear_plant_the_sim_takes_and_reports_its_g
 
     truth, _ = drawn_plant(SEED, 0.5, 2.0)
     figures = {'z_db': -40.0, 'z_rms_db': -37.0, 'distortion': 0.8, 'peak': 0.02,
-               'peak_centre': 0.01}
+               'peak_centre': 0.01, 'peak_away': 0.012}
     measured = {'after': {('hold', 1.0): dict(figures, z_db=30.0, z_rms_db=30.0),
                           ('dob_full_ff', 1.0): figures,
                           ('hold', 3.0): dict(figures, z_db=math.nan, z_rms_db=math.nan),
@@ -254,3 +254,4 @@ def test_commission_demo_draws_a_nonlinear_plant_the_sim_takes_and_reports_its_g
     assert goals['hose_damping_error'] == pytest.approx(0.5)
     text = '\n'.join(goal_lines(goals, True))
     assert 'ratio 2.00' in text and 'DOES NOT FIT' in text and '3 rad/s none' in text
+    assert 'ratio 1.20)' in text

@@ -21,7 +21,7 @@ __all__ = [
     "low_frequency_stiffness_internal", "low_frequency_stiffness_external",
     "eq22_stiffness", "eq23_stiffness", "eq24_stiffness",
     "fourier_coefficient", "impedance_from_series", "impedance_from_position",
-    "ImpedanceFigures", "impedance_figures", "CENTRE_BAND", "HARMONICS",
+    "ImpedanceFigures", "impedance_figures", "CENTRE_BAND", "AWAY_SHARE", "HARMONICS",
     "hold_loop", "HoldMargins", "hold_margins", "design_hold_gains",
 ]
 
@@ -198,6 +198,10 @@ def impedance_from_position(f_e: npt.ArrayLike, x_e: npt.ArrayLike, omega: float
 CENTRE_BAND = 0.2
 #: Harmonics of F_e reported (1 = the fundamental).
 HARMONICS = 5
+#: :attr:`ImpedanceFigures.peak_away` ends at this share of the stroke's half-width: a drive
+#: of 0.5 rad leaves its last 0.05 rad each side out (at 1 rad/s the 0.9 s about each
+#: reversal; the Dahl force re-sticks over F_c/sigma, about 3 mrad, of it).
+AWAY_SHARE = 0.9
 #: Harmonics of X_e the rms of V_e is summed over (a drive's path is smooth: its content
 #: beyond them is the encoder's quantum).
 _VELOCITY_HARMONICS = 20
@@ -228,6 +232,10 @@ class ImpedanceFigures(NamedTuple):
     peak_centre : float
         Largest |F_e| within ``centre_band`` of the stroke's centre [N m] (NaN when the
         stroke never comes there).
+    peak_away : float
+        Largest |F_e| beyond ``centre_band`` and within :data:`AWAY_SHARE` of the stroke's
+        half-width from its centre [N m]: the stroke without its ends, where the drive
+        reverses and the Dahl force re-sticks (NaN when that part is empty).
     amplitude : float
         Amplitude of the fundamental of X_e [rad].
     centre_band : float
@@ -246,6 +254,7 @@ class ImpedanceFigures(NamedTuple):
     amplitude: float
     centre_band: float
     periods: int
+    peak_away: float = math.nan
 
     @property
     def z_db(self) -> float:
@@ -262,12 +271,18 @@ class ImpedanceFigures(NamedTuple):
         """``peak / peak_centre``: how much the work loop's force grows outside the centre."""
         return self.peak / self.peak_centre if self.peak_centre > 0 else math.inf
 
+    @property
+    def away_ratio(self) -> float:
+        """``peak_away / peak_centre``: the same without the stroke's ends (the reversals)."""
+        return self.peak_away / self.peak_centre if self.peak_centre > 0 else math.inf
+
     def as_dict(self) -> Dict[str, Any]:
         """The figures as JSON-able numbers (``z`` as ``z_re``, ``z_im``; the dBs too)."""
         return {"omega": self.omega, "z_re": self.z.real, "z_im": self.z.imag,
                 "z_db": self.z_db, "z_rms": self.z_rms, "z_rms_db": self.z_rms_db,
                 "harmonics": list(self.harmonics), "distortion": self.distortion,
                 "peak": self.peak, "peak_centre": self.peak_centre,
+                "peak_away": self.peak_away,
                 "amplitude": self.amplitude, "centre_band": self.centre_band,
                 "periods": self.periods}
 
@@ -351,10 +366,13 @@ def impedance_figures(f_e: npt.ArrayLike, x_e: npt.ArrayLike, omega: float, dt: 
     centre = 0.5 * (float(xw.max()) + float(xw.min()))
     inside = np.abs(xw - centre) <= centre_band
     peak_centre = float(np.max(np.abs(fw[inside]))) if inside.any() else math.nan
+    reach = np.abs(xw - centre)
+    away = (reach > centre_band) & (reach <= AWAY_SHARE * 0.5 * float(xw.max() - xw.min()))
+    peak_away = float(np.max(np.abs(fw[away]))) if away.any() else math.nan
     return ImpedanceFigures(float(omega), z, rms_f / rms_v if rms_v > 0 else math.inf,
                             tuple(float(a) for a in np.abs(cf)), distortion,
                             float(np.max(np.abs(fw))), peak_centre, float(abs(cx[0])),
-                            float(centre_band), periods)
+                            float(centre_band), periods, peak_away)
 
 
 # --- hold (maximum impedance) gain design ---------------------------------------

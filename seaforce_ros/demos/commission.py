@@ -92,7 +92,7 @@ class CommissionObserver(Observer):
 
 #: The figures of a mode that did not hold (the plant latched a fault).
 UNSTABLE = {'z_db': math.nan, 'z_rms_db': math.nan, 'distortion': math.nan, 'peak': math.nan,
-            'peak_centre': math.nan}
+            'peak_centre': math.nan, 'peak_away': math.nan}
 
 
 def measure_modes(observer, children, modes: Sequence[str], frequencies: Sequence[float],
@@ -388,6 +388,7 @@ def goal_figures(measured, report, truth, frequencies, applied=None) -> Dict[str
         'model_terms': terms,
         'omega': low, 'z_db': ff['z_db'], 'z_rms_db': ff['z_rms_db'],
         'distortion': ff['distortion'], 'peak': ff['peak'], 'peak_centre': ff['peak_centre'],
+        'peak_away': ff.get('peak_away', math.nan),
         'zwidth_db': {f'{w:g}': zwidth(after, w) for w in frequencies},
         'zwidth_rms_db': {f'{w:g}': zwidth(after, w, 'z_rms_db') for w in frequencies},
         'hose_damping_error': error('plant.hose_damping'),
@@ -400,6 +401,8 @@ def goal_lines(goals: Dict[str, Any], nonlinear: bool) -> List[str]:
     """The goal figures as printed lines."""
     low = goals['omega']
     ratio = goals['peak'] / goals['peak_centre'] if goals['peak_centre'] else math.nan
+    away = goals.get('peak_away', math.nan) / goals['peak_centre'] if goals['peak_centre'] \
+        else math.nan
     widths = '; '.join(
         f'{w} rad/s {goals["zwidth_db"][w]:.1f} dB fundamental, {goals["zwidth_rms_db"][w]:.1f} '
         'dB rms' if math.isfinite(goals['zwidth_db'][w]) else
@@ -414,7 +417,9 @@ def goal_lines(goals: Dict[str, Any], nonlinear: bool) -> List[str]:
             f'{goals["z_rms_db"]:.1f} dB rms (distortion {100 * goals["distortion"]:.0f} %)',
             f'  Z-width: {widths}',
             f'  work loop of dob_full_ff at {low:g} rad/s: peak {goals["peak"]:.3g} N m over the '
-            f'stroke, {goals["peak_centre"]:.3g} N m within +-0.2 rad (ratio {ratio:.2f})',
+            f'stroke, {goals["peak_centre"]:.3g} N m within +-0.2 rad (ratio {ratio:.2f}); '
+            f'{goals.get("peak_away", math.nan):.3g} N m without the stroke\'s ends (within 0.9 '
+            f'of the half-stroke: the reversals left out; ratio {away:.2f})',
             f'  identified b_s {100 * goals["hose_damping_error"]:+.1f} %, k_e '
             f'{100 * goals["endpoint_stiffness_error"]:+.1f} % by the linear fit (against the '
             'sim\'s linear coefficients)',

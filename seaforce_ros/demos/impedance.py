@@ -219,6 +219,7 @@ def measure(window, omega, amplitude=None):
     area = abs(np.trapezoid(window['f_p'], window['x_e']))
     return {'figures': fig, 'z_db': fig.z_db, 'z_rms_db': fig.z_rms_db,
             'distortion': fig.distortion, 'peak': fig.peak, 'peak_centre': fig.peak_centre,
+            'peak_away': fig.peak_away,
             'fp_area': area}
 
 

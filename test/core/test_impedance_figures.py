@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from seaforce_ros.core.analysis import (CENTRE_BAND, HARMONICS, impedance_figures,
+from seaforce_ros.core.analysis import (AWAY_SHARE, CENTRE_BAND, HARMONICS, impedance_figures,
                                         impedance_from_position)
 
 DT = 5e-4
@@ -106,6 +106,11 @@ def test_work_loop_peaks_of_a_hardening_spring(seed):
     edge = k * CENTRE_BAND * (1 + rise * (CENTRE_BAND / 0.5) ** 2)
     assert edge * (1 - 5 * a_big * w * DT / CENTRE_BAND) <= fig.peak_centre <= edge
     assert fig.peak_ratio == pytest.approx(fig.peak / fig.peak_centre)
+    # the stroke without its ends: up to AWAY_SHARE of the half-stroke (within a sample)
+    reach = AWAY_SHARE * a_big
+    away = k * reach * (1 + rise * (reach / 0.5) ** 2)
+    assert away * (1 - 5 * a_big * w * DT / reach) <= fig.peak_away <= away
+    assert fig.away_ratio == pytest.approx(fig.peak_away / fig.peak_centre)
 
 
 def test_refuses_what_it_cannot_measure():
