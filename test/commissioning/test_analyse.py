@@ -248,3 +248,32 @@ def test_the_rollback_file_loads_one_value_at_a_time(tmp_path):
     for key, value in loaded.items():          # file order: ros2 param load's sets
         config = ControllerConfig.from_dict({key: value}, base=config)
     assert config == start
+
+
+def test_the_backdrives_simulate_the_hose_terms_the_record_showed_but_did_not_size():
+    from seaforce_ros.commissioning.analyse import prediction_terms
+    from seaforce_ros.commissioning.nonlinear_terms import EquationFit, NonlinearTerms, Term
+    from seaforce_ros.core.params import PlantTermsParams
+
+    def term(key, value, resolved):
+        return Term(key, 'port', key, 'N m/rad^2', value, 0.1 * value, resolved,
+                    '' if resolved else 'chosen, but the two halves of the record disagree')
+
+    def terms(chosen, *rows):
+        port = EquationFit('port', {}, 0.1, 0.05, list(chosen), 1000, 100)
+        return NonlinearTerms(list(rows), {'port': port})
+
+    model = PlantTermsParams(hose_flow=0.004)
+    # chosen and not resolved: simulated at its whole-record value; the controller's own kept
+    got = prediction_terms(model, terms(['hose_flow', 'hose_pressure'],
+                                        term('hose_flow', 0.004, True),
+                                        term('hose_pressure', 15.3, False)))
+    assert got == PlantTermsParams(hose_flow=0.004, hose_pressure=15.3)
+    # not chosen by the criterion, negative, or not finite: nothing added
+    for rows, chosen in (((term('hose_pressure', 15.3, False),), ['hose_flow']),
+                         ((term('hose_pressure', -2.0, False),), ['hose_pressure']),
+                         ((term('hose_pressure', math.nan, False),), ['hose_pressure'])):
+        assert prediction_terms(model, terms(chosen, term('hose_flow', 0.004, True),
+                                             *rows)) == model
+    # no terms at all (the model class stage did not run)
+    assert prediction_terms(model, None) == model
