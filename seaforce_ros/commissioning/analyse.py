@@ -81,7 +81,7 @@ __all__ = ["AnalysisRequest", "Analysis", "AnalysisError", "Prediction", "analys
            "analyse_directory", "zwidth_at", "identification_rows",
            "identify_stage", "model_class_stage", "loop_stage", "model_stage", "ControllerModel",
            "tune_stage", "predict_stage", "work_loop_stage", "torque_lines", "TORQUE_WARNING",
-           "prediction_terms",
+           "prediction_model",
            "report_stage", "write_stage", "WORK_LOOP_MODES", "WORK_LOOP_OMEGA",
            "WORK_LOOP_AMPLITUDE", "BACKDRIVE_SPEED", "backdrive_amplitude", "Backdrives", "REQUEST_FILE", "RECORD_FILE", "ROLLBACK_FILE", "HEADLINE_OMEGA",
            "main"]
@@ -556,7 +556,8 @@ class Backdrives:
     work_loops: List[WorkLoop]
     omega: Tuple[float, ...]
     figures: Dict[str, List[Optional[ImpedanceFigures]]]
-    #: per mode, the peak |F_a| [N m] of the recorded period at each frequency (None as above)
+    #: per mode, the peak |F_a| [N m] (the torque the simulated motor applied) over the
+    #: recorded period at each frequency (None as above)
     peak_torque: Dict[str, List[Optional[float]]] = field(default_factory=dict)
 
     def rms(self, mode: str) -> npt.NDArray[np.float64]:
@@ -575,7 +576,8 @@ def work_loop_stage(plant: PlantParams, dahl: Optional[DahlParams], config: Cont
     controller, the simulator's sensors and one sample of delay), each mode at each of
     ``omegas`` with :func:`backdrive_amplitude`, one period after one of settling: the
     impedance figures -- the rms prediction, which counts the harmonics the Dahl hysteresis
-    and the Coulomb friction give -- and the work loops of :data:`WORK_LOOP_MODES` at
+    and the Coulomb friction give --, the peak motor torque, and the work loops of
+    :data:`WORK_LOOP_MODES` at
     :data:`WORK_LOOP_OMEGA`. With the model's nonlinear ``terms`` the simulated gripper has
     them too (:func:`~seaforce_ros.core.nonlinear_effects.effects_of_terms`). A mode the
     simulation cannot run (its configuration refused) is left out."""
@@ -620,27 +622,37 @@ def work_loop_stage(plant: PlantParams, dahl: Optional[DahlParams], config: Cont
     return Backdrives(loops, tuple(float(w) for w in omegas), figures, torque)
 
 
-def prediction_terms(model: PlantTermsParams, terms: Optional[NonlinearTerms]
-                     ) -> PlantTermsParams:
-    """The nonlinear terms of the gripper the rms backdrives simulate: the controller's
-    model's, plus each hose term (flow, pressure) the port equation's criterion chose but the
-    record did not size well enough for the controller (not resolved: e.g. its halves
-    disagree), at its whole-record value. The controller leaves such a term out (its
-    observer would invert a hose that may not be there); the prediction of a backdrive that
-    reaches far beyond the excitation's forces -- hold's, 10 N m against the chirp's 1 --
-    misses the hose's stiffening without it (2 of 14 draws of the oracle's bench: hold's
-    rms |Z| at 1 rad/s 4.1 and 4.3 dB stiffer than predicted, 1.3 and 1.6 dB with the term)."""
+def prediction_model(plant: PlantParams, model: PlantTermsParams,
+                     terms: Optional[NonlinearTerms]) -> Tuple[PlantParams, PlantTermsParams]:
+    """The hose of the gripper the rms backdrives simulate: the controller's model's
+    (``plant``, ``model``), unless the port equation's criterion chose a hose term (flow,
+    pressure) that the record did not size well enough for the controller (not resolved:
+    e.g. its halves disagree). Then the port equation's fit with every term it chose: its
+    k_s, b_s and its hose terms, that one at its whole-record value (one fit: a term added
+    beside the k_s of another fit would count the stiffening that k_s took up twice). The
+    controller leaves such a term out (its observer would invert a hose that may not be
+    there); the prediction of a backdrive that reaches far beyond the excitation's forces --
+    hold's, 10 N m against the chirp's 1 -- misses the hose's stiffening without it (2 of 14
+    draws of the oracle's bench: hold's rms |Z| at 1 rad/s 4.1 and 4.3 dB stiffer than
+    predicted, 1.4 and 1.7 dB with the term)."""
     port = None if terms is None else terms.equations.get("port")
-    if port is None:
-        return model
-    extra = {}
-    for key in ("hose_flow", "hose_pressure"):
-        term = terms.term(key) if terms is not None else None
-        if (term is not None and key in port.chosen and not term.resolved
-                and getattr(model, key) == 0.0 and math.isfinite(term.value)
-                and term.value > 0.0):
-            extra[key] = term.value
-    return dataclasses.replace(model, **extra) if extra else model
+    if terms is None or port is None:
+        return plant, model
+    found = {t.key: t for t in terms.terms}
+    unsized = [k for k in ("hose_flow", "hose_pressure")
+               if k in port.chosen and k in found and not found[k].resolved
+               and getattr(model, k) == 0.0 and math.isfinite(found[k].value)
+               and found[k].value > 0.0]
+    ks = port.linear.get("hose_stiffness", (math.nan, 0.0))[0]
+    bs = port.linear.get("hose_damping", (math.nan, 0.0))[0]
+    if not unsized or not (ks > 0.0 and bs > 0.0):
+        return plant, model
+    values = {k: found[k].value for k in ("hose_flow", "hose_pressure")
+              if k in port.chosen and k in found and math.isfinite(found[k].value)
+              and found[k].value > 0.0}
+    return (dataclasses.replace(plant, hose_stiffness=ks, hose_damping=bs),
+            dataclasses.replace(model, hose_flow=values.get("hose_flow", 0.0),
+                                hose_pressure=values.get("hose_pressure", 0.0)))
 
 
 def torque_lines(backdrives: Backdrives, max_torque: float) -> List[str]:
@@ -665,7 +677,7 @@ def torque_lines(backdrives: Backdrives, max_torque: float) -> List[str]:
                     f"WARNING: {m}'s backdrive at {w:g} rad/s ({backdrive_amplitude(w):g} rad) "
                     f"is predicted to take {p:.3g} N m, {100 * p / max_torque:.0f} % of "
                     f"max_torque ({max_torque:g} N m; the finger ratio the model lacks adds up "
-                    "to 15 %): on the gripper that backdrive would latch the torque fault (zero "
+                    "to 15 %): on the gripper that backdrive may latch the torque fault (zero "
                     f"torque) and measure nothing; measure {m} there with a smaller amplitude, "
                     "or raise max_torque if the hardware allows it")
     return lines
@@ -888,17 +900,21 @@ def _summary(analysis: Analysis, request: AnalysisRequest) -> List[str]:
 
 
 def _unsized_words(analysis: Analysis) -> str:
-    """Words on the hose terms the backdrives simulate beyond the controller's model
-    (:func:`prediction_terms`)."""
+    """Words on the hose the backdrives simulate beyond the controller's model
+    (:func:`prediction_model`)."""
     if analysis.model is None:
         return ""
-    model = analysis.model.terms
-    extra = prediction_terms(model, analysis.terms)
-    words = [f"{key.replace('_', ' ')} {getattr(extra, key):.4g}"
-             for key in ("hose_flow", "hose_pressure")
-             if getattr(extra, key) != getattr(model, key)]
-    return (", and the hose's " + ", ".join(words) + " the record showed but did not size "
-            "(not in the controller's model)") if words else ""
+    plant, model = analysis.model.plant, analysis.model.terms
+    simulated, terms = prediction_model(plant, model, analysis.terms)
+    if terms == model:
+        return ""
+    words = [f"{label} {getattr(terms, key):.4g} {unit}" for key, label, unit in (
+        ("hose_flow", "flow term", "N m s^2/rad^2"),
+        ("hose_pressure", "pressure term", "N m/rad^2")) if getattr(terms, key)]
+    return (", and the hose of the port equation's fit with every term it chose (k_s "
+            f"{simulated.hose_stiffness:.4g} N m/rad, b_s {simulated.hose_damping:.4g} N m s/rad, "
+            + ", ".join(words) + "): the record showed a term it did not size, which the "
+            "controller's model leaves out")
 
 
 def _margin_line(t: TuningResult) -> str:
@@ -966,10 +982,11 @@ def analyse(record: ExcitationRecord, request: AnalysisRequest,
         coulomb = 0.0
         if analysis.terms is not None and analysis.terms.term("motor_coulomb").resolved:
             coulomb = analysis.terms.term("motor_coulomb").value
-        analysis.backdrives = work_loop_stage(model.plant, model.dahl, tuning.config,
+        simulated, simulated_terms = prediction_model(model.plant, model.terms,
+                                                      analysis.terms)
+        analysis.backdrives = work_loop_stage(simulated, model.dahl, tuning.config,
                                               motor_coulomb=coulomb, progress=say,
-                                              terms=prediction_terms(model.terms,
-                                                                     analysis.terms))
+                                              terms=simulated_terms)
         analysis.work_loops = analysis.backdrives.work_loops
         lap("predict")
         analysis.band = prediction.band

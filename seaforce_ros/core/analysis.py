@@ -232,16 +232,16 @@ class ImpedanceFigures(NamedTuple):
     peak_centre : float
         Largest |F_e| within ``centre_band`` of the stroke's centre [N m] (NaN when the
         stroke never comes there).
-    peak_away : float
-        Largest |F_e| beyond ``centre_band`` and within :data:`AWAY_SHARE` of the stroke's
-        half-width from its centre [N m]: the stroke without its ends, where the drive
-        reverses and the Dahl force re-sticks (NaN when that part is empty).
     amplitude : float
         Amplitude of the fundamental of X_e [rad].
     centre_band : float
         The band's half-width [rad].
     periods : int
         Whole periods the figures are taken over.
+    peak_away : float
+        Largest |F_e| within :data:`AWAY_SHARE` of the stroke's half-width from its centre
+        [N m]: the stroke without its ends, where the drive reverses and the Dahl force
+        re-sticks (``peak_centre <= peak_away <= peak``).
     """
 
     omega: float
@@ -311,7 +311,8 @@ def impedance_figures(f_e: npt.ArrayLike, x_e: npt.ArrayLike, omega: float, dt: 
     record): the Fourier coefficients of F_e at ``k omega`` (k = 1 .. :data:`HARMONICS`), the
     rms of F_e about its mean, the rms of V_e = X_e' summed over the first harmonics of X_e
     (robust to the encoder's quantum; exact for a drive's smooth path), the peaks of |F_e|
-    over the stroke and within ``centre_band`` of its centre ((max + min)/2 of X_e).
+    over the stroke, within ``centre_band`` of its centre ((max + min)/2 of X_e) and within
+    :data:`AWAY_SHARE` of its half-width (the stroke without its ends).
 
     Parameters
     ----------
@@ -366,9 +367,8 @@ def impedance_figures(f_e: npt.ArrayLike, x_e: npt.ArrayLike, omega: float, dt: 
     centre = 0.5 * (float(xw.max()) + float(xw.min()))
     inside = np.abs(xw - centre) <= centre_band
     peak_centre = float(np.max(np.abs(fw[inside]))) if inside.any() else math.nan
-    reach = np.abs(xw - centre)
-    away = (reach > centre_band) & (reach <= AWAY_SHARE * 0.5 * float(xw.max() - xw.min()))
-    peak_away = float(np.max(np.abs(fw[away]))) if away.any() else math.nan
+    away = np.abs(xw - centre) <= AWAY_SHARE * 0.5 * float(xw.max() - xw.min())
+    peak_away = float(np.max(np.abs(fw[away])))
     return ImpedanceFigures(float(omega), z, rms_f / rms_v if rms_v > 0 else math.inf,
                             tuple(float(a) for a in np.abs(cf)), distortion,
                             float(np.max(np.abs(fw))), peak_centre, float(abs(cx[0])),

@@ -32,7 +32,7 @@ from typing import (TYPE_CHECKING, Any, Callable, Dict, List, Mapping, Optional,
 import numpy as np
 import numpy.typing as npt
 
-from ..core.analysis import ImpedanceFigures, impedance_figures
+from ..core.analysis import AWAY_SHARE, ImpedanceFigures, impedance_figures
 from ..core.params import ControllerConfig
 from .errors import IdentificationError
 from .experiments import work_loop_experiment
@@ -175,8 +175,9 @@ def figure_lines(label: str, fig: ImpedanceFigures) -> str:
     return (f"{label}: |Z| {fig.z_db:.2f} dB fundamental, {fig.z_rms_db:.2f} dB rms "
             f"(distortion {100 * fig.distortion:.0f} %; harmonics 1-{len(fig.harmonics)} of "
             f"F_e {harm} mN m); peak |F_e| {fig.peak:.4g} N m over the stroke, "
-            f"{fig.peak_centre:.4g} within +-{fig.centre_band:g} rad ({fig.peak_ratio:.2f}x), "
-            f"{fig.peak_away:.4g} without the stroke's ends ({fig.away_ratio:.2f}x)")
+            f"{fig.peak_centre:.4g} within +-{fig.centre_band:g} rad ({fig.peak_ratio:.2f}x)"
+            + (f", {fig.peak_away:.4g} without the stroke's ends ({fig.away_ratio:.2f}x)"
+               if fig.amplitude > fig.centre_band / AWAY_SHARE else ""))
 
 
 def zwidth(z_hold: npt.ArrayLike, z_min: npt.ArrayLike) -> npt.NDArray[np.float64]:

@@ -6,6 +6,7 @@ rollback file holding exactly the values it replaces; the result is JSON with na
 new values in step; a dry run writes no params; the second run reports the drift against the
 first; a run directory with a missing, malformed or wrong request ends with one error line and
 exit status 1, never a traceback."""
+import dataclasses
 import io
 import json
 import math
@@ -251,7 +252,7 @@ def test_the_rollback_file_loads_one_value_at_a_time(tmp_path):
 
 
 def test_the_backdrives_simulate_the_hose_terms_the_record_showed_but_did_not_size():
-    from seaforce_ros.commissioning.analyse import prediction_terms
+    from seaforce_ros.commissioning.analyse import prediction_model
     from seaforce_ros.commissioning.nonlinear_terms import EquationFit, NonlinearTerms, Term
     from seaforce_ros.core.params import PlantTermsParams
 
@@ -260,20 +261,27 @@ def test_the_backdrives_simulate_the_hose_terms_the_record_showed_but_did_not_si
                     '' if resolved else 'chosen, but the two halves of the record disagree')
 
     def terms(chosen, *rows):
-        port = EquationFit('port', {}, 0.1, 0.05, list(chosen), 1000, 100)
+        # the port equation's fit with every chosen term: its own k_s and b_s
+        port = EquationFit('port', {'hose_stiffness': (12.0, 0.1), 'hose_damping': (0.006, 1e-5)},
+                           0.1, 0.05, list(chosen), 1000, 100)
         return NonlinearTerms(list(rows), {'port': port})
 
+    plant = TRUE
     model = PlantTermsParams(hose_flow=0.004)
-    # chosen and not resolved: simulated at its whole-record value; the controller's own kept
-    got = prediction_terms(model, terms(['hose_flow', 'hose_pressure'],
-                                        term('hose_flow', 0.004, True),
-                                        term('hose_pressure', 15.3, False)))
-    assert got == PlantTermsParams(hose_flow=0.004, hose_pressure=15.3)
-    # not chosen by the criterion, negative, or not finite: nothing added
+    # chosen and not resolved: the whole fit's hose (k_s, b_s and every chosen hose term at
+    # its whole-record value), not a term beside the other fit's k_s
+    got_plant, got = prediction_model(plant, model, terms(
+        ['hose_flow', 'hose_pressure'], term('hose_flow', 0.0041, True),
+        term('hose_pressure', 15.3, False)))
+    assert got == PlantTermsParams(hose_flow=0.0041, hose_pressure=15.3)
+    assert got_plant == dataclasses.replace(plant, hose_stiffness=12.0, hose_damping=0.006)
+    # nothing unsized (not chosen by the criterion, negative, not finite, or resolved and in
+    # the controller's model already): the controller's model as it is
     for rows, chosen in (((term('hose_pressure', 15.3, False),), ['hose_flow']),
                          ((term('hose_pressure', -2.0, False),), ['hose_pressure']),
-                         ((term('hose_pressure', math.nan, False),), ['hose_pressure'])):
-        assert prediction_terms(model, terms(chosen, term('hose_flow', 0.004, True),
-                                             *rows)) == model
+                         ((term('hose_pressure', math.nan, False),), ['hose_pressure']),
+                         ((), ['hose_flow'])):
+        assert prediction_model(plant, model, terms(chosen, term('hose_flow', 0.0041, True),
+                                                    *rows)) == (plant, model)
     # no terms at all (the model class stage did not run)
-    assert prediction_terms(model, None) == model
+    assert prediction_model(plant, model, None) == (plant, model)

@@ -110,6 +110,7 @@ def test_work_loop_peaks_of_a_hardening_spring(seed):
     reach = AWAY_SHARE * a_big
     away = k * reach * (1 + rise * (reach / 0.5) ** 2)
     assert away * (1 - 5 * a_big * w * DT / reach) <= fig.peak_away <= away
+    assert fig.peak_centre <= fig.peak_away <= fig.peak
     assert fig.away_ratio == pytest.approx(fig.peak_away / fig.peak_centre)
 
 

@@ -91,6 +91,8 @@ RANGES = {"hose_flow": (1.0, 3.0), "hose_pressure": (0.1, 0.4),
 #: Largest ``h sigma |X_e'| / F_c`` of an RK4 substep h (module docstring: the Dahl state's
 #: stiffness; RK4 is stable to 2.8 on the negative real axis).
 DAHL_STEP = 1.0
+#: More substeps than this per sample (an endpoint at about 10,000 rad/s): the run diverged.
+MAX_SUBSTEPS = 1000
 #: Cogging periods per revolution drawn from (slots x poles of common direct-drive motors).
 COGGING_PERIODS = (24, 36, 42, 48, 56, 72, 84)
 EFFECTS = tuple(RANGES)
@@ -376,7 +378,12 @@ class NonlinearGripper:
         substeps = self.substeps
         if self.dahl:       # the Dahl state's stiffness (module docstring)
             rate = 2.0 * abs(y[3]) * self.dahl["sigma"] / self.dahl["coulomb_force"]
-            substeps = max(substeps, math.ceil(self.dt * rate / DAHL_STEP))
+            needed = self.dt * rate / DAHL_STEP
+            if not needed <= MAX_SUBSTEPS:
+                raise FloatingPointError(
+                    f"the oracle's endpoint speed {y[3]!r} rad/s needs more than "
+                    f"{MAX_SUBSTEPS} substeps per sample: the simulation diverged")
+            substeps = max(substeps, math.ceil(needed))
         h = self.dt / substeps
         t = self.t
         f = self.forces
