@@ -65,6 +65,27 @@ Contact test
     :data:`CONTACT_MOTION` each side (above about 100 Hz: an object the finger cannot reach
     there).
 
+The centring move
+    A finger left away from its rest (``feedforward.rest_position``, where the diaphragm's
+    spring is relaxed) is held there by its Dahl friction -- up to F_c/k_e, about 0.3 rad on
+    these plants -- and the chirp would free it: it drifts home during the record, which the
+    excitation did not cause (measured on the oracle's linear class: 0.1 rad off doubled the
+    port misfit and flagged the model class; 0.2 rad off aborted on a false contact). So a
+    start more than :data:`CENTRE_TOLERANCE` from rest first moves the motor there: a
+    raised-cosine path at most :data:`CENTRE_SPEED` fast, tracked by a servo of
+    :data:`CENTRE_STIFFNESS` and :data:`CENTRE_DAMPING` (stiff enough to carry the finger
+    through its friction within a few 10 mrad, far below any finger's own impedance). At rest
+    the move leaves the Dahl force at F_c against its direction, which the servo's torque
+    holds; handed to the weak servo as its F_0, that torque would push the finger off rest
+    as soon as the chirp relaxes the friction (measured: 0.1 rad off, moved to rest, the port
+    misfit as high as not moved). So the move ends with a dither about rest whose amplitude
+    falls from :data:`CENTRE_DITHER` to 0 over :data:`CENTRE_DITHER_CYCLES` cycles at
+    :data:`CENTRE_DITHER_FREQUENCY` -- a hysteresis cycled down to nothing keeps nothing --
+    then :data:`CENTRE_SETTLE` at rest; the weak servo takes over bumplessly (its x_0 and F_0
+    where the move ended) and the rest phase and the chirp follow as above. Nothing of the
+    move is recorded. It aborts when the finger falls :data:`CENTRE_ERROR` behind its path (an
+    object or a hand in the way) or rest lies outside ``position_min..position_max``.
+
 Aborts (zero torque from that sample on, ``aborted`` with the reason): a contact (above); X
 leaves ``position_min..position_max`` or ``|V|`` exceeds ``max_speed`` (the amplitude law
 keeps them near 60 %: beyond is a blocked, loose or misidentified finger); the start outside
@@ -98,7 +119,9 @@ __all__ = ["ExcitationGoal", "FreeAirExcitation", "check_excitation_goal",
            "nominal_amplitude", "EXCITATION_PHASES", "TARGET", "LOW_TARGET", "FADE_RATIO",
            "MIN_FADE", "CONTACT_PERIODS", "CONTACT_STIFFNESS", "CONTACT_RATIO",
            "CONTACT_MOTION",
-           "UP_RATE", "DOWN_RATE", "GAIN_RANGE"]
+           "UP_RATE", "DOWN_RATE", "GAIN_RANGE", "CENTRE_TOLERANCE", "CENTRE_SPEED",
+           "CENTRE_STIFFNESS", "CENTRE_DAMPING", "CENTRE_DITHER", "CENTRE_DITHER_FREQUENCY",
+           "CENTRE_DITHER_CYCLES", "CENTRE_SETTLE", "CENTRE_ERROR"]
 
 #: Phases of an excitation, in order.
 EXCITATION_PHASES = ("rest", "excite", "done")
@@ -126,6 +149,24 @@ UP_RATE = 0.05
 DOWN_RATE = 10.0
 #: Bounds of the online correction g of the model's amplitude law.
 GAIN_RANGE = (0.1, 4.0)
+#: A start farther than this from ``feedforward.rest_position`` [rad] is moved there first
+#: (module docstring: the centring move).
+CENTRE_TOLERANCE = 0.02
+#: The centring move's peak speed [rad/s].
+CENTRE_SPEED = 0.2
+#: ... its servo's stiffness [N m/rad] and damping [N m s/rad] (a 10 Hz motor loop on Table
+#: I's m; the friction it carries, up to about 0.15 N m, leaves 30 mrad of lag) ...
+CENTRE_STIFFNESS = 5.0
+CENTRE_DAMPING = 0.08
+#: ... the dither that ends it: its first amplitude [rad] (beyond every finger's
+#: pre-sliding range F_c/sigma, 0.6-10 mrad), its frequency [Hz] and its cycles ...
+CENTRE_DITHER = 0.02
+CENTRE_DITHER_FREQUENCY = 3.0
+CENTRE_DITHER_CYCLES = 8
+#: ... the time it then holds the finger at rest [s] ...
+CENTRE_SETTLE = 0.3
+#: ... and the lag behind its path [rad] at which it aborts (something holds the finger).
+CENTRE_ERROR = 0.1
 #: Points per decade of the amplitude law's table.
 _TABLE_DENSITY = 50
 #: Frequency window either side over which the model's largest motion is taken.
@@ -314,6 +355,7 @@ class FreeAirExcitation(Job):
         self._limit = min(c.max_torque, config.max_torque)
         self._kp, self._kd = c.stiffness, c.damping
         self._rest = c.rest_duration
+        self._rest_position = config.feedforward.rest_position
         self._rate = math.log(f1 / f0) / duration
         self._fade = math.log(FADE_RATIO) / self._rate
         self._end = self._rest + duration
@@ -363,6 +405,10 @@ class FreeAirExcitation(Job):
         self.contact_level = 0.0
         self._log_gain = 0.0
         self._cancel: str | None = None
+        # the centring move (module docstring): its path from, to, its duration and clock [s]
+        self.centring = False
+        self._move = (0.0, 0.0, 0.0)
+        self._move_t = 0.0
 
     # --- requests and the end (the rest is the job's: :class:`~..core.jobs.Job`) ------------
     def request_cancel(self, reason: str = "canceled") -> None:
@@ -433,13 +479,15 @@ class FreeAirExcitation(Job):
         if self._cancel is not None:
             self._finish("canceled", self._cancel + ": zero torque")
             return 0.0
-        if self._x0 != self._x0:        # NaN: the first sample
+        if self._x0 != self._x0 and not self.centring:      # NaN: the first sample
             reason = self._start(x, u_prev)
             if reason:
                 return self._abort(reason)
         reason = self._check(x, v)
         if reason:
             return self._abort(reason)
+        if self.centring:
+            return self._centre(x, v, u_prev, steps)
         excitation = self._excitation(x, v, f_p, steps)
         u = self._bias + excitation - self._kp * (x - self._x0) - self._kd * v
         limit = self._limit
@@ -493,8 +541,8 @@ class FreeAirExcitation(Job):
         return u
 
     def _start(self, x: float, u_prev: float) -> str:
-        """The first sample: x_0, the entry torque and the amplitude law's table; the reason
-        not to start, or ''."""
+        """The first sample: the centring move if the finger is away from rest, else
+        :meth:`_begin`; the reason not to start, or ''."""
         c = self.params
         lo, hi = c.position_min, c.position_max
         if not lo < x < hi:
@@ -504,6 +552,30 @@ class FreeAirExcitation(Job):
         if abs(u_prev) > 0.5 * limit:
             return (f"the channel holds {u_prev:.3g} N m, more than half the excitation's "
                     f"bound {limit:g} N m: start from passive or a lighter hold")
+        rest = self._rest_position
+        if abs(x - rest) <= CENTRE_TOLERANCE:
+            return self._begin(x, u_prev)
+        if not lo < rest < hi:
+            return (f"the finger's rest feedforward.rest_position = {rest:g} rad is outside "
+                    f"the joint range {lo:g}..{hi:g} rad: set the rest where the finger's "
+                    "spring is relaxed")
+        self.centring = True
+        self._bias = u_prev
+        self._move = (x, rest, 0.5 * math.pi * abs(rest - x) / CENTRE_SPEED)
+        self._move_t = 0.0
+        self.message = f"centring: moving the finger from {x:.3g} rad to its rest {rest:g} rad"
+        return ""
+
+    def _begin(self, x: float, u_prev: float) -> str:
+        """x_0, the entry torque and the amplitude law's table, at ``x`` [rad] with the
+        channel's last torque ``u_prev`` [N m]; the reason not to go on, or ''."""
+        c = self.params
+        lo, hi = c.position_min, c.position_max
+        limit = self._limit
+        if abs(u_prev) > 0.5 * limit:
+            return (f"the channel holds {u_prev:.3g} N m at rest, more than half the "
+                    f"excitation's bound {limit:g} N m: the motor's spring is loaded there "
+                    "(is feedforward.rest_position the finger's rest?)")
         self._x0 = self._centre_x = x
         self._bias = u_prev
         self._room = min(x - lo, hi - x)
@@ -512,6 +584,39 @@ class FreeAirExcitation(Job):
         self._table = [min(room * p, s, cap) for p, s in zip(self._per_room, self._for_speed)]
         self.message = "resting"
         return ""
+
+    def _centre(self, x: float, v: float, u_prev: float, steps: int) -> float:
+        """One sample of the centring move (module docstring): F_a [N m], nothing recorded."""
+        start, rest, duration = self._move
+        t = self._move_t
+        self._move_t = t + self.dt * steps
+        dither = CENTRE_DITHER_CYCLES / CENTRE_DITHER_FREQUENCY
+        if t < duration:
+            phase = math.pi * t / duration
+            ref = start + (rest - start) * 0.5 * (1.0 - math.cos(phase))
+            speed = (rest - start) * 0.5 * math.pi / duration * math.sin(phase)
+        elif t < duration + dither:
+            tau = t - duration
+            w = 2.0 * math.pi * CENTRE_DITHER_FREQUENCY
+            a = CENTRE_DITHER * (1.0 - tau / dither)
+            ref = rest + a * math.sin(w * tau)
+            speed = a * w * math.cos(w * tau) - CENTRE_DITHER / dither * math.sin(w * tau)
+        else:
+            ref, speed = rest, 0.0
+        if abs(x - ref) > CENTRE_ERROR:
+            return self._abort(
+                f"centring: the finger at {x:.4g} rad fell {abs(x - ref):.3g} rad behind its "
+                f"path to rest ({rest:g} rad): something holds it; free the finger")
+        u = self._bias - CENTRE_STIFFNESS * (x - ref) - CENTRE_DAMPING * (v - speed)
+        limit = self._limit
+        u = limit if u > limit else (-limit if u < -limit else u)
+        if t >= duration + dither + CENTRE_SETTLE:
+            self.centring = False       # the weak servo takes over where the move ended
+            reason = self._begin(x, u)
+            if reason:
+                return self._abort(reason)
+        self.progress = 0.0
+        return u
 
     def _check(self, x: float, v: float) -> str:
         """The hard limits: the reason to abort, or ''."""
