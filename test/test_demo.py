@@ -185,6 +185,9 @@ def test_commission_demo_identifies_tunes_and_predicts_what_it_measures(demos):
     where = f'seed {SEED}:\n{text}'
     for mode in COMMISSION_MODES:
         assert re.search(rf'^{mode}\s+[13] \|', text, re.M), where
+    # every mode held at every frequency: each entered as the drive passes its centre (hold's
+    # set point there), each new drive installed as the finger passes it upwards (no step)
+    assert 'UNSTABLE' not in text and 'NOT HELD' not in text, where
     assert (out / 'zwidth_commission.png').read_bytes()[:8] == PNG
     results = json.loads((out / 'results.json').read_text())
     goals = {'motor_inertia': 0.05, 'endpoint_inertia': 0.05, 'hose_stiffness': 0.05,

@@ -105,6 +105,9 @@ def measure_modes(observer, children, modes: Sequence[str], frequencies: Sequenc
     for omega in frequencies:
         a = amplitude(omega)
         observer.set_mode('passive')        # the drive changes under the softest mode
+        # ... as the finger passes the centre upwards, where the new sine starts: no step of
+        # the set point (a drive that is running; none yet: the finger rests there)
+        observer.wait_crossing(children, 0.0, timeout=10.0, rising=True, required=False)
         # atomically: one set at a time would install the drive three times, each restarting
         # its sine at 0 (a step of the set point) and the first with the old amplitude
         set_parameters(node, '/sim', {f'{CHANNEL}.environment.mode': 'position_sine',
@@ -114,7 +117,8 @@ def measure_modes(observer, children, modes: Sequence[str], frequencies: Sequenc
         period = int(math.ceil(2.0 * math.pi / omega / DT)) + 1
         for mode in modes:
             for attempt in range(1, ATTEMPTS + 1):
-                first = observer.enter_mode(mode, children, 30.0) + int(round(SETTLE / DT))
+                first = observer.enter_mode(mode, children, 30.0, centre=0.0) \
+                    + int(round(SETTLE / DT))
                 last = first + period - 1
                 observer.wait_cycle(children, last)
                 window = observer.window(first, last)

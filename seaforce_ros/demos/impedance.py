@@ -152,18 +152,53 @@ class Observer:
             cycles = [c for c, m in self.modes.items() if m == mode and c > after]
         return min(cycles) if cycles else None
 
-    def enter_mode(self, mode, children, timeout=20.0):
+    def enter_mode(self, mode, children, timeout=20.0, centre=None):
         """Set ``mode`` through ``passive`` (RELEASE s of it) and return the first status cycle
         in it: a switch straight from ``hold`` to a DOB mode releases the hose's deflection
         at once, and the runaway monitor takes the motor's slam (30-45 rad/s measured) for
-        a finger driven away."""
+        a finger driven away. With ``centre`` [rad] (a drive's centre), the mode is set as
+        the driven finger crosses it (:meth:`wait_crossing`)."""
         before = self.latest_cycle() or 0
         self.set_mode('passive')
         self.wait_cycle(children, self.wait_mode('passive', before, children, timeout)
                         + int(round(RELEASE / DT)))
+        if centre is not None:
+            self.wait_crossing(children, centre, timeout)
         before = self.latest_cycle()
         self.set_mode(mode)
         return self.wait_mode(mode, before, children, timeout)
+
+    def wait_crossing(self, children, centre, timeout=20.0, rising=False, required=True):
+        """Until the finger's endpoint position crosses ``centre`` [rad] (upwards only with
+        ``rising``) in the states that arrive from now on; True once it did, False after
+        ``timeout`` s when not ``required`` (RuntimeError when it is). ``hold`` captures its
+        set point where it is entered: entered at a drive's stroke end instead of its
+        centre, its deflection -- and its torque -- reach twice what the drive's amplitude
+        gives (the nonlinear commissioning demo's tuned hold hit its 20 N m max_torque so at
+        0.5 rad, 1 rad/s, where 9-10 N m was predicted); and a drive installed anew restarts
+        its sine at the centre, rising: at a stroke's end that is a step of the set point
+        (the sim latched an overspeed fault, -101 rad/s, at the demo's switch to 3 rad/s)."""
+        with self.states_lock:
+            self._drain()
+            seen = [len(self.states)]
+
+        def crossed():
+            with self.states_lock:
+                self._drain()
+                rows = self.states[max(seen[0] - 1, 0):]
+                seen[0] = len(self.states)
+            sides = [r[4] > centre for r in rows if math.isfinite(r[4])]
+            return any((b and not a) if rising else (a != b)
+                       for a, b in zip(sides, sides[1:]))
+        try:
+            wait_until(children, crossed, timeout, f'the finger crossing {centre:g} rad',
+                       poll=0.01)
+        except RuntimeError:
+            children.check()
+            if required:
+                raise
+            return False
+        return True
 
     def set_mode(self, mode, timeout=SERVICE_TIMEOUT):
         from rclpy.parameter import Parameter
@@ -306,7 +341,7 @@ def main(argv=None):
         results = {}
         settle = int(round(1.0 / DT))
         for mode in MODES:
-            first = observer.enter_mode(mode, children) + settle
+            first = observer.enter_mode(mode, children, centre=0.0) + settle
             for attempt in range(1, ATTEMPTS + 1):
                 last = first + args.periods * period_cycles - 1
                 print(f'[demo] {mode:14s} measuring cycles {first}..{last} '
