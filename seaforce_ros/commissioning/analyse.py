@@ -622,37 +622,60 @@ def work_loop_stage(plant: PlantParams, dahl: Optional[DahlParams], config: Cont
     return Backdrives(loops, tuple(float(w) for w in omegas), figures, torque)
 
 
+def _unsized(terms: NonlinearTerms, equation: str, keys: Sequence[str],
+             model: PlantTermsParams) -> Optional[Dict[str, float]]:
+    """The values of ``keys`` the ``equation``'s criterion chose (its whole-record fit) when
+    one of them the record did not size (not resolved) is missing from ``model``; None when
+    there is none or the fit's values are not usable."""
+    eq = terms.equations.get(equation)
+    if eq is None:
+        return None
+    found = {t.key: t for t in terms.terms}
+    chosen = {k: found[k].value for k in keys
+              if k in eq.chosen and k in found and math.isfinite(found[k].value)}
+    unsized = [k for k in chosen if not found[k].resolved and getattr(model, k) == 0.0]
+    return chosen if unsized else None
+
+
 def prediction_model(plant: PlantParams, model: PlantTermsParams,
                      terms: Optional[NonlinearTerms]) -> Tuple[PlantParams, PlantTermsParams]:
-    """The hose of the gripper the rms backdrives simulate: the controller's model's
-    (``plant``, ``model``), unless the port equation's criterion chose a hose term (flow,
-    pressure) that the record did not size well enough for the controller (not resolved:
-    e.g. its halves disagree). Then the port equation's fit with every term it chose: its
-    k_s, b_s and its hose terms, that one at its whole-record value (one fit: a term added
-    beside the k_s of another fit would count the stiffening that k_s took up twice). The
-    controller leaves such a term out (its observer would invert a hose that may not be
-    there); the prediction of a backdrive that reaches far beyond the excitation's forces --
-    hold's, 10 N m against the chirp's 1 -- misses the hose's stiffening without it (2 of 14
-    draws of the oracle's bench: hold's rms |Z| at 1 rad/s 4.1 and 4.3 dB stiffer than
-    predicted, 1.4 and 1.7 dB with the term)."""
-    port = None if terms is None else terms.equations.get("port")
-    if terms is None or port is None:
+    """The gripper the rms backdrives simulate: the controller's model (``plant``,
+    ``model``), unless an equation's criterion chose a term the record did not size well
+    enough for the controller (not resolved: e.g. its halves disagree). Then that equation's
+    fit with every term it chose stands for its part of the gripper, that term at its
+    whole-record value: the port's k_s, b_s and hose terms (flow, pressure), the endpoint's
+    b_e, k_e and stroke terms (k_3 > 0, k_2 within ``k_2^2 <= 3 k_e k_3`` as the controller's
+    model has them) -- one fit each: a term beside another fit's coefficients would count
+    twice what they took up. The controller leaves such a term out (it would compensate a
+    force that may not be there); without it the predictions miss: a backdrive that reaches
+    far beyond the excitation's forces -- hold's, 10 N m against the chirp's 1 -- misses the
+    hose's stiffening (2 of 14 draws of the oracle's bench: hold's rms |Z| at 1 rad/s 4.1 and
+    4.3 dB stiffer than predicted, 1.4 and 1.7 dB with the term), and ``dob_full_ff`` the
+    stroke stiffening its feed-forward lacks (seed 2 of the nonlinear commission demo: 4.5
+    dB)."""
+    if terms is None:
         return plant, model
-    found = {t.key: t for t in terms.terms}
-    unsized = [k for k in ("hose_flow", "hose_pressure")
-               if k in port.chosen and k in found and not found[k].resolved
-               and getattr(model, k) == 0.0 and math.isfinite(found[k].value)
-               and found[k].value > 0.0]
-    ks = port.linear.get("hose_stiffness", (math.nan, 0.0))[0]
-    bs = port.linear.get("hose_damping", (math.nan, 0.0))[0]
-    if not unsized or not (ks > 0.0 and bs > 0.0):
-        return plant, model
-    values = {k: found[k].value for k in ("hose_flow", "hose_pressure")
-              if k in port.chosen and k in found and math.isfinite(found[k].value)
-              and found[k].value > 0.0}
-    return (dataclasses.replace(plant, hose_stiffness=ks, hose_damping=bs),
-            dataclasses.replace(model, hose_flow=values.get("hose_flow", 0.0),
-                                hose_pressure=values.get("hose_pressure", 0.0)))
+    hose = _unsized(terms, "port", ("hose_flow", "hose_pressure"), model)
+    if hose is not None:
+        port = terms.equations["port"]
+        ks = port.linear.get("hose_stiffness", (math.nan, 0.0))[0]
+        bs = port.linear.get("hose_damping", (math.nan, 0.0))[0]
+        if ks > 0.0 and bs > 0.0 and all(v > 0.0 for v in hose.values()):
+            plant = dataclasses.replace(plant, hose_stiffness=ks, hose_damping=bs)
+            model = dataclasses.replace(model, hose_flow=hose.get("hose_flow", 0.0),
+                                        hose_pressure=hose.get("hose_pressure", 0.0))
+    stroke = _unsized(terms, "endpoint", ("stroke_asymmetry", "stroke_stiffness"), model)
+    if stroke is not None and stroke.get("stroke_stiffness", 0.0) > 0.0:
+        end = terms.equations["endpoint"]
+        be = end.linear.get("endpoint_damping", (math.nan, 0.0))[0]
+        ke = end.linear.get("endpoint_stiffness", (math.nan, 0.0))[0]
+        if be > 0.0 and ke > 0.0:
+            k3 = stroke["stroke_stiffness"]
+            k2 = stroke.get("stroke_asymmetry", 0.0)
+            k2 = math.copysign(min(abs(k2), math.sqrt(3.0 * ke * k3)), k2)
+            plant = dataclasses.replace(plant, endpoint_damping=be, endpoint_stiffness=ke)
+            model = dataclasses.replace(model, stroke_asymmetry=k2, stroke_stiffness=k3)
+    return plant, model
 
 
 def torque_lines(backdrives: Backdrives, max_torque: float) -> List[str]:
@@ -900,21 +923,21 @@ def _summary(analysis: Analysis, request: AnalysisRequest) -> List[str]:
 
 
 def _unsized_words(analysis: Analysis) -> str:
-    """Words on the hose the backdrives simulate beyond the controller's model
+    """Words on the terms the backdrives simulate beyond the controller's model
     (:func:`prediction_model`)."""
     if analysis.model is None:
         return ""
-    plant, model = analysis.model.plant, analysis.model.terms
-    simulated, terms = prediction_model(plant, model, analysis.terms)
-    if terms == model:
-        return ""
+    model = analysis.model.terms
+    _, terms = prediction_model(analysis.model.plant, model, analysis.terms)
     words = [f"{label} {getattr(terms, key):.4g} {unit}" for key, label, unit in (
-        ("hose_flow", "flow term", "N m s^2/rad^2"),
-        ("hose_pressure", "pressure term", "N m/rad^2")) if getattr(terms, key)]
-    return (", and the hose of the port equation's fit with every term it chose (k_s "
-            f"{simulated.hose_stiffness:.4g} N m/rad, b_s {simulated.hose_damping:.4g} N m s/rad, "
-            + ", ".join(words) + "): the record showed a term it did not size, which the "
-            "controller's model leaves out")
+        ("hose_flow", "the hose's flow term", "N m s^2/rad^2"),
+        ("hose_pressure", "the hose's pressure term", "N m/rad^2"),
+        ("stroke_asymmetry", "the diaphragm's k_2", "N m/rad^2"),
+        ("stroke_stiffness", "the diaphragm's k_3", "N m/rad^3"))
+        if getattr(terms, key) != getattr(model, key)]
+    return ((", and " + ", ".join(words) + " (the record showed these terms without sizing "
+             "them: the controller's model leaves them out; each with its equation's fit of "
+             "every chosen term)") if words else "")
 
 
 def _margin_line(t: TuningResult) -> str:

@@ -261,10 +261,13 @@ def test_the_backdrives_simulate_the_hose_terms_the_record_showed_but_did_not_si
                     '' if resolved else 'chosen, but the two halves of the record disagree')
 
     def terms(chosen, *rows):
-        # the port equation's fit with every chosen term: its own k_s and b_s
+        # each equation's fit with every chosen term: its own k_s, b_s; b_e, k_e
         port = EquationFit('port', {'hose_stiffness': (12.0, 0.1), 'hose_damping': (0.006, 1e-5)},
-                           0.1, 0.05, list(chosen), 1000, 100)
-        return NonlinearTerms(list(rows), {'port': port})
+                           0.1, 0.05, [k for k in chosen if k.startswith('hose')], 1000, 100)
+        end = EquationFit('endpoint', {'endpoint_damping': (0.05, 1e-3),
+                                       'endpoint_stiffness': (0.07, 1e-3)},
+                          0.1, 0.05, [k for k in chosen if k.startswith('stroke')], 1000, 100)
+        return NonlinearTerms(list(rows), {'port': port, 'endpoint': end})
 
     plant = TRUE
     model = PlantTermsParams(hose_flow=0.004)
@@ -285,3 +288,15 @@ def test_the_backdrives_simulate_the_hose_terms_the_record_showed_but_did_not_si
                                                     *rows)) == (plant, model)
     # no terms at all (the model class stage did not run)
     assert prediction_model(plant, model, None) == (plant, model)
+    # the diaphragm's stroke stiffening chosen, not sized: the endpoint equation's whole fit
+    # (b_e, k_e, k_3 and k_2 within k_2^2 <= 3 k_e k_3); a k_2 alone is left out
+    got_plant, got = prediction_model(plant, model, terms(
+        ['stroke_asymmetry', 'stroke_stiffness'], term('stroke_asymmetry', 0.5, False),
+        term('stroke_stiffness', 0.05, False)))
+    assert got == PlantTermsParams(hose_flow=0.004, stroke_asymmetry=math.sqrt(3 * 0.07 * 0.05),
+                                   stroke_stiffness=0.05)
+    assert got_plant == dataclasses.replace(plant, endpoint_damping=0.05,
+                                            endpoint_stiffness=0.07)
+    assert prediction_model(plant, model, terms(['stroke_asymmetry'],
+                                                term('stroke_asymmetry', 0.01, False))) \
+        == (plant, model)
