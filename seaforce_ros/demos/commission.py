@@ -56,7 +56,7 @@ from ..commissioning.tuning import contact_damping_within
 from ..core.plant_cycle import STATUS_FAULT
 from .common import (CHANNEL, DT, drawn_plant, prepare, run_action, run_guarded,
                      set_parameters, wait_until)
-from .impedance import Observer, measure, status_note
+from .impedance import COMPLETE, Observer, measure, status_note
 
 MODES = ('passive', 'hold', 'dob', 'dob_linear_ff', 'dob_full_ff', 'impedance')
 SETTLE = 1.0            # s of drive before a mode's measured period
@@ -122,7 +122,7 @@ def measure_modes(observer, children, modes: Sequence[str], frequencies: Sequenc
                 last = first + period - 1
                 observer.wait_cycle(children, last)
                 window = observer.window(first, last)
-                if window['received'] >= 0.5 * window['expected']:
+                if window['received'] >= COMPLETE * window['expected']:
                     break
                 print(f'[commission] {label:6s} {mode:14s} {omega:5.3g} rad/s: recorded '
                       f'{window["received"]} of {window["expected"]} states (a busy host); '
