@@ -559,6 +559,8 @@ class Backdrives:
     #: per mode, the peak |F_a| [N m] (the torque the simulated motor applied) over the
     #: recorded period at each frequency (None as above)
     peak_torque: Dict[str, List[Optional[float]]] = field(default_factory=dict)
+    #: the nonlinear terms of the simulated gripper (None: the linear model)
+    terms: Optional[PlantTermsParams] = None
 
     def rms(self, mode: str) -> npt.NDArray[np.float64]:
         """The predicted rms |Z| [N m s/rad] of ``mode`` on :attr:`omega` (NaN: none)."""
@@ -619,7 +621,7 @@ def work_loop_stage(plant: PlantParams, dahl: Optional[DahlParams], config: Cont
                                       fig.z_rms_db, fig.distortion, fig.peak, fig.peak_centre,
                                       fig.centre_band,
                                       "simulated on the identified model, tuned settings"))
-    return Backdrives(loops, tuple(float(w) for w in omegas), figures, torque)
+    return Backdrives(loops, tuple(float(w) for w in omegas), figures, torque, terms)
 
 
 def _unsized(terms: NonlinearTerms, equation: str, keys: Sequence[str],
@@ -688,11 +690,12 @@ def torque_lines(backdrives: Backdrives, max_torque: float) -> List[str]:
     peaks = {m: v for m, v in peaks.items() if v}
     if not peaks:
         return []
+    top = {m: max(v) for m, v in peaks.items()}         # (peak, its omega)
     lines = ["predicted peak motor torque in these backdrives (max_torque "
              f"{max_torque:g} N m): " + ", ".join(
-                 f"{m} {max(v)[0]:.3g} N m" + (f" (at {max(v)[1]:g} rad/s)"
-                                               if len(v) > 1 and max(v)[0] > 0.0 else "")
-                 for m, v in peaks.items())]
+                 f"{m} {p:.3g} N m" + (f" (at {w:g} rad/s)" if len(peaks[m]) > 1 and p > 0.0
+                                       else "")
+                 for m, (p, w) in top.items())]
     for m, v in peaks.items():
         for p, w in v:
             if p > TORQUE_WARNING * max_torque:
@@ -925,10 +928,10 @@ def _summary(analysis: Analysis, request: AnalysisRequest) -> List[str]:
 def _unsized_words(analysis: Analysis) -> str:
     """Words on the terms the backdrives simulate beyond the controller's model
     (:func:`prediction_model`)."""
-    if analysis.model is None:
+    b = analysis.backdrives
+    if analysis.model is None or b is None or b.terms is None:
         return ""
-    model = analysis.model.terms
-    _, terms = prediction_model(analysis.model.plant, model, analysis.terms)
+    model, terms = analysis.model.terms, b.terms
     words = [f"{label} {getattr(terms, key):.4g} {unit}" for key, label, unit in (
         ("hose_flow", "the hose's flow term", "N m s^2/rad^2"),
         ("hose_pressure", "the hose's pressure term", "N m/rad^2"),

@@ -167,6 +167,8 @@ CENTRE_DITHER_CYCLES = 8
 CENTRE_SETTLE = 0.3
 #: ... and the lag behind its path [rad] at which it aborts (something holds the finger).
 CENTRE_ERROR = 0.1
+_DITHER_TIME = CENTRE_DITHER_CYCLES / CENTRE_DITHER_FREQUENCY      # s
+_DITHER_OMEGA = 2.0 * math.pi * CENTRE_DITHER_FREQUENCY            # rad/s
 #: Points per decade of the amplitude law's table.
 _TABLE_DENSITY = 50
 #: Frequency window either side over which the model's largest motion is taken.
@@ -548,13 +550,12 @@ class FreeAirExcitation(Job):
         if not lo < x < hi:
             return (f"the motor at {x:.4g} rad is outside the joint range "
                     f"commissioning.position_min..position_max = {lo:g}..{hi:g} rad")
-        limit = self._limit
-        if abs(u_prev) > 0.5 * limit:
-            return (f"the channel holds {u_prev:.3g} N m, more than half the excitation's "
-                    f"bound {limit:g} N m: start from passive or a lighter hold")
         rest = self._rest_position
         if abs(x - rest) <= CENTRE_TOLERANCE:
             return self._begin(x, u_prev)
+        reason = self._loaded(u_prev, "start from passive or a lighter hold")
+        if reason:
+            return reason
         if not lo < rest < hi:
             return (f"the finger's rest feedforward.rest_position = {rest:g} rad is outside "
                     f"the joint range {lo:g}..{hi:g} rad: set the rest where the finger's "
@@ -566,16 +567,17 @@ class FreeAirExcitation(Job):
         self.message = f"centring: moving the finger from {x:.3g} rad to its rest {rest:g} rad"
         return ""
 
-    def _begin(self, x: float, u_prev: float) -> str:
+    def _begin(self, x: float, u_prev: float,
+               advice: str = "start from passive or a lighter hold") -> str:
         """x_0, the entry torque and the amplitude law's table, at ``x`` [rad] with the
-        channel's last torque ``u_prev`` [N m]; the reason not to go on, or ''."""
+        channel's last torque ``u_prev`` [N m]; the reason not to go on (``advice`` what to
+        do about a load), or ''."""
         c = self.params
         lo, hi = c.position_min, c.position_max
         limit = self._limit
-        if abs(u_prev) > 0.5 * limit:
-            return (f"the channel holds {u_prev:.3g} N m at rest, more than half the "
-                    f"excitation's bound {limit:g} N m: the motor's spring is loaded there "
-                    "(is feedforward.rest_position the finger's rest?)")
+        reason = self._loaded(u_prev, advice)
+        if reason:
+            return reason
         self._x0 = self._centre_x = x
         self._bias = u_prev
         self._room = min(x - lo, hi - x)
@@ -585,19 +587,26 @@ class FreeAirExcitation(Job):
         self.message = "resting"
         return ""
 
+    def _loaded(self, u: float, advice: str) -> str:
+        """The reason not to excite from a torque ``u`` [N m] above half the bound, or ''."""
+        if abs(u) <= 0.5 * self._limit:
+            return ""
+        return (f"the channel holds {u:.3g} N m, more than half the excitation's bound "
+                f"{self._limit:g} N m: {advice}")
+
     def _centre(self, x: float, v: float, u_prev: float, steps: int) -> float:
         """One sample of the centring move (module docstring): F_a [N m], nothing recorded."""
         start, rest, duration = self._move
         t = self._move_t
         self._move_t = t + self.dt * steps
-        dither = CENTRE_DITHER_CYCLES / CENTRE_DITHER_FREQUENCY
+        dither = _DITHER_TIME
         if t < duration:
             phase = math.pi * t / duration
             ref = start + (rest - start) * 0.5 * (1.0 - math.cos(phase))
             speed = (rest - start) * 0.5 * math.pi / duration * math.sin(phase)
         elif t < duration + dither:
             tau = t - duration
-            w = 2.0 * math.pi * CENTRE_DITHER_FREQUENCY
+            w = _DITHER_OMEGA
             a = CENTRE_DITHER * (1.0 - tau / dither)
             ref = rest + a * math.sin(w * tau)
             speed = a * w * math.cos(w * tau) - CENTRE_DITHER / dither * math.sin(w * tau)
@@ -612,10 +621,10 @@ class FreeAirExcitation(Job):
         u = limit if u > limit else (-limit if u < -limit else u)
         if t >= duration + dither + CENTRE_SETTLE:
             self.centring = False       # the weak servo takes over where the move ended
-            reason = self._begin(x, u)
+            reason = self._begin(x, u, "the motor's spring is loaded at rest (is "
+                                 "feedforward.rest_position the finger's rest?)")
             if reason:
                 return self._abort(reason)
-        self.progress = 0.0
         return u
 
     def _check(self, x: float, v: float) -> str:

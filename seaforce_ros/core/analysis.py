@@ -365,10 +365,10 @@ def impedance_figures(f_e: npt.ArrayLike, x_e: npt.ArrayLike, omega: float, dt: 
     rest = math.sqrt(max(rms_f ** 2 - fundamental ** 2, 0.0))
     distortion = rest / fundamental if fundamental > 0 else math.inf
     centre = 0.5 * (float(xw.max()) + float(xw.min()))
-    inside = np.abs(xw - centre) <= centre_band
+    reach = np.abs(xw - centre)
+    inside = reach <= centre_band
     peak_centre = float(np.max(np.abs(fw[inside]))) if inside.any() else math.nan
-    away = np.abs(xw - centre) <= AWAY_SHARE * 0.5 * float(xw.max() - xw.min())
-    peak_away = float(np.max(np.abs(fw[away])))
+    peak_away = float(np.max(np.abs(fw[reach <= AWAY_SHARE * float(reach.max())])))
     return ImpedanceFigures(float(omega), z, rms_f / rms_v if rms_v > 0 else math.inf,
                             tuple(float(a) for a in np.abs(cf)), distortion,
                             float(np.max(np.abs(fw))), peak_centre, float(abs(cx[0])),

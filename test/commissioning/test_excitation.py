@@ -419,27 +419,6 @@ CENTRE_SEED = int(os.environ.get("SEAFORCE_CENTRE_SEED",
                                  np.random.SeedSequence().entropy % 100000))
 
 
-def _excite_on_the_oracle(plant, dahl, start, seed):
-    """The job in its controller on the nonlinear oracle's linear class (its own integrator,
-    sensors and Dahl friction), the finger left at ``start`` and settled unpowered for 1 s
-    (its friction holds it off rest); the job's record and the finger's settled position."""
-    from helpers.nonlinear_sim import Effects, NonlinearGripper, run_loop
-    config = ControllerConfig()
-    ctrl = ChannelController(config, DT)
-    job = FreeAirExcitation(ExcitationGoal("sim", None, 20.0), config, DT)
-    ctrl.request_job(job)
-    g = NonlinearGripper(plant, dahl, Effects(), None, seed=seed)
-    g.state[0] = g.state[2] = float(start)
-    g._xq_prev = g._quantise(g.state[0], g._qx)
-    g._measurement = g._measure()
-    for _ in range(int(1.0 / DT)):
-        g.step(0.0)
-    settled = g.state[2]
-    run_loop(g, ctrl, job.capacity + int(60.0 / DT), job_done=lambda: not job.active)
-    assert job.outcome == "succeeded", job.message
-    return job.record(), settled
-
-
 def test_a_finger_friction_holds_off_rest_is_centred_and_identifies_as_from_rest():
     """On the oracle (a plant of the family drawn 0.5x..2x, the linear class), a finger
     released 0.1-0.3 rad off rest -- its Dahl friction holds it up to about 0.2 rad off --
@@ -448,7 +427,8 @@ def test_a_finger_friction_holds_off_rest_is_centred_and_identifies_as_from_rest
     three draws: without the centring move 0.1 rad off gave 1.6-3.8 % where rest gave
     0.3-1.2 %, with it 0.33-1.3 %; with this test's 20 s chirp, on seeds 11-20, the two
     misfits were within 0.06 points."""
-    from helpers.oracle_commissioning import draw, identify
+    from helpers.nonlinear_sim import Effects
+    from helpers.oracle_commissioning import draw, excite, identify
     from seaforce_ros.commissioning.analyse import model_class_stage
     rng = np.random.default_rng([CENTRE_SEED, 7])
     plant, dahl, _ = draw(rng, effects=False)
@@ -456,8 +436,10 @@ def test_a_finger_friction_holds_off_rest_is_centred_and_identifies_as_from_rest
     where = f"SEAFORCE_CENTRE_SEED={CENTRE_SEED}, start {start:+.3f} rad"
     misfits = []
     for x0 in (0.0, start):
-        record, settled = _excite_on_the_oracle(plant, dahl, x0, CENTRE_SEED)
+        # the finger left at x0 and settled unpowered for 1 s (its friction holds it off rest)
+        record = excite(plant, dahl, Effects(), seed=CENTRE_SEED, duration=20.0, start=x0,
+                        settle=1.0)
         verdict, _ = model_class_stage(record, identify(record))
         misfits.append(verdict.misfit["port"])
         assert abs(record.x[0]) < CENTRE_TOLERANCE + 0.005, (where, record.x[0])
-    assert abs(misfits[1] - misfits[0]) < 0.0025, (where, settled, misfits)
+    assert abs(misfits[1] - misfits[0]) < 0.0025, (where, misfits)

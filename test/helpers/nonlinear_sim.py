@@ -269,6 +269,14 @@ class NonlinearGripper:
         self.forces = self._make_forces()
         self._measurement = self._measure()
 
+    def place(self, position):
+        """Motor and endpoint at rest at ``position`` [rad], the hose relaxed (the sensors
+        read anew)."""
+        self.state[0] = self.state[2] = float(position)
+        self.state[1] = self.state[3] = 0.0
+        self._xq_prev = self._quantise(self.state[0], self._qx)
+        self._measurement = self._measure()
+
     # --- the model ---------------------------------------------------------------------
     @staticmethod
     def _quantise(value, q):
@@ -470,12 +478,24 @@ def backdrive(plant, dahl, effects, controller, amplitude=0.5, omega=1.0, period
     return out
 
 
-def free_air_excitation(plant, dahl, effects, controller, job, capacity, seed=0, **sensors):
+#: Samples a job may take beyond its record's capacity (a centring move records nothing) [s].
+UNRECORDED = 60.0
+
+
+def free_air_excitation(plant, dahl, effects, controller, job, capacity, seed=0, start=0.0,
+                        settle=0.0, **sensors):
     """A job of the project's controller (e.g. commissioning's FreeAirExcitation, already
     requested on ``controller``) run on the oracle with the finger free, until the job ends
-    or ``capacity`` samples. Returns ``(record of run_loop, gripper)``."""
+    or ``capacity`` samples (and :data:`UNRECORDED` s more). The finger starts at rest at
+    ``start`` [rad] and is left unpowered for ``settle`` [s] first (its friction holds it off
+    rest). Returns ``(record of run_loop, gripper)``."""
     g = NonlinearGripper(plant, dahl, effects, None, seed=seed, **sensors)
-    rec = run_loop(g, controller, capacity + 1, job_done=lambda: not job.active)
+    if start:
+        g.place(start)
+    for _ in range(int(round(settle / g.dt))):
+        g.step(0.0)
+    rec = run_loop(g, controller, capacity + 1 + int(UNRECORDED / g.dt),
+                   job_done=lambda: not job.active)
     return rec, g
 
 

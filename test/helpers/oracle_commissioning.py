@@ -29,9 +29,11 @@ def draw(rng, effects=True):
     return plant, dahl, drawn
 
 
-def excite(plant, dahl, effects, config=None, seed=0, duration=None, band=None):
+def excite(plant, dahl, effects, config=None, seed=0, duration=None, band=None, start=0.0,
+           settle=0.0):
     """The project's free-air excitation job (commissioning) run by its controller on the
-    oracle; returns the job's :class:`ExcitationRecord` (raises if the job did not succeed)."""
+    oracle, the finger at rest at ``start`` [rad] left unpowered ``settle`` [s] first; returns
+    the job's :class:`ExcitationRecord` (raises if the job did not succeed)."""
     from seaforce_ros.commissioning.excitation import ExcitationGoal, FreeAirExcitation
     from seaforce_ros.core.controller import ChannelController
     from seaforce_ros.core.params import ControllerConfig
@@ -39,7 +41,8 @@ def excite(plant, dahl, effects, config=None, seed=0, duration=None, band=None):
     ctrl = ChannelController(config, DT)
     job = FreeAirExcitation(ExcitationGoal("sim", band, duration), config, DT)
     ctrl.request_job(job)
-    free_air_excitation(plant, dahl, effects, ctrl, job, job.capacity, seed=seed)
+    free_air_excitation(plant, dahl, effects, ctrl, job, job.capacity, seed=seed, start=start,
+                        settle=settle)
     if job.outcome != "succeeded":
         raise RuntimeError(f"the excitation ended {job.outcome}: {job.message}")
     return job.record()
@@ -94,9 +97,7 @@ def release(plant, dahl, effects, config, start, seconds=6.0, seed=0):
     from helpers.nonlinear_sim import NonlinearGripper
     from seaforce_ros.core.controller import ChannelController
     g = NonlinearGripper(plant, dahl, effects, None, seed=seed)
-    g.state[0] = g.state[2] = float(start)
-    g._xq_prev = g._quantise(g.state[0], g._qx)
-    g._measurement = g._measure()
+    g.place(start)
     ctrl = ChannelController(config, g.dt)
     n = int(round(seconds / g.dt))
     xe, ve = np.empty(n), np.empty(n)
