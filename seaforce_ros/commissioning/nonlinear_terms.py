@@ -156,6 +156,12 @@ class Term:
     bic_change : float
         The criterion with the term less the criterion without it (the other chosen terms
         kept): negative for a term the criterion chose; NaN when not fitted.
+    spread : float
+        How far the two halves of the record take it from its value, the larger of the two,
+        relative to it (NaN where the halves were not fitted: a term the criterion did not
+        choose, within 3 1-sigmas of zero, or not separable). A per-record measure of what
+        the model's other errors do to it, beside its statistical 1-sigma: the tuning's
+        margin on the stroke terms takes it.
     """
 
     key: str
@@ -168,6 +174,7 @@ class Term:
     reason: str
     extra: str = ""
     bic_change: float = math.nan
+    spread: float = math.nan
 
     def line(self) -> str:
         """One line for a report."""
@@ -429,13 +436,14 @@ def _term(key: str, equation: str, label: str, unit: str, sel: _Selection,
                     f"chosen, but within {RESOLVED_SIGMAS:g} 1-sigmas of zero", extra,
                     sel.bic_change[key])
     halves = _halves(y, cols, fit.names, group, amplitude, sel.lags)
+    spread = max(abs(h - v) for h, _ in halves) / abs(v)
     if any(not abs(h - v) <= max(CONSISTENCY * abs(v), CONSISTENCY_SIGMAS * hs)
            for h, hs in halves):
         return Term(key, equation, label, unit, v, s, False,
                     "chosen, but the two halves of the record give " + " and ".join(
                         f"{h:.3g} +- {hs:.2g}" for h, hs in halves)
                     + f" (beyond {100 * CONSISTENCY:g} % and {CONSISTENCY_SIGMAS:g} 1-sigmas): it "
-                    "takes up another error of the model", extra, sel.bic_change[key])
+                    "takes up another error of the model", extra, sel.bic_change[key], spread)
     a = np.stack([cols[c] for c in group], 1)
     idx = [fit.names.index(c) for c in group]
     share = math.sqrt(float(np.mean((a @ fit.coef[idx]) ** 2)) / max(float(np.mean(y ** 2)),
@@ -444,8 +452,8 @@ def _term(key: str, equation: str, label: str, unit: str, sel: _Selection,
         return Term(key, equation, label, unit, v, s, False,
                     f"chosen, but it carries {100 * share:.2g} % of the equation's force, "
                     f"below {100 * MIN_SHARE:g} %: a trace of the model's other errors, not a "
-                    "term that matters", extra, sel.bic_change[key])
-    return Term(key, equation, label, unit, v, s, True, "", extra, sel.bic_change[key])
+                    "term that matters", extra, sel.bic_change[key], spread)
+    return Term(key, equation, label, unit, v, s, True, "", extra, sel.bic_change[key], spread)
 
 
 def _resolved_model(y: _Real, cols: Dict[str, _Real], sel: _Selection, terms: List[Term],

@@ -240,7 +240,7 @@ class FeedforwardParams(ParameterGroup):
                                     ge=0.0, le=1.0)
     stroke_uncertainty: float = param(0.25, "-", "relative 1-sigma of the model's stroke "
                                       "terms (plant_terms.stroke_*; commissioning writes it, "
-                                      "at least 0.2; 0.25 stands for hand-typed values), as "
+                                      "at least 0.15; 0.25 stands for hand-typed values), as "
                                       "damping_uncertainty", ge=0.0, le=1.0)
     dahl_stiffness_share: float = param(0.5, "-", "the share of the model's pre-sliding "
                                         "stiffness sigma the Dahl feed-forward cancels (its F_c "
