@@ -38,7 +38,8 @@ is linear in its coefficients::
   diaphragm force's stroke dependence (an asymmetric and a symmetric one).
 * **finger ratio** -- a four-bar's ratio acts on a force at the finger; in free air there is
   none, so no free-air record shows it: it is always reported as not resolved, with that
-  reason (a bonded-finger record would).
+  reason. A bonded-finger record does (:mod:`~seaforce_ros.identification.finger_ratio`,
+  which ``zwidth`` runs on every backdrive bag).
 
 Selection and uncertainty, per equation: the same zero-phase Butterworth filter on the target
 and every regressor (the equation holds filtered), every :data:`DECIMATE`-th sample; from the
@@ -698,8 +699,8 @@ def _endpoint(sig: Dict[str, _Real], dt: float, ident: FreeAirIdentification,
 
 _FINGER = Term("finger_ratio", "finger", "finger ratio r(q) of the four-bar", "-", math.nan,
                math.nan, False, "it acts on a force at the finger, and in free air there is "
-               "none: a bonded-finger record (an external force and the finger's encoder) "
-               "would show it")
+               "none: a bonded-finger record shows it (`zwidth` on the backdrive bags of a "
+               "soft mode gives r(q) from the finger's encoder)")
 
 
 def identify_nonlinear_terms(record: ExcitationRecord, ident: FreeAirIdentification,

@@ -18,7 +18,11 @@ once on the fundamental |F_e/V_e|, once on the rms impedance rms(F_e)/rms(V_e); 
 harmonic distortion of F_e and the work loop's peak |F_e| over the stroke against the peak
 within +-0.2 rad (:func:`seaforce_ros.core.analysis.impedance_figures`). On a nonlinear
 gripper the fundamental can nearly cancel while the harmonics stay: judge a low impedance on
-the rms. Exit status 0 ok, 2 bad input (one line on stderr).
+the rms. Each bag also gives the finger's four-bar ratio r(q) over the stroke it drove, from
+the finger's encoder against the motor position and the pressure force
+(:mod:`seaforce_ros.identification.finger_ratio`; a soft mode's bag shows it, a stiff one's
+says why not), which no free-air record shows. Exit status 0 ok, 2 bad input (one line on
+stderr).
 """
 
 from __future__ import annotations
@@ -141,6 +145,7 @@ def _mode_in_bag(path, channel):
 def _from_bags(args, progress):
     from ..bags import read_channel
     from ..identification.errors import IdentificationError
+    from ..identification.finger_ratio import finger_ratio_of
     from ..identification.timeseries import prepare
     from ..identification.zwidth_lib import figure_lines, figures_from_record
 
@@ -150,7 +155,7 @@ def _from_bags(args, progress):
         record = read_channel(path, args.channel, args.topic)
         for note in record.notes:
             print(f"note ({path}): {note}")
-        series = prepare(record, ("x_e", "f_e"))
+        series = prepare(record, ("x_e", "f_e"), optional=("x", "f_p"))
         if not mode:
             mode = _mode_in_bag(path, args.channel)
             if mode is None:
@@ -160,6 +165,9 @@ def _from_bags(args, progress):
         for note in series.notes():
             print(f"note ({path}): {note}")
         print(figure_lines(f"{path}: mode {mode}, drive {fig.omega:.4g} rad/s", fig))
+        ratio = finger_ratio_of(series.signals, series.dt)
+        print(f"  {ratio.line()}" if ratio is not None else "  finger ratio: the bag has no "
+              "motor position or pressure force beside the finger's encoder")
         points[mode].append(fig)
     # common frequency grid (drive frequencies rounded to 3 significant digits)
     omegas = sorted({float(f"{f.omega:.3g}") for figs in points.values() for f in figs})
