@@ -215,6 +215,10 @@ def test_commission_demo_identifies_tunes_and_predicts_what_it_measures(demos):
     assert ideal is None or math.isnan(ideal) and 'ideal model not measured' in text \
         or after <= ideal + 3.0, where
     assert pathlib.Path(results['report']).is_file()
+    # the bonded drive's four-bar: the linear sim has none (r constant), and the goal lines
+    # say so
+    assert 'constant ratio' in results['goals']['finger_ratio'], where
+    assert 'bonded drive of dob_full_ff at 1 rad/s: finger ratio' in text, where
 
 
 def test_commission_demo_draws_a_nonlinear_plant_the_sim_takes_and_reports_its_goals():
@@ -258,3 +262,16 @@ def test_commission_demo_draws_a_nonlinear_plant_the_sim_takes_and_reports_its_g
     text = '\n'.join(goal_lines(goals, True))
     assert 'ratio 2.00' in text and 'DOES NOT FIT' in text and '3 rad/s none' in text
     assert 'ratio 1.20)' in text
+    # the four-bar the bonded drive showed, beside the sim's: the effects' own map
+    from seaforce_ros.core.nonlinear_effects import finger_ratio
+    from seaforce_ros.demos.commission import four_bar
+    ends = four_bar(values)
+    assert ends == (finger_ratio(-effects.half_stroke, effects),
+                    finger_ratio(effects.half_stroke, effects))
+    assert min(ends) >= 1.0 and max(ends) > 1.0 and four_bar({}) == (1.0, 1.0)
+    line = 'finger ratio r(q)/r(0) of the four-bar: 1.100 at q = -0.5 rad, ...'
+    measured['after'][('dob_full_ff', 1.0)] = dict(figures, finger_ratio=line)
+    goals = goal_figures(measured, report, truth, [1.0, 3.0], finger=ends)
+    text = '\n'.join(goal_lines(goals, True))
+    assert f'bonded drive of dob_full_ff at 1 rad/s: {line}' in text
+    assert f"(the sim's: {ends[0]:.3f} and {ends[1]:.3f} at the ends" in text

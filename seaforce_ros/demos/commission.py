@@ -365,13 +365,25 @@ def nonlinear_plant(seed: int):
     return values, f'{effects.describe()}; motor Coulomb {1e3 * coulomb:.1f} mN m'
 
 
-def goal_figures(measured, report, truth, frequencies, applied=None) -> Dict[str, Any]:
+def four_bar(values: Dict[str, Any]) -> Tuple[float, float]:
+    """The sim's four-bar ratio r(q)/r(0) at the ends of its stroke, from the drawn effects'
+    values (``{'<ch>.sim.nonlinear.<x>': value}``; (1, 1) without a finger ratio)."""
+    from ..core.nonlinear_effects import NonlinearEffects, finger_ratio
+    effects = NonlinearEffects.from_values({k[len(CHANNEL) + 1:]: v for k, v in values.items()
+                                            if '.nonlinear.' in k})
+    half = effects.half_stroke
+    return finger_ratio(-half, effects), finger_ratio(half, effects)
+
+
+def goal_figures(measured, report, truth, frequencies, applied=None,
+                 finger=None) -> Dict[str, Any]:
     """The goal figures of a run on a nonlinear plant (after commissioning): ``dob_full_ff``
     at the lowest frequency (fundamental and rms |Z| [dB], the work loop's peaks [N m]), the
     Z-width on the fundamental and the rms [dB] at each frequency, the identified b_s and k_e
     against the sim's (linear) values -- the linear fit's and, given the values the tuning
     ``applied`` (``plant.*``, ``plant_terms.*`` keys), the controller's model's -- the model
-    class's verdict."""
+    class's verdict; the four-bar's ratio the bonded drive of ``dob_full_ff`` showed, beside
+    the sim's (``finger``: r/r(0) at the stroke's ends, :func:`four_bar`)."""
     after = measured['after']
     low = frequencies[0]
     ff = after[('dob_full_ff', low)]
@@ -398,7 +410,9 @@ def goal_figures(measured, report, truth, frequencies, applied=None) -> Dict[str
         'hose_damping_error': error('plant.hose_damping'),
         'endpoint_stiffness_error': error('plant.endpoint_stiffness'),
         'model_class_fits': None if model is None else model.fits,
-        'misfit': {} if model is None else dict(model.misfit)}
+        'misfit': {} if model is None else dict(model.misfit),
+        'finger_ratio': ff.get('finger_ratio', ''),
+        'finger_ratio_truth': None if finger is None else list(finger)}
 
 
 def goal_lines(goals: Dict[str, Any], nonlinear: bool) -> List[str]:
@@ -428,6 +442,10 @@ def goal_lines(goals: Dict[str, Any], nonlinear: bool) -> List[str]:
             f'{100 * goals["endpoint_stiffness_error"]:+.1f} % by the linear fit (against the '
             'sim\'s linear coefficients)',
             f'  model class: {verdict}'] + ([
+                f'  bonded drive of dob_full_ff at {low:g} rad/s: {goals["finger_ratio"]}'
+                + (' (the sim\'s: {:.3f} and {:.3f} at the ends of its +-0.5 rad)'.format(
+                    *goals['finger_ratio_truth']) if goals.get('finger_ratio_truth') else '')]
+                if goals.get('finger_ratio') else []) + ([
                 f'  the controller\'s model: b_s {100 * goals["model_hose_damping_error"]:+.1f} '
                 f'%, k_e {100 * goals["model_endpoint_stiffness_error"]:+.1f} %, with '
                 + (', '.join(f'{k} {v:.4g}' for k, v in goals['model_terms'].items())
@@ -541,7 +559,8 @@ def main(argv=None):
                   'rig time: ' + ', '.join(f'{k} {v:.1f} s' for k, v in phases.items())
                   + f' = {rig:.1f} s (goal {commission_wall:.1f} s wall)',
                   f'report: {result.report_path}']
-        goals = goal_figures(measured, report, truth, frequencies, applied)
+        goals = goal_figures(measured, report, truth, frequencies, applied,
+                             four_bar(nonlinear))
         lines += goal_lines(goals, bool(nonlinear))
         print('\n'.join(lines))
         png = out / 'zwidth_commission.png'

@@ -249,15 +249,20 @@ class Observer:
 def measure(window, omega, amplitude=None):
     """The impedance figures of a measured window (``core.analysis.impedance_figures``: the
     fundamental and the rms |Z|, the distortion, the peaks over the stroke and within
-    +-0.2 rad) and the area of the F_p loop; ``amplitude`` is not used (the figures take the
-    stroke from X_e)."""
+    +-0.2 rad), the area of the F_p loop and the finger's four-bar ratio at the stroke's ends
+    (``identification.finger_ratio``: the finger's encoder against the motor and the
+    pressure; its line, its ends, NaN where not fitted); ``amplitude`` is not used (the
+    figures take the stroke from X_e)."""
     from ..core.analysis import impedance_figures
+    from ..identification.finger_ratio import fit_finger_ratio
     fig = impedance_figures(window['f_e'], window['x_e'], omega, DT)
     area = abs(np.trapezoid(window['f_p'], window['x_e']))
+    ratio = fit_finger_ratio(window['x_e'], window['x'], window['f_p'], DT)
     return {'figures': fig, 'z_db': fig.z_db, 'z_rms_db': fig.z_rms_db,
             'distortion': fig.distortion, 'peak': fig.peak, 'peak_centre': fig.peak_centre,
             'peak_away': fig.peak_away,
-            'fp_area': area}
+            'fp_area': area, 'finger_ratio': ratio.line(),
+            'finger_ratio_ends': list(ratio.ends), 'finger_ratio_resolved': ratio.resolved}
 
 
 def plot(results, path, amplitude):
