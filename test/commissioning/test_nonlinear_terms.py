@@ -160,3 +160,25 @@ def test_the_criterion_picks_what_is_there_and_the_sigma_is_the_spread():
     # without the term, the criterion does not take it
     y, cols = _synthetic(rng, with_term=False)
     assert nt._select(y, cols, ["a", "b"], {"c": ["c"], "d": ["d"]}).chosen == []
+
+
+def test_a_term_negative_where_every_grippers_is_positive_is_not_resolved():
+    """A chosen term far from zero whose sign no gripper has (a diaphragm that softens
+    towards its ends) is not resolved, with that reason; the same term positive is."""
+    from seaforce_ros.commissioning.nonlinear_terms import PHYSICAL_SIGN
+    rng = np.random.default_rng(5)
+    n = 4000
+    base = rng.standard_normal(n)
+    for sign in (-1.0, 1.0):
+        x3 = rng.standard_normal(n)
+        y = 2.0 * base + sign * 0.5 * x3 + 0.01 * rng.standard_normal(n)
+        cols = {"k_e": base, "x3": x3}
+        sel = nt._select(y, cols, ["k_e"], {"stroke_stiffness": ["x3"]})
+        term = nt._term("stroke_stiffness", "endpoint", "k_3", "N m/rad^3", sel, y, cols, ["x3"])
+        assert term.value == pytest.approx(sign * 0.5, abs=0.01)
+        if sign < 0:
+            assert not term.resolved and PHYSICAL_SIGN["stroke_stiffness"] in term.reason
+            assert "negative" in term.line()
+        else:
+            assert term.resolved, term.reason
+            assert term.spread < 0.05          # both halves give 0.5
