@@ -131,7 +131,12 @@ def grasp_one(obs, children, name, k, b, speed, grip):
     cycles = np.array(sorted(states))
     xe = np.array([states[c][0] for c in cycles])
     force = -np.array([states[c][1] for c in cycles])           # contact force, > 0
-    touched = int(cycles[np.argmax(force > 0.0)])
+    # the touch: the cycle after the last state without contact force before the first with
+    # it -- the earliest it can have been where the demo lost the states around it (a busy
+    # host: the first state it had with a force came 51 ms after the controller's detection,
+    # which the table then showed as a negative delay)
+    first = int(np.argmax(force > 0.0))
+    touched = int(cycles[first - 1]) + 1 if first > 0 else int(cycles[0])
     detected = min(c for c, v in status.items()
                    if v[5] in ('contact', 'squeeze', 'probe', 'hold'))
     squeeze = min(c for c, v in status.items() if v[5] in ('squeeze', 'probe', 'hold'))
@@ -146,7 +151,7 @@ def grasp_one(obs, children, name, k, b, speed, grip):
             # be reported at a cycle whose states the demo did not receive, before the first
             # positive force it has)
             'peak_approach': float(force[(cycles >= touched)
-                                         & (cycles < max(squeeze, touched + 1))].max()),
+                                         & (cycles < max(squeeze, cycles[first] + 1))].max()),
             'peak': float(force.max()), 'held': float(held.mean()),
             'xe': xe, 'force': force, 'cycles': cycles, 'touched': touched,
             'canceled': canceled}
