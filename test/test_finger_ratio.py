@@ -50,8 +50,10 @@ def test_the_analytic_four_bar_is_recovered():
         k_s = math.exp(rng.uniform(math.log(3.0), math.log(30.0)))
         fit = fit_finger_ratio(*_synthetic(rng, c1, c2, k_s=k_s), DT)
         assert fit.resolved, (c1, c2, fit.line())
-        # the fit's L is the record's largest |q| (0.5 rad here, to the noise)
+        # the fit's L is the record's largest |q| (0.5 rad here, to the noise), the ends the
+        # stroke's
         assert fit.half_stroke == pytest.approx(0.5, abs=1e-3)
+        assert fit.stroke == pytest.approx((-0.5, 0.5), abs=1e-3)
         assert fit.ends[0] == pytest.approx(1.0 - c1 + c2, abs=0.002), fit.line()
         assert fit.ends[1] == pytest.approx(1.0 + c1 + c2, abs=0.002), fit.line()
         assert abs(fit.c_2 - c2) < 4.0 * fit.sigma[1] + 1e-3, fit.line()
@@ -66,16 +68,24 @@ def test_what_the_record_cannot_show_is_named():
     assert max(abs(e - 1.0) for e in fit.ends) < MIN_RISE
     # a stroke too short to show it
     fit = fit_finger_ratio(*_synthetic(rng, 0.0, 0.1, half=0.1), DT)
-    assert not fit.resolved and f"under {MIN_STROKE:g} rad" in fit.reason
+    assert not fit.resolved and f"under {2 * MIN_STROKE:g} rad" in fit.reason
     assert "not resolved" in fit.line()
     # a stiff mode: the motor stays, the hose takes the finger's motion
     q, x, f_p = _synthetic(rng, 0.0, 0.1)
     fit = fit_finger_ratio(q, 0.02 * x, f_p, DT)
     assert not fit.resolved and "soft mode" in fit.reason
+    # a stroke that never passes the finger's centre (where r_0 is taken): its other end
+    # would be extrapolated
+    fit = fit_finger_ratio(0.3 + 0.5 * q, x, f_p, DT)
+    assert not fit.resolved and "does not pass the finger's centre" in fit.reason
+    # a finger that does not move while the motor does
+    fit = fit_finger_ratio(np.full_like(q, 0.3), x, f_p, DT)
+    assert not fit.resolved and "too short" in fit.reason
     # bad input: a clear reason, never an exception
     for args in ((q[:100], x[:100], f_p[:100], DT), (q, x[:-1], f_p, DT),
                  (np.where(np.arange(q.size) == 7, np.nan, q), x, f_p, DT), (q, x, f_p, 0.0),
-                 (q, x, f_p, math.nan)):
+                 (q, x, f_p, math.nan), (q, x, f_p, 0.1), (q, x, f_p, 1), (q, x, f_p, 5.0),
+                 (q[:3000:300], x[:3000:300], f_p[:3000:300], 0.15)):
         fit = fit_finger_ratio(*args)
         assert not fit.resolved and fit.reason and math.isnan(fit.c_2), fit.reason
 
@@ -114,7 +124,7 @@ def test_the_oracles_four_bar_from_a_bonded_drive(oracle_draw, mode, tmp_path, c
 
     rec = backdrive(plant, dahl, effects, controller(), 0.5, 1.0, periods=2, seed=SEED)
     fit = fit_finger_ratio(rec["x_e"], rec["x"], rec["f_p"], rec["dt"])
-    truth = (ratio(-fit.half_stroke, effects), ratio(fit.half_stroke, effects))
+    truth = (ratio(fit.stroke[0], effects), ratio(fit.stroke[1], effects))
     assert fit.resolved, (fit.line(), where)
     for got, want in zip(fit.ends, truth):
         assert got == pytest.approx(want, abs=0.005), (fit.line(), truth, where)
@@ -136,3 +146,11 @@ def test_the_oracles_four_bar_from_a_bonded_drive(oracle_draw, mode, tmp_path, c
     ends = (float(words[words.index("at") - 1]), float(words[words.index("rad,") + 1]))
     for got, want in zip(ends, truth):
         assert got == pytest.approx(want, abs=0.005), (line, truth, where)
+    # a bag without the motor position still gives the impedance, and says why no ratio
+    blind = {k: rec[k] for k in ("x", "v", "f_p", "f_a", "x_e", "f_e")}
+    blind["x"] = np.full_like(rec["x"], np.nan)
+    bags.write_state_bag(tmp_path / "blind", ["pinch"], {"pinch": blind})
+    code = zwidth.main([f"{mode}={tmp_path / 'blind'}", "--channel", "pinch", "--quiet"])
+    out = capsys.readouterr().out
+    assert code == 0 and "finger ratio: not fitted (x is NaN in every sample" in out, out
+    assert "peak |F_e|" in out

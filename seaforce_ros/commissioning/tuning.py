@@ -532,7 +532,10 @@ def _margin_cost(plant: PlantParams, dahl: DahlParams, tuned: ControllerConfig,
 #: and the halves within 9 % (a bias the record does not show: the hose's pressure term
 #: under-estimated beside it). At 15 % the margin's 2 leaves 70 % of the term, which covers
 #: one up to 43 % high; the survey's resolved terms were all covered with it (at 12.5 %, 2
-#: were not). 20 % before the halves' spread counted: 60 % of the term.
+#: were not). 20 % before the halves' spread counted: 60 % of the term. The floor rests on
+#: that survey (and on test_safety's free-finger invariant, which draws stroke terms up to
+#: 40 % high against it): a larger survey that finds a resolved term beyond +43 % with its
+#: halves agreeing would raise it.
 TERM_UNCERTAINTY = 0.15
 
 

@@ -19,13 +19,15 @@ then ``r(q)/r_0 = 1 + c_1 (q/L) + c_2 (q/L)^2`` with ``c_1 = 2 a_2 L/r_0``, ``c_
 L^2/r_0`` and L the half-stroke the record reached (the oracle's model of the four-bar).
 
 The 1-sigmas take the residual's autocorrelation (the fit's covariance times the residual's
-integrated autocorrelation time). The ratio is *resolved* when the record's stroke reaches
-:data:`MIN_STROKE` with the motor moving (:data:`MIN_TRAVEL`: in a stiff mode the hose takes
-the finger's motion and the pressure follows q), the largest change of r over it is at least :data:`MIN_RISE` and
-:data:`RESOLVED_SIGMAS` 1-sigmas, and the strokes' two directions (q rising, q falling) give
-the ends' ratios within :data:`CONSISTENCY` of each other: a kinematic map is the same both
-ways, while an error of the hose's deflection that follows the force (the endpoint's
-friction reverses with the motion) is not. Otherwise the reason is given.
+integrated autocorrelation time). The ratio is *resolved* when the record's stroke spans at
+least twice :data:`MIN_STROKE` across the centre q = 0, the motor moves at least
+:data:`MIN_TRAVEL` of the finger's stroke (in a stiff mode the hose takes the finger's motion
+and the pressure follows q), the ratio at an end of the stroke the record reached differs
+from r_0 by at least :data:`MIN_RISE` and :data:`RESOLVED_SIGMAS` of its 1-sigmas, and the
+stroke's two directions (q rising, q falling) give the ends' ratios within
+:data:`CONSISTENCY` of each other: a kinematic map is the same both ways, while an error of
+the hose's deflection that follows the force (the endpoint's friction reverses with the
+motion) is not. Otherwise the reason is given.
 """
 
 from __future__ import annotations
@@ -77,12 +79,14 @@ class FingerRatio:
         Their 1-sigmas.
     half_stroke : float
         L [rad]: the largest |q| the record reached.
+    stroke : tuple (float, float)
+        The smallest and the largest q [rad] the record reached (filtered).
     ends : tuple (float, float)
-        r/r_0 at q = -L and q = +L.
+        r/r_0 there.
     hose_stiffness : float
         The fit's k_s [N m/rad] (a check: the hose the identification knows).
     misfit : float
-        rms residual over rms of the fitted X (filtered).
+        rms residual over the rms deviation of the fitted X from its mean (filtered).
     resolved : bool
     reason : str
         '' when resolved, else why not.
@@ -92,6 +96,7 @@ class FingerRatio:
     c_2: float
     sigma: Tuple[float, float]
     half_stroke: float
+    stroke: Tuple[float, float]
     ends: Tuple[float, float]
     hose_stiffness: float
     misfit: float
@@ -103,7 +108,7 @@ class FingerRatio:
         if not math.isfinite(self.c_2):
             return f"finger ratio r(q) of the four-bar: not resolved ({self.reason})"
         head = (f"finger ratio r(q)/r(0) of the four-bar: {self.ends[0]:.3f} at q = "
-                f"{-self.half_stroke:.3g} rad, {self.ends[1]:.3f} at {self.half_stroke:.3g} "
+                f"{self.stroke[0]:.3g} rad, {self.ends[1]:.3f} at {self.stroke[1]:.3g} "
                 f"rad (c_1 {self.c_1:.3g} +- {self.sigma[0]:.2g}, c_2 {self.c_2:.3g} +- "
                 f"{self.sigma[1]:.2g}; the fit's k_s {self.hose_stiffness:.3g} N m/rad, "
                 f"misfit {100 * self.misfit:.2g} %)")
@@ -140,16 +145,19 @@ def _fit(cols: Dict[str, _Real], y: _Real, names: Tuple[str, ...]
     return coef / scale, cov / np.outer(scale, scale), float(r @ r)
 
 
-def _relative(coef: _Real, cov: _Real, half: float) -> Tuple[float, float, float, float]:
-    """(c_1, c_2, their 1-sigmas) from the fit's r_0, a_2, a_3 (indices 1, 2, 3; delta
-    method)."""
+def _relative(coef: _Real, cov: _Real, half: float) -> Tuple[float, float, _Real]:
+    """(c_1, c_2, their 2x2 covariance) from the fit's r_0, a_2, a_3 (indices 1, 2, 3; the
+    delta method)."""
     r0, a2, a3 = (float(coef[i]) for i in (1, 2, 3))
     c1, c2 = 2.0 * a2 * half / r0, 3.0 * a3 * half ** 2 / r0
     j = np.array([[-c1 / r0, 2.0 * half / r0, 0.0],
                   [-c2 / r0, 0.0, 3.0 * half ** 2 / r0]])
-    sub = cov[np.ix_([1, 2, 3], [1, 2, 3])]
-    var = np.diag(j @ sub @ j.T)
-    return c1, c2, math.sqrt(max(float(var[0]), 0.0)), math.sqrt(max(float(var[1]), 0.0))
+    return c1, c2, j @ cov[np.ix_([1, 2, 3], [1, 2, 3])] @ j.T
+
+
+def _change(c1: float, c2: float, u: float) -> float:
+    """r/r_0 - 1 at u = q/L."""
+    return c1 * u + c2 * u * u
 
 
 _NAMES = ("one", "q", "q2", "q3", "f_p", "f_p2")
@@ -180,14 +188,16 @@ def fit_finger_ratio(q: npt.ArrayLike, x: npt.ArrayLike, f_p: npt.ArrayLike, dt:
     nan2 = (math.nan, math.nan)
 
     def unresolved(reason: str, half: float = math.nan) -> FingerRatio:
-        return FingerRatio(math.nan, math.nan, nan2, half, nan2, math.nan, math.nan, False,
-                           reason)
+        return FingerRatio(math.nan, math.nan, nan2, half, nan2, nan2, math.nan, math.nan,
+                           False, reason)
 
     if not (q_a.size == x_a.size == f_a.size):
         return unresolved(f"q, x and f_p differ in length ({q_a.size}, {x_a.size}, "
                           f"{f_a.size})")
     if not (math.isfinite(dt) and dt > 0.0):
         return unresolved(f"sample period {dt!r} s")
+    if not 0.5 / dt > 2.0 * CUTOFF:
+        return unresolved(f"sample period {dt:.3g} s: too long for the {CUTOFF:g} Hz low-pass")
     if not (np.isfinite(q_a).all() and np.isfinite(x_a).all() and np.isfinite(f_a).all()):
         return unresolved("the record has samples that are not finite")
     edge = int(round(EDGE / dt))
@@ -195,14 +205,19 @@ def fit_finger_ratio(q: npt.ArrayLike, x: npt.ArrayLike, f_p: npt.ArrayLike, dt:
     if q_a.size < 2 * edge + 40 * step:
         return unresolved(f"the record is too short ({q_a.size * dt:.3g} s)")
     sos = scipy.signal.butter(4, CUTOFF, fs=1.0 / dt, output="sos")
-    filt = {k: scipy.signal.sosfiltfilt(sos, v)[edge:-edge:step]
+    filt = {k: scipy.signal.sosfiltfilt(sos, v)[edge:q_a.size - edge:step]
             for k, v in (("q", q_a), ("x", x_a), ("f_p", f_a))}
     qf = filt["q"]
-    half = float(np.max(np.abs(qf)))
-    if half < MIN_STROKE:
-        return unresolved(f"the record's stroke reaches {half:.3g} rad, under "
-                          f"{MIN_STROKE:g} rad: too short for the ratio's change to show", half)
-    travel = float(np.ptp(filt["x"])) / max(float(np.ptp(qf)), 1e-12)
+    lo, hi = float(qf.min()), float(qf.max())
+    half = max(-lo, hi)
+    if not 0.5 * (hi - lo) >= MIN_STROKE:
+        return unresolved(f"the record's stroke is {hi - lo:.3g} rad, under "
+                          f"{2 * MIN_STROKE:g} rad: too short for the ratio's change to show",
+                          half)
+    if not lo < 0.0 < hi:
+        return unresolved(f"the record's stroke ({lo:.3g} .. {hi:.3g} rad) does not pass "
+                          "the finger's centre q = 0, where the ratio is referred to", half)
+    travel = float(np.ptp(filt["x"])) / float(hi - lo)
     if travel < MIN_TRAVEL:
         return unresolved(f"the motor moved {100 * travel:.2g} % of the finger's stroke: a "
                           "stiff mode, whose hose takes the motion (the pressure then follows "
@@ -212,37 +227,41 @@ def fit_finger_ratio(q: npt.ArrayLike, x: npt.ArrayLike, f_p: npt.ArrayLike, dt:
             "f_p": filt["f_p"], "f_p2": np.abs(filt["f_p"]) * filt["f_p"]}
     y = filt["x"]
     coef, cov, rss = _fit(cols, y, _NAMES)
-    if not (np.isfinite(coef).all() and coef[1] > 0.0):
+    if not (np.isfinite(coef).all() and np.isfinite(cov).all() and coef[1] > 0.0):
         return unresolved("the fit found no ratio (the finger's encoder does not follow "
                           "the motor)", half)
-    c1, c2, s1, s2 = _relative(coef, cov, half)
+    c1, c2, c_cov = _relative(coef, cov, half)
     k_s = -1.0 / float(coef[4]) if coef[4] < 0.0 else math.nan
-    ends = (1.0 - c1 + c2, 1.0 + c1 + c2)
+    us = (lo / half, hi / half)
+    ends = tuple(1.0 + _change(c1, c2, u) for u in us)
+    # each end's change and its 1-sigma, (c_1, c_2)'s covariance counted
+    sds = [math.sqrt(max(float(np.array([u, u * u]) @ c_cov @ np.array([u, u * u])), 0.0))
+           for u in us]
     misfit = math.sqrt(rss / max(float(np.sum((y - y.mean()) ** 2)), 1e-300))
-    base = (c1, c2, (s1, s2), half, ends, k_s, misfit)
-    rise = max(abs(e - 1.0) for e in ends)
-    # the change at the ends: r/r_0 - 1 = -+c_1 + c_2, its 1-sigma (c_1, c_2 taken as
-    # independent: a bound within a factor sqrt 2)
-    sd = math.hypot(s1, s2)
+    sigma = (math.sqrt(max(float(c_cov[0, 0]), 0.0)), math.sqrt(max(float(c_cov[1, 1]), 0.0)))
+    base = (c1, c2, sigma, half, (lo, hi), (ends[0], ends[1]), k_s, misfit)
+    rise, sd = max((abs(e - 1.0), d) for e, d in zip(ends, sds))
     if rise < MIN_RISE:
         return FingerRatio(*base, False, f"the ratio changes by {100 * rise:.2g} % over the "
                            f"stroke, under {100 * MIN_RISE:g} %: a constant ratio")
-    if rise < RESOLVED_SIGMAS * sd:
+    if not rise >= RESOLVED_SIGMAS * sd:
         return FingerRatio(*base, False, f"its change ({rise:.3g}) is within "
                            f"{RESOLVED_SIGMAS:g} 1-sigmas ({sd:.2g})")
     rising = np.gradient(qf) > 0.0
     parts = []
     for mask in (rising, ~rising):
-        if mask.sum() < 40 or np.max(np.abs(qf[mask])) < MIN_STROKE:
+        if mask.sum() < 40 or not 0.5 * float(np.ptp(qf[mask])) >= MIN_STROKE:
             return FingerRatio(*base, False, "the record does not drive the stroke both "
                                "ways (one direction is needed against the other)")
         c, v, _ = _fit({k: a[mask] for k, a in cols.items()}, y[mask], _NAMES)
-        p1, p2, _, _ = _relative(c, v, half)
-        parts.append((1.0 - p1 + p2, 1.0 + p1 + p2))
+        if not (np.isfinite(c).all() and c[1] > 0.0):
+            return FingerRatio(*base, False, "one direction of the stroke gives no ratio")
+        p1, p2, _ = _relative(c, v, half)
+        parts.append(tuple(1.0 + _change(p1, p2, u) for u in us))
     gap = max(abs(a - b) for a, b in zip(*parts))
-    if gap > CONSISTENCY:
+    if not gap <= CONSISTENCY:
         return FingerRatio(*base, False, "the two directions of the stroke give "
-                           + " and ".join(f"{lo:.3f} / {hi:.3f}" for lo, hi in parts)
+                           + " and ".join(f"{a:.3f} / {b:.3f}" for a, b in parts)
                            + f" at the ends (beyond {CONSISTENCY:g}): the hose's deflection "
                            "is not F_p/k_s here (take a record of a soft mode)")
     return FingerRatio(*base, True, "")

@@ -155,7 +155,7 @@ def _from_bags(args, progress):
         record = read_channel(path, args.channel, args.topic)
         for note in record.notes:
             print(f"note ({path}): {note}")
-        series = prepare(record, ("x_e", "f_e"), optional=("x", "f_p"))
+        series = prepare(record, ("x_e", "f_e"))
         if not mode:
             mode = _mode_in_bag(path, args.channel)
             if mode is None:
@@ -165,9 +165,16 @@ def _from_bags(args, progress):
         for note in series.notes():
             print(f"note ({path}): {note}")
         print(figure_lines(f"{path}: mode {mode}, drive {fig.omega:.4g} rad/s", fig))
-        ratio = finger_ratio_of(series.signals, series.dt)
-        print(f"  {ratio.line()}" if ratio is not None else "  finger ratio: the bag has no "
-              "motor position or pressure force beside the finger's encoder")
+        # (prepared on its own: the impedance does not need x and f_p, and a bag with gaps in
+        # them still gives it)
+        try:
+            kinematic = prepare(record, ("x_e", "x", "f_p"))
+        except IdentificationError as exc:
+            print(f"  finger ratio: not fitted ({exc})")
+        else:
+            ratio = finger_ratio_of(kinematic.signals, kinematic.dt)
+            print(f"  {ratio.line()}" if ratio is not None else "  finger ratio: the bag has "
+                  "no motor position or pressure force beside the finger's encoder")
         points[mode].append(fig)
     # common frequency grid (drive frequencies rounded to 3 significant digits)
     omegas = sorted({float(f"{f.omega:.3g}") for figs in points.values() for f in figs})
