@@ -107,6 +107,9 @@ def test_with_the_effects_the_class_is_flagged_and_the_terms_resolved(family):
                 low, high = tol if isinstance(tol, tuple) else (-tol, tol)
                 assert low < term.value / truth[key] - 1.0 < high, (key, where)
         for term in terms.resolved():
+            # how far the halves took it: measured for every resolved term (the stroke
+            # terms' margin takes it)
+            assert math.isfinite(term.spread) and term.spread >= 0.0, (term, where)
             tol = TOLERANCE[term.key]
             low, high = tol if isinstance(tol, tuple) else (-tol, tol)
             assert low < term.value / truth[term.key] - 1.0 < high, \
