@@ -395,6 +395,13 @@ def model_stage(ident: FreeAirIdentification, terms: Optional[NonlinearTerms]
             used.update({k: v for k, v in (("stroke_asymmetry", k2),
                                            ("stroke_stiffness", k3)) if v})
             for key in ("stroke_asymmetry", "stroke_stiffness"):
+                term = next((t for t in terms.terms if t.key == key), None) \
+                    if terms is not None else None
+                if term is not None and term.sized_by_spread and used.get(key):
+                    lines.append(f"{key.replace('_', ' ')}: the record's halves disagree "
+                                 f"(by {100 * term.spread:.2g} %) but both give it its sign: "
+                                 "used, with that spread in its margin")
+            for key in ("stroke_asymmetry", "stroke_stiffness"):
                 if key in m:
                     sigma[key] = _term_sigma(terms, key, m[key])
             lines.append(f"endpoint: {refit}b_e, k_e, F_c refitted with the stroke terms; "

@@ -185,3 +185,32 @@ def test_a_term_negative_where_every_grippers_is_positive_is_not_resolved():
         else:
             assert term.resolved, term.reason
             assert term.spread < 0.05          # both halves give 0.5
+
+
+def test_a_margined_term_whose_halves_disagree_is_used_with_their_spread():
+    """A stroke term whose halves give 0.3 and 0.7 (beyond the halves check, both positive
+    and far from zero) is not resolved but used (the controller's refit has it, and its
+    spread is what the margin takes); the same record's term under a key without a margin
+    of its own (the hose's) is not used; halves of opposite signs are not used either."""
+    rng = np.random.default_rng(7)
+    n = 4000
+    base = rng.standard_normal(n)
+    x3 = rng.standard_normal(n)
+    for first, second, key, used in ((0.3, 0.7, "stroke_stiffness", True),
+                                     (0.3, 0.7, "hose_pressure", False),
+                                     (-0.2, 0.8, "stroke_stiffness", False)):
+        c = np.where(np.arange(n) < n // 2, first, second)
+        y = 2.0 * base + c * x3 + 0.01 * rng.standard_normal(n)
+        cols = {"k_e": base, "x3": x3}
+        sel = nt._select(y, cols, ["k_e"], {key: ["x3"]})
+        term = nt._term(key, "endpoint", "k_3", "N m/rad^3", sel, y, cols, ["x3"])
+        assert not term.resolved and "two halves" in term.reason, term
+        assert term.sized_by_spread is used and term.used is used, term
+        # (the halves split where the target's energy is half spent, not at n/2)
+        assert nt.CONSISTENCY < term.spread < abs(second - first) / abs(term.value), term
+        model, _ = nt._resolved_model(y, cols, sel, [term], {"endpoint_stiffness": "k_e"},
+                                      {key: "x3"})
+        assert (key in model) is used
+        if used:
+            assert "in its margin" in term.reason
+            assert model[key][0] == pytest.approx(term.value, rel=0.01)
