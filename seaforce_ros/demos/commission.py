@@ -332,8 +332,8 @@ def plot(measured, predicted_curves, modes, path: pathlib.Path) -> None:
                         color=colours.get(mode), ms=6)
             ax.semilogx([p[0] for p in pts], [p[2] for p in pts], 's', mfc='none',
                         color=colours.get(mode), ms=8)
-        ax.set_title(f'{label} commissioning (lines: predicted; dots: measured, squares: '
-                     'measured rms)')
+        ax.set_title(f'{label} commissioning\n(lines: predicted; dots: measured, squares: '
+                     'measured rms)', fontsize=10)
         ax.set_xlabel('omega [rad/s]')
         ax.grid(True, which='both', alpha=0.3)
     axes[0].set_ylabel('|Z| [dB re 1 N m s/rad]')
