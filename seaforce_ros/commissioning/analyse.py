@@ -443,7 +443,7 @@ def model_stage(ident: FreeAirIdentification, terms: Optional[NonlinearTerms]
 def _term_sigma(terms: Optional[NonlinearTerms], key: str, fit: Tuple[float, float]) -> float:
     """A used term's 1-sigma: its refit's, with how far the record's halves took it from its
     value (:attr:`~.nonlinear_terms.Term.spread`, relative) -- a per-record measure of what the
-    model's other errors do to it, which the statistical 1-sigma does not count (on 94 draws
+    model's other errors do to it, which the statistical 1-sigma does not count (on 120 draws
     of the oracle the stroke stiffness came out up to 38 % off with a statistical 1-sigma of
     4-6 %; where the halves spread far, the margin then takes the term down with them)."""
     value, sd = fit

@@ -121,7 +121,7 @@ CONSISTENCY = 0.25
 #: chirp's motor rarely stops).
 CONSISTENCY_SIGMAS = 4.0
 #: The terms that are positive in every gripper, and why: a negative one is not resolved (on
-#: one of 94 oracle draws, a plant whose friction F_c/k_e was 1 rad, k_3 came out at -1.4x
+#: one of 120 oracle draws, a plant whose friction F_c/k_e was 1 rad, k_3 came out at -1.4x
 #: its true value, at 3.4 1-sigmas, with the halves' 1-sigmas too wide to disagree).
 PHYSICAL_SIGN = {"motor_coulomb": "friction dissipates",
                  "hose_flow": "no hose loses less as its flow rises",
@@ -133,7 +133,7 @@ PHYSICAL_SIGN = {"motor_coulomb": "friction dissipates",
 #: than not at all. On the oracle the halves turned the diaphragm's k_3 away on 1 of 14
 #: draws of the bench and on some runs of one plant and not on others (the commission demo's
 #: seed 2: halves 0.0536 and 0.0732, whole 0.0563), and the controller without it came out
-#: up to 7.7 dB stiffer than the linear class; the halves-rejected k_3 of a 94-draw survey
+#: up to 7.7 dB stiffer than the linear class; the halves-rejected k_3 of a 120-draw survey
 #: were up to 36 % high with spreads of 25-38 %, which a margin of 2 x the spread leaves
 #: under-compensated.
 MARGINED = ("stroke_asymmetry", "stroke_stiffness")
