@@ -531,7 +531,9 @@ def _margin_cost(plant: PlantParams, dahl: DahlParams, tuned: ControllerConfig,
 #: was resolved on 116, up to 38 % high, on one +35 % with a statistical 1-sigma of 4.2 %
 #: and the halves within 5.3 %, on another +33 % (3.9 %, 9 %): a bias the record does not
 #: show. At 15 % the margin's 2 leaves 70 % of the term, which covers one up to 43 % high;
-#: the survey's resolved terms were all covered with it (at 12.5 %, 3 were not). 20 % before the halves' spread counted: 60 % of the term. The floor rests on
+#: the survey's resolved terms were all covered with it (at 12.5 %, 3 were not); after the
+#: port equation's rerun through the chosen hose, up to 40 % high on the same draws, the
+#: largest compensated 0.94 of its truth. 20 % before the halves' spread counted: 60 % of the term. The floor rests on
 #: that survey (and on test_safety's free-finger invariant, which draws stroke terms up to
 #: 40 % high against it): a larger survey that finds a resolved term beyond +43 % with its
 #: halves agreeing would raise it.
