@@ -327,8 +327,7 @@ def model_stage(ident: FreeAirIdentification, terms: Optional[NonlinearTerms]
     * endpoint: when k_3 is resolved and positive, the diaphragm's stroke terms and b_e,
       k_e, F_c with them (k_2 clipped to ``k_2^2 <= 3 k_e k_3``, a force rising over the
       whole stroke; a k_3 <= 0 or a k_2 alone is left out: no diaphragm softens towards its
-      ends); their 1-sigmas take, beside the refit's, how far the record's halves took them
-      (:attr:`~.nonlinear_terms.Term.spread`). With the port's terms used (and no stroke term left out), b_e, k_e, F_c come
+      ends). With the port's terms used (and no stroke term left out), b_e, k_e, F_c come
       from the endpoint equation -- on X_e through the nonlinear hose -- and m_e from the
       port equation's search even without k_3: the linear identification left the hose's
       terms out and its endpoint is biased by them (its m_e's 1-sigma stays: the search gives
@@ -401,9 +400,12 @@ def model_stage(ident: FreeAirIdentification, terms: Optional[NonlinearTerms]
                     lines.append(f"{key.replace('_', ' ')}: the record's halves disagree "
                                  f"(by {100 * term.spread:.2g} %) but both give it its sign: "
                                  "used, with that spread in its margin")
-            for key in ("stroke_asymmetry", "stroke_stiffness"):
-                if key in m:
-                    sigma[key] = _term_sigma(terms, key, m[key])
+            # (the halves' spread is reported, not folded into these 1-sigmas: folded, it
+            # made the tuned free finger of two oracle draws keep moving -- seeds 503 and 504
+            # of test_nonlinear_compensation, 0.37 rad/s a second after 5 s -- for a reason
+            # not yet found)
+            sigma.update({k: m[k][1] for k in ("stroke_asymmetry", "stroke_stiffness")
+                          if k in m})
             lines.append(f"endpoint: {refit}b_e, k_e, F_c refitted with the stroke terms; "
                          f"the equation's misfit {100 * end.misfit_linear:.2g} % -> "
                          f"{100 * end.model_misfit:.2g} %")
@@ -438,20 +440,6 @@ def model_stage(ident: FreeAirIdentification, terms: Optional[NonlinearTerms]
         lines.insert(0, "the controller's model: " + ", ".join(
             f"{k.replace('_', ' ')} {v:.4g}" for k, v in used.items()))
     return ControllerModel(plant, sigma, dahl, model_terms, class_error, lines)
-
-
-def _term_sigma(terms: Optional[NonlinearTerms], key: str, fit: Tuple[float, float]) -> float:
-    """A used term's 1-sigma: its refit's, with how far the record's halves took it from its
-    value (:attr:`~.nonlinear_terms.Term.spread`, relative) -- a per-record measure of what the
-    model's other errors do to it, which the statistical 1-sigma does not count (on 120 draws
-    of the oracle the stroke stiffness came out up to 38 % off with a statistical 1-sigma of
-    4-6 %; where the halves spread far, the margin then takes the term down with them)."""
-    value, sd = fit
-    term = None if terms is None else next((t for t in terms.terms if t.key == key), None)
-    spread = math.nan if term is None else term.spread
-    if not math.isfinite(spread):
-        return sd
-    return math.hypot(sd, spread * abs(value))
 
 
 # --- 2. sensors and loop --------------------------------------------------------------------

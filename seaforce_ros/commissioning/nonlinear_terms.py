@@ -139,7 +139,11 @@ PHYSICAL_SIGN = {"motor_coulomb": "friction dissipates",
 #: up to 7.7 dB stiffer than the linear class; the halves-rejected k_3 of a 120-draw survey
 #: were up to 36 % high with spreads of 25-38 %, which a margin of 2 x the spread leaves
 #: under-compensated.
-MARGINED = ("stroke_asymmetry", "stroke_stiffness")
+#: Empty: with the spread folded into the stroke terms' 1-sigmas the tuned free finger of two
+#: oracle draws kept moving (test_nonlinear_compensation, seeds 503 and 504), so the spread
+#: is reported only, and a term the halves disagree on is not used (the code stays for when
+#: the cause is found: ``("stroke_asymmetry", "stroke_stiffness")``).
+MARGINED: Tuple[str, ...] = ()
 #: Variance inflation factor above which a term is not separable from the others.
 COLLINEAR_VIF = 100.0
 #: Seconds left out at each end (the filters' transients).

@@ -187,11 +187,14 @@ def test_a_term_negative_where_every_grippers_is_positive_is_not_resolved():
             assert term.spread < 0.05          # both halves give 0.5
 
 
-def test_a_margined_term_whose_halves_disagree_is_used_with_their_spread():
+def test_a_margined_term_whose_halves_disagree_is_used_with_their_spread(monkeypatch):
     """A stroke term whose halves give 0.3 and 0.7 (beyond the halves check, both positive
     and far from zero) is not resolved but used (the controller's refit has it, and its
     spread is what the margin takes); the same record's term under a key without a margin
     of its own (the hose's) is not used; halves of opposite signs are not used either."""
+    # (off by default, MARGINED empty: the mechanism, switched on)
+    assert nt.MARGINED == ()
+    monkeypatch.setattr(nt, "MARGINED", ("stroke_asymmetry", "stroke_stiffness"))
     rng = np.random.default_rng(7)
     n = 4000
     base = rng.standard_normal(n)
