@@ -6,7 +6,7 @@ check the position servo against its analytic end: it settles at the target)."""
 import math
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from seaforce_ros.core.grasp import InvalidGoalError
@@ -290,6 +290,10 @@ def test_random_free_fingers_settle_at_the_target(target, start, velocity, mass,
     rise), and the position servo's integral takes the constant error: the finger ends at the
     target (its analytic equilibrium) to within a fifth of the tolerance."""
     config = ControllerConfig()
+    # within what approach_force can hold at the commanded speed: beyond it the finger is
+    # force-limited and slower than the time above allows, as it should be (a fresh-clone run
+    # drew damping_error 0.0195 at 1 rad/s with error 0.0098: 0.029 N m against 0.02)
+    assume(abs(damping_error) * velocity + abs(error) <= 0.75 * config.grasp.approach_force)
     g = make(position=target, velocity=velocity, start=start, config=config)
     est = Est()
     est.position = start
