@@ -34,13 +34,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Dict, Optional, Tuple
+from typing import Dict, Tuple
 
 import numpy as np
 import numpy.typing as npt
 import scipy.signal
 
-__all__ = ["FingerRatio", "fit_finger_ratio", "finger_ratio_of", "CUTOFF", "MIN_STROKE",
+__all__ = ["FingerRatio", "fit_finger_ratio", "CUTOFF", "MIN_STROKE",
            "MIN_RISE", "MIN_TRAVEL", "RESOLVED_SIGMAS", "CONSISTENCY"]
 
 _Real = npt.NDArray[np.float64]
@@ -265,11 +265,3 @@ def fit_finger_ratio(q: npt.ArrayLike, x: npt.ArrayLike, f_p: npt.ArrayLike, dt:
                            + f" at the ends (beyond {CONSISTENCY:g}): the hose's deflection "
                            "is not F_p/k_s here (take a record of a soft mode)")
     return FingerRatio(*base, True, "")
-
-
-def finger_ratio_of(signals: Dict[str, _Real], dt: float) -> Optional[FingerRatio]:
-    """:func:`fit_finger_ratio` on a record's ``x_e`` (the finger's encoder), ``x`` and
-    ``f_p``; None when the record lacks one of them."""
-    if not all(k in signals for k in ("x_e", "x", "f_p")):
-        return None
-    return fit_finger_ratio(signals["x_e"], signals["x"], signals["f_p"], dt)

@@ -145,7 +145,7 @@ def _mode_in_bag(path, channel):
 def _from_bags(args, progress):
     from ..bags import read_channel
     from ..identification.errors import IdentificationError
-    from ..identification.finger_ratio import finger_ratio_of
+    from ..identification.finger_ratio import fit_finger_ratio
     from ..identification.timeseries import prepare
     from ..identification.zwidth_lib import figure_lines, figures_from_record
 
@@ -172,9 +172,8 @@ def _from_bags(args, progress):
         except IdentificationError as exc:
             print(f"  finger ratio: not fitted ({exc})")
         else:
-            ratio = finger_ratio_of(kinematic.signals, kinematic.dt)
-            print(f"  {ratio.line()}" if ratio is not None else "  finger ratio: the bag has "
-                  "no motor position or pressure force beside the finger's encoder")
+            k = kinematic.signals
+            print(f"  {fit_finger_ratio(k['x_e'], k['x'], k['f_p'], kinematic.dt).line()}")
         points[mode].append(fig)
     # common frequency grid (drive frequencies rounded to 3 significant digits)
     omegas = sorted({float(f"{f.omega:.3g}") for figs in points.values() for f in figs})
