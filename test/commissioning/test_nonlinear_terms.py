@@ -13,16 +13,16 @@ class (the same plant with every effect off), the default 40 s excitation each:
   draws, port misfits 7.4-44 % against at most 1.4 % on the linear class, threshold 2.5 %;
   a draw with the weakest hose losses flagged by the motor's misfit instead);
   the motor's Coulomb friction and cogging (its N too) and the hose's flow term are resolved
-  (or, rarely -- the flow term on 1 in 80 draws, the Coulomb friction on 1 draw of a
-  --cpu-hog run -- found within its tolerance but turned away by the halves check, with that
-  reason), every term
-  said resolved is within its tolerance of the truth (the others -- the pressure and stroke
-  terms where the record does not drive them far or another model error imitates
-  them -- give their reason), and the linear parts the terms leave (m, b, k, b_s, k_s, m_e,
-  k_e) are within their tolerance (15 %; b_s 35 %), where the linear fit's b_s is up to
-  300 % off; the finger ratio is never resolved, with the reason;
+  (or, rarely -- the Coulomb friction on 1 draw in 90 -- found within its tolerance but
+  turned away by the halves check, with that reason), every term said resolved is within
+  its tolerance of the truth (the others -- the pressure and stroke terms where the record
+  does not drive them far or another model error imitates them -- give their reason), and
+  the linear parts the terms leave (m, b, k, b_s, k_s, m_e, b_e, k_e) are within their
+  tolerance (5 %; b_s 15 %), where the linear fit's b_s is up to 300 % off; the finger
+  ratio is never resolved, with the reason;
 * on the linear class nothing is flagged, no term is resolved, and the port equation's b_s
-  is within 5 % (at most 2.4 % over 163 draws; up to 6.2 % with the friction path at 100 Hz).
+  is within 5 % (at most 1.5 % over 30 draws of ``default_rng([s, 2])``; up to 6.2 % with
+  the friction path at 100 Hz).
 
 Also the selection's statistics on synthetic regressions with correlated noise: the
 information criterion picks the term that is there and leaves the one that is not, and the
@@ -63,24 +63,24 @@ def _truth(plant, e):
             "stroke_stiffness": plant["endpoint_stiffness"] * e.stroke_stiffness / STROKE ** 2}
 
 
-#: Tolerances of the resolved terms (relative), from the family itself: over 80 draws with
-#: the effects (seeds 1-40 of this test, 2026-12-05, the port's friction path at 600 Hz)
-#: every draw was flagged, the motor's Coulomb friction and its cogging were always
-#: resolved, the hose's flow term on 79 (on seed 18's second draw, +25 % with b_s -24 %,
-#: the halves gave 0.0159 and 0.0215), and the resolved terms' errors were: Coulomb and
-#: cogging within 1.1 %; the flow term -0.4 to +43 % (median +4 %, 95th percentile +21 %: a
-#: bias upwards where the hose's loss rises steeply, traded against b_s, from the endpoint
-#: model the port equation needs); the pressure term -28 to +35 % (resolved on 47; -55 % with
-#: the path at 100 Hz); k_2 -20 to +16 % (on 56); k_3 -17 to +27 % (on 74; earlier code had
-#: it 46 % low and 38 % high: high is what the controller's margin on the stroke terms must
-#: cover, 2 x 20 %: up to 67 %)
-TOLERANCE = {"motor_coulomb": 0.1, "cogging": 0.1, "hose_flow": (-0.25, 0.6),
-             "hose_pressure": 0.75, "stroke_asymmetry": 0.3, "stroke_stiffness": (-0.6, 0.45)}
-#: ... and of the linear parts beside them: over the same 80 draws b_s within 24 % (the one
-#: the flow term trades against), every other within 7.3 %
-LINEAR_TOLERANCE = {"motor_inertia": 0.15, "motor_damping": 0.15, "motor_stiffness": 0.15,
-                    "hose_damping": 0.35, "hose_stiffness": 0.15, "endpoint_inertia": 0.15,
-                    "endpoint_stiffness": 0.15}
+#: Tolerances of the resolved terms (relative), from the family itself: over 90 draws with
+#: the effects (``default_rng([s, 1])``, s = 1..90, 2026-12-05, the port's search taking
+#: the Dahl shape sigma/F_c) every draw was flagged, the motor's Coulomb friction resolved
+#: on 89 (the 90th turned away by the halves check, 0.0 % off) and its cogging on all, the
+#: hose's flow term on all; the resolved terms' errors were: Coulomb and cogging within
+#: 1 %, the flow term within 1 %, the pressure term -14 to +5 % (resolved on 86; the others
+#: turned away by the halves), k_2 -9 to +6 % (on 55), k_3 -15 to +8 % (on 90). (Before the
+#: search took sigma/F_c -- the linear fit's sigma, -52..+44 % off, held fixed -- the
+#: pressure term was -11 to +201 % on 30 of these draws, k_3 -35 to +8 %, and the flow
+#: term was once turned away at -87 %: the tolerances were 2-4x wider.) The tolerances are
+#: about twice the largest error seen.
+TOLERANCE = {"motor_coulomb": 0.1, "cogging": 0.1, "hose_flow": 0.1,
+             "hose_pressure": 0.35, "stroke_asymmetry": 0.2, "stroke_stiffness": 0.3}
+#: ... and of the linear parts beside them: over the same 90 draws b_s within 7.1 % (the one
+#: the flow term trades against), every other within 1.4 %
+LINEAR_TOLERANCE = {"motor_inertia": 0.05, "motor_damping": 0.05, "motor_stiffness": 0.05,
+                    "hose_damping": 0.15, "hose_stiffness": 0.05, "endpoint_inertia": 0.05,
+                    "endpoint_damping": 0.05, "endpoint_stiffness": 0.05}
 
 
 def test_with_the_effects_the_class_is_flagged_and_the_terms_resolved(family):
@@ -95,10 +95,8 @@ def test_with_the_effects_the_class_is_flagged_and_the_terms_resolved(family):
         truth = _truth(plant, e)
         # the terms every draw has in measurable size: resolved, or chosen, their value
         # within the tolerance, and turned away by the halves check with that reason (the
-        # flow term where the hose's loss rises steeply and the term's bias differs between
-        # the record's halves: 1 of 80 draws; the motor's Coulomb friction on seed 78340's
-        # first draw: 0.00997 and 0.00187 +- 0.0012 N m, the second half above the motor
-        # equation's 10 Hz band)
+        # motor's Coulomb friction on seed 78340's first draw: 0.00997 and 0.00187 +- 0.0012
+        # N m, the second half above the motor equation's 10 Hz band; 1 of the 90 draws)
         for key in ("motor_coulomb", "cogging", "hose_flow"):
             term = terms.term(key)
             if not term.resolved:
