@@ -479,14 +479,14 @@ def model_stage(ident: FreeAirIdentification, terms: Optional[NonlinearTerms]
                     lines.append(f"{key.replace('_', ' ')}: the fit with every chosen term "
                                  f"gives {alt:.4g} against {value:.4g}; the difference "
                                  "counts in its 1-sigma (the feed-forward's margin takes it)")
-    if dahl is None:
-        raise CommissioningError("the Dahl hysteresis is not identified: " + "; ".join(
-            f"{k}: {r}" for k, r in dahl_error.items()))
     unreplaced = {k: r for k, r in missing.items()
                   if not math.isfinite(sigma.get(k, math.nan))}
-    if unreplaced:
-        raise CommissioningError("the plant is not identified: " + "; ".join(
-            f"{k}: {r}" for k, r in unreplaced.items()))
+    errors = [f"the {what} is not identified: " + "; ".join(f"{k}: {r}" for k, r in left.items())
+              for what, left in (("plant", unreplaced),
+                                 ("Dahl hysteresis", dahl_error if dahl is None else {}))
+              if left]
+    if errors or dahl is None:
+        raise CommissioningError("; ".join(errors))
     if missing:
         lines.append("the linear fit did not identify " + ", ".join(missing)
                      + ": the nonlinear terms' equations give them")

@@ -320,3 +320,53 @@ def test_the_stroke_floor_leaves_a_term_up_to_40_percent_high_under_compensated(
     assert stroke_scale(0.0012) == pytest.approx(1.0 - 2.0 * math.hypot(TERM_UNCERTAINTY, 0.01))
     assert stroke_scale(0.0012) * 1.4 <= 1.0               # a term 40 % high: still below
     assert stroke_scale(0.018) == pytest.approx(1.0 - 2.0 * math.hypot(0.3, 0.01))
+
+
+def test_a_plant_the_linear_fit_leaves_unidentified_takes_the_terms_equations_values(record):
+    """Where the linear fit leaves the endpoint and the Dahl friction unidentified (a hose
+    loss doubling at 1 rad/s of flow: m_e 120x, b_e and k_e near zero, their 1-sigmas above
+    them) and the terms' equations give them, the controller's model takes those (m_e with
+    the port search's 1-sigma, sigma from F_c and the search's sigma/F_c) and says so;
+    where the equations do not give one, the run is refused naming it."""
+    from seaforce_ros.commissioning.analyse import model_stage
+    from seaforce_ros.commissioning.errors import CommissioningError
+    from seaforce_ros.commissioning.free_air import Estimate, identify_free_air
+    from seaforce_ros.commissioning.nonlinear_terms import EquationFit, NonlinearTerms
+
+    ident = identify_free_air(record)
+    lost = ('endpoint_inertia', 'endpoint_damping', 'endpoint_stiffness', 'sigma',
+            'coulomb_force')
+    params = dict(ident.parameters)
+    for key in lost:
+        params[key] = Estimate(math.nan, math.nan, 'the record does not tell it apart')
+    blind = dataclasses.replace(ident, parameters=params)
+    with pytest.raises(CommissioningError, match='endpoint_inertia'):
+        model_stage(blind, None)
+
+    def terms(port_linear):
+        port = EquationFit('port', port_linear, 0.14, 0.004, ['hose_flow'], 1000, 100,
+                           {'hose_stiffness': (9.6, 0.01), 'hose_damping': (0.0126, 1e-5),
+                            'hose_flow': (0.012, 1e-5)}, 0.004)
+        end = EquationFit('endpoint', {'endpoint_damping': (0.047, 1e-4),
+                                       'endpoint_stiffness': (0.045, 1e-4),
+                                       'coulomb_force': (0.054, 1e-4)}, 0.01, 0.001, [],
+                          1000, 100, {'endpoint_damping': (0.047, 1e-4),
+                                      'endpoint_stiffness': (0.045, 1e-4),
+                                      'coulomb_force': (0.054, 1e-4)}, 0.001)
+        return NonlinearTerms([], {'port': port, 'endpoint': end})
+
+    searched = {'hose_stiffness': (9.6, 0.01), 'hose_damping': (0.0126, 1e-5),
+                'endpoint_inertia': (5.3e-4, 1e-7), 'dahl_ratio': (240.0, 0.5)}
+    model = model_stage(blind, terms(searched))
+    assert model.plant.endpoint_inertia == 5.3e-4 and model.sigma['endpoint_inertia'] == 1e-7
+    assert (model.plant.endpoint_damping, model.plant.endpoint_stiffness) == (0.047, 0.045)
+    assert model.dahl.coulomb_force == 0.054
+    assert model.dahl.sigma == pytest.approx(0.054 * 240.0)
+    assert 0.0 < model.sigma['sigma'] < 0.01 * model.dahl.sigma
+    assert any('did not identify' in line for line in model.lines), model.lines
+    # the search gave no 1-sigma for m_e and no Dahl shape: refused, naming what is missing
+    for missing, key in (('endpoint_inertia', 'endpoint_inertia'), ('dahl_ratio', 'Dahl')):
+        partial = dict(searched)
+        partial[missing] = (partial[missing][0], math.nan)
+        with pytest.raises(CommissioningError, match=key):
+            model_stage(blind, terms(partial))
