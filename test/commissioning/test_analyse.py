@@ -370,3 +370,23 @@ def test_a_plant_the_linear_fit_leaves_unidentified_takes_the_terms_equations_va
         partial[missing] = (partial[missing][0], math.nan)
         with pytest.raises(CommissioningError, match=key):
             model_stage(blind, terms(partial))
+
+
+def test_impedance_with_a_zero_target_is_dob_full_ffs_backdrive_not_simulated_twice(monkeypatch):
+    """``impedance`` with a zero target renders ``F_cmp + F_d - 0 - 0``: its simulated
+    backdrive is ``dob_full_ff``'s sample for sample, so the prediction stage takes those
+    figures instead of simulating it again -- the same figures as simulating it; with a
+    target it is simulated (and differs)."""
+    from seaforce_ros.commissioning import analyse as an
+    config = ControllerConfig()
+    modes, omegas = ('dob_full_ff', 'impedance'), (3.0,)
+    shared = an.work_loop_stage(TRUE, TRUE_DAHL, config, modes, omegas)
+    monkeypatch.setattr(an, '_same_backdrive', lambda mode, config: mode)
+    simulated = an.work_loop_stage(TRUE, TRUE_DAHL, config, modes, omegas)
+    assert shared.figures['impedance'] == simulated.figures['impedance']
+    assert shared.peak_torque['impedance'] == simulated.peak_torque['impedance']
+    monkeypatch.undo()
+    stiff = an.work_loop_stage(TRUE, TRUE_DAHL,
+                               ControllerConfig.from_dict({'target.stiffness': 0.5}, config),
+                               modes, omegas)
+    assert stiff.figures['impedance'][0].z_rms > 2 * stiff.figures['dob_full_ff'][0].z_rms
