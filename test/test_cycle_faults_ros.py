@@ -211,8 +211,17 @@ class TestOneController:
                                 'pinch.max_torque': 1e-3})
         probe = fed.probe
         source.send(fp=0.5, n=5)                                  # -> beyond max_torque
-        latched = probe.wait_messages('controller_status', 1, where=lambda m: 'max_torque' in
-                                      pinch(m, 'fault'))[-1]
+
+        def latched_status():
+            # states keep coming while the test waits: a status goes out at status_rate from
+            # the cycle, and a fresh clone's run beside the hog saw none after the five-state
+            # burst alone (30 s, the loop not advancing)
+            source.send(fp=0.5)
+            return [m for m in probe.messages('controller_status')
+                    if 'max_torque' in pinch(m, 'fault')]
+        probe.wait_for(lambda: bool(latched_status()), timeout=30,
+                       what='a controller_status with the max_torque fault')
+        latched = latched_status()[-1]
         probe.clear('controller_status')
         for k in range(40):
             source.send(v=0.05 * k, fp=0.01 * k)
