@@ -668,9 +668,9 @@ def work_loop_stage(plant: PlantParams, dahl: Optional[DahlParams], config: Cont
                 # the same controller, sample for sample: its figures (no second simulation)
                 figures[mode].append(figures[same][j])
                 torque[mode].append(torque[same][j])
-                loops.extend(dataclasses.replace(w, mode=mode) for w in list(loops)
-                             if w.mode == same and w.omega == omega
-                             and mode in WORK_LOOP_MODES)
+                if mode in WORK_LOOP_MODES:
+                    loops.extend([dataclasses.replace(w, mode=mode) for w in loops
+                                  if w.mode == same and w.omega == omega])
                 continue
             try:
                 rec = work_loop_experiment(plant=plant, dahl=dahl, amplitude=amplitude,

@@ -629,6 +629,8 @@ def _port(sig: Dict[str, _Real], dt: float, ident: FreeAirIdentification
                  "deflection": float(np.max(np.abs(d[edge:n - edge])))}
         return _filtered(raw, sos, keep), reach
 
+    last: Dict[str, _Real] = {}         # the latest search's Jacobian and residual
+
     def search(names: Sequence[str], start: _Real) -> _Real:
         def resid(z: _Real) -> _Real:
             cols = columns(z)[0]
@@ -648,8 +650,6 @@ def _port(sig: Dict[str, _Real], dt: float, ident: FreeAirIdentification
         out[free] = sol.x
         last["jac"], last["resid"] = sol.jac, sol.fun
         return out
-
-    last: Dict[str, _Real] = {}
 
     groups = {"hose_flow": ["flow"], "hose_pressure": ["pressure"]}
     first = np.log([me, be, ke, fc, sigma / fc])
@@ -720,7 +720,7 @@ def _search_sigma(jac: _Real, resid: _Real, tau: float) -> _Real:
     except np.linalg.LinAlgError:
         return np.full(p, math.nan)
     d = np.diag(cov)
-    return np.where(d >= 0.0, np.sqrt(np.abs(d)), math.nan)
+    return np.sqrt(np.where(d >= 0.0, d, math.nan))
 
 
 def _nonlinear_endpoint(x: _Real, f_p: _Real, hose_damping: float, hose_stiffness: float,
