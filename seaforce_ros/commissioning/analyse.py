@@ -599,6 +599,13 @@ WORK_LOOP_AMPLITUDE = 0.5
 #: Peak drive speed [rad/s] of the rms predictions' backdrives (and the commissioning demo's):
 #: amplitude min(0.5 rad, BACKDRIVE_SPEED/omega).
 BACKDRIVE_SPEED = 0.5
+#: Settling before a backdrive's measured period [s] (one period where that is shorter): the
+#: closed loops' transients last well under a second and the Dahl state forgets its start at
+#: the first reversal. A whole period at 1 rad/s (6.3 s) was a quarter of the analysis' CPU;
+#: with 2 s the rms predictions of 8 draws (4 nonlinear, 4 linear class) moved by at most
+#: 0.084 dB (dob_full_ff at 1 rad/s), every other mode and frequency by at most 0.014 dB
+#: (the commissioning demo settles 1 s).
+BACKDRIVE_SETTLE = 2.0
 #: Points kept of a work loop's period.
 _LOOP_POINTS = 400
 #: The summary warns where a simulated backdrive's peak motor torque exceeds this share of
@@ -642,8 +649,8 @@ def work_loop_stage(plant: PlantParams, dahl: Optional[DahlParams], config: Cont
     """Backdrives simulated on the identified model (the core's simulator: ``plant``,
     ``dahl`` and the motor's ``motor_coulomb`` as the gripper, the tuned ``config`` as the
     controller, the simulator's sensors and one sample of delay), each mode at each of
-    ``omegas`` with :func:`backdrive_amplitude`, one period after one of settling: the
-    impedance figures -- the rms prediction, which counts the harmonics the Dahl hysteresis
+    ``omegas`` with :func:`backdrive_amplitude`, one period after :data:`BACKDRIVE_SETTLE`
+    of settling (a period at most): the impedance figures -- the rms prediction, which counts the harmonics the Dahl hysteresis
     and the Coulomb friction give --, the peak motor torque, and the work loops of
     :data:`WORK_LOOP_MODES` at
     :data:`WORK_LOOP_OMEGA`. With the model's nonlinear ``terms`` the simulated gripper has
@@ -673,9 +680,10 @@ def work_loop_stage(plant: PlantParams, dahl: Optional[DahlParams], config: Cont
                                   if w.mode == same and w.omega == omega])
                 continue
             try:
+                settle = min(1.0, BACKDRIVE_SETTLE * omega / (2.0 * math.pi))
                 rec = work_loop_experiment(plant=plant, dahl=dahl, amplitude=amplitude,
                                            frequency=omega, cycles=1.0, mode=mode,
-                                           config=config, settle_cycles=1.0,
+                                           config=config, settle_cycles=settle,
                                            motor_coulomb=motor_coulomb, effects=effects)
             except SeaforceError:
                 figures[mode].append(None)
