@@ -11,6 +11,7 @@ pass or fail.
 Also: ``identify --out`` onto an existing, commented params file (a copy of
 config/gripper.yaml) changes the identified values in place and keeps every comment line."""
 import contextlib
+import functools
 import importlib.metadata
 import io
 import re
@@ -44,6 +45,7 @@ def _run(processes, name, *args, timeout=60.0):
 IN_PROCESS = ("identify", "zwidth", "commission")
 
 
+@functools.cache
 def _entry_point(name):
     """The function the installed executable ``name`` runs (its console-script entry point)."""
     found = importlib.metadata.entry_points(group="console_scripts", name=name)

@@ -650,9 +650,9 @@ def work_loop_stage(plant: PlantParams, dahl: Optional[DahlParams], config: Cont
     ``dahl`` and the motor's ``motor_coulomb`` as the gripper, the tuned ``config`` as the
     controller, the simulator's sensors and one sample of delay), each mode at each of
     ``omegas`` with :func:`backdrive_amplitude`, one period after :data:`BACKDRIVE_SETTLE`
-    of settling (a period at most): the impedance figures -- the rms prediction, which counts the harmonics the Dahl hysteresis
-    and the Coulomb friction give --, the peak motor torque, and the work loops of
-    :data:`WORK_LOOP_MODES` at
+    of settling (a period at most): the impedance figures -- the rms prediction, which
+    counts the harmonics the Dahl hysteresis and the Coulomb friction give --, the peak
+    motor torque, and the work loops of :data:`WORK_LOOP_MODES` at
     :data:`WORK_LOOP_OMEGA`. With the model's nonlinear ``terms`` the simulated gripper has
     them too (:func:`~seaforce_ros.core.nonlinear_effects.effects_of_terms`). A mode the
     simulation cannot run (its configuration refused) is left out."""

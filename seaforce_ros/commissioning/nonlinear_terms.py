@@ -721,7 +721,8 @@ def _port(sig: Dict[str, _Real], dt: float, ident: FreeAirIdentification
 
 
 def _misfit_of(resid: _Real, y: _Real) -> float:
-    return math.sqrt(float(resid @ resid) / float(y @ y))
+    """rms of ``resid`` over rms of ``y`` (a search's residual against its target)."""
+    return math.sqrt(float(resid @ resid) / max(float(y @ y), 1e-300))
 
 
 def _best_restart(z: _Real, first: _Real, search: Callable[[_Real], _Real],

@@ -215,3 +215,35 @@ def test_a_margined_term_whose_halves_disagree_is_used_with_their_spread(monkeyp
         if used:
             assert "in its margin" in term.reason
             assert model[key][0] == pytest.approx(term.value, rel=0.01)
+
+
+def test_a_search_far_off_is_started_again_and_the_best_kept_with_its_jacobian():
+    """The port search's restart (:func:`nt._best_restart`, taken when the first search's
+    misfit exceeds PORT_RESTART_MISFIT): a stub search whose misfit depends on where m_e
+    starts; the lowest misfit of the first and the restarts wins, and the Jacobian and
+    residual left for the 1-sigmas are that search's, not the last one run."""
+    y = np.ones(10)
+    first = np.log([1e-3, 0.03, 0.06, 0.03, 400.0])
+    last = {}
+    started = []
+
+    def search(start):
+        started.append(float(np.exp(start[0])))
+        misfit = 0.01 if np.exp(start[0]) < 1e-3 else 0.3
+        last["resid"] = misfit * y
+        last["jac"] = np.full((10, 5), misfit)
+        return start + misfit
+    last.update(resid=0.2 * y, jac=np.full((10, 5), 0.2))
+    z = nt._best_restart(first + 0.2, first, search, last, y)
+    assert started == pytest.approx([1e-3 / 3.0, 3e-3])
+    assert nt._misfit_of(last["resid"], y) == pytest.approx(0.01)
+    assert np.all(last["jac"] == 0.01)
+    start = first.copy()
+    start[0] += math.log(1.0 / 3.0)
+    assert np.allclose(z, start + 0.01)
+    # nothing better: the first search stays, with its own Jacobian
+    last.update(resid=0.001 * y, jac=np.full((10, 5), 0.001))
+    started.clear()
+    z = nt._best_restart(first, first, search, last, y)
+    assert len(started) == 2 and np.allclose(z, first) and np.all(last["jac"] == 0.001)
+    assert nt._misfit_of(np.zeros(3), np.zeros(3)) == 0.0      # a target of zeros: no crash
