@@ -154,25 +154,25 @@ def ros_context():
 
 
 # --- xdist: which worker runs what ----------------------------------------------------------
-#: The test files that start ROS stacks and measure them in real time (nodes, benches, the
-#: EtherCAT emulator). Under xdist with ``--dist loadfile`` (scripts/test) they are one unit
-#: of work: one worker runs them one file after another while the other takes the rest file by
-#: file, so that two stacks never share the 2 cores (two at once failed the commissioning
-#: tests) and each runs beside at most one single-threaded test (niced: REST_NICENESS). The
-#: tests beside the CPU hogs (test_grasp_ros, test_hardware_node) come late, when the other
-#: worker's files are short: each waits for it to end its test (up to PAUSE_ACK).
-STACKS = ('test_benches_live.py', 'test_commission_ros.py', 'test_friction_calibration_ros.py',
-          'test_bag_recorder.py', 'test_safety_ros.py', 'test_cycle_faults_ros.py',
-          'test_closed_loop.py', 'test_controller_modes_ros.py', 'test_passivity_guard_ros.py',
-          'test_layouts_ros.py', 'test_gripper_actions_ros.py', 'test_identification_ros.py',
-          'ethercat/test_backend.py', 'ethercat/test_emulator.py', 'ethercat/test_harness.py',
-          'test_grasp_ros.py', 'test_hardware_node.py')
+#: The test files that start ROS stacks and measure them (nodes, demos, benches, the EtherCAT
+#: emulator). Under xdist with ``--dist loadfile`` (scripts/test) they are one unit of work:
+#: one worker runs them one file after another while the other takes the rest file by file,
+#: so that two stacks never share the 2 cores (two at once failed the commissioning tests;
+#: with the three lockstep demos on the other worker at nice 10, a real-time probe beside them
+#: lost 21 % of its states, test_friction_calibration_ros, 2026-12-06) and each runs beside at
+#: most one single-threaded test (niced: REST_NICENESS). The tests beside the CPU hogs
+#: (test_grasp_ros, test_hardware_node) come last, when the other worker's files are short:
+#: each waits for it to end its test (up to PAUSE_ACK).
+STACKS = ('test_demo.py', 'test_benches_live.py', 'test_commission_ros.py',
+          'test_friction_calibration_ros.py', 'test_bag_recorder.py', 'test_safety_ros.py',
+          'test_cycle_faults_ros.py', 'test_closed_loop.py', 'test_controller_modes_ros.py',
+          'test_passivity_guard_ros.py', 'test_layouts_ros.py', 'test_gripper_actions_ros.py',
+          'test_identification_ros.py', 'ethercat/test_backend.py', 'ethercat/test_emulator.py',
+          'ethercat/test_harness.py', 'test_grasp_ros.py', 'test_hardware_node.py')
 #: The longest other files, longest first, at the head of the queue the scheduler hands out
-#: (the rest follow in collection order): the demos (three lockstep stacks, their figures their
-#: loops' own on any host; 3-4 min, the longest file) go to the other worker at once, beside
-#: the STACKS, instead of last or inside them (in STACKS they were 234 of its 806 s on
-#: 2026-12-06, the suite 16 min with the other worker idle at the end).
-LONGEST = ('test_demo.py', 'test_benches.py', 'commissioning/test_free_air.py',
+#: after STACKS (the rest follow in collection order), so that the other worker's last files
+#: are short ones.
+LONGEST = ('test_benches.py', 'commissioning/test_free_air.py',
            'commissioning/test_nonlinear_compensation.py', 'test_identification_random.py',
            'core/test_per_sample_exact.py', 'test_startup_errors.py',
            'core/test_passivity_guard.py', 'commissioning/test_analyse.py',
@@ -219,8 +219,8 @@ def pytest_xdist_make_scheduler(config, log):
     the test's node id, which pytest 9 no longer lets it do: its groups are lost.)"""
     if config.getvalue('dist') != 'loadfile':
         return None
-    # the units in the workers' collection order (pytest_collection_modifyitems), not by
-    # their number of tests (which put the demos' four tests near the end)
+    # the units in the workers' collection order (pytest_collection_modifyitems: STACKS,
+    # LONGEST, the rest), not by their number of tests
     config.option.loadscopereorder = False
     from xdist.scheduler import LoadFileScheduling
 
