@@ -679,8 +679,8 @@ def work_loop_stage(plant: PlantParams, dahl: Optional[DahlParams], config: Cont
                     loops.extend([dataclasses.replace(w, mode=mode) for w in loops
                                   if w.mode == same and w.omega == omega])
                 continue
+            settle = min(1.0, BACKDRIVE_SETTLE * omega / (2.0 * math.pi))   # [periods]
             try:
-                settle = min(1.0, BACKDRIVE_SETTLE * omega / (2.0 * math.pi))
                 rec = work_loop_experiment(plant=plant, dahl=dahl, amplitude=amplitude,
                                            frequency=omega, cycles=1.0, mode=mode,
                                            config=config, settle_cycles=settle,

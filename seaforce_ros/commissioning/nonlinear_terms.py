@@ -430,7 +430,12 @@ def _filtered(signals: Dict[str, _Real], sos: _Real, keep: slice) -> Dict[str, _
 
 
 def _misfit(fit: _Fit, y: _Real) -> float:
-    return math.sqrt(fit.rss / max(float(y @ y), 1e-300))
+    return _rss_misfit(fit.rss, y)
+
+
+def _rss_misfit(rss: float, y: _Real) -> float:
+    """rms of a residual whose sum of squares is ``rss`` over rms of its target ``y``."""
+    return math.sqrt(rss / max(float(y @ y), 1e-300))
 
 
 def _group_value(fit: _Fit, group: Sequence[str], amplitude: bool) -> Tuple[float, float]:
@@ -661,14 +666,14 @@ def _port(sig: Dict[str, _Real], dt: float, ident: FreeAirIdentification
         return out
 
     groups = {"hose_flow": ["flow"], "hose_pressure": ["pressure"]}
+    fullest = ["k_s", "b_s", "flow", "pressure"]
     first = np.log([me, be, ke, fc, sigma / fc])
     z = first
     for rerun in (False, True):
         # the endpoint from the fullest model, then the selection with it held
-        z = search(["k_s", "b_s", "flow", "pressure"], z)
+        z = search(fullest, z)
         if not rerun and _misfit_of(last["resid"], y) > PORT_RESTART_MISFIT:
-            z = _best_restart(z, first, lambda start: search(["k_s", "b_s", "flow", "pressure"],
-                                                             start), last, y)
+            z = _best_restart(z, first, lambda start: search(fullest, start), last, y)
         cols, reach = columns(z)
         sel = _select(y, cols, ["k_s", "b_s"], groups)
         if set(sel.chosen) != {"hose_flow", "hose_pressure"}:
@@ -722,7 +727,7 @@ def _port(sig: Dict[str, _Real], dt: float, ident: FreeAirIdentification
 
 def _misfit_of(resid: _Real, y: _Real) -> float:
     """rms of ``resid`` over rms of ``y`` (a search's residual against its target)."""
-    return math.sqrt(float(resid @ resid) / max(float(y @ y), 1e-300))
+    return _rss_misfit(float(resid @ resid), y)
 
 
 def _best_restart(z: _Real, first: _Real, search: Callable[[_Real], _Real],
@@ -734,8 +739,9 @@ def _best_restart(z: _Real, first: _Real, search: Callable[[_Real], _Real],
         start = first.copy()
         start[0] += math.log(factor)
         out = search(start)
-        if _misfit_of(last["resid"], y) < best[0]:
-            best = (_misfit_of(last["resid"], y), out, dict(last))
+        misfit = _misfit_of(last["resid"], y)
+        if misfit < best[0]:
+            best = (misfit, out, dict(last))
     last.update(best[2])
     return best[1]
 
