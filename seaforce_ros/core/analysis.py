@@ -291,7 +291,10 @@ def _whole_periods(n_samples: int, omega: float, dt: float, settle_time: float) 
     """(first sample, periods) of the largest whole number of periods after ``settle_time``,
     taken from the end of the record (as :func:`fourier_coefficient`)."""
     period = 2.0 * math.pi / omega
-    start = int(math.ceil(settle_time / dt))
+    # the settle ends within the sample it falls in (floor: a record of k periods after the
+    # settle, both rounded to samples, keeps its k periods -- with ceil a backdrive of one
+    # recorded period came out a sample short for about a quarter of the frequencies)
+    start = int(math.floor(settle_time / dt + 1e-9))
     available = n_samples - start
     # a window up to one sample short of whole periods counts as whole periods (a record of
     # k periods rounded to samples; the harmonics are fitted by least squares, which a

@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from seaforce_ros.core.analysis import (AWAY_SHARE, CENTRE_BAND, HARMONICS, impedance_figures,
                                         impedance_from_position)
@@ -112,6 +114,26 @@ def test_work_loop_peaks_of_a_hardening_spring(seed):
     assert away * (1 - 5 * a_big * w * DT / reach) <= fig.peak_away <= away
     assert fig.peak_centre <= fig.peak_away <= fig.peak
     assert fig.away_ratio == pytest.approx(fig.peak_away / fig.peak_centre)
+
+
+@settings(max_examples=300, deadline=None)
+@given(omega=st.floats(0.3, 40.0), periods=st.integers(1, 3), settle_periods=st.floats(0.0, 2.0),
+       dt=st.sampled_from([5e-4, 1e-3, 2e-3]))
+def test_a_record_of_whole_periods_after_its_settle_is_measured_whole(omega, periods,
+                                                                      settle_periods, dt):
+    """Invariant: a record made as a backdrive makes one -- ``periods`` drive periods after
+    ``settle_periods`` of them, the sum rounded to samples -- is measured, on its whole
+    periods, for every frequency: no 'shorter than one period', and the fundamental of a
+    linear impedance exact. (With the settle's end rounded up, one recorded period came out
+    a sample short for about a quarter of the frequencies.)"""
+    period = 2.0 * math.pi / omega
+    n = int(round((periods + settle_periods) * period / dt))
+    t = np.arange(n) * dt
+    x = 0.3 * np.sin(omega * t)
+    z = complex(0.2, -0.5)
+    f = z.real * 0.3 * omega * np.cos(omega * t) - z.imag * omega * x
+    fig = impedance_figures(f, x, omega, dt, settle_periods * period)
+    assert fig.z == pytest.approx(z, rel=1e-6)
 
 
 def test_refuses_what_it_cannot_measure():
