@@ -32,8 +32,12 @@ _sf_setup() {
   done
 
   # 1. virtual environment and pinned packages
-  local req_stamp
-  req_stamp="$(_sf_hash "$_sf_root/scripts/requirements.txt" "$_sf_root/scripts/constraints.txt" "$_sf_root/scripts/fix_cmake_paths.py")-$("$py" -VV | sha256sum | cut -c1-8)"
+  # the interpreter in the stamp is the venv's once there is one (the one pip installs
+  # into): a shell whose python3.11 is another build (pyenv beside /usr/bin) must not
+  # reinstall the same packages each time it alternates with the other
+  local req_stamp stamp_py="$py"
+  [ -x "$_sf_venv/bin/python" ] && stamp_py="$_sf_venv/bin/python"
+  req_stamp="$(_sf_hash "$_sf_root/scripts/requirements.txt" "$_sf_root/scripts/constraints.txt" "$_sf_root/scripts/fix_cmake_paths.py")-$("$stamp_py" -VV 2>/dev/null | sha256sum | cut -c1-8)"
   if [ ! -x "$_sf_venv/bin/python" ] || [ "$(cat "$_sf_venv/.seaforce-req" 2>/dev/null)" != "$req_stamp" ]; then
     local t0=$SECONDS
     [ -x "$_sf_venv/bin/python" ] || { _sf_log "creating virtual environment $_sf_venv"; "$py" -m venv "$_sf_venv" || return 1; }
