@@ -73,6 +73,9 @@ class CommissionObserver(Observer):
     def __init__(self):
         super().__init__()
         self.contact: Dict[int, bool] = {}
+        #: whether the sim's position drive is running (set by this demo only: the sim
+        #: starts with the finger free, :func:`release` sets it free again)
+        self.driving = False
 
     def _on_status(self, msg):
         super()._on_status(msg)
@@ -106,14 +109,17 @@ def measure_modes(observer, children, modes: Sequence[str], frequencies: Sequenc
         a = amplitude(omega)
         observer.set_mode('passive')        # the drive changes under the softest mode
         # ... as the finger passes the centre upwards, where the new sine starts: no step of
-        # the set point (a drive that is running; none yet: the finger rests there)
-        observer.wait_crossing(children, 0.0, timeout=10.0, rising=True, required=False)
+        # the set point -- when a drive is running; a free finger rests near its centre and
+        # crosses nothing (waiting there cost the timeout, 10 s, before each series)
+        if observer.driving:
+            observer.wait_crossing(children, 0.0, timeout=10.0, rising=True, required=False)
         # atomically: one set at a time would install the drive three times, each restarting
         # its sine at 0 (a step of the set point) and the first with the old amplitude
         set_parameters(node, '/sim', {f'{CHANNEL}.environment.mode': 'position_sine',
                                       f'{CHANNEL}.environment.amplitude': a,
                                       f'{CHANNEL}.environment.frequency': float(omega)},
                        atomically=True)
+        observer.driving = True
         period = int(math.ceil(2.0 * math.pi / omega / DT)) + 1
         for mode in modes:
             for attempt in range(1, ATTEMPTS + 1):
@@ -206,6 +212,7 @@ def release(observer, children) -> None:
     centred = (observer.latest_cycle() or 0) + int(round(CENTRE_TIME / DT))
     observer.wait_cycle(children, centred)
     set_parameters(observer.node, '/sim', {f'{CHANNEL}.environment.mode': 'free'})
+    observer.driving = False
     if observer.latest_fault():
         # a latched fall-back turns the commissioning goal away: clear it first
         reset_plant(observer, ('/controller/reset',))
