@@ -259,10 +259,22 @@ class ChannelController:
         self._walled = not isinstance(mode, Passive)
         self._reads_feedforward = type(mode) is DobFullFeedforward     # F_ref = obs.feedforward
 
-    def _select(self, c: ControllerConfig) -> None:
-        """Apply a configuration handed to :meth:`configure`: its mode is selected (anew)."""
-        self._apply_config(c, bool(self._mode_sets.take()))
-        self._modes[c.mode].select()
+    def _select(self, c: ControllerConfig) -> bool:
+        """Apply a configuration handed to :meth:`configure`. Its mode is selected anew -- a
+        chirp plays again, the targets are captured at the next sample -- when the mode
+        changes or was set (``mode_set``, even to the one in force); True then. Otherwise the
+        mode goes on with the new values: its targets (``hold``'s set point, ``impedance``'s
+        rest position, the chirp's clock and offset) are kept. (Until 2026-12-06 every
+        parameter set selected the mode anew: a set of ``hold.stiffness`` in ``chirp`` replayed
+        a finished chirp, or restarted a running one from its torque of that instant, which
+        stayed on after it; in ``impedance`` it moved the spring's rest to where the finger
+        was pushed.)"""
+        mode_set = bool(self._mode_sets.take())
+        anew = mode_set or c.mode != self.mode
+        self._apply_config(c, mode_set)
+        if anew:
+            self._modes[c.mode].select()
+        return anew
 
     def _configure_guard(self, c: ControllerConfig) -> None:
         """The guard of ``c.passivity`` (None when disabled) on the DOB's port, whose apparent
@@ -480,8 +492,10 @@ class ChannelController:
         if pending is not None:
             keep_ledger = pending.mode == self.mode and self._entry != _ENTER and \
                 not (self.job is not None and self._mode_sets)
-            self._select(pending)
-            self._entry = _ENTER
+            if self._select(pending):
+                self._entry = _ENTER
+            elif self._entry != _ENTER:
+                self._entry = _REENTER      # the new values taken up bumplessly, targets kept
         if self._jobs:
             keep_ledger = False
             self._take_jobs()

@@ -228,9 +228,14 @@ class Chirp(TorqueMode):
 
     def enter(self, x: float, v: float, f_p: float, steps: int, torque: float,
               full: bool) -> float:
-        self._bias = torque
-        self._t = self._duration if self.played else 0.0
-        return self._output()
+        """Full entry (selected anew) or after an interruption: u_0 = ``torque``, the chirp
+        from its start -- or, played, not again. A re-entry while it plays (new values set
+        within the mode): it goes on, its clock and u_0 kept."""
+        if full or self.played:
+            self._bias = torque
+            self._t = self._duration if self.played else 0.0
+            return self._output()
+        return self.update(x, v, f_p, steps)
 
     def update(self, x: float, v: float, f_p: float, steps: int) -> float:
         self._t += self.dt * steps

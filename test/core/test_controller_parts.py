@@ -42,7 +42,23 @@ def test_torque_modes_enter_from_the_applied_torque(name, full):
     if not full:        # a re-entry keeps targets captured at an earlier entry
         mode.enter(0.01, 0.0, 0.0, 1, -0.2, True)
         mode.update(0.03, 0.1, 0.05, 1)
+        mode.interrupt()    # the plant replaced the torque (ChannelController.reenter)
     assert mode.enter(0.02, 0.3, -0.1, 1, 0.25, full) == pytest.approx(0.25, abs=1e-15)
+
+
+def test_a_chirp_re_entered_without_an_interruption_goes_on():
+    """New values set within ``chirp`` while it plays (a re-entry, no interruption): the chirp
+    goes on from its clock with its u_0, sample for sample as without the re-entry."""
+    cfg = CONFIG.replace(mode="chirp")
+    one, other = (MODE_TYPES["chirp"](cfg, DT) for _ in range(2))
+    for m in (one, other):
+        m.select()
+        m.enter(0.0, 0.0, 0.0, 1, -0.2, True)
+        for _ in range(50):
+            m.update(0.0, 0.0, 0.0, 1)
+    assert one.enter(0.0, 0.0, 0.0, 1, 0.7, False) == other.update(0.0, 0.0, 0.0, 1)
+    assert [one.update(0.0, 0.0, 0.0, 1) for _ in range(100)] \
+        == [other.update(0.0, 0.0, 0.0, 1) for _ in range(100)]
 
 
 def test_passive_is_zero_at_once():
