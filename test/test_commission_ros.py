@@ -16,6 +16,7 @@ import math
 import os
 import pathlib
 import re
+import signal
 
 import numpy as np
 import yaml
@@ -201,6 +202,32 @@ def test_commission_over_ros(processes, tmp_path, probe):
         probe.wait_for(settled, timeout=60, what='the finger free in hold')
     except AssertionError as exc:
         raise AssertionError(f'{exc}: {contact_history()} ({where})') from None
+    # --- the command-line tool stopped by SIGTERM mid-excitation (as a supervisor or
+    # `timeout` stops it): it cancels its goal and says so -- no traceback, the excitation
+    # does not go on with nobody watching (rclpy's own handlers once shut its context down
+    # first: a traceback, and the torque went on)
+    probe.record(ActuatorCommand, 'actuator_command')
+    stopped = processes.start([str(executable('commission')), '--channel', 'pinch',
+                               '--dry-run'], name='commission_stopped')
+    assert stopped.wait_for_output('[commission] excite', timeout=60), stopped.output()
+    stopped.send_signal(signal.SIGTERM)
+    assert stopped.wait(timeout=60) == 1, stopped.output()
+    text = stopped.output()
+    assert 'canceling' in text and 'pinch: canceled' in text, text
+    assert 'Traceback' not in text, text
+    ended = probe.messages('actuator_command')[-1].cycle
+    probe.wait_messages('actuator_command', 400, timeout=60, where=lambda m: m.cycle > ended)
+    after = [e for _, e in _efforts_after(probe, ended, pinch)]
+    # hold's torque on the free finger, steady: no chirp in it (at 10 % of the excitation
+    # the chirp moves its torque by about 0.1 N m in 0.2 s)
+    assert len(after) >= 400 and np.ptp(after[-400:]) < 0.02, after[-5:]
+    probe.stop_recording('actuator_command')
+    probe.clear('controller_status')
+    try:
+        probe.wait_for(settled, timeout=60, what='the finger free in hold after the cancel')
+    except AssertionError as exc:
+        raise AssertionError(f'{exc}: {contact_history()} ({where})') from None
+
     cli = processes.start([str(executable('commission')), '--channel', 'pinch', '--dry-run'],
                           name='commission')
     assert cli.wait(timeout=300) == 0, f'{cli.output()}\n{where}'   # the seed last: CI keeps

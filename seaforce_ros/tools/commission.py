@@ -9,8 +9,9 @@
     commission --rollback seaforce_commissioning/pinch-20261204T101500Z   # undo a run's tuning
 
 The finger must be free in the air. A progress bar (phase, what is measured, percent) goes to
-stderr; the summary table, the report's path and the params files to stdout. Ctrl-C cancels
-the goal (the controller zeroes the excitation's torque) and waits for it to end.
+stderr; the summary table, the report's path and the params files to stdout. Ctrl-C or
+SIGTERM cancels the goal (the controller zeroes the excitation's torque) and waits for it to
+end.
 ``--rollback RUN_DIR`` (or the path of a ``rollback.yaml``) sets the values a run's tuning
 replaced back on the controller in one atomic set (``rollback.yaml``, as rclpy's parameter
 client loads a params file): validated as a whole configuration, all of them or none.
@@ -22,6 +23,7 @@ from __future__ import annotations
 import argparse
 import math
 import pathlib
+import signal
 import sys
 import time
 
@@ -192,6 +194,10 @@ def rollback(args, path: pathlib.Path, node, executor) -> int:
     return 0
 
 
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
 def run(args) -> int:
     import rclpy
     from rclpy.action import ActionClient
@@ -210,7 +216,13 @@ def run(args) -> int:
     if problem:
         print(f"commission: error: --rollback {problem}", file=sys.stderr)
         return 2
-    rclpy.init()
+    # rclpy's own SIGINT/SIGTERM handlers would shut its context down before the cancel
+    # below could be sent (a traceback, and the excitation went on with nobody watching):
+    # both signals raise KeyboardInterrupt here instead, so the goal is canceled
+    from rclpy.signals import SignalHandlerOptions
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _interrupt)
     node = rclpy.create_node("commission_cli")
     executor = SingleThreadedExecutor()
     executor.add_node(node)
