@@ -38,6 +38,12 @@ def assert_refused(code, out, *names):
 
 # --- one bad value per case: (executable, node name, overrides, words the message names) ---
 BAD_VALUES = [
+    # a misspelt name: no node of the package declares it, and it is a typo away from one
+    # this node declares (it once started with torque_limit at 20 N m, pinch.mode passive)
+    ('sim_node', 'sim', {'torque_limt': 2.0}, ['torque_limt', 'did you mean torque_limit']),
+    ('controller_node', 'controller', {'pinch.mod': 'hold'}, ['pinch.mod',
+                                                                'did you mean pinch.mode']),
+    ('bag_recorder', 'bag_recorder', {'topic': ['/joint_states']}, ['did you mean topics']),
     ('sim_node', 'sim', {'clock_mode': 'lockstepp'}, ['clock_mode', 'lockstep']),
     ('bag_recorder', 'bag_recorder', {'reliability': 'fast'}, ['reliability', 'best_effort']),
     ('controller_node', 'controller', {'executor': 'multi'}, ['executor', 'single_threaded']),
@@ -412,3 +418,46 @@ def test_command_line_wins_over_the_shipped_params_file(node):
     finally:
         rclpy.try_shutdown(context=context)
     assert {name: values[name] for name in wanted} == wanted
+
+
+def test_names_no_node_declares():
+    """:func:`check_undeclared` on a node given these names (in-process, its own context): a
+    typo of one it declares is refused naming both; another package's name passes with a
+    warning; a name another node of this package declares (the shipped file holds them all),
+    a per-channel one of any channel and rclpy's own pass silently."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+
+    from seaforce_ros.nodes.ros_common import StartupError, check_undeclared
+
+    def node_with(**given):
+        node = rclpy.create_node(
+            'check_undeclared_probe', context=context,
+            parameter_overrides=[Parameter(k, value=v) for k, v in given.items()])
+        node.declare_parameter('torque_limit', 20.0)
+        node.declare_parameter('pinch.mode', 'passive')
+        return node
+
+    context = Context()
+    rclpy.init(context=context)
+    warnings = []
+    try:
+        for given, refused in (({'torque_limt': 2.0}, 'did you mean torque_limit'),
+                               ({'pinch.mod': 'hold'}, 'did you mean pinch.mode')):
+            node = node_with(**given)
+            with pytest.raises(StartupError, match=refused):
+                check_undeclared(node)
+            node.destroy_node()
+        quiet = node_with(**{'interface': 'eth9', 'pinch.dob.cutoff': 100.0,
+                             'thumb.sim.plant.motor_inertia': 1e-3, 'use_sim_time': False,
+                             'qos_overrides./x.publisher.depth': 5})
+        quiet.get_logger().warning = warnings.append
+        check_undeclared(quiet)
+        assert warnings == []
+        foreign = node_with(other_pkg_gain=1.0)
+        foreign.get_logger().warning = warnings.append
+        check_undeclared(foreign)
+        assert len(warnings) == 1 and 'ignored: other_pkg_gain' in warnings[0], warnings
+    finally:
+        rclpy.shutdown(context=context)

@@ -57,7 +57,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSPro
 from ..bags import BagError, BagWriter, BagWriteError, QosProfile, check_output_directory
 from ..bags.typestore import has_header, header_stamp_ns, knows, type_hash
 from ..core.schema import RECORDER
-from .ros_common import (RECORD_QOS, StartupError, declare, diagnostic_status,
+from .ros_common import (RECORD_QOS, StartupError, check_undeclared, declare, diagnostic_status,
                          diagnostics_publisher, publish_diagnostics, run)
 from . import param_specs as ps
 
@@ -124,6 +124,7 @@ class BagRecorderNode(Node):
     def __init__(self, **kwargs):
         super().__init__('bag_recorder', **kwargs)
         values = declare(self, node_specs())
+        check_undeclared(self)
         topics = [t for t in values['topics'] if t]
         if not topics:
             raise StartupError('topics is empty: nothing to record')

@@ -78,9 +78,9 @@ from ..core.schema import BRINGUP, CONTROLLER
 from .commissioning import CommissionAction
 from .gripper_actions import gripper_job_actions
 from .jobs import JobAction, JobActions
-from .ros_common import (GRAPH_PERIOD, STATUS_QOS, StartupError, control_qos, declare,
-                         diagnostic_status, diagnostics_publisher, log_events, node_label,
-                         publish_diagnostics, run, shutdown_safe)
+from .ros_common import (GRAPH_PERIOD, STATUS_QOS, StartupError, check_undeclared, control_qos,
+                         declare, diagnostic_status, diagnostics_publisher, log_events,
+                         node_label, publish_diagnostics, run, shutdown_safe)
 from .timing import LoopStats
 
 #: s without a state the cycle ran on after which the node (not the cycle, which does not
@@ -141,6 +141,7 @@ class ControllerNode(Node):
                 raise StartupError(ps.channel_error(exc, channel)) from None
             self.configs.append(config)
             controllers.append(ChannelController(config, dt=self.dt))
+        check_undeclared(self)
         try:
             self.cycle = ControlCycle(self.channels, controllers, _checks_from(values))
         except ValueError as exc:

@@ -4,6 +4,7 @@ Only conversion and wiring lives here; the algorithms are in :mod:`seaforce_ros.
 """
 from __future__ import annotations
 
+import difflib
 import functools
 import os
 import signal
@@ -23,7 +24,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
 from ..core.episodes import ERROR, WARNING
-from ..core.schema import Spec
+from ..core.schema import Spec, rows
 from ..core.settings import EXECUTORS
 
 #: Control-rate topics (actuator_state, actuator_command), publisher side: reliable (lockstep
@@ -122,6 +123,56 @@ def declare(node, specs: Iterable[Spec]) -> Dict[str, Any]:
         node._seaforce_coerces = True
         node.add_pre_set_parameters_callback(functools.partial(_ints_as_floats, node))
     return values
+
+
+#: Parameters an rclpy node has without declaring them, or reads as overrides (QoS).
+_ROS_NAMES = ('use_sim_time', 'start_type_description_service')
+_ROS_PREFIXES = ('qos_overrides.',)
+
+
+@functools.cache
+def _package_names():
+    """(the nodes' own parameter names, the per-channel ones without their channel)."""
+    own, per = set(), set()
+    for spec in rows():
+        (per if spec.per_channel else own).add(spec.name)
+    return frozenset(own), frozenset(per)
+
+
+def _package_parameter(name: str) -> bool:
+    """Whether some node of this package declares ``name`` (``<channel>.<key>`` for a
+    channel's, ``<channel>.sim.<key>`` for the sim's true plant)."""
+    own, per = _package_names()
+    if name in own:
+        return True
+    _, _, key = name.partition('.')
+    return key in per or (key.startswith('sim.') and key[4:] in per)
+
+
+def check_undeclared(node) -> None:
+    """The start-up check of the names given (``-p``, params files), once ``node`` has
+    declared all of its parameters: a name no node of this package declares that is a typo
+    away from one ``node`` declares raises :class:`StartupError` naming both (``-p
+    torque_limt:=2.0`` once started the sim with its torque limit at 20 N m, without a
+    word); other names no node of this package declares get one warning (a params file
+    shared with another package's nodes may hold theirs); a name another node of this
+    package declares passes (the shipped file holds every node's)."""
+    overrides = getattr(node, '_parameter_overrides', {})
+    unknown = sorted(n for n in overrides if not node.has_parameter(n)
+                     and n not in _ROS_NAMES and not n.startswith(_ROS_PREFIXES)
+                     and not _package_parameter(n))
+    if not unknown:
+        return
+    declared = node.list_parameters([], 0).names
+    for name in unknown:
+        close = difflib.get_close_matches(name, declared, n=1, cutoff=0.8)
+        if close:
+            raise StartupError(
+                f'{name}: no such parameter (did you mean {close[0]}? a misspelt name would '
+                f'leave {close[0]} at {node.get_parameter(close[0]).value!r})')
+    node.get_logger().warning(
+        f'ignored: {", ".join(unknown)}: no node of seaforce_ros declares '
+        f'{"it" if len(unknown) == 1 else "them"} (docs/parameters.md lists every parameter)')
 
 
 def _ints_as_floats(node, params):
