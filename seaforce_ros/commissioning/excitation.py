@@ -141,6 +141,11 @@ CONTACT_STIFFNESS = 0.02
 CONTACT_RATIO = 0.45
 #: The rms motion [rad] on each side of x_0 over the window below which the test waits.
 CONTACT_MOTION = 2e-3
+#: Above this share of commands applied later than the loop's usual delay in its window, a
+#: tripped contact test names the loop's timing instead of a contact (a free finger driven
+#: with 20 % of the commands a cycle late crossed the threshold; separate sim_node and
+#: controller_node processes answer 62 % of the cycles in time: bench/control_loop.py).
+LATE_SHARE = 0.05
 #: Fastest rise of ln g per period of the chirp (and at most 1/s): the amplitude stays
 #: nearly constant over the contact test's window.
 UP_RATE = 0.05
@@ -667,10 +672,39 @@ class FreeAirExcitation(Job):
         if level <= 1.0:
             return ""
         side = "above" if kp > kn else "below"
+        late = self._late_share(m, n)
+        if late > LATE_SHARE:
+            return (f"over the last {window * self.dt:.3g} s the plant applied {100 * late:.0f} % "
+                    "of the commands later than the others (a controller in another process "
+                    "than the plant, over topics); the contact test cannot tell such a drive "
+                    f"from a contact (apparent stiffness {kp:.3g} N m/rad above the centre, "
+                    f"{kn:.3g} below): commission in the direct layout (bringup or "
+                    "hardware_bringup with loop:=direct) or with the sim in lockstep")
         return (f"contact {side} X = {self._centre_x:.4g} rad: over the last {window * self.dt:.3g} s "
                 f"the pressure force's apparent stiffness is {kp:.3g} N m/rad above and "
                 f"{kn:.3g} below (a free finger's is the same both sides): the finger is not "
                 "free")
+
+    def _late_share(self, m: int, n: int) -> float:
+        """Over the samples ``m..n-1``: the share whose applied torque is not the command of
+        the loop's usual delay (the most common d = 1..4 with ``applied[k] == command[k -
+        d]``, exact: a plant that reports the torque it applied). 0 where under half of the
+        samples match any of the last four commands (a plant that reports a measured
+        torque: no claim)."""
+        m = max(m, 4)
+        if n - m < 8:
+            return 0.0
+        applied = np.frombuffer(self._applied, dtype=float, count=n)[m:n]
+        command = np.frombuffer(self._command, dtype=float, count=n)
+        unmatched = np.ones(n - m, dtype=bool)
+        counts = []
+        for d in range(1, 5):
+            hit = unmatched & (applied == command[m - d:n - d])
+            counts.append(int(np.count_nonzero(hit)))
+            unmatched &= ~hit
+        if sum(counts) < 0.5 * (n - m):
+            return 0.0
+        return 1.0 - max(counts) / (n - m)
 
     def _excitation(self, x: float, v: float, f_p: float, steps: int) -> float:
         """The excitation torque ``a e`` of this sample [N m], the envelopes and the

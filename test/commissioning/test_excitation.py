@@ -337,6 +337,51 @@ def test_object_in_the_way_aborts_with_zero_torque_from_then_on(position, stiffn
     assert job.touched
 
 
+def _late_loop(late_share, seed, measured=False, environment=None):
+    """A free-air excitation (12 s, 1..400 Hz) through a loop whose plant applies, at
+    ``late_share`` of the cycles chosen at random, the command it applied before instead of
+    the new one (a controller in another process, over topics); ``measured``: the plant
+    reports its torque with a 1e-4 N m quantum and noise (a drive's measured torque, no exact
+    match). The job."""
+    rng = np.random.default_rng(seed)
+    config = ControllerConfig(mode="passive")
+    sim = ChannelSimulator(PlantParams.table_i(), DahlParams(), 5e-4, seed=seed,
+                           environment=environment)
+    ctrl = ChannelController(config, 5e-4)
+    job = FreeAirExcitation(ExcitationGoal("pinch", (1.0, 400.0), 12.0), config, 5e-4)
+    ctrl.request_job(job)
+    m, k, applied = sim.measurement(), 0, 0.0
+    while job.active and k < job.capacity + 1:
+        ctrl.cycle = k
+        ctrl.applied = m.f_a if not measured else \
+            round((m.f_a + rng.normal(0.0, 3e-4)) / 1e-4) * 1e-4
+        u = ctrl.update(m.x, m.v, m.f_p)
+        applied = applied if rng.random() < late_share else u
+        m = sim.step(applied)
+        k += 1
+    return job
+
+
+def test_a_loop_that_applies_commands_late_is_named_not_taken_for_a_contact():
+    """A free finger driven through a loop that applies a share of the commands a cycle late
+    trips the contact test (its drive is distorted at random instants); the abort names the
+    loop's timing and the layouts that work instead of a contact: the default two-process
+    layout aborted so on every run. On time, or late at 5 %, it is no abort; a drive that
+    reports a measured torque is no evidence either way (the contact reason stands); an object
+    in the way is still a contact, on time."""
+    job = _late_loop(0.4, 1)
+    assert job.outcome == "aborted", job.message
+    assert "commands later than the others" in job.message and "loop:=direct" in job.message
+    assert "contact below" not in job.message and "contact above" not in job.message
+    for share in (0.0, 0.05):
+        job = _late_loop(share, 1)
+        assert job.outcome == "succeeded", (share, job.message)
+    job = _late_loop(0.4, 1, measured=True)
+    assert job.outcome == "aborted" and "later than" not in job.message, job.message
+    job = _late_loop(0.0, 1, environment=contact_object(0.2, 100.0, 0.05))
+    assert job.outcome == "aborted" and "contact" in job.message, job.message
+
+
 @pytest.mark.parametrize("seed", [100, 102, 103])
 def test_a_free_finger_leaves_no_stale_contact(seed):
     """The channel's contact estimator, made for a grasp's approach, starts contacts under the
