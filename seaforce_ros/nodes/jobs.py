@@ -11,7 +11,8 @@ new friction as parameters). The rest is the same for every action:
 * One goal per channel, of whatever action. A goal that cannot be executed -- unknown channel,
   bad fields, a channel another goal holds, a faulted channel, one the plant stopped, no states
   arriving -- ends at once ABORTED with ``rejected: <reason>`` in ``result.message`` (ROS 2's
-  goal rejection carries no reason); rejections are logged once per 10 s, with a count.
+  goal rejection carries no reason); each action's rejections are logged once per reason
+  and 10 s, with a count.
 * The job is handed to the channel's controller
   (:meth:`~seaforce_ros.core.controller.ChannelController.request_job`), which takes it at the
   start of a cycle; a job the cycle has not taken within :data:`JOB_START_TIMEOUT` is withdrawn
@@ -73,6 +74,8 @@ __all__ = ["JobAction", "JobActions", "FollowUp", "JOB_FEEDBACK_RATE", "JOB_STAR
 JOB_FEEDBACK_RATE = 50.0     # Hz
 ANSWER_RATE = 250.0          # Hz, the look for answered goals (actions that have ``answered``)
 JOB_START_TIMEOUT = 1.0      # s a goal waits for the cycle to take its job over
+#: Rejection reasons throttled apart (per action and reason text; the oldest forgotten).
+REJECTION_KINDS = 64
 
 
 class FollowUp(Protocol):
@@ -208,7 +211,10 @@ class JobActions:
         self._held: dict[int, Job] = {}      # channel index -> a job its answered goal left
         self._canceled: list[tuple[int, _Goal]] = []   # goals that gave their channel up
         self._log = EventLog()
-        self._rejections = Episode(self._log)   # logged once per 10 s, with a count
+        # one throttle per action and reason (logged once per 10 s, with a count): with one
+        # for all, a gripper goal's reason once stood in for a grasp's, and another bad goal
+        # within 10 s logged nothing
+        self._rejections: dict[str, Episode] = {}
         node.create_timer(1.0 / JOB_FEEDBACK_RATE, self._tick)
         self._answer_timer = None
 
@@ -269,8 +275,14 @@ class JobActions:
             except InvalidJobGoalError as exc:
                 raise InvalidJobGoalError(f'{channel}: {exc}') from None
         except InvalidJobGoalError as exc:
-            self._rejections.begin(time.monotonic(), f'{action.label} goal rejected: {exc}')
-            self._rejections.end(time.monotonic())
+            text = f'{action.label} goal rejected: {exc}'
+            episode = self._rejections.get(text)
+            if episode is None:
+                if len(self._rejections) >= REJECTION_KINDS:     # bounded: the oldest goes
+                    del self._rejections[next(iter(self._rejections))]
+                episode = self._rejections[text] = Episode(self._log)
+            episode.begin(time.monotonic(), text)
+            episode.end(time.monotonic())
             log_events(self._node.get_logger(), self._log.drain())
             self.last_rejection = str(exc)
             return None
