@@ -203,10 +203,12 @@ class Chirp(TorqueMode):
     """
 
     name = "chirp"
-    __slots__ = ("_amplitude", "_f0", "_f1", "_duration", "_fade", "played", "_t", "_bias")
+    __slots__ = ("_amplitude", "_f0", "_f1", "_duration", "_fade", "played", "_t", "_bias",
+                 "_interrupted")
 
     def __init__(self, config: ControllerConfig, dt: float = 5e-4) -> None:
         self.played = False
+        self._interrupted = False
         super().__init__(config, dt)
 
     def configure(self, config: ControllerConfig) -> None:
@@ -223,15 +225,17 @@ class Chirp(TorqueMode):
         self.played = False
 
     def interrupt(self) -> None:
+        self._interrupted = True
         if self._t > 0.0:
             self.played = True
 
     def enter(self, x: float, v: float, f_p: float, steps: int, torque: float,
               full: bool) -> float:
         """Full entry (selected anew) or after an interruption: u_0 = ``torque``, the chirp
-        from its start -- or, played, not again. A re-entry while it plays (new values set
-        within the mode): it goes on, its clock and u_0 kept."""
-        if full or self.played:
+        from its start -- or, played, not again. A re-entry with no interruption (new values
+        set within the mode): it goes on, its clock and u_0 kept."""
+        if full or self.played or self._interrupted:
+            self._interrupted = False
             self._bias = torque
             self._t = self._duration if self.played else 0.0
             return self._output()

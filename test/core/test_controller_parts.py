@@ -46,6 +46,18 @@ def test_torque_modes_enter_from_the_applied_torque(name, full):
     assert mode.enter(0.02, 0.3, -0.1, 1, 0.25, full) == pytest.approx(0.25, abs=1e-15)
 
 
+def test_a_chirp_interrupted_before_its_clock_moved_re_enters_from_the_applied_torque():
+    """Entered and interrupted in the same sample (a plant-side stop right at the entry):
+    the re-entry is bumpless from the torque applied, as after any interruption (the
+    property test over arbitrary states found the re-entry going on from its clock instead:
+    1.6e-9 N m where 0 was applied)."""
+    mode = MODE_TYPES["chirp"](CONFIG.replace(mode="chirp"), DT)
+    mode.select()
+    mode.enter(0.0, 0.0, 0.0, 1, -0.2, True)
+    mode.interrupt()
+    assert mode.enter(0.0, 0.0, 0.0, 1, 0.25, False) == pytest.approx(0.25, abs=1e-15)
+
+
 def test_a_chirp_re_entered_without_an_interruption_goes_on():
     """New values set within ``chirp`` while it plays (a re-entry, no interruption): the chirp
     goes on from its clock with its u_0, sample for sample as without the re-entry."""
