@@ -44,6 +44,7 @@ BAD_VALUES = [
     ('controller_node', 'controller', {'pinch.mod': 'hold'}, ['pinch.mod',
                                                                 'did you mean pinch.mode']),
     ('bag_recorder', 'bag_recorder', {'topic': ['/joint_states']}, ['did you mean topics']),
+    ('hardware_node', 'hardware', {'interfac': 'lo'}, ['did you mean interface']),
     ('sim_node', 'sim', {'clock_mode': 'lockstepp'}, ['clock_mode', 'lockstep']),
     ('bag_recorder', 'bag_recorder', {'reliability': 'fast'}, ['reliability', 'best_effort']),
     ('controller_node', 'controller', {'executor': 'multi'}, ['executor', 'single_threaded']),

@@ -42,7 +42,7 @@ from ..ethercat.backend import EthercatBackend
 from ..ethercat.bus_config import BusConfig
 from ..ethercat.errors import BusConfigError
 from .plant_node import PlantNode, plant_specs, prepare_process
-from .ros_common import StartupError, run
+from .ros_common import StartupError, check_undeclared, run
 
 
 def _default_bus_config() -> str:
@@ -73,6 +73,7 @@ class HardwareNode(PlantNode):
 
     def __init__(self, direct: Any = None, **kwargs: Any) -> None:
         super().__init__('hardware', node_specs(), direct=direct, **kwargs)
+        check_undeclared(self)          # a misspelt name first (-p interfac:=...), no bus yet
         values = self.values
         if not values['interface']:
             raise StartupError('interface is not set: pass the EtherCAT network interface, '
