@@ -80,7 +80,8 @@ from .gripper_actions import gripper_job_actions
 from .jobs import JobAction, JobActions
 from .ros_common import (GRAPH_PERIOD, STATUS_QOS, StartupError, check_undeclared, control_qos,
                          declare, diagnostic_status, diagnostics_publisher, log_events,
-                         node_label, publish_diagnostics, run, shutdown_safe)
+                         node_label, publish_diagnostics, run, shutdown_safe,
+                         steady_timer)
 from .timing import LoopStats
 
 #: s without a state the cycle ran on after which the node (not the cycle, which does not
@@ -175,10 +176,10 @@ class ControllerNode(Node):
         self.commissioning = CommissionAction(self)
         self.jobs.add(self.commissioning.action())
         self._state_topic = self.resolve_topic_name('actuator_state')
-        self.create_timer(GRAPH_PERIOD, self._watch_graph)
+        steady_timer(self, GRAPH_PERIOD, self._watch_graph)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
-        self.create_timer(values['diagnostics_period'], self._publish_diagnostics)
+        steady_timer(self, values['diagnostics_period'], self._publish_diagnostics)
         for channel, config in zip(self.channels, self.configs):
             self._warn_guarded(channel, None, config)
         modes = ', '.join(f'{c}={ctrl.mode}' for c, ctrl in zip(self.channels, controllers))

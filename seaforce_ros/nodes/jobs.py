@@ -66,7 +66,7 @@ from ..core.control_cycle import ControlCycle
 from ..core.controller import ChannelController
 from ..core.episodes import Episode, EventLog
 from ..core.jobs import InvalidJobGoalError, Job
-from .ros_common import log_events, shutdown_safe
+from .ros_common import log_events, shutdown_safe, steady_timer
 
 __all__ = ["JobAction", "JobActions", "FollowUp", "JOB_FEEDBACK_RATE", "JOB_START_TIMEOUT",
            "ANSWER_RATE"]
@@ -215,13 +215,13 @@ class JobActions:
         # for all, a gripper goal's reason once stood in for a grasp's, and another bad goal
         # within 10 s logged nothing
         self._rejections: dict[str, Episode] = {}
-        node.create_timer(1.0 / JOB_FEEDBACK_RATE, self._tick)
+        steady_timer(node, 1.0 / JOB_FEEDBACK_RATE, self._tick)
         self._answer_timer = None
 
     def add(self, action: JobAction) -> None:
         """Serve ``action``."""
         if action.answered is not None and self._answer_timer is None:
-            self._answer_timer = self._node.create_timer(1.0 / ANSWER_RATE, self._answers)
+            self._answer_timer = steady_timer(self._node, 1.0 / ANSWER_RATE, self._answers)
         async def execute(handle: Any) -> Any:
             return await self._execute(action, handle)
         def accept(goal: Any) -> GoalResponse:

@@ -17,6 +17,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType)
+from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -173,6 +174,18 @@ def check_undeclared(node) -> None:
     node.get_logger().warning(
         f'ignored: {", ".join(unknown)}: no node of seaforce_ros declares '
         f'{"it" if len(unknown) == 1 else "them"} (docs/parameters.md lists every parameter)')
+
+
+def steady_timer(node, period: float, callback):
+    """A timer of ``node`` on a steady clock of its own (housekeeping: graph watch,
+    diagnostics, job feedback), not on the node's ROS clock: rclpy's EventsExecutor prints
+    "the number of timers associated with this clock is large" for each timer from the
+    eighth on one clock, and the controller's action servers hold seven there (four lines at
+    every start)."""
+    clock = getattr(node, '_seaforce_steady_clock', None)
+    if clock is None:
+        clock = node._seaforce_steady_clock = Clock(clock_type=ClockType.STEADY_TIME)
+    return node.create_timer(period, callback, clock=clock)
 
 
 def _ints_as_floats(node, params):
