@@ -204,25 +204,35 @@ class Chirp(TorqueMode):
 
     name = "chirp"
     __slots__ = ("_amplitude", "_f0", "_f1", "_duration", "_fade", "played", "_t", "_bias",
-                 "_interrupted")
+                 "_interrupted", "_next", "_playing")
 
     def __init__(self, config: ControllerConfig, dt: float = 5e-4) -> None:
         self.played = False
         self._interrupted = False
+        self._playing = False        # entered, from its start, and not yet played
         super().__init__(config, dt)
 
     def configure(self, config: ControllerConfig) -> None:
+        """New values; a chirp that plays goes on with those it was selected with (a new
+        amplitude, band or duration taken up at once stepped the torque: 0.3 -> 3 N m gave
+        -0.30 -> -2.97 N m), the new ones from its next selection."""
         c = config.chirp
-        self._amplitude, self._f0, self._f1 = c.amplitude, c.start_frequency, c.end_frequency
-        self._duration = c.duration
-        self._fade = min(CHIRP_FADE, 0.1 * c.duration)
+        self._next = (c.amplitude, c.start_frequency, c.end_frequency, c.duration,
+                      min(CHIRP_FADE, 0.1 * c.duration))
+        if self.played or not self._playing:
+            self._take()
+
+    def _take(self) -> None:
+        self._amplitude, self._f0, self._f1, self._duration, self._fade = self._next
 
     def reset(self) -> None:
         """The clock to zero (``played`` is kept: a reset does not replay the chirp)."""
         self._t = self._bias = 0.0
+        self._playing = False
 
     def select(self) -> None:
-        self.played = False
+        self.played = self._playing = False
+        self._take()
 
     def interrupt(self) -> None:
         self._interrupted = True
@@ -237,7 +247,12 @@ class Chirp(TorqueMode):
         if full or self.played or self._interrupted:
             self._interrupted = False
             self._bias = torque
-            self._t = self._duration if self.played else 0.0
+            if self.played:
+                self._t = self._duration
+            else:                       # from its start, with the newest values
+                self._take()
+                self._t = 0.0
+                self._playing = True
             return self._output()
         return self.update(x, v, f_p, steps)
 

@@ -314,6 +314,10 @@ WITHIN = {
     "target": lambda c, r: c.replace(target=TargetParams(
         stiffness=float(r.uniform(0.0, 2.0)), damping=float(r.uniform(0.0, 0.05)))),
     "max torque": lambda c, r: c.replace(max_torque=float(r.uniform(15.0, 25.0))),
+    # the chirp's own values: a running chirp goes on with those it was selected with
+    "chirp": lambda c, r: c.replace(chirp=ChirpParams(
+        amplitude=float(r.uniform(0.05, 3.0)), start_frequency=float(r.uniform(1.0, 5.0)),
+        end_frequency=float(r.uniform(6.0, 80.0)), duration=float(r.uniform(0.05, 0.5)))),
     "the same values again": lambda c, r: c,
 }
 
