@@ -45,6 +45,9 @@ BAD_VALUES = [
                                                                 'did you mean pinch.mode']),
     ('bag_recorder', 'bag_recorder', {'topic': ['/joint_states']}, ['did you mean topics']),
     ('hardware_node', 'hardware', {'interfac': 'lo'}, ['did you mean interface']),
+    # ... and a misspelt channel (it once left pinch's torque limit as it was)
+    ('controller_node', 'controller', {'pnich.max_torque': 2.0},
+     ['did you mean pinch.max_torque']),
     ('sim_node', 'sim', {'clock_mode': 'lockstepp'}, ['clock_mode', 'lockstep']),
     ('bag_recorder', 'bag_recorder', {'reliability': 'fast'}, ['reliability', 'best_effort']),
     ('controller_node', 'controller', {'executor': 'multi'}, ['executor', 'single_threaded']),

@@ -140,14 +140,19 @@ def _package_names():
     return frozenset(own), frozenset(per)
 
 
-def _package_parameter(name: str) -> bool:
+def _package_parameter(name: str, channels: Sequence[str] = ()) -> bool:
     """Whether some node of this package declares ``name`` (``<channel>.<key>`` for a
-    channel's, ``<channel>.sim.<key>`` for the sim's true plant)."""
+    channel's, ``<channel>.sim.<key>`` for the sim's true plant) -- for a channel's, under a
+    name that is no typo of one of ``channels`` (``pnich.max_torque`` left pinch's torque
+    limit as it was, without a word; another node's channel passes)."""
     own, per = _package_names()
     if name in own:
         return True
-    _, _, key = name.partition('.')
-    return key in per or (key.startswith('sim.') and key[4:] in per)
+    channel, _, key = name.partition('.')
+    if not (key in per or (key.startswith('sim.') and key[4:] in per)):
+        return False
+    return channel in channels or not difflib.get_close_matches(channel, channels, n=1,
+                                                                cutoff=0.6)
 
 
 def check_undeclared(node) -> None:
@@ -158,10 +163,15 @@ def check_undeclared(node) -> None:
     word); other names no node of this package declares get one warning (a params file
     shared with another package's nodes may hold theirs); a name another node of this
     package declares passes (the shipped file holds every node's)."""
+    if getattr(node, '_seaforce_names_checked', False):
+        return                          # (once per node)
+    node._seaforce_names_checked = True
     overrides = getattr(node, '_parameter_overrides', {})
+    channels = list(node.get_parameter('channels').value) \
+        if node.has_parameter('channels') else []
     unknown = sorted(n for n in overrides if not node.has_parameter(n)
                      and n not in _ROS_NAMES and not n.startswith(_ROS_PREFIXES)
-                     and not _package_parameter(n))
+                     and not _package_parameter(n, channels))
     if not unknown:
         return
     declared = node.list_parameters([], 0).names

@@ -246,17 +246,32 @@ def run(args) -> int:
 
         deadline = time.monotonic() + args.timeout
         sent = client.send_goal_async(_goal(args, Commission), feedback_callback=on_feedback)
-        if not _spin_until(executor, sent, deadline):
-            print("commission: error: the goal was not answered", file=sys.stderr)
-            return 2
-        handle = sent.result()
-        result_future = handle.get_result_async()
+        result_future = None
         try:
+            if not _spin_until(executor, sent, deadline):
+                print("commission: error: the goal was not answered", file=sys.stderr)
+                return 2
+            handle = sent.result()
+            result_future = handle.get_result_async()
             finished = _spin_until(executor, result_future, deadline)
         except KeyboardInterrupt:
+            # from the goal's sending on (a goal accepted after the tool left would excite the
+            # finger with nobody watching); further signals wait for the cancel
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, signal.SIG_IGN)
             bar.close()
-            print("[commission] canceling (the excitation's torque is zeroed) ...",
-                  file=sys.stderr, flush=True)
+            print("[commission] canceling (the excitation's torque is zeroed; further "
+                  "Ctrl-C wait for it, up to 50 s) ...", file=sys.stderr, flush=True)
+            if not _spin_until(executor, sent, time.monotonic() + 10.0):
+                print("commission: error: the goal was not answered within 10 s; should the "
+                      f"controller take it later, cancel it on {name}", file=sys.stderr)
+                return 1
+            handle = sent.result()
+            if not handle.accepted:
+                print("[commission] the goal was refused: nothing runs", file=sys.stderr)
+                return 1
+            if result_future is None:
+                result_future = handle.get_result_async()
             cancel = handle.cancel_goal_async()
             _spin_until(executor, cancel, time.monotonic() + 10.0)
             finished = _spin_until(executor, result_future, time.monotonic() + 30.0)
