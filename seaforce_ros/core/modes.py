@@ -231,8 +231,7 @@ class Chirp(TorqueMode):
         self._playing = False
 
     def select(self) -> None:
-        self.played = self._playing = False
-        self._take()
+        self.played = self._playing = False     # (the newest values: at the entry)
 
     def interrupt(self) -> None:
         self._interrupted = True

@@ -62,9 +62,9 @@ from ..core.backend import BackendReport, PlantBackend, PlantSample
 from ..core.errors import SeaforceError
 from ..core.plant_cycle import STATUS_COMMAND_TIMEOUT, PlantCycle, PlantLimits
 from ..core.schema import Spec
-from .ros_common import (GRAPH_PERIOD, STATUS_QOS, StartupError, check_undeclared, control_qos,
-                         declare, diagnostic_status, diagnostics_publisher, log_events,
-                         node_label, publish_diagnostics, shutdown_safe)
+from .ros_common import (GRAPH_PERIOD, STATUS_QOS, StartupError, control_qos, declare,
+                         diagnostic_status, diagnostics_publisher, log_events, node_label,
+                         publish_diagnostics, shutdown_safe)
 from .timing import BusyTime, CommandTiming, Deadline, LoopStats
 
 NAN = float('nan')
@@ -168,7 +168,6 @@ class PlantNode(LifecycleNode):
         instead of on its own cycle thread. Raises :class:`StartupError` with the reason if
         an autostart transition fails (the plant is closed again first).
         """
-        check_undeclared(self)          # before the plant is configured or activated
         self.backend = backend
         self.lockstep = lockstep
         self._start_io()

@@ -162,10 +162,8 @@ def check_undeclared(node) -> None:
     torque_limt:=2.0`` once started the sim with its torque limit at 20 N m, without a
     word); other names no node of this package declares get one warning (a params file
     shared with another package's nodes may hold theirs); a name another node of this
-    package declares passes (the shipped file holds every node's)."""
-    if getattr(node, '_seaforce_names_checked', False):
-        return                          # (once per node)
-    node._seaforce_names_checked = True
+    package declares passes (the shipped file holds every node's). Each node calls it once,
+    after its last :func:`declare` and before it touches a plant."""
     overrides = getattr(node, '_parameter_overrides', {})
     channels = list(node.get_parameter('channels').value) \
         if node.has_parameter('channels') else []

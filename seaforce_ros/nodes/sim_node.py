@@ -50,7 +50,7 @@ from ..core.nonlinear_simulator import make_simulator
 from ..core.sim_backend import SimBackend
 from ..core.simulator import ChannelSimulator
 from .plant_node import PlantNode, plant_specs, prepare_process
-from .ros_common import StartupError, declare, run
+from .ros_common import StartupError, check_undeclared, declare, run
 
 
 def node_specs() -> List[Spec]:
@@ -78,6 +78,7 @@ class SimNode(PlantNode):
             true_plant = ps.sim_plant_specs(channel, values)     # defaults: the model
             values.update(declare(self, true_plant))
             self._specs.update({s.name: s for s in specs + true_plant})
+        check_undeclared(self)          # every name declared; nothing simulated yet
         lockstep = values['clock_mode'] == 'lockstep'
         if lockstep and values['control_qos'] != 'reliable':
             raise StartupError('clock_mode lockstep needs control_qos reliable: a lost command '
