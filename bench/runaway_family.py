@@ -110,7 +110,8 @@ def main():
              ("model b_e 1.5x truth", TABLE_I.scaled(endpoint_damping=1 / 1.5)))
     exact = ControllerConfig(mode="dob_full_ff", allow_non_passive=True)
     exact = exact.replace(feedforward=exact.feedforward.__class__(margin=0.0,
-                                                                  dahl_stiffness_share=1.0))
+                                                                  dahl_stiffness_share=1.0,
+                                                                  loop_delay=0.0))
     for name, plant in cases:
         for label, config in (("margin (default)", ControllerConfig(mode="dob_full_ff")),
                               ("exact (paper)", exact)):

@@ -518,7 +518,8 @@ def _margin_cost(plant: PlantParams, dahl: DahlParams, tuned: ControllerConfig,
     exact = tuned.replace(plant=dataclasses.replace(tuned.plant,
                                                     endpoint_stiffness=plant.endpoint_stiffness),
                           feedforward=dataclasses.replace(ff, margin=0.0,
-                                                          dahl_stiffness_share=1.0),
+                                                          dahl_stiffness_share=1.0,
+                                                          loop_delay=0.0),
                           allow_non_passive=True)
     unmargined = predict_modes(plant, dahl, exact, ("dob_full_ff",), omega, delay=delay,
                                dt=dt, amplitude=amplitude)

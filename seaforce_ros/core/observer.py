@@ -169,8 +169,8 @@ class EndpointObserver:
         friction adaptation's values); the Dahl state is kept (its force within the new
         F_c)."""
         self.damping, self.stiffness = damping, stiffness
-        sb, sk, _ = self._scales
-        self._kb, self._kk = sb * damping, sk * stiffness
+        self._kb = self._ff.damping(damping, dahl)
+        self._kk = self._scales[1] * stiffness
         ss = self._ff.stroke_scale()
         self._k2, self._k3 = ss * self._k2_model, ss * self._k3_model
         self._stroke = bool(self._k2 or self._k3)      # (0 with a zero stroke scale too)
