@@ -39,7 +39,7 @@ import numpy.typing as npt
 from ..core.analysis import HoldMargins
 from ..core.environment import DRIVE_DAMPING, DRIVE_STIFFNESS
 from ..core.errors import NonPassiveError
-from ..core.params import (MIN_UNCERTAINTY, ControllerConfig, DahlParams, DobParams,
+from ..core.params import (MIN_LOOP_DELAY, MIN_UNCERTAINTY, ControllerConfig, DahlParams, DobParams,
                            GraspParams, GuardParams, HoldParams, PlantParams,
                            PlantTermsParams, check_dob_passivity, guard_carries)
 from ..core.simulator import discretise
@@ -52,7 +52,7 @@ TERM_FIELDS = tuple(spec.attribute for spec in PlantTermsParams.SPECS)
 
 __all__ = ["TuningResult", "InfeasibleTuningError", "tune", "worst_plant", "TUNED_KEYS",
            "HOLD_MODULUS_MARGIN", "DELAY_RESERVE", "contact_damping_within",
-           "feedforward_uncertainties"]
+           "feedforward_uncertainties", "measured_loop_delay"]
 
 _Float = npt.NDArray[np.float64]
 
@@ -64,7 +64,7 @@ TUNED_KEYS = tuple(f"plant.{n}" for n in PLANT_FIELDS) + (
     "dob.nominal_damping", "dob.nominal_stiffness", "hold.stiffness", "hold.damping",
     "passivity_guard", "grasp.contact_damping", "feedforward.damping_uncertainty",
     "feedforward.stiffness_uncertainty", "feedforward.dahl_uncertainty",
-    "feedforward.stroke_uncertainty")
+    "feedforward.stroke_uncertainty", "feedforward.loop_delay")
 #: Smallest ``min |1 + L|`` of the hold loop at the p99 delay (gain margin >= 6 dB, phase
 #: margin >= 29 deg).
 HOLD_MODULUS_MARGIN = 0.5
@@ -368,6 +368,7 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     # (and the feed-forward's uncertainties from the identification: its margin sets the
     # feed-forward's gains, hence the torque noise of every candidate)
     uncertainties = feedforward_uncertainties(plant, plant_sigma, dahl, class_error, terms)
+    uncertainties["feedforward.loop_delay"] = measured_loop_delay(figures)
     terms = PlantTermsParams() if terms is None else terms
     model = ControllerConfig.from_dict(uncertainties, base=base.replace(
         plant=plant, dahl=dahl, plant_terms=terms, allow_non_passive=True,
@@ -479,8 +480,10 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     bindings.setdefault("grasp.contact_damping", "range: at most 10 b_s")
     bindings.setdefault("passivity_guard", "passivity guard carries m_n below eq. 28"
                         if best.guard else "kept")
-    for key in TUNED_KEYS[-4:]:
+    for key in TUNED_KEYS[-5:-1]:
         bindings.setdefault(key, "the identified 1-sigma and the fit's misfit")
+    bindings.setdefault("feedforward.loop_delay", f"the loop's p99 delay, {figures.delay_p99} "
+                        "samples, and the half sample a command is held")
     tuned = ControllerConfig.from_dict(values, base=base)
     after = predict_modes(plant, dahl, tuned, ("hold", "dob_full_ff"), omega,
                           delay=figures.delay_p50, dt=dt, amplitude=amplitude)
@@ -539,6 +542,14 @@ def _margin_cost(plant: PlantParams, dahl: DahlParams, tuned: ControllerConfig,
 #: 40 % high against it): a larger survey that finds a resolved term beyond +43 % with its
 #: halves agreeing would raise it.
 TERM_UNCERTAINTY = 0.15
+
+
+def measured_loop_delay(figures: LoopModel) -> float:
+    """``feedforward.loop_delay`` [s] from the record: the p99 delay from a state to the sample
+    its command acts from, plus the half sample the command is held (at least
+    :data:`~seaforce_ros.core.params.MIN_LOOP_DELAY`). In the direct layout and in lockstep
+    (one sample) 0.75 ms at 2 kHz, against the default 1.25 ms."""
+    return max(MIN_LOOP_DELAY, (figures.delay_p99 + 0.5) * figures.dt)
 
 
 def feedforward_uncertainties(plant: PlantParams, plant_sigma: Mapping[str, float],
