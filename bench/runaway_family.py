@@ -111,7 +111,7 @@ def main():
     exact = ControllerConfig(mode="dob_full_ff", allow_non_passive=True)
     exact = exact.replace(feedforward=exact.feedforward.__class__(margin=0.0,
                                                                   dahl_stiffness_share=1.0,
-                                                                  loop_delay=0.0))
+                                                                  damping_reserve=0.0))
     for name, plant in cases:
         for label, config in (("margin (default)", ControllerConfig(mode="dob_full_ff")),
                               ("exact (paper)", exact)):

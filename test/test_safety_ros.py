@@ -52,7 +52,7 @@ def test_free_finger_monitor_and_a_calibration_that_meets_an_object(processes, t
     assert ok, why
     ok, why = probe.set_parameters('/controller', {
         'pinch.allow_non_passive': True, 'pinch.feedforward.margin': 0.0,
-        'pinch.feedforward.dahl_stiffness_share': 1.0, 'pinch.feedforward.loop_delay': 0.0})
+        'pinch.feedforward.dahl_stiffness_share': 1.0, 'pinch.feedforward.damping_reserve': 0.0})
     assert ok, why
     # (a flick of the finger starts it: a torque pulse of the sim's environment)
     ok, why = probe.set_parameters('/sim', {'pinch.environment.amplitude': 0.05,
@@ -75,7 +75,7 @@ def test_free_finger_monitor_and_a_calibration_that_meets_an_object(processes, t
     assert np.max(np.abs(x)) <= 1.5 and np.max(np.abs(x)) > 0.5
     ok, why = probe.set_parameters('/controller', {
         'pinch.feedforward.margin': 2.0, 'pinch.feedforward.dahl_stiffness_share': 0.5,
-        'pinch.feedforward.loop_delay': 1.25e-3,
+        'pinch.feedforward.damping_reserve': 0.009,
         'pinch.allow_non_passive': False})
     assert ok, why
     answer = probe.call(Trigger, '/controller/reset')

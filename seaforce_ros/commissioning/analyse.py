@@ -1042,11 +1042,7 @@ def _margin_line(t: TuningResult) -> str:
     stroke = t.config.plant_terms.stroke
     cost = [float(np.interp(math.log(w), np.log(t.omega), t.margin_cost_db))
             for w in HEADLINE_OMEGA]
-    b_e = t.config.plant.endpoint_damping
-    sb = ff.damping(b_e, t.config.dahl) / b_e if b_e > 0 else sb
-    return (f"feed-forward margin: b_e x{sb:.3g} (the Dahl feed-forward's lag damping "
-            f"{ff.lag_damping(t.config.dahl):.2g} N m s/rad included), k_e x{sk:.3g}, "
-            f"Dahl F_c x{sd:.3g}, sigma "
+    return (f"feed-forward margin: b_e x{sb:.3g}, k_e x{sk:.3g}, Dahl F_c x{sd:.3g}, sigma "
             f"x{ff.dahl_stiffness_share:g}"
             + (f", stroke terms x{ff.stroke_scale():.3g}" if stroke else "")
             + f" (margin {ff.margin:g} x the uncertainties "
@@ -1055,7 +1051,8 @@ def _margin_line(t: TuningResult) -> str:
             + (f" / {100 * ff.stroke_uncertainty:.2g}" if stroke else "") + " %); it "
             "costs " + " / ".join(f"{c:+.1f}" for c in cost) + " dB of dob_full_ff |Z| at "
             + ", ".join(f"{w:g}" for w in HEADLINE_OMEGA) + " rad/s (predicted, against the "
-            "exact inversion of the identified model)")
+            "exact inversion of the identified model; with the free finger's damping reserve "
+            f"{ff.damping_reserve:.2g} N m s/rad)")
 
 
 def analyse(record: ExcitationRecord, request: AnalysisRequest,

@@ -13,7 +13,8 @@ drive of :func:`~seaforce_ros.core.environment.position_sine` at one frequency w
   differ from the true plant): the drive's backward-difference velocity ``(x_k - x_{k-1})/T``;
   the hose inversion of eq. 29 with its first-order-hold coefficients
   (:func:`~seaforce_ros.core.observer.hose_coefficients`); ``F_cmp = b_e V_e_hat + k_e
-  X_e_hat`` and the feed-forward's Dahl force, each with the margin of
+  X_e_hat - r V`` (``r = feedforward.damping_reserve``) and the feed-forward's Dahl force,
+  each with the margin of
   ``feedforward.margin`` (:meth:`~seaforce_ros.core.params.ControllerConfig.feedforward_friction`); the DOB of eq. 19 with its trapezoidal integrator
   ``I = (lambda T/2)(1 + z^-1)/(1 - z^-1) (F_ref + F_p - k_n X)``,
   ``F_a = F_ref + I - lambda m_n V - lambda b_n X``; hold ``F_a = -K_p X - K_d V``;
@@ -237,7 +238,8 @@ def controller_polynomials(config: ControllerConfig, mode: str, dt: float,
     ref_x, ref_p = 0 * one, 0 * one
     if mode != "dob":
         b_ff, k_ff, _ = config.feedforward_friction()       # with the margin
-        ref_x = _P.polyadd(b_ff * ve_x, k_ff * xe_x)
+        # (and the reserve on the motor velocity, feedforward.damping_reserve)
+        ref_x = _P.polyadd(b_ff * ve_x - config.feedforward.damping_reserve * v_x, k_ff * xe_x)
         ref_p = _P.polyadd(b_ff * ve_p, k_ff * xe_p)
     if mode in ("dob_full_ff", "impedance"):
         ref_x = _P.polyadd(ref_x, dahl_gain * xe_x)
@@ -272,17 +274,23 @@ def controller_gains(config: ControllerConfig, mode: str, z: _Complex, dt: float
 def closed_loop_radius(true_plant: PlantParams, true_dahl: Optional[DahlParams],
                        config: ControllerConfig, mode: str, *, delay: int = 1,
                        dt: float = 5e-4, endpoint_stiffness: float = 0.0,
-                       endpoint_damping: float = 0.0) -> float:
+                       endpoint_damping: float = 0.0, feedforward_dahl: float = 0.0,
+                       polynomials: Optional[Tuple[_Coefficients, _Coefficients,
+                                                   _Coefficients]] = None) -> float:
     """Spectral radius of the sampled closed loop of ``mode`` (< 1: stable), the endpoint
     tied to ground by a spring-damper (0, 0: free; the position drive's 1000 N m/rad,
     1.2 N m s/rad: held). The plant's Dahl hysteresis is its initial stiffness sigma (small
-    motion); the feed-forward's stays in its play.
+    motion); the feed-forward's stays in its play, or, given ``feedforward_dahl`` [N m/rad],
+    is that stiffness on X_e_hat (its initial one, beyond the play: the feed-forward's sigma).
+    ``polynomials``: :func:`controller_polynomials` of ``config`` and ``mode`` computed once
+    for many plants (``feedforward_dahl`` is then theirs).
 
     State: the plant (4), the last L measured X and F_p, the last M commands; one row per
     sample of ``D(q) U = N_x(q) X + N_p(q) F_p`` (:func:`controller_polynomials`).
     """
     delay = _check_delay(delay)
-    n_x_c, n_p_c, den = controller_polynomials(config, mode, dt)
+    n_x_c, n_p_c, den = (controller_polynomials(config, mode, dt, feedforward_dahl + 0j)
+                         if polynomials is None else polynomials)
     n_x, n_p = n_x_c.real, n_p_c.real
     phi6, gam6 = _discretised(true_plant, dt, endpoint_stiffness, endpoint_damping, 0.0)
     phi, gam_m = phi6[:4, :4].copy(), gam6[:4, 0]

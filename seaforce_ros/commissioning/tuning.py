@@ -19,7 +19,11 @@ resolution, loop delay p50/p99; :class:`~.predictor.LoopModel`) :func:`tune` cho
   sampled loop is stable at every delay up to p99 + 2 samples with the endpoint free and
   clamped, with a modulus margin ``min |1 + L| >= 0.5`` at the p99 delay;
 * the model the feed-forward uses: the identified values (b_e, k_e, b_s, k_s, sigma, F_c and
-  the rest of the plant).
+  the rest of the plant), with its uncertainties (:func:`feedforward_uncertainties`);
+* the feed-forward's ``damping_reserve``: the least that keeps a free finger in
+  ``dob_full_ff`` small-signal stable at every corner of the band of plants the margin
+  covers (:func:`~.free_finger.size_reserve`, the p99 delay; ``free_finger`` when none
+  does).
 
 Of every feasible candidate it keeps the one with the widest predicted Z-width over ``band``
 (the mean of ``20 log10(|Z_hold|/|Z_dob_full_ff|)`` on a log grid, predicted on the identified
@@ -39,11 +43,12 @@ import numpy.typing as npt
 from ..core.analysis import HoldMargins
 from ..core.environment import DRIVE_DAMPING, DRIVE_STIFFNESS
 from ..core.errors import NonPassiveError
-from ..core.params import (MIN_LOOP_DELAY, MIN_UNCERTAINTY, ControllerConfig, DahlParams, DobParams,
+from ..core.params import (MIN_UNCERTAINTY, ControllerConfig, DahlParams, DobParams,
                            GraspParams, GuardParams, HoldParams, PlantParams,
                            PlantTermsParams, check_dob_passivity, guard_carries)
 from ..core.simulator import discretise
 from .errors import CommissioningError
+from .free_finger import size_reserve
 from .predictor import (PLANT_FIELDS, SIGMA_KEYS, LoopModel, closed_loop_radius, hold_verdict,
                         predict_modes, torque_noise)
 
@@ -52,7 +57,7 @@ TERM_FIELDS = tuple(spec.attribute for spec in PlantTermsParams.SPECS)
 
 __all__ = ["TuningResult", "InfeasibleTuningError", "tune", "worst_plant", "TUNED_KEYS",
            "HOLD_MODULUS_MARGIN", "DELAY_RESERVE", "contact_damping_within",
-           "feedforward_uncertainties", "measured_loop_delay"]
+           "feedforward_uncertainties", "free_finger_spreads"]
 
 _Float = npt.NDArray[np.float64]
 
@@ -64,7 +69,7 @@ TUNED_KEYS = tuple(f"plant.{n}" for n in PLANT_FIELDS) + (
     "dob.nominal_damping", "dob.nominal_stiffness", "hold.stiffness", "hold.damping",
     "passivity_guard", "grasp.contact_damping", "feedforward.damping_uncertainty",
     "feedforward.stiffness_uncertainty", "feedforward.dahl_uncertainty",
-    "feedforward.stroke_uncertainty", "feedforward.loop_delay")
+    "feedforward.stroke_uncertainty", "feedforward.damping_reserve")
 #: Smallest ``min |1 + L|`` of the hold loop at the p99 delay (gain margin >= 6 dB, phase
 #: margin >= 29 deg).
 HOLD_MODULUS_MARGIN = 0.5
@@ -79,7 +84,8 @@ _EDGE = 1e-9          # relative step inside an eq. 28 bound (rounding)
 
 class InfeasibleTuningError(CommissioningError):
     """No setting meets the constraints; ``constraint`` names the one that failed
-    (``'noise_budget'``, ``'passivity'``, ``'dob_stability'`` or ``'hold_stability'``)."""
+    (``'noise_budget'``, ``'passivity'``, ``'dob_stability'``, ``'hold_stability'`` or
+    ``'free_finger'``)."""
 
     def __init__(self, constraint: str, message: str) -> None:
         super().__init__(message)
@@ -236,6 +242,60 @@ def _dob_candidates(worst: PlantParams, base: ControllerConfig,
     return out
 
 
+def _reserved(feasible: List[_Candidate], model: ControllerConfig, spreads: Mapping[str, float],
+              plant: PlantParams, dahl: DahlParams, figures: LoopModel, omega: _Float,
+              amplitude: float, noise_budget: float) -> Tuple[_Candidate, float, float]:
+    """Of the feasible candidates with the widest predicted Z-width -- the best, the best
+    without the guard, the starting settings -- the one whose Z-width stays widest once each
+    has the least ``feedforward.damping_reserve`` that keeps the free finger stable over
+    ``spreads`` (:func:`~.free_finger.size_reserve`, the p99 delay) and its torque noise
+    within the budget (the others in score order when none of those can be held): (the
+    candidate, its noise and score now with the reserve; the reserve; the worst corner's
+    radius). InfeasibleTuningError ``free_finger`` (or ``noise_budget``) when none can be.
+
+    (Not every candidate is weighed with its reserve: the lowest lambdas, whose DOB leaves the
+    motor its own damping, need none and can predict as wide a Z-width on the linear model,
+    but leave the motor's Coulomb friction and cogging, which it does not have, in the
+    finger -- chosen so, ``dob_full_ff`` on a nonlinear oracle plant came out 10.5 dB stiffer
+    than its linear class instead of 2.5 dB.)"""
+    best: Optional[Tuple[_Candidate, float, float]] = None
+    why: Dict[str, str] = {}
+    hint: Optional[Dict[str, float]] = None
+    order = sorted(feasible, key=lambda c: -c.score)
+    first = [order[0]] + [c for c in order if not c.guard][:1] + [
+        c for c in order if c.binding.get("dob.cutoff", "").startswith("kept")][:1]
+    first = [c for i, c in enumerate(first) if all(c is not d for d in first[:i])]
+    for c in first + [c for c in order if all(c is not d for d in first)]:
+        if best is not None and all(c is not d for d in first):
+            break
+        trial = model.replace(dob=c.dob, passivity=_guard(model, c.guard))
+        try:
+            reserve, radius, hint = size_reserve(trial, spreads, delay=figures.delay_p99,
+                                                 dt=figures.dt, hint=hint)
+        except CommissioningError as e:
+            why.setdefault("free_finger", str(e))
+            continue
+        trial = trial.replace(feedforward=dataclasses.replace(trial.feedforward,
+                                                              damping_reserve=reserve),
+                              allow_non_passive=False)
+        noise = math.hypot(*torque_noise(plant, dahl, trial, figures))
+        if noise > noise_budget:
+            why.setdefault("noise_budget", f"its damping reserve {reserve:.3g} N m s/rad "
+                           f"makes {noise:.3g} N m rms of torque noise, above noise_budget = "
+                           f"{noise_budget:.3g} N m")
+            continue
+        z = predict_modes(plant, dahl, trial, ("dob_full_ff",), omega, delay=figures.delay_p50,
+                          dt=figures.dt, amplitude=amplitude)["dob_full_ff"]
+        c.noise, c.score = noise, -_mean_db(z)           # (now with the reserve)
+        if best is None or c.score > best[0].score:
+            best = (c, reserve, radius)
+    if best is None:
+        constraint = "free_finger" if "free_finger" in why else "noise_budget"
+        raise InfeasibleTuningError(constraint, f"tune: no feasible DOB setting holds a free "
+                                    f"finger: {why[constraint]}")
+    return best
+
+
 def _passive(worst: PlantParams, candidate: _Candidate, base: ControllerConfig) -> bool:
     """eq. 28 on the worst plant, or (a guarded candidate) the guard's damping covering the
     worst plant's deficit."""
@@ -368,9 +428,11 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     # (and the feed-forward's uncertainties from the identification: its margin sets the
     # feed-forward's gains, hence the torque noise of every candidate)
     uncertainties = feedforward_uncertainties(plant, plant_sigma, dahl, class_error, terms)
-    uncertainties["feedforward.loop_delay"] = measured_loop_delay(figures)
     terms = PlantTermsParams() if terms is None else terms
-    model = ControllerConfig.from_dict(uncertainties, base=base.replace(
+    # (the candidates are scored without the free finger's damping reserve, an upper bound
+    # of their Z-width: the reserve is sized for the best of them below)
+    model = ControllerConfig.from_dict({**uncertainties, "feedforward.damping_reserve": 0.0},
+                                       base=base.replace(
         plant=plant, dahl=dahl, plant_terms=terms, allow_non_passive=True,
         grasp=dataclasses.replace(base.grasp, contact_damping=(
             contact_damping_within(base.grasp.contact_damping, plant.hose_damping)))))
@@ -420,7 +482,10 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
         raise InfeasibleTuningError(constraint, f"tune: {detail} (candidates failing: "
                                     + ", ".join(f"{k} {v}" for k, v in failures.items())
                                     + ")")
-    best = max(feasible, key=lambda c: c.score)
+    spreads = free_finger_spreads(plant, plant_sigma, dahl, class_error, passivity_margin,
+                                  model)
+    best, reserve, radius = _reserved(feasible, model, spreads, plant, dahl, figures, omega,
+                                      amplitude, noise_budget)
     lam_index = next((i for i, lam in enumerate(_CUTOFFS) if lam == best.dob.cutoff), -1)
     noisier = [c for c in candidates if c.dob.cutoff > best.dob.cutoff and c is not start
                and c.noise > noise_budget]
@@ -482,8 +547,11 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
                         if best.guard else "kept")
     for key in TUNED_KEYS[-5:-1]:
         bindings.setdefault(key, "the identified 1-sigma and the fit's misfit")
-    bindings.setdefault("feedforward.loop_delay", f"the loop's p99 delay, {figures.delay_p99} "
-                        "samples, and the half sample a command is held")
+    values["feedforward.damping_reserve"] = reserve
+    bindings["feedforward.damping_reserve"] = (
+        f"free finger: the least that keeps every corner of the band (margin x the "
+        f"uncertainties) small-signal stable at p99 = {figures.delay_p99} samples (worst "
+        f"radius {radius:.6f})")
     tuned = ControllerConfig.from_dict(values, base=base)
     after = predict_modes(plant, dahl, tuned, ("hold", "dob_full_ff"), omega,
                           delay=figures.delay_p50, dt=dt, amplitude=amplitude)
@@ -522,7 +590,7 @@ def _margin_cost(plant: PlantParams, dahl: DahlParams, tuned: ControllerConfig,
                                                     endpoint_stiffness=plant.endpoint_stiffness),
                           feedforward=dataclasses.replace(ff, margin=0.0,
                                                           dahl_stiffness_share=1.0,
-                                                          loop_delay=0.0),
+                                                          damping_reserve=0.0),
                           allow_non_passive=True)
     unmargined = predict_modes(plant, dahl, exact, ("dob_full_ff",), omega, delay=delay,
                                dt=dt, amplitude=amplitude)
@@ -544,12 +612,31 @@ def _margin_cost(plant: PlantParams, dahl: DahlParams, tuned: ControllerConfig,
 TERM_UNCERTAINTY = 0.15
 
 
-def measured_loop_delay(figures: LoopModel) -> float:
-    """``feedforward.loop_delay`` [s] from the record: the p99 delay from a state to the sample
-    its command acts from, plus the half sample the command is held (at least
-    :data:`~seaforce_ros.core.params.MIN_LOOP_DELAY`). In the direct layout and in lockstep
-    (one sample) 0.75 ms at 2 kHz, against the default 1.25 ms."""
-    return max(MIN_LOOP_DELAY, (figures.delay_p99 + 0.5) * figures.dt)
+def free_finger_spreads(plant: PlantParams, plant_sigma: Mapping[str, float],
+                        dahl: DahlParams, class_error: float, passivity_margin: float,
+                        config: ControllerConfig) -> Dict[str, float]:
+    """The band :func:`~.free_finger.size_reserve` holds the free finger over, as relative
+    half-widths: m, b, k within ``passivity_margin`` 1-sigmas (where eq. 28 holds the DOB);
+    b_e, k_e at the feed-forward's margin (``config.feedforward``: its margin times its
+    uncertainties); m_e, b_s, k_s and the Dahl sigma at the same margin times ``hypot(sigma_rel,
+    class_error)`` (at least :data:`~seaforce_ros.core.params.MIN_UNCERTAINTY`). Each at
+    most 0.45."""
+    ff = config.feedforward
+
+    def rel(key: str, value: float) -> float:
+        sd = float(plant_sigma.get(key, 0.0))
+        return sd / value if value > 0.0 and math.isfinite(sd) else 1.0
+
+    out = {k: passivity_margin * rel(k, getattr(plant, k))
+           for k in ("motor_inertia", "motor_damping", "motor_stiffness")}
+    for k in ("endpoint_inertia", "hose_damping", "hose_stiffness"):
+        out[k] = ff.margin * max(MIN_UNCERTAINTY, math.hypot(rel(k, getattr(plant, k)),
+                                                             class_error))
+    out["sigma"] = ff.margin * max(MIN_UNCERTAINTY, math.hypot(rel("sigma", dahl.sigma),
+                                                               class_error))
+    out["endpoint_damping"] = ff.margin * ff.damping_uncertainty
+    out["endpoint_stiffness"] = ff.margin * ff.stiffness_uncertainty
+    return {k: min(0.45, v) for k, v in out.items()}
 
 
 def feedforward_uncertainties(plant: PlantParams, plant_sigma: Mapping[str, float],

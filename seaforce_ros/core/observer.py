@@ -25,6 +25,11 @@ Inputs per sample: motor position X [rad], motor velocity V [rad/s], pressure fo
   finger oscillate (0.14-0.19 rad/s rms limit cycles in 24 of 40 plants 20 % off; none at half
   the stiffness). So the feed-forward's Dahl force has its own state (:attr:`dahl_feedforward`);
   F_d itself (what the contact estimator and the friction adaptation see) is the model's.
+* The reserve: ``F_cmp`` also has ``- r V``, ``r = damping_reserve`` on the motor velocity
+  (the DOB renders it as nominal damping, in the feed-forward modes only): where the finger's
+  b_e and k_e lie at the margin's edge the feed-forward has cancelled all of its damping, and
+  the sampled loop's own small-signal damping can be negative -- without it 5 of 100 free
+  fingers drawn at the edge of Table I's 20 % band oscillated or crept away.
 
 The identified model's nonlinear terms (``plant_terms``, :class:`~.params.PlantTermsParams`),
 when some are set: the hose ``F_p = k_s d + b_s d' + c |d'| d' + kappa |d| d`` is inverted
@@ -136,7 +141,7 @@ class EndpointObserver:
                  "dt", "_ks", "_inv_bs", "_a", "_c0", "_c1", "damping", "stiffness", "_rest",
                  "_half_width", "dahl", "_first", "_delta", "_fp_prev", "dahl_input",
                  "position", "velocity", "dahl_force", "compensation", "feedforward",
-                 "_scales", "_kb", "_kk", "_ff", "dahl_ff", "dahl_feedforward", "_relax",
+                 "_scales", "_reserve", "_kb", "_kk", "_ff", "dahl_ff", "dahl_feedforward", "_relax",
                  "_coulomb", "_minus_coulomb", "_sigma", "_minus_sigma")
 
     def __init__(self, plant: PlantParams, feedforward: FeedforwardParams, dahl: DahlParams,
@@ -161,6 +166,7 @@ class EndpointObserver:
         self._rest = feedforward.rest_position
         self._half_width = 0.5 * feedforward.dahl_deadband
         self._scales = feedforward.scales()
+        self._reserve = feedforward.damping_reserve
         self._ff = feedforward
         self.set_friction(plant.endpoint_damping, plant.endpoint_stiffness, dahl)
 
@@ -169,8 +175,8 @@ class EndpointObserver:
         friction adaptation's values); the Dahl state is kept (its force within the new
         F_c)."""
         self.damping, self.stiffness = damping, stiffness
-        self._kb = self._ff.damping(damping, dahl)
-        self._kk = self._scales[1] * stiffness
+        sb, sk, _ = self._scales
+        self._kb, self._kk = sb * damping, sk * stiffness
         ss = self._ff.stroke_scale()
         self._k2, self._k3 = ss * self._k2_model, ss * self._k3_model
         self._stroke = bool(self._k2 or self._k3)      # (0 with a zero stroke scale too)
@@ -272,9 +278,11 @@ class EndpointObserver:
         self.dahl_feedforward = fdf
         if self._stroke:
             u = xe - self._rest
-            fc = self.compensation = self._kb * ve + u * (self._kk + u * (self._k2 + u * self._k3))
+            fc = self.compensation = (self._kb * ve - self._reserve * v
+                                      + u * (self._kk + u * (self._k2 + u * self._k3)))
         else:
-            fc = self.compensation = self._kb * ve + self._kk * (xe - self._rest)
+            fc = self.compensation = (self._kb * ve - self._reserve * v
+                                      + self._kk * (xe - self._rest))
         self.feedforward = fc + fdf
 
     def _nonlinear_hose(self, x: float, v: float, f_p: float, steps: int

@@ -24,7 +24,7 @@ __all__ = [
     "MODES", "DOB_MODES", "PlantParams", "PlantTermsParams", "DahlParams", "DobParams", "TargetParams",
     "HoldParams", "ForceFeedbackParams", "ChirpParams", "FeedforwardParams", "EstimatorParams",
     "GraspParams", "FrictionParams", "CommissioningParams", "GUARD_MODES", "GuardParams",
-    "LimitParams", "MonitorParams", "FALLBACK_MODES", "MIN_UNCERTAINTY", "MIN_LOOP_DELAY",
+    "LimitParams", "MonitorParams", "FALLBACK_MODES", "MIN_UNCERTAINTY",
     "guard_carries", "settable_order",
     "check_dob_passivity", "ControllerConfig", "PARAMETERS", "DEFAULT_CUTOFF",
     "DEFAULT_HOLD_STIFFNESS", "DEFAULT_HOLD_DAMPING", "MIN_CLOSING_VELOCITY", "MODE_RENAMED",
@@ -63,9 +63,6 @@ DEFAULT_HOLD_DAMPING = 0.5
 #: ``allow_non_passive``: no identified value is exact (the fit's 1-sigma is not the model
 #: class's error).
 MIN_UNCERTAINTY = 0.01
-#: The least ``feedforward.loop_delay`` [s] accepted without ``allow_non_passive``: one
-#: sample at 2 kHz (a command held over the sample it answers is already half of one late).
-MIN_LOOP_DELAY = 5e-4
 
 #: The slowest approach a grasp goal may ask for [rad/s] (slower, the approach's arming
 #: cannot tell the speed from the friction model's error).
@@ -251,12 +248,12 @@ class FeedforwardParams(ParameterGroup):
                                         "k_e) through the loop's lag makes the free finger "
                                         "oscillate; 0.5 also covers a sigma off by up to 2x; at "
                                         "most 0.5 unless allow_non_passive", ge=0.0, le=1.0)
-    loop_delay: float = param(1.25e-3, "s", "the loop's delay from a measurement to the torque "
-                              "it causes (2.5 samples at 2 kHz: held a sample, answered a "
-                              "cycle late over topics): the Dahl feed-forward's pre-sliding "
-                              "stiffness through it is a negative damping share x sigma x "
-                              "delay, which the b_e feed-forward leaves out; at least "
-                              "MIN_LOOP_DELAY unless allow_non_passive", ge=0.0, le=0.1)
+    damping_reserve: float = param(0.009, "N m s/rad", "damping the feed-forward modes add on the "
+                                   "motor velocity (F_ref -= reserve x V): with b_e, k_e at the "
+                                   "margin's edge nothing else damps a free finger, and the "
+                                   "loop's own small-signal damping can be negative; 0.009 keeps "
+                                   "every corner of Table I's +-20 % band stable; commissioning "
+                                   "sizes it for the identified model", ge=0.0, le=1.0)
 
     def dahl(self, model: "DahlParams") -> "DahlParams":
         """The Dahl parameters of the feed-forward's force: the model's F_c times the margin's
@@ -265,20 +262,6 @@ class FeedforwardParams(ParameterGroup):
         sd = self.scales()[2]
         return dataclasses.replace(model, sigma=self.dahl_stiffness_share * model.sigma,
                                    coulomb_force=max(sd, 1e-12) * model.coulomb_force)
-
-    def lag_damping(self, model: "DahlParams") -> float:
-        """``dahl_stiffness_share x sigma x loop_delay`` [N m s/rad]: the negative damping the
-        Dahl feed-forward's pre-sliding stiffness makes through the loop's delay, which the
-        b_e feed-forward leaves out (:meth:`damping`)."""
-        return self.dahl_stiffness_share * model.sigma * self.loop_delay
-
-    def damping(self, damping: float, model: "DahlParams") -> float:
-        """The b_e [N m s/rad] the feed-forward cancels: the model's ``damping`` times the
-        margin's scale, less :meth:`lag_damping` (at least 0). Without that term a free finger
-        whose b_e lies at the margin's edge is left no net damping, and the Dahl
-        feed-forward's lag made 5 of 100 such plants (every parameter 20 % off, 2 x 10 %)
-        oscillate or creep away."""
-        return max(0.0, self.scales()[0] * damping - self.lag_damping(model))
 
     def stroke_scale(self) -> float:
         """The factor ``1 - margin u`` (at least 0) the feed-forward applies to the stroke
@@ -699,12 +682,12 @@ class ControllerConfig(ParameterGroup):
 
     def feedforward_friction(self) -> Tuple[float, float, DahlParams]:
         """What the feed-forward cancels: ``(b_e, k_e, Dahl)`` of the model each times its
-        margin's scale (:meth:`FeedforwardParams.scales`), b_e less the Dahl feed-forward's
-        lag damping (:meth:`FeedforwardParams.damping`), sigma times
-        ``feedforward.dahl_stiffness_share`` (:meth:`FeedforwardParams.dahl`)."""
-        ff = self.feedforward
-        return (ff.damping(self.plant.endpoint_damping, self.dahl),
-                ff.scales()[1] * self.plant.endpoint_stiffness, ff.dahl(self.dahl))
+        margin's scale (:meth:`FeedforwardParams.scales`), sigma times
+        ``feedforward.dahl_stiffness_share`` too (:meth:`FeedforwardParams.dahl`). (The
+        feed-forward modes also add ``feedforward.damping_reserve`` on the motor velocity.)"""
+        sb, sk, _ = self.feedforward.scales()
+        return (sb * self.plant.endpoint_damping, sk * self.plant.endpoint_stiffness,
+                self.feedforward.dahl(self.dahl))
 
     def _check_ranges(self) -> None:
         """The motions of a calibration and of commissioning stay inside the joint range
@@ -741,12 +724,6 @@ class ControllerConfig(ParameterGroup):
                 "feedforward.dahl_stiffness_share", ff.dahl_stiffness_share,
                 "<= 0.5 (cancelling more of the Dahl pre-sliding stiffness sigma through the "
                 "loop's lag made a free finger oscillate in 24 of 40 plants 20 % off)")
-        if ff.loop_delay < MIN_LOOP_DELAY:
-            raise NonPassiveError(
-                "feedforward.loop_delay", ff.loop_delay,
-                f">= {MIN_LOOP_DELAY:g} s (the loop's delay turns the Dahl feed-forward's "
-                "pre-sliding stiffness into negative damping, which the b_e feed-forward must "
-                "leave out: a free finger at the margin's edge oscillated)")
         if ff.margin < 1.0:
             raise NonPassiveError(
                 "feedforward.margin", ff.margin,

@@ -11,16 +11,18 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from seaforce_ros.commissioning.errors import CommissioningError
+from seaforce_ros.commissioning.free_finger import RADIUS_TARGET, corner_radius
 from seaforce_ros.commissioning.predictor import (PLANT_FIELDS, LoopModel, hold_delay_limit,
                                                   predict_modes, torque_noise)
 from seaforce_ros.commissioning.tuning import (DELAY_RESERVE, TUNED_KEYS,
-                                               InfeasibleTuningError, tune, worst_plant)
+                                               InfeasibleTuningError, free_finger_spreads, tune,
+                                               worst_plant)
 from seaforce_ros.core.errors import NonPassiveError
 from seaforce_ros.core.params import (ControllerConfig, DahlParams, GraspParams, PlantParams,
                                       check_dob_passivity)
 
 TABLE_I = PlantParams.table_i()
-CONSTRAINTS = {"noise_budget", "passivity", "dob_stability", "hold_stability"}
+CONSTRAINTS = {"noise_budget", "passivity", "dob_stability", "hold_stability", "free_finger"}
 
 
 @st.composite
@@ -71,7 +73,9 @@ def meets_constraints(config, worst, dahl, figures, budget):
 @given(cases())
 def test_tuned_settings_meet_every_constraint(case):
     """Invariants: eq. 28 on the worst plant within the margin (or, with allow_guard, the
-    active guard's damping covers its deficit); predicted torque noise <= budget; the hold
+    active guard's damping covers its deficit); a free finger in dob_full_ff small-signal
+    stable at every corner of the band the margin covers, at the p99 delay (the linearised
+    sampled loop, its spectral radius below 1); predicted torque noise <= budget; the hold
     stable at every delay up to p99 + 2 (endpoint free and clamped); from_dict gives the
     result's config; mean Z-width over the band >= the default settings' (with the same
     feed-forward uncertainties) wherever those meet the constraints themselves. Or a refusal
@@ -95,6 +99,9 @@ def test_tuned_settings_meet_every_constraint(case):
         deficit = config.dob.cutoff * (worst.motor_inertia - config.dob.nominal_inertia) \
             - worst.motor_damping
         assert deficit <= config.passivity.max_damping
+    spreads = free_finger_spreads(plant, sigma, dahl, 0.0, margin, config)
+    radius, corner = corner_radius(config, spreads, delay=figures.delay_p99, dt=figures.dt)
+    assert radius < RADIUS_TARGET, corner
     noise = math.hypot(*torque_noise(plant, dahl, config, figures))
     assert noise <= budget * (1 + 1e-9)
     assert result.torque_noise == pytest.approx(noise, rel=1e-9)
@@ -126,8 +133,11 @@ SIGMA = {n: 0.05 * getattr(TABLE_I, n) for n in PLANT_FIELDS}
 
 
 def test_table_i_tuning_is_bound_where_it_says():
-    result = tune(TABLE_I, SIGMA, DahlParams(), FIGURES, noise_budget=0.003)
-    assert result.torque_noise <= 0.003
+    """A budget below the starting setting's noise (0.0015 N m): lambda is bound by the noise
+    budget, m_n by eq. 28, the hold by its stability, the reserve by the free finger."""
+    result = tune(TABLE_I, SIGMA, DahlParams(), FIGURES, noise_budget=0.0014)
+    assert result.torque_noise <= 0.0014
+    assert result.bindings["feedforward.damping_reserve"].startswith("free finger")
     assert result.bindings["dob.cutoff"].startswith("noise budget")
     assert result.bindings["dob.nominal_inertia"].startswith("passivity")
     assert result.bindings["hold.stiffness"].startswith("hold stability")
@@ -138,12 +148,18 @@ def test_table_i_tuning_is_bound_where_it_says():
     assert result.gain_db >= 0.0
 
 
-def test_guard_lets_the_nominal_inertia_below_eq28():
-    plain = tune(TABLE_I, SIGMA, DahlParams(), FIGURES, noise_budget=0.03)
-    guarded = tune(TABLE_I, SIGMA, DahlParams(), FIGURES, noise_budget=0.03, allow_guard=True)
-    assert guarded.config.passivity.mode == "active"
-    assert "covers" in guarded.guard
-    assert np.mean(guarded.zwidth_after_db) >= np.mean(plain.zwidth_after_db) - 1e-9
+@pytest.mark.parametrize("budget", [0.0014, 0.03])
+def test_the_guard_is_chosen_only_where_it_widens_the_zwidth(budget):
+    """The guarded candidates (m_n below eq. 28, the guard covering the deficit) are weighed
+    with the damping reserve a free finger then needs -- on Table I with 5 % 1-sigmas more
+    than without the guard, so it does not pay here; the guard never narrows the Z-width."""
+    plain = tune(TABLE_I, SIGMA, DahlParams(), FIGURES, noise_budget=budget)
+    guarded = tune(TABLE_I, SIGMA, DahlParams(), FIGURES, noise_budget=budget,
+                   allow_guard=True)
+    if guarded.config.passivity.mode == "active":
+        assert "covers" in guarded.guard
+    # (to the reserve's resolution: its bisection may start from another corner)
+    assert np.mean(guarded.zwidth_after_db) >= np.mean(plain.zwidth_after_db) - 1e-3
 
 
 def test_budgets_nothing_meets_are_refused_with_the_constraint():

@@ -85,13 +85,13 @@ def test_work_loops_dob_and_full_feedforward():
     assert peak["dob_full_ff"] <= 0.2 * peak["dob"], peak
     # the margin's price: at the default (each term 20 % short of the model) the feed-forward
     # still removes >= 65 % of the peak, and leaves no more than the uncompensated 20 % of
-    # the friction, the b_e it leaves for the Dahl feed-forward's lag (times the speed there)
-    # and what the exact one leaves
+    # the friction, the free finger's damping reserve (times the motor's speed there) and
+    # what the exact one leaves
     config = ControllerConfig()
     r = work_loop("dob_full_ff", config)
     inside = np.abs(r["x_e"]) <= 0.2
     with_margin = np.max(np.abs(r["f_e"][inside]))
-    lag = config.feedforward.lag_damping(config.dahl) * np.max(np.abs(r["v_e_true"][inside]))
+    lag = config.feedforward.damping_reserve * np.max(np.abs(r["v_true"][inside]))
     assert with_margin <= 0.35 * peak["dob"], (with_margin, peak)
     assert with_margin <= peak["dob_full_ff"] + 0.2 * peak["dob"] + lag, (with_margin, peak)
 

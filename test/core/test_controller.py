@@ -189,8 +189,8 @@ def test_feedforward_sign_drives_external_force_to_zero():
         sim = ChannelSimulator(TABLE_I, None, environment=position_sine(0.5, 1.0))
         rec = run_closed_loop(sim, ChannelController(ControllerConfig(mode=mode)), 20000)
         peaks[mode] = np.max(np.abs(rec["f_e"][8000:]))
-    # (the default margin leaves 20 % of k_e and b_e, and of b_e the Dahl feed-forward's lag
-    # damping too: 0.28 here; a sign error would give more than 1)
+    # (the default margin leaves 20 % of k_e and b_e, and the free finger's damping reserve
+    # adds to them; a sign error would give more than 1)
     assert peaks["dob_linear_ff"] < 0.4 * peaks["dob"]
 
 

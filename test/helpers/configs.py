@@ -20,7 +20,7 @@ def exact_feedforward(config=None, **changes):
     config = ControllerConfig(**changes) if config is None else config.replace(**changes)
     return config.replace(feedforward=dataclasses.replace(config.feedforward, margin=0.0,
                                                           dahl_stiffness_share=1.0,
-                                                          loop_delay=0.0),
+                                                          damping_reserve=0.0),
                           allow_non_passive=True)
 
 
