@@ -29,8 +29,8 @@ from ..core.params import ControllerConfig
 from .errors import CommissioningError
 from .predictor import PLANT_FIELDS, closed_loop_radius, controller_polynomials
 
-__all__ = ["BAND_KEYS", "corner_radius", "radius_at", "size_reserve", "band_spreads", "RESERVE_LIMIT",
-           "RADIUS_TARGET"]
+__all__ = ["BAND_KEYS", "corner_radius", "radius_at", "size_reserve", "band_spreads",
+           "RESERVE_LIMIT", "RADIUS_TARGET"]
 
 #: The uncertain parameters of a band: Table I's eight and the Dahl sigma (F_c and the
 #: exponent do not enter the linearisation).

@@ -242,9 +242,10 @@ def _dob_candidates(worst: PlantParams, base: ControllerConfig,
     return out
 
 
-def _reserved(feasible: List[_Candidate], model: ControllerConfig, spreads: Mapping[str, float],
-              plant: PlantParams, dahl: DahlParams, figures: LoopModel, omega: _Float,
-              amplitude: float, noise_budget: float) -> Tuple[_Candidate, float, float]:
+def _reserved(feasible: List[_Candidate], start: _Candidate, model: ControllerConfig,
+              spreads: Mapping[str, float], plant: PlantParams, dahl: DahlParams,
+              figures: LoopModel, omega: _Float, amplitude: float,
+              noise_budget: float) -> Tuple[_Candidate, float, float]:
     """Of the feasible candidates with the widest predicted Z-width -- the best, the best
     without the guard, the starting settings -- the one whose Z-width stays widest once each
     has the least ``feedforward.damping_reserve`` that keeps the free finger stable over
@@ -263,7 +264,7 @@ def _reserved(feasible: List[_Candidate], model: ControllerConfig, spreads: Mapp
     hint: Optional[Dict[str, float]] = None
     order = sorted(feasible, key=lambda c: -c.score)
     first = [order[0]] + [c for c in order if not c.guard][:1] + [
-        c for c in order if c.binding.get("dob.cutoff", "").startswith("kept")][:1]
+        c for c in order if c is start]
     first = [c for i, c in enumerate(first) if all(c is not d for d in first[:i])]
     for c in first + [c for c in order if all(c is not d for d in first)]:
         if best is not None and all(c is not d for d in first):
@@ -484,8 +485,8 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
                                     + ")")
     spreads = free_finger_spreads(plant, plant_sigma, dahl, class_error, passivity_margin,
                                   model)
-    best, reserve, radius = _reserved(feasible, model, spreads, plant, dahl, figures, omega,
-                                      amplitude, noise_budget)
+    best, reserve, radius = _reserved(feasible, start, model, spreads, plant, dahl, figures,
+                                      omega, amplitude, noise_budget)
     lam_index = next((i for i, lam in enumerate(_CUTOFFS) if lam == best.dob.cutoff), -1)
     noisier = [c for c in candidates if c.dob.cutoff > best.dob.cutoff and c is not start
                and c.noise > noise_budget]
