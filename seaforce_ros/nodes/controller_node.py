@@ -75,6 +75,7 @@ from ..core.friction_calibration import (CalibrationGoal, FrictionCalibration,
 from ..core.grasp import Grasp, GraspGoal, check_goal
 from ..core.params import ControllerConfig, guard_carries
 from ..core.schema import BRINGUP, CONTROLLER
+from ..commissioning.free_finger import reserve_verdict
 from .commissioning import CommissionAction
 from .gripper_actions import gripper_job_actions
 from .jobs import JobAction, JobActions
@@ -182,6 +183,7 @@ class ControllerNode(Node):
         steady_timer(self, values['diagnostics_period'], self._publish_diagnostics)
         for channel, config in zip(self.channels, self.configs):
             self._warn_guarded(channel, None, config)
+            self._warn_free_finger(channel, config)
         modes = ', '.join(f'{c}={ctrl.mode}' for c, ctrl in zip(self.channels, controllers))
         self.get_logger().info(f'controlling {self.channels} at {values["rate"]:.0f} Hz '
                                f'({modes}), loop={self.loop}')
@@ -245,6 +247,14 @@ class ControllerNode(Node):
         """Warn once when an active passivity guard carries a DOB setting outside eq. 28."""
         text = guard_carries(config)
         if text and (old is None or text != guard_carries(old)):
+            self.get_logger().warning(f'{channel}: {text}')
+
+    def _warn_free_finger(self, channel, config):
+        """At start-up: warn when the damping reserve does not hold a free finger over the
+        model's band (commissioning.free_finger; not at a parameter set: it takes 0.1-0.3 s,
+        which the 2 kHz loop cannot wait)."""
+        text = reserve_verdict(config, delay=1 if self.loop == 'direct' else 2, dt=self.dt)
+        if text:
             self.get_logger().warning(f'{channel}: {text}')
 
     # --- the 2 kHz path ------------------------------------------------------------------

@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 
 from seaforce_ros.commissioning.errors import CommissioningError
 from seaforce_ros.commissioning.free_finger import (BAND_KEYS, RADIUS_TARGET, band_spreads,
-                                                    corner_radius, radius_at, size_reserve)
+                                                    corner_radius, radius_at, reserve_verdict,
+                                                    size_reserve)
 from seaforce_ros.core import ChannelController, ChannelSimulator, ControllerConfig
 from seaforce_ros.core.params import DahlParams, PlantParams
 from seaforce_ros.core.simulator import run_closed_loop
@@ -122,3 +123,17 @@ def test_the_sized_reserve_holds_every_corner_and_the_simulated_finger(factors, 
         assert corner_radius(reserve(config, 0.9 * least), spreads)[0] >= RADIUS_TARGET
     rms, _ = free_finger(reserve(config, least), corner, flick=flick, seconds=6.0)
     assert rms < 0.01, (rms, corner)
+
+
+def test_the_verdict_names_the_reserve_that_holds_the_band():
+    """Silent on the shipped model; on a hand-typed model whose band the shipped reserve does
+    not hold (a softer hose, more b_e) it says so, with the corner and the reserve that
+    does -- and that reserve then passes."""
+    assert reserve_verdict(ControllerConfig()) is None
+    model = TABLE_I.scaled(hose_stiffness=0.6, endpoint_damping=1.5)
+    config = ControllerConfig(plant=model)
+    text = reserve_verdict(config)
+    assert text is not None and "may oscillate or creep" in text and "hose_stiffness x0.8" in text
+    least = float(text.split("creep; ")[1].split(" N m s/rad")[0])
+    assert least > config.feedforward.damping_reserve
+    assert reserve_verdict(reserve(config, least)) is None
