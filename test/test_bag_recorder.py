@@ -303,7 +303,9 @@ def test_records_a_soak_published_equals_received_equals_written(processes, tmp_
         lo += 2000                        # past discovery (see above)
         in_bag = bag[(bag >= lo) & (bag <= hi)]
         in_seen = seen[(seen >= lo) & (seen <= hi)]
-        assert in_bag.size > 0.8 * bag.size
+        # (a window of half the soak at least: the witness lives in this test process, and
+        # with the other worker busy its discovery once took 3 s, leaving 70 % of it)
+        assert in_bag.size > 0.5 * bag.size, (in_bag.size, bag.size)
         # every message the witness got is in the bag (a witness in this busy test process
         # can itself lose a few from controller_status's 100-deep publisher history)
         assert np.setdiff1d(in_seen, in_bag).size == 0, np.setdiff1d(in_seen, in_bag)[:10]
