@@ -15,9 +15,11 @@ its initial stiffness sigma, the feed-forward's either still in its play or as t
 feed-forward's sigma on X_e_hat (beyond it: while the finger moves), the loop sampled exactly
 (:func:`~.predictor.closed_loop_radius`), and takes the largest spectral radius over the
 corners of the band -- each uncertain parameter at the model's value times ``1 +- spread``.
-Below 1 at every corner: the finger at rest is asymptotically stable for every such plant
-(within the linearisation; the Dahl hysteresis' own dissipation adds to it).
-:func:`size_reserve` finds the least reserve that makes it so.
+Below 1 at a plant: the finger at rest is asymptotically stable there (within the
+linearisation; the Dahl hysteresis' own dissipation adds to it). The radius need not be
+largest at a corner: :func:`size_reserve` finds the least reserve that keeps every corner,
+and the points along each axis through the worst one, below :data:`RADIUS_TARGET` (on Table
+I's band an interior sigma came out 1.4e-5 above the worst corner, within that margin).
 """
 from __future__ import annotations
 
@@ -31,33 +33,36 @@ from .errors import CommissioningError
 from .predictor import PLANT_FIELDS, closed_loop_radius, controller_polynomials
 
 __all__ = ["BAND_KEYS", "corner_radius", "radius_at", "size_reserve", "band_spreads",
-           "reserve_verdict", "RESERVE_LIMIT", "RADIUS_TARGET"]
+           "reserve_verdict", "RESERVE_LIMIT", "RADIUS_TARGET", "SPREAD_LIMIT"]
 
 #: The uncertain parameters of a band: Table I's eight and the Dahl sigma (F_c and the
 #: exponent do not enter the linearisation).
 BAND_KEYS = PLANT_FIELDS + ("sigma",)
 _MODES = ("dob_linear_ff", "dob_full_ff", "impedance")
-#: The largest reserve :func:`size_reserve` tries [N m s/rad] (30 times Table I's b_e: the
-#: feed-forward modes would then be stiffer than ``dob``).
-RESERVE_LIMIT = 1.0
+#: The largest reserve :func:`size_reserve` tries [N m s/rad]: the parameter's own limit (3
+#: times Table I's b_e; on Table I the nominal loop is stable with it at 1-4 samples of delay,
+#: free and held, where 1 N m s/rad was not at 2).
+RESERVE_LIMIT = 0.1
+#: The largest relative half-width of a band (the corners stay positive, the linearisation
+#: about the model meaningful).
+SPREAD_LIMIT = 0.45
 #: The spectral radius every corner must stay below (a margin against rounding and the
 #: bisection's last step: 2e-5 per sample is a time constant of 25 s at 2 kHz).
 RADIUS_TARGET = 1.0 - 2e-5
 
 
-def band_spreads(config: ControllerConfig, relative: Optional[Mapping[str, float]] = None
-                 ) -> Dict[str, float]:
-    """The band's relative half-widths: ``feedforward.margin`` times each parameter's
-    relative uncertainty -- b_e's and k_e's are the feed-forward's own
-    (``feedforward.damping_uncertainty``, ``stiffness_uncertainty``), the others' from
-    ``relative`` (default: the larger of the two, as for a hand-typed model)."""
+def band_spreads(config: ControllerConfig) -> Dict[str, float]:
+    """The band a free finger must be held over, as relative half-widths: the feed-forward's
+    margin times b_e's and k_e's uncertainties (``feedforward.damping_uncertainty``,
+    ``stiffness_uncertainty``: where the feed-forward cancels all of them) and times
+    ``feedforward.plant_uncertainty`` for the others; each at most :data:`SPREAD_LIMIT`.
+    Commissioning sizes the reserve over this band of the config it writes, and
+    ``controller_node`` checks it at start-up, so both take the same one."""
     ff = config.feedforward
-    default = max(ff.damping_uncertainty, ff.stiffness_uncertainty)
-    relative = {} if relative is None else relative
-    out = {k: ff.margin * float(relative.get(k, default)) for k in BAND_KEYS}
+    out = {k: ff.margin * ff.plant_uncertainty for k in BAND_KEYS}
     out["endpoint_damping"] = ff.margin * ff.damping_uncertainty
     out["endpoint_stiffness"] = ff.margin * ff.stiffness_uncertainty
-    return out
+    return {k: min(SPREAD_LIMIT, v) for k, v in out.items()}
 
 
 def corner_radius(config: ControllerConfig, spreads: Mapping[str, float], *,
@@ -106,6 +111,20 @@ def _corners(spreads: Mapping[str, float]) -> List[Dict[str, float]]:
     for picks in itertools.product((-1.0, 1.0), repeat=len(varied)):
         chosen = dict(zip(varied, picks))
         out.append({k: 1.0 + chosen.get(k, 0.0) * spreads.get(k, 0.0) for k in BAND_KEYS})
+    return out
+
+
+def _axes(corner: Mapping[str, float], spreads: Mapping[str, float],
+          steps: Sequence[float] = (-0.5, 0.0, 0.5)) -> List[Dict[str, float]]:
+    """The points along each axis through ``corner``: one parameter at ``1 + s x spread`` for
+    each ``s`` of ``steps`` (between the band's edges), the others at the corner."""
+    out = []
+    for k in BAND_KEYS:
+        if spreads.get(k, 0.0) > 0.0:
+            for s in steps:
+                point = dict(corner)
+                point[k] = 1.0 + s * spreads[k]
+                out.append(point)
     return out
 
 
@@ -173,9 +192,15 @@ def size_reserve(config: ControllerConfig, spreads: Mapping[str, float], *,
                 hi = mid
             else:
                 lo = mid
-        r, c = _worst(with_reserve(hi), every, mode, delay, dt)
+        held = with_reserve(hi)
+        r, c = _worst(held, every, mode, delay, dt)
         if r < RADIUS_TARGET:
-            return hi, r, c
+            # (the radius need not be largest at a corner: along each axis through the worst
+            # corner too -- on Table I's band an interior sigma came out above the corners)
+            r2, c2 = _worst(held, _axes(c, spreads), mode, delay, dt)
+            if r2 < RADIUS_TARGET:
+                return hi, max(r, r2), (c if r >= r2 else c2)
+            r, c = r2, c2
         active.append(c)
         lo, hi = hi, max(hi, 0.004)
 
@@ -183,16 +208,15 @@ def size_reserve(config: ControllerConfig, spreads: Mapping[str, float], *,
 def reserve_verdict(config: ControllerConfig, *, delay: int = 1, dt: float = 5e-4
                     ) -> Optional[str]:
     """What is wrong with ``config``'s ``feedforward.damping_reserve`` for its own model and
-    band (:func:`band_spreads`: the margin times the feed-forward's uncertainties, the larger
-    of them for the other parameters, as for a hand-typed model), in words, or None when
-    every corner is stable. About 0.1 s of CPU (0.3 s when it sizes the reserve)."""
+    band (:func:`band_spreads`), in words, or None when every corner is stable. About 0.1 s
+    of CPU on a quiet host, 1-2 s when it sizes the reserve (only when it warns)."""
     spreads = band_spreads(config)
     radius, corner = corner_radius(config, spreads, delay=delay, dt=dt)
     if radius < RADIUS_TARGET:
         return None
     where = ", ".join(f"{k} x{v:.3g}" for k, v in corner.items() if v != 1.0)
     head = (f"feedforward.damping_reserve = {config.feedforward.damping_reserve:.3g} N m s/rad "
-            f"leaves a free finger in the feed-forward modes small-signal unstable on a plant "
+            f"leaves a free finger in dob_full_ff small-signal unstable on a plant "
             f"within the model's band (+-{100 * max(spreads.values()):.0f} %; spectral radius "
             f"{radius:.6f} at {where}): it may oscillate or creep")
     try:
@@ -201,7 +225,7 @@ def reserve_verdict(config: ControllerConfig, *, delay: int = 1, dt: float = 5e-
         return head + ("; no reserve holds that band: commission the gripper (a narrower "
                        "band) or lower feedforward.dahl_stiffness_share")
     if least <= 0.0:                    # (the loop is not monotonic in the reserve here)
-        return head + "; no reserve at all holds it: set feedforward.damping_reserve to 0"
+        return head + "; a reserve of 0 holds it: set feedforward.damping_reserve to 0"
     step = 10.0 ** (math.floor(math.log10(least)) - 2)         # 3 digits, rounded up
     return head + (f"; {math.ceil(least / step) * step:.3g} N m s/rad holds it (set "
                    "feedforward.damping_reserve), or commission the gripper")

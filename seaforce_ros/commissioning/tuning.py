@@ -48,7 +48,7 @@ from ..core.params import (MIN_UNCERTAINTY, ControllerConfig, DahlParams, DobPar
                            PlantTermsParams, check_dob_passivity, guard_carries)
 from ..core.simulator import discretise
 from .errors import CommissioningError
-from .free_finger import size_reserve
+from .free_finger import band_spreads, size_reserve
 from .predictor import (PLANT_FIELDS, SIGMA_KEYS, LoopModel, closed_loop_radius, hold_verdict,
                         predict_modes, torque_noise)
 
@@ -57,7 +57,7 @@ TERM_FIELDS = tuple(spec.attribute for spec in PlantTermsParams.SPECS)
 
 __all__ = ["TuningResult", "InfeasibleTuningError", "tune", "worst_plant", "TUNED_KEYS",
            "HOLD_MODULUS_MARGIN", "DELAY_RESERVE", "contact_damping_within",
-           "feedforward_uncertainties", "free_finger_spreads"]
+           "feedforward_uncertainties", "plant_uncertainty"]
 
 _Float = npt.NDArray[np.float64]
 
@@ -69,7 +69,8 @@ TUNED_KEYS = tuple(f"plant.{n}" for n in PLANT_FIELDS) + (
     "dob.nominal_damping", "dob.nominal_stiffness", "hold.stiffness", "hold.damping",
     "passivity_guard", "grasp.contact_damping", "feedforward.damping_uncertainty",
     "feedforward.stiffness_uncertainty", "feedforward.dahl_uncertainty",
-    "feedforward.stroke_uncertainty", "feedforward.damping_reserve")
+    "feedforward.stroke_uncertainty", "feedforward.plant_uncertainty",
+    "feedforward.damping_reserve")
 #: Smallest ``min |1 + L|`` of the hold loop at the p99 delay (gain margin >= 6 dB, phase
 #: margin >= 29 deg).
 HOLD_MODULUS_MARGIN = 0.5
@@ -279,6 +280,10 @@ def _reserved(feasible: List[_Candidate], start: _Candidate, model: ControllerCo
         trial = trial.replace(feedforward=dataclasses.replace(trial.feedforward,
                                                               damping_reserve=reserve),
                               allow_non_passive=False)
+        if not _feedforward_stable(plant, dahl, trial, figures):
+            why.setdefault("free_finger", f"its damping reserve {reserve:.3g} N m s/rad "
+                           f"leaves dob_full_ff unstable at p99 + {DELAY_RESERVE} samples")
+            continue
         noise = math.hypot(*torque_noise(plant, dahl, trial, figures))
         if noise > noise_budget:
             why.setdefault("noise_budget", f"its damping reserve {reserve:.3g} N m s/rad "
@@ -295,6 +300,16 @@ def _reserved(feasible: List[_Candidate], start: _Candidate, model: ControllerCo
         raise InfeasibleTuningError(constraint, f"tune: no feasible DOB setting holds a free "
                                     f"finger: {why[constraint]}")
     return best
+
+
+def _feedforward_stable(plant: PlantParams, dahl: DahlParams, config: ControllerConfig,
+                        figures: LoopModel) -> bool:
+    """``dob_full_ff``'s sampled loop (its reserve included) stable on the identified plant
+    at every delay from p99 to p99 + :data:`DELAY_RESERVE`, the endpoint free and held."""
+    return all(closed_loop_radius(plant, dahl, config, "dob_full_ff", delay=d, dt=figures.dt,
+                                  endpoint_stiffness=k, endpoint_damping=b) < 1.0
+               for d in range(figures.delay_p99, figures.delay_p99 + DELAY_RESERVE + 1)
+               for k, b in ((0.0, 0.0), (DRIVE_STIFFNESS, DRIVE_DAMPING)))
 
 
 def _passive(worst: PlantParams, candidate: _Candidate, base: ControllerConfig) -> bool:
@@ -429,6 +444,8 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     # (and the feed-forward's uncertainties from the identification: its margin sets the
     # feed-forward's gains, hence the torque noise of every candidate)
     uncertainties = feedforward_uncertainties(plant, plant_sigma, dahl, class_error, terms)
+    uncertainties["feedforward.plant_uncertainty"] = plant_uncertainty(
+        plant, plant_sigma, dahl, class_error, passivity_margin, base.feedforward.margin)
     terms = PlantTermsParams() if terms is None else terms
     # (the candidates are scored without the free finger's damping reserve, an upper bound
     # of their Z-width: the reserve is sized for the best of them below)
@@ -483,8 +500,7 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
         raise InfeasibleTuningError(constraint, f"tune: {detail} (candidates failing: "
                                     + ", ".join(f"{k} {v}" for k, v in failures.items())
                                     + ")")
-    spreads = free_finger_spreads(plant, plant_sigma, dahl, class_error, passivity_margin,
-                                  model)
+    spreads = band_spreads(model)
     best, reserve, radius = _reserved(feasible, start, model, spreads, plant, dahl, figures,
                                       omega, amplitude, noise_budget)
     lam_index = next((i for i, lam in enumerate(_CUTOFFS) if lam == best.dob.cutoff), -1)
@@ -546,13 +562,15 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     bindings.setdefault("grasp.contact_damping", "range: at most 10 b_s")
     bindings.setdefault("passivity_guard", "passivity guard carries m_n below eq. 28"
                         if best.guard else "kept")
-    for key in TUNED_KEYS[-5:-1]:
+    for key in TUNED_KEYS[-6:-2]:
         bindings.setdefault(key, "the identified 1-sigma and the fit's misfit")
+    bindings.setdefault("feedforward.plant_uncertainty", "the free finger's band: the largest "
+                        "of the other parameters' (m, b, k: eq. 28's passivity_margin 1-sigmas)")
     values["feedforward.damping_reserve"] = reserve
     bindings["feedforward.damping_reserve"] = (
         f"free finger: the least that keeps every corner of the band (margin x the "
         f"uncertainties) small-signal stable at p99 = {figures.delay_p99} samples (worst "
-        f"radius {radius:.6f})")
+        f"radius {radius:.6f}), the loop stable at p99 + {DELAY_RESERVE} free and held")
     tuned = ControllerConfig.from_dict(values, base=base)
     after = predict_modes(plant, dahl, tuned, ("hold", "dob_full_ff"), omega,
                           delay=figures.delay_p50, dt=dt, amplitude=amplitude)
@@ -613,31 +631,23 @@ def _margin_cost(plant: PlantParams, dahl: DahlParams, tuned: ControllerConfig,
 TERM_UNCERTAINTY = 0.15
 
 
-def free_finger_spreads(plant: PlantParams, plant_sigma: Mapping[str, float],
-                        dahl: DahlParams, class_error: float, passivity_margin: float,
-                        config: ControllerConfig) -> Dict[str, float]:
-    """The band :func:`~.free_finger.size_reserve` holds the free finger over, as relative
-    half-widths: m, b, k within ``passivity_margin`` 1-sigmas (where eq. 28 holds the DOB);
-    b_e, k_e at the feed-forward's margin (``config.feedforward``: its margin times its
-    uncertainties); m_e, b_s, k_s and the Dahl sigma at the same margin times ``hypot(sigma_rel,
-    class_error)`` (at least :data:`~seaforce_ros.core.params.MIN_UNCERTAINTY`). Each at
-    most 0.45."""
-    ff = config.feedforward
-
+def plant_uncertainty(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
+                      class_error: float, passivity_margin: float, margin: float) -> float:
+    """``feedforward.plant_uncertainty`` after an identification: the largest relative
+    uncertainty of m, b, k, m_e, b_s, k_s and the Dahl sigma -- m, b, k's such that the band
+    (``margin`` of them) covers eq. 28's worst plant (``passivity_margin`` 1-sigmas), the
+    others' ``hypot(sigma_rel, class_error)`` as the feed-forward's -- at least
+    :data:`~seaforce_ros.core.params.MIN_UNCERTAINTY`, at most 1."""
     def rel(key: str, value: float) -> float:
         sd = float(plant_sigma.get(key, 0.0))
         return sd / value if value > 0.0 and math.isfinite(sd) else 1.0
 
-    out = {k: passivity_margin * rel(k, getattr(plant, k))
-           for k in ("motor_inertia", "motor_damping", "motor_stiffness")}
-    for k in ("endpoint_inertia", "hose_damping", "hose_stiffness"):
-        out[k] = ff.margin * max(MIN_UNCERTAINTY, math.hypot(rel(k, getattr(plant, k)),
-                                                             class_error))
-    out["sigma"] = ff.margin * max(MIN_UNCERTAINTY, math.hypot(rel("sigma", dahl.sigma),
-                                                               class_error))
-    out["endpoint_damping"] = ff.margin * ff.damping_uncertainty
-    out["endpoint_stiffness"] = ff.margin * ff.stiffness_uncertainty
-    return {k: min(0.45, v) for k, v in out.items()}
+    u = [passivity_margin / max(margin, 1e-12) * rel(k, getattr(plant, k))
+         for k in ("motor_inertia", "motor_damping", "motor_stiffness")]
+    u += [math.hypot(rel(k, getattr(plant, k)), class_error)
+          for k in ("endpoint_inertia", "hose_damping", "hose_stiffness")]
+    u.append(math.hypot(rel("sigma", dahl.sigma), class_error))
+    return min(1.0, max(MIN_UNCERTAINTY, max(u)))
 
 
 def feedforward_uncertainties(plant: PlantParams, plant_sigma: Mapping[str, float],

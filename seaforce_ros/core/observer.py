@@ -124,7 +124,7 @@ class EndpointObserver:
     dahl_force : float
         F_d [N m].
     compensation : float
-        F_cmp [N m] (eq. 29, with the margin).
+        F_cmp [N m] (eq. 29, with the margin), less the damping reserve's ``r V``.
     dahl_feedforward : float
         The feed-forward's Dahl force [N m] (the margin's F_c, a share of sigma).
     feedforward : float

@@ -253,7 +253,12 @@ class FeedforwardParams(ParameterGroup):
                                    "margin's edge nothing else damps a free finger, and the "
                                    "loop's own small-signal damping can be negative; 0.009 keeps "
                                    "every corner of Table I's +-20 % band stable; commissioning "
-                                   "sizes it for the identified model", ge=0.0, le=1.0)
+                                   "sizes it for the identified model", ge=0.0, le=0.1)
+    plant_uncertainty: float = param(0.1, "-", "relative 1-sigma of the model's other "
+                                     "parameters (m, b, k, m_e, b_s, k_s, sigma): with "
+                                     "margin, the band the damping reserve must hold a free "
+                                     "finger over (commissioning writes it; 0.1 stands for "
+                                     "hand-typed values)", ge=0.0, le=1.0)
 
     def dahl(self, model: "DahlParams") -> "DahlParams":
         """The Dahl parameters of the feed-forward's force: the model's F_c times the margin's

@@ -10,11 +10,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from seaforce_ros.commissioning.errors import CommissioningError
-from seaforce_ros.commissioning.free_finger import (BAND_KEYS, RADIUS_TARGET, band_spreads,
+from seaforce_ros.commissioning.free_finger import (BAND_KEYS, RADIUS_TARGET, SPREAD_LIMIT,
+                                                    band_spreads,
                                                     corner_radius, radius_at, reserve_verdict,
                                                     size_reserve)
 from seaforce_ros.core import ChannelController, ChannelSimulator, ControllerConfig
-from seaforce_ros.core.params import DahlParams, PlantParams
+from seaforce_ros.core.params import DahlParams, FeedforwardParams, PlantParams
 from seaforce_ros.core.simulator import run_closed_loop
 
 TABLE_I = PlantParams.table_i()
@@ -86,6 +87,18 @@ def test_spreads_outside_0_1_are_refused():
         corner_radius(config, {"no_such": 0.1})
     with pytest.raises(CommissioningError, match="mode"):
         corner_radius(config, {"motor_inertia": 0.1}, mode="hold")
+
+
+def test_bands_beyond_the_limit_are_capped_not_refused():
+    """The widest uncertainties the parameters allow (margin 10, each 1-sigma 0.5) make a band
+    of half-widths 5: capped at SPREAD_LIMIT, so controller_node's start-up check answers
+    instead of raising."""
+    config = ControllerConfig(feedforward=FeedforwardParams(
+        margin=10.0, damping_uncertainty=0.5, stiffness_uncertainty=0.5, dahl_uncertainty=0.5,
+        plant_uncertainty=0.5))
+    assert max(band_spreads(config).values()) == SPREAD_LIMIT
+    text = reserve_verdict(config)
+    assert text is None or "damping_reserve" in text
 
 
 def test_a_band_no_reserve_holds_is_refused_with_what_to_do():

@@ -91,9 +91,9 @@ def test_work_loops_dob_and_full_feedforward():
     r = work_loop("dob_full_ff", config)
     inside = np.abs(r["x_e"]) <= 0.2
     with_margin = np.max(np.abs(r["f_e"][inside]))
-    lag = config.feedforward.damping_reserve * np.max(np.abs(r["v_true"][inside]))
+    reserve = config.feedforward.damping_reserve * np.max(np.abs(r["v_true"][inside]))
     assert with_margin <= 0.35 * peak["dob"], (with_margin, peak)
-    assert with_margin <= peak["dob_full_ff"] + 0.2 * peak["dob"] + lag, (with_margin, peak)
+    assert with_margin <= peak["dob_full_ff"] + 0.2 * peak["dob"] + reserve, (with_margin, peak)
 
 
 # The core's isolation from ROS is tested in test/test_core_isolation.py (every core

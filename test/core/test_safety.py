@@ -249,8 +249,8 @@ def test_a_free_finger_within_the_uncertainty_comes_to_rest(signs, size, flick, 
     assert_comes_to_rest(signs, size, flick, seed)
 
 
-# plants at the band's edge that kept moving before the b_e feed-forward left out the Dahl
-# feed-forward's lag damping (5 of 100 drawn at the edge; b_e exactly cancelled on all):
+# plants at the band's edge that kept moving before the feed-forward modes had the free
+# finger's damping reserve (5 of 100 drawn at the edge; b_e exactly cancelled on all):
 # a limit cycle of +-3 mrad at 0.06 rad/s rms, and creeps that accelerated to 1.3 rad in 28 s
 EDGE_PLANTS = [("+----+---+", 0.46), ("+--+--+---", 0.44), ("+-+---+---", -0.61)]
 
