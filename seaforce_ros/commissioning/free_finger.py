@@ -55,11 +55,14 @@ def band_spreads(config: ControllerConfig) -> Dict[str, float]:
     """The band a free finger must be held over, as relative half-widths: the feed-forward's
     margin times b_e's and k_e's uncertainties (``feedforward.damping_uncertainty``,
     ``stiffness_uncertainty``: where the feed-forward cancels all of them) and times
-    ``feedforward.plant_uncertainty`` for the others; each at most :data:`SPREAD_LIMIT`.
+    ``feedforward.motor_uncertainty`` for m, b, k and ``plant_uncertainty`` for m_e, b_s, k_s
+    and sigma; each at most :data:`SPREAD_LIMIT`.
     Commissioning sizes the reserve over this band of the config it writes, and
     ``controller_node`` checks it at start-up, so both take the same one."""
     ff = config.feedforward
     out = {k: ff.margin * ff.plant_uncertainty for k in BAND_KEYS}
+    for k in ("motor_inertia", "motor_damping", "motor_stiffness"):
+        out[k] = ff.margin * ff.motor_uncertainty
     out["endpoint_damping"] = ff.margin * ff.damping_uncertainty
     out["endpoint_stiffness"] = ff.margin * ff.stiffness_uncertainty
     return {k: min(SPREAD_LIMIT, v) for k, v in out.items()}

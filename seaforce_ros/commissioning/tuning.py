@@ -57,7 +57,7 @@ TERM_FIELDS = tuple(spec.attribute for spec in PlantTermsParams.SPECS)
 
 __all__ = ["TuningResult", "InfeasibleTuningError", "tune", "worst_plant", "TUNED_KEYS",
            "HOLD_MODULUS_MARGIN", "DELAY_RESERVE", "contact_damping_within",
-           "feedforward_uncertainties", "plant_uncertainty"]
+           "feedforward_uncertainties", "band_uncertainties"]
 
 _Float = npt.NDArray[np.float64]
 
@@ -70,7 +70,7 @@ TUNED_KEYS = tuple(f"plant.{n}" for n in PLANT_FIELDS) + (
     "passivity_guard", "grasp.contact_damping", "feedforward.damping_uncertainty",
     "feedforward.stiffness_uncertainty", "feedforward.dahl_uncertainty",
     "feedforward.stroke_uncertainty", "feedforward.plant_uncertainty",
-    "feedforward.damping_reserve")
+    "feedforward.motor_uncertainty", "feedforward.damping_reserve")
 #: Smallest ``min |1 + L|`` of the hold loop at the p99 delay (gain margin >= 6 dB, phase
 #: margin >= 29 deg).
 HOLD_MODULUS_MARGIN = 0.5
@@ -444,8 +444,8 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     # (and the feed-forward's uncertainties from the identification: its margin sets the
     # feed-forward's gains, hence the torque noise of every candidate)
     uncertainties = feedforward_uncertainties(plant, plant_sigma, dahl, class_error, terms)
-    uncertainties["feedforward.plant_uncertainty"] = plant_uncertainty(
-        plant, plant_sigma, dahl, class_error, passivity_margin, base.feedforward.margin)
+    uncertainties.update(band_uncertainties(plant, plant_sigma, dahl, class_error,
+                                            passivity_margin, base.feedforward.margin))
     terms = PlantTermsParams() if terms is None else terms
     # (the candidates are scored without the free finger's damping reserve, an upper bound
     # of their Z-width: the reserve is sized for the best of them below)
@@ -562,10 +562,12 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     bindings.setdefault("grasp.contact_damping", "range: at most 10 b_s")
     bindings.setdefault("passivity_guard", "passivity guard carries m_n below eq. 28"
                         if best.guard else "kept")
-    for key in TUNED_KEYS[-6:-2]:
+    for key in TUNED_KEYS[-7:-3]:
         bindings.setdefault(key, "the identified 1-sigma and the fit's misfit")
     bindings.setdefault("feedforward.plant_uncertainty", "the free finger's band: the largest "
-                        "of the other parameters' (m, b, k: eq. 28's passivity_margin 1-sigmas)")
+                        "of m_e, b_s, k_s, sigma's 1-sigma and the fit's misfit")
+    bindings.setdefault("feedforward.motor_uncertainty", "the free finger's band: eq. 28's "
+                        "passivity_margin 1-sigmas of m, b, k over the margin")
     values["feedforward.damping_reserve"] = reserve
     bindings["feedforward.damping_reserve"] = (
         f"free finger: the least that keeps every corner of the band (margin x the "
@@ -631,23 +633,26 @@ def _margin_cost(plant: PlantParams, dahl: DahlParams, tuned: ControllerConfig,
 TERM_UNCERTAINTY = 0.15
 
 
-def plant_uncertainty(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
-                      class_error: float, passivity_margin: float, margin: float) -> float:
-    """``feedforward.plant_uncertainty`` after an identification: the largest relative
-    uncertainty of m, b, k, m_e, b_s, k_s and the Dahl sigma -- m, b, k's such that the band
-    (``margin`` of them) covers eq. 28's worst plant (``passivity_margin`` 1-sigmas), the
-    others' ``hypot(sigma_rel, class_error)`` as the feed-forward's -- at least
-    :data:`~seaforce_ros.core.params.MIN_UNCERTAINTY`, at most 1."""
+def band_uncertainties(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
+                       class_error: float, passivity_margin: float, margin: float
+                       ) -> Dict[str, float]:
+    """``feedforward.motor_uncertainty`` and ``plant_uncertainty`` after an identification:
+    the largest relative uncertainty of m, b, k such that the band (``margin`` of them)
+    covers eq. 28's worst plant (``passivity_margin`` 1-sigmas: where the DOB is held), and
+    of m_e, b_s, k_s and the Dahl sigma ``hypot(sigma_rel, class_error)`` as the
+    feed-forward's; each at least :data:`~seaforce_ros.core.params.MIN_UNCERTAINTY`, at
+    most 1."""
     def rel(key: str, value: float) -> float:
         sd = float(plant_sigma.get(key, 0.0))
         return sd / value if value > 0.0 and math.isfinite(sd) else 1.0
 
-    u = [passivity_margin / max(margin, 1e-12) * rel(k, getattr(plant, k))
-         for k in ("motor_inertia", "motor_damping", "motor_stiffness")]
-    u += [math.hypot(rel(k, getattr(plant, k)), class_error)
-          for k in ("endpoint_inertia", "hose_damping", "hose_stiffness")]
-    u.append(math.hypot(rel("sigma", dahl.sigma), class_error))
-    return min(1.0, max(MIN_UNCERTAINTY, max(u)))
+    motor = max(passivity_margin / max(margin, 1e-12) * rel(k, getattr(plant, k))
+                for k in ("motor_inertia", "motor_damping", "motor_stiffness"))
+    other = max([math.hypot(rel(k, getattr(plant, k)), class_error)
+                 for k in ("endpoint_inertia", "hose_damping", "hose_stiffness")]
+                + [math.hypot(rel("sigma", dahl.sigma), class_error)])
+    return {"feedforward.motor_uncertainty": min(1.0, max(MIN_UNCERTAINTY, motor)),
+            "feedforward.plant_uncertainty": min(1.0, max(MIN_UNCERTAINTY, other))}
 
 
 def feedforward_uncertainties(plant: PlantParams, plant_sigma: Mapping[str, float],

@@ -254,11 +254,14 @@ class FeedforwardParams(ParameterGroup):
                                    "loop's own small-signal damping can be negative; 0.009 keeps "
                                    "every corner of Table I's +-20 % band stable; commissioning "
                                    "sizes it for the identified model", ge=0.0, le=0.1)
-    plant_uncertainty: float = param(0.1, "-", "relative 1-sigma of the model's other "
-                                     "parameters (m, b, k, m_e, b_s, k_s, sigma): with "
-                                     "margin, the band the damping reserve must hold a free "
-                                     "finger over (commissioning writes it; 0.1 stands for "
-                                     "hand-typed values)", ge=0.0, le=1.0)
+    plant_uncertainty: float = param(0.1, "-", "relative 1-sigma of the model's m_e, b_s, k_s "
+                                     "and Dahl sigma: with margin, part of the band the "
+                                     "damping reserve must hold a free finger over "
+                                     "(commissioning writes it; 0.1 stands for hand-typed "
+                                     "values)", ge=0.0, le=1.0)
+    motor_uncertainty: float = param(0.1, "-", "likewise for the motor's m, b, k (commissioning "
+                                     "writes the share of the margin that covers eq. 28's "
+                                     "passivity_margin 1-sigmas)", ge=0.0, le=1.0)
 
     def dahl(self, model: "DahlParams") -> "DahlParams":
         """The Dahl parameters of the feed-forward's force: the model's F_c times the margin's
