@@ -28,12 +28,12 @@ import itertools
 import math
 from typing import Dict, List, Mapping, Optional, Sequence, Tuple
 
-from ..core.params import ControllerConfig
+from ..core.params import ControllerConfig, FeedforwardParams
 from .errors import CommissioningError
 from .predictor import PLANT_FIELDS, closed_loop_radius, controller_polynomials
 
 __all__ = ["BAND_KEYS", "corner_radius", "radius_at", "size_reserve", "band_spreads",
-           "reserve_verdict", "RESERVE_LIMIT", "RADIUS_TARGET", "SPREAD_LIMIT"]
+           "reserve_verdict", "with_reserve", "RESERVE_LIMIT", "RADIUS_TARGET", "SPREAD_LIMIT"]
 
 #: The uncertain parameters of a band: Table I's eight and the Dahl sigma (F_c and the
 #: exponent do not enter the linearisation).
@@ -42,7 +42,7 @@ _MODES = ("dob_linear_ff", "dob_full_ff", "impedance")
 #: The largest reserve :func:`size_reserve` tries [N m s/rad]: the parameter's own limit (3
 #: times Table I's b_e; on Table I the nominal loop is stable with it at 1-4 samples of delay,
 #: free and held, where 1 N m s/rad was not at 2).
-RESERVE_LIMIT = 0.1
+RESERVE_LIMIT = FeedforwardParams.spec("damping_reserve").high
 #: The largest relative half-width of a band (the corners stay positive, the linearisation
 #: about the model meaningful).
 SPREAD_LIMIT = 0.45
@@ -66,6 +66,17 @@ def band_spreads(config: ControllerConfig) -> Dict[str, float]:
     out["endpoint_damping"] = ff.margin * ff.damping_uncertainty
     out["endpoint_stiffness"] = ff.margin * ff.stiffness_uncertainty
     return {k: min(SPREAD_LIMIT, v) for k, v in out.items()}
+
+
+def with_reserve(config: ControllerConfig, reserve: float) -> ControllerConfig:
+    """``config`` with ``feedforward.damping_reserve = reserve`` [N m s/rad]."""
+    return config.replace(feedforward=dataclasses.replace(config.feedforward,
+                                                          damping_reserve=reserve))
+
+
+def _describe(corner: Mapping[str, float]) -> str:
+    """``motor_inertia x1.2, ...``: the parameters a corner moves off the model."""
+    return ", ".join(f"{k} x{v:.3g}" for k, v in corner.items() if v != 1.0)
 
 
 def corner_radius(config: ControllerConfig, spreads: Mapping[str, float], *,
@@ -161,46 +172,44 @@ def size_reserve(config: ControllerConfig, spreads: Mapping[str, float], *,
     result's, for a similar controller), bisected on first. Raises CommissioningError when
     :data:`RESERVE_LIMIT` does not do it (then no damping on the motor velocity steadies the
     finger: the feed-forward's sigma, or the band, is too large for this loop)."""
-    def with_reserve(r: float) -> ControllerConfig:
-        return config.replace(feedforward=dataclasses.replace(config.feedforward,
-                                                              damping_reserve=r))
+    def worst(reserve: float, points: Sequence[Mapping[str, float]]
+              ) -> Tuple[float, Dict[str, float]]:
+        return _worst(with_reserve(config, reserve), points, mode, delay, dt)
 
     every = _corners(spreads)
     if hint is not None and set(hint) == set(BAND_KEYS):
         active = [dict(hint)]
     else:
-        r0, c0 = _worst(with_reserve(0.0), every, mode, delay, dt)
+        r0, c0 = worst(0.0, every)
         if r0 < RADIUS_TARGET:
             return 0.0, r0, c0
         active = [c0]
     # bisect on the corners that were worst so far; then check every corner, and again with
     # the one that is worst there, until every corner holds
     lo, hi = 0.0, 0.004
-    if _worst(with_reserve(0.0), active, mode, delay, dt)[0] < RADIUS_TARGET:
+    if worst(0.0, active)[0] < RADIUS_TARGET:
         hi = 0.0
     while True:
-        while _worst(with_reserve(hi), active, mode, delay, dt)[0] >= RADIUS_TARGET:
+        while worst(hi, active)[0] >= RADIUS_TARGET:
             if hi >= RESERVE_LIMIT:
-                r, c = _worst(with_reserve(hi), every, mode, delay, dt)
+                r, c = worst(hi, every)
                 raise CommissioningError(
                     f"no damping reserve up to {RESERVE_LIMIT:g} N m s/rad steadies a free "
                     f"finger in {mode} at every corner of the band (worst radius {r:.6f} at "
-                    + ", ".join(f"{k} x{v:.3g}" for k, v in c.items() if v != 1.0)
-                    + "): narrow the band (commission the gripper) or lower "
-                      "feedforward.dahl_stiffness_share")
+                    f"{_describe(c)}): narrow the band (commission the gripper) or lower "
+                    "feedforward.dahl_stiffness_share")
             lo, hi = hi, min(RESERVE_LIMIT, 2.0 * hi)
         for _ in range(steps if hi > 0.0 else 0):
             mid = 0.5 * (lo + hi)
-            if _worst(with_reserve(mid), active, mode, delay, dt)[0] < RADIUS_TARGET:
+            if worst(mid, active)[0] < RADIUS_TARGET:
                 hi = mid
             else:
                 lo = mid
-        held = with_reserve(hi)
-        r, c = _worst(held, every, mode, delay, dt)
+        r, c = worst(hi, every)
         if r < RADIUS_TARGET:
             # (the radius need not be largest at a corner: along each axis through the worst
             # corner too -- on Table I's band an interior sigma came out above the corners)
-            r2, c2 = _worst(held, _axes(c, spreads), mode, delay, dt)
+            r2, c2 = worst(hi, _axes(c, spreads))
             if r2 < RADIUS_TARGET:
                 return hi, max(r, r2), (c if r >= r2 else c2)
             r, c = r2, c2
@@ -217,7 +226,7 @@ def reserve_verdict(config: ControllerConfig, *, delay: int = 1, dt: float = 5e-
     radius, corner = corner_radius(config, spreads, delay=delay, dt=dt)
     if radius < RADIUS_TARGET:
         return None
-    where = ", ".join(f"{k} x{v:.3g}" for k, v in corner.items() if v != 1.0)
+    where = _describe(corner)
     head = (f"feedforward.damping_reserve = {config.feedforward.damping_reserve:.3g} N m s/rad "
             f"leaves a free finger in dob_full_ff small-signal unstable on a plant "
             f"within the model's band (+-{100 * max(spreads.values()):.0f} %; spectral radius "

@@ -35,7 +35,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any, Dict, List, Mapping, Optional, Tuple
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 import numpy.typing as npt
@@ -48,7 +48,7 @@ from ..core.params import (MIN_UNCERTAINTY, ControllerConfig, DahlParams, DobPar
                            PlantTermsParams, check_dob_passivity, guard_carries)
 from ..core.simulator import discretise
 from .errors import CommissioningError
-from .free_finger import band_spreads, size_reserve
+from .free_finger import band_spreads, size_reserve, with_reserve
 from .predictor import (PLANT_FIELDS, SIGMA_KEYS, LoopModel, closed_loop_radius, hold_verdict,
                         predict_modes, torque_noise)
 
@@ -264,11 +264,14 @@ def _reserved(feasible: List[_Candidate], start: _Candidate, model: ControllerCo
     why: Dict[str, str] = {}
     hint: Optional[Dict[str, float]] = None
     order = sorted(feasible, key=lambda c: -c.score)
-    first = [order[0]] + [c for c in order if not c.guard][:1] + [
-        c for c in order if c is start]
-    first = [c for i, c in enumerate(first) if all(c is not d for d in first[:i])]
-    for c in first + [c for c in order if all(c is not d for d in first)]:
-        if best is not None and all(c is not d for d in first):
+    first: List[_Candidate] = []
+    for c in [order[0]] + [c for c in order if not c.guard][:1] + [c for c in order
+                                                                   if c is start]:
+        if all(c is not d for d in first):
+            first.append(c)
+    rest = [c for c in order if all(c is not d for d in first)]
+    for i, c in enumerate(first + rest):
+        if best is not None and i >= len(first):
             break
         trial = model.replace(dob=c.dob, passivity=_guard(model, c.guard))
         try:
@@ -277,10 +280,9 @@ def _reserved(feasible: List[_Candidate], start: _Candidate, model: ControllerCo
         except CommissioningError as e:
             why.setdefault("free_finger", str(e))
             continue
-        trial = trial.replace(feedforward=dataclasses.replace(trial.feedforward,
-                                                              damping_reserve=reserve),
-                              allow_non_passive=False)
-        if not _feedforward_stable(plant, dahl, trial, figures):
+        trial = with_reserve(trial, reserve).replace(allow_non_passive=False)
+        held = range(figures.delay_p99, figures.delay_p99 + DELAY_RESERVE + 1)
+        if not _loop_stable(plant, dahl, trial, "dob_full_ff", held, figures.dt):
             why.setdefault("free_finger", f"its damping reserve {reserve:.3g} N m s/rad "
                            f"leaves dob_full_ff unstable at p99 + {DELAY_RESERVE} samples")
             continue
@@ -300,16 +302,6 @@ def _reserved(feasible: List[_Candidate], start: _Candidate, model: ControllerCo
         raise InfeasibleTuningError(constraint, f"tune: no feasible DOB setting holds a free "
                                     f"finger: {why[constraint]}")
     return best
-
-
-def _feedforward_stable(plant: PlantParams, dahl: DahlParams, config: ControllerConfig,
-                        figures: LoopModel) -> bool:
-    """``dob_full_ff``'s sampled loop (its reserve included) stable on the identified plant
-    at every delay from p99 to p99 + :data:`DELAY_RESERVE`, the endpoint free and held."""
-    return all(closed_loop_radius(plant, dahl, config, "dob_full_ff", delay=d, dt=figures.dt,
-                                  endpoint_stiffness=k, endpoint_damping=b) < 1.0
-               for d in range(figures.delay_p99, figures.delay_p99 + DELAY_RESERVE + 1)
-               for k, b in ((0.0, 0.0), (DRIVE_STIFFNESS, DRIVE_DAMPING)))
 
 
 def _passive(worst: PlantParams, candidate: _Candidate, base: ControllerConfig) -> bool:
@@ -332,12 +324,14 @@ def _mean_db(z: npt.NDArray[np.complex128]) -> float:
     return float(np.mean(20.0 * np.log10(np.abs(z))))
 
 
-def _dob_stable(plant: PlantParams, dahl: DahlParams, config: ControllerConfig,
-                delay: int, dt: float) -> bool:
-    """The DOB's sampled loop (``dob``) stable with the endpoint free and driven."""
-    return all(closed_loop_radius(plant, dahl, config, "dob", delay=delay, dt=dt,
+def _loop_stable(plant: PlantParams, dahl: DahlParams, config: ControllerConfig, mode: str,
+                 delays: Sequence[int], dt: float) -> bool:
+    """``mode``'s sampled loop stable at each of ``delays`` with the endpoint free and held
+    by the drive: the DOB's (``dob``), or the feed-forward's with its reserve
+    (``dob_full_ff``)."""
+    return all(closed_loop_radius(plant, dahl, config, mode, delay=d, dt=dt,
                                   endpoint_stiffness=k, endpoint_damping=b) < 1.0
-               for k, b in ((0.0, 0.0), (DRIVE_STIFFNESS, DRIVE_DAMPING)))
+               for d in delays for k, b in ((0.0, 0.0), (DRIVE_STIFFNESS, DRIVE_DAMPING)))
 
 
 def _hold_candidates(plant: PlantParams, figures: LoopModel) -> List[Tuple[float, float]]:
@@ -484,7 +478,7 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
         if c.noise > noise_budget:
             failures["noise_budget"] = failures.get("noise_budget", 0) + 1
             continue
-        if not _dob_stable(plant, dahl, trial, figures.delay_p99, dt):
+        if not _loop_stable(plant, dahl, trial, "dob", (figures.delay_p99,), dt):
             failures["dob_stability"] = failures.get("dob_stability", 0) + 1
             continue
         z = predict_modes(plant, dahl, trial, ("dob_full_ff",), omega, delay=figures.delay_p50,
@@ -633,6 +627,13 @@ def _margin_cost(plant: PlantParams, dahl: DahlParams, tuned: ControllerConfig,
 TERM_UNCERTAINTY = 0.15
 
 
+def _relative(plant_sigma: Mapping[str, float], key: str, value: float) -> float:
+    """The relative 1-sigma of ``key`` (missing: 0, as for eq. 28's margin; not finite, or a
+    value not above 0: 1)."""
+    sd = float(plant_sigma.get(key, 0.0))
+    return sd / value if value > 0.0 and math.isfinite(sd) else 1.0
+
+
 def band_uncertainties(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
                        class_error: float, passivity_margin: float, margin: float
                        ) -> Dict[str, float]:
@@ -643,8 +644,7 @@ def band_uncertainties(plant: PlantParams, plant_sigma: Mapping[str, float], dah
     feed-forward's; each at least :data:`~seaforce_ros.core.params.MIN_UNCERTAINTY`, at
     most 1."""
     def rel(key: str, value: float) -> float:
-        sd = float(plant_sigma.get(key, 0.0))
-        return sd / value if value > 0.0 and math.isfinite(sd) else 1.0
+        return _relative(plant_sigma, key, value)
 
     motor = max(passivity_margin / max(margin, 1e-12) * rel(k, getattr(plant, k))
                 for k in ("motor_inertia", "motor_damping", "motor_stiffness"))
@@ -669,9 +669,8 @@ def feedforward_uncertainties(plant: PlantParams, plant_sigma: Mapping[str, floa
     (``plant_sigma``) and :data:`TERM_UNCERTAINTY`, with the class error (without stroke
     terms, :data:`TERM_UNCERTAINTY`). Each at least
     :data:`~seaforce_ros.core.params.MIN_UNCERTAINTY`, at most 1."""
-    def rel(name: str, value: float) -> float:      # (missing: 0, as for eq. 28's margin)
-        sd = float(plant_sigma.get(name, 0.0))
-        return sd / value if value > 0.0 and math.isfinite(sd) else 1.0
+    def rel(name: str, value: float) -> float:
+        return _relative(plant_sigma, name, value)
 
     def term(r: float) -> float:
         return min(1.0, max(MIN_UNCERTAINTY, math.hypot(r, class_error)))

@@ -13,18 +13,13 @@ from seaforce_ros.commissioning.errors import CommissioningError
 from seaforce_ros.commissioning.free_finger import (BAND_KEYS, RADIUS_TARGET, SPREAD_LIMIT,
                                                     band_spreads,
                                                     corner_radius, radius_at, reserve_verdict,
-                                                    size_reserve)
+                                                    size_reserve, with_reserve)
 from seaforce_ros.core import ChannelController, ChannelSimulator, ControllerConfig
 from seaforce_ros.core.params import DahlParams, FeedforwardParams, PlantParams
 from seaforce_ros.core.simulator import run_closed_loop
 
 TABLE_I = PlantParams.table_i()
 PLANT_KEYS = BAND_KEYS[:-1]
-
-
-def reserve(config, value):
-    return config.replace(feedforward=dataclasses.replace(config.feedforward,
-                                                          damping_reserve=value))
 
 
 def free_finger(config, corner, flick=0.5, seconds=8.0, seed=3, coulomb=1.0):
@@ -51,7 +46,7 @@ def test_the_shipped_reserve_holds_every_corner_of_table_is_band():
     spreads = band_spreads(config)
     assert set(spreads) == set(BAND_KEYS) and all(v == pytest.approx(0.2) for v in
                                                   spreads.values())
-    bare, corner = corner_radius(reserve(config, 0.0), spreads)
+    bare, corner = corner_radius(with_reserve(config, 0.0), spreads)
     assert bare > 1.0
     assert corner["endpoint_damping"] == pytest.approx(0.8)      # b_e at the margin's edge
     held, _ = corner_radius(config, spreads)
@@ -69,7 +64,7 @@ def test_the_linearised_loop_agrees_with_the_simulator():
     frequency; with the shipped reserve both are stable."""
     config = ControllerConfig(mode="dob_full_ff")
     corner = {k: 1.2 if c == "+" else 0.8 for k, c in zip(BAND_KEYS, "+----+---")}
-    bare = reserve(config, 0.0).replace(allow_non_passive=True)
+    bare = with_reserve(config, 0.0).replace(allow_non_passive=True)
     assert radius_at(bare, {}) < 1.0                          # the model itself: stable
     assert radius_at(bare, corner) > 1.0
     assert radius_at(config, corner) < RADIUS_TARGET
@@ -128,13 +123,13 @@ def test_the_sized_reserve_holds_every_corner_and_the_simulated_finger(factors, 
     try:
         least, radius, corner = size_reserve(config, spreads)
     except CommissioningError:
-        assert corner_radius(reserve(config, 1.0), spreads)[0] >= RADIUS_TARGET
+        assert corner_radius(with_reserve(config, 1.0), spreads)[0] >= RADIUS_TARGET
         return
     assert radius < RADIUS_TARGET
-    assert corner_radius(reserve(config, least), spreads)[0] < RADIUS_TARGET
+    assert corner_radius(with_reserve(config, least), spreads)[0] < RADIUS_TARGET
     if least > 1e-4:
-        assert corner_radius(reserve(config, 0.9 * least), spreads)[0] >= RADIUS_TARGET
-    rms, _ = free_finger(reserve(config, least), corner, flick=flick, seconds=6.0)
+        assert corner_radius(with_reserve(config, 0.9 * least), spreads)[0] >= RADIUS_TARGET
+    rms, _ = free_finger(with_reserve(config, least), corner, flick=flick, seconds=6.0)
     assert rms < 0.01, (rms, corner)
 
 
@@ -149,4 +144,4 @@ def test_the_verdict_names_the_reserve_that_holds_the_band():
     assert text is not None and "may oscillate or creep" in text and "hose_stiffness x0.8" in text
     least = float(text.split("creep; ")[1].split(" N m s/rad")[0])
     assert least > config.feedforward.damping_reserve
-    assert reserve_verdict(reserve(config, least)) is None
+    assert reserve_verdict(with_reserve(config, least)) is None
