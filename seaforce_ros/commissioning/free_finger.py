@@ -42,7 +42,14 @@ _MODES = ("dob_linear_ff", "dob_full_ff", "impedance")
 #: The largest reserve :func:`size_reserve` tries [N m s/rad]: the parameter's own limit (3
 #: times Table I's b_e; on Table I the nominal loop is stable with it at 1-4 samples of delay,
 #: free and held, where 1 N m s/rad was not at 2).
-RESERVE_LIMIT = FeedforwardParams.spec("damping_reserve").high
+def _reserve_limit() -> float:
+    high = FeedforwardParams.spec("damping_reserve").high
+    if high is None:  # the row has a range; this keeps the limit a float for the checker
+        raise RuntimeError("feedforward.damping_reserve has no upper limit in the schema")
+    return float(high)
+
+
+RESERVE_LIMIT = _reserve_limit()
 #: The largest relative half-width of a band (the corners stay positive, the linearisation
 #: about the model meaningful).
 SPREAD_LIMIT = 0.45
