@@ -172,8 +172,15 @@ def test_zwidth_errors(tmp_path, capsys):
     assert code == 2 and "--simulate" in err
     code, _, err = _run(capsys, f"hold={tmp_path / 'bag'}", "--channel", "thumb")
     assert code == 2 and "unknown channel" in err
-    code, _, err = _run(capsys, "--simulate", "--channel", "pinch", "--frequencies", "1,x")
+    code, out, err = _run(capsys, "--simulate", "--channel", "pinch", "--frequencies", "1,x")
     assert code == 2 and "bad frequency" in err
+    # a channel that names nothing is said to name nothing, not taken silently
+    assert "--channel pinch only labels the plot" in out
+    # the channel is required where something is read by it
+    code, _, err = _run(capsys, f"hold={tmp_path / 'bag'}")
+    assert code == 2 and "--channel is required" in err and "the bags" in err
+    code, _, err = _run(capsys, "--simulate", "--params", tmp_path / "p.yaml")
+    assert code == 2 and "--channel is required" in err and "--params" in err
     code, _, err = _run(capsys, f"hold={tmp_path / 'bag'}", "--channel", "pinch", "--plot",
                         tmp_path / "no" / "z.png")
     assert code == 2 and "does not exist" in err

@@ -43,7 +43,9 @@ def build_parser():
     p = argparse.ArgumentParser(prog="zwidth", description="Endpoint impedance per mode and "
                                 "Z-width (minimum-impedance mode vs hold).")
     p.add_argument("bags", nargs="*", help="backdrive bags, BAG or MODE=BAG")
-    p.add_argument("--channel", required=True)
+    p.add_argument("--channel", help="channel to read from the bags or the params files "
+                   "(required with either; with --simulate and no params file the simulated "
+                   "gripper is Table I and the channel only labels the plot)")
     p.add_argument("--simulate", action="store_true", help="run the backdrive experiment "
                    "offline instead of reading bags")
     p.add_argument("--params", help="controller parameters (plant, dahl) for --simulate")
@@ -250,6 +252,16 @@ def run(args):
     from ..identification.output import Progress, check_output_file
 
     progress = Progress("zwidth", quiet=args.quiet)
+    files = [o for o, v in (("--params", args.params), ("--true-params", args.true_params),
+                            ("--reference-params", args.reference_params)) if v is not None]
+    if args.channel is None and (args.simulate or args.bags):
+        if not args.simulate or files:
+            raise UsageError(f"--channel is required: the channel to read from "
+                             f"{'the bags' if not args.simulate else files[0]}")
+        args.channel = "pinch"
+    elif args.channel is not None and args.simulate and not files:
+        print(f"note: --channel {args.channel} only labels the plot: no params file is given, "
+              "so the simulated gripper and its controller are Table I's")
     if args.plot:
         check_output_file(args.plot)
     curves = {}
