@@ -9,7 +9,9 @@ and starts a new controller; rejections name the whole parameter (``pinch.dob...
 The processes are started as a user starts them: the installed executables with
 ``--ros-args``.
 """
+import re
 import subprocess
+import time
 from concurrent.futures import ThreadPoolExecutor
 
 import pytest
@@ -233,10 +235,14 @@ def test_help_is_no_unknown_argument():
 
 
 # --- the free finger's damping reserve ----------------------------------------------------
-def test_a_model_whose_band_the_reserve_does_not_hold_is_warned_about(processes, tmp_path):
+def test_a_model_whose_band_the_reserve_does_not_hold_is_warned_about(processes, tmp_path,
+                                                                       probe):
     """A hand-typed pinch model (softer hose, more b_e) whose +-20 % band the shipped reserve
     leaves small-signal unstable: one warning at start-up, naming the reserve that holds it;
-    the wrist (Table I) is not warned about; the node runs."""
+    the wrist (Table I) is not warned about; the node runs. At run time (a child process
+    checks each accepted change of the model, the feed-forward or the DOB): the reserve the
+    warning named is said to hold the band again; the wrist's reserve set to 0 is warned
+    about; a set of the limits only starts no check."""
     proc = start_node(processes, 'controller_node', 'controller', tmp_path,
                       {'pinch.plant.hose_stiffness': 13.0782 * 0.6,
                        'pinch.plant.endpoint_damping': 3.3879e-2 * 1.5})
@@ -244,6 +250,24 @@ def test_a_model_whose_band_the_reserve_does_not_hold_is_warned_about(processes,
     assert out.count('may oscillate or creep') == 1, out
     assert 'pinch: feedforward.damping_reserve = 0.009' in out and 'holds it' in out, out
     assert 'wrist: feedforward.damping_reserve' not in out, out
+    named = float(re.search(r'; ([0-9.e-]+) N m s/rad holds it', out).group(1))
+    assert 0.009 < named <= 0.1
+
+    ok, reason = probe.set_parameters('/controller', {'pinch.feedforward.damping_reserve': named})
+    assert ok, reason
+    assert proc.wait_for_output('pinch: after the parameter change the damping reserve holds',
+                                timeout=60), proc.output()
+    ok, reason = probe.set_parameters('/controller', {'wrist.max_torque': 10.0,
+                                                      'wrist.feedforward.damping_reserve': 0.0})
+    assert ok, reason
+    assert proc.wait_for_output('wrist: after the parameter change: feedforward.damping_reserve'
+                                ' = 0 N m s/rad leaves a free finger', timeout=60), proc.output()
+    ok, reason = probe.set_parameters('/controller', {'pinch.max_torque': 10.0})
+    assert ok, reason
+    time.sleep(2.0)     # (a check would have answered by now: 1 s of a child's CPU)
+    out = proc.output()
+    assert out.count('after the parameter change') == 2, out
+    assert 'did not run' not in out and 'Traceback' not in out, out
 
 
 # --- integers for float parameters -----------------------------------------------------

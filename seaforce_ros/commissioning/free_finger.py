@@ -248,3 +248,31 @@ def reserve_verdict(config: ControllerConfig, *, delay: int = 1, dt: float = 5e-
     step = 10.0 ** (math.floor(math.log10(least)) - 2)         # 3 digits, rounded up
     return head + (f"; {math.ceil(least / step) * step:.3g} N m s/rad holds it (set "
                    "feedforward.damping_reserve), or commission the gripper")
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """``python -m seaforce_ros.commissioning.free_finger REQUEST_JSON``: the verdict of
+    :func:`reserve_verdict` for a running controller's changed configuration, in a child
+    process (``controller_node``: the check's CPU would otherwise hold the interpreter lock
+    against the 2 kHz loop). ``REQUEST_JSON`` is ``{"config": ControllerConfig.to_dict(),
+    "delay": int, "dt": float}``; the answer is one line ``{"result": {"verdict": str}}``
+    (empty: the reserve holds the band), or ``{"error": str}`` and exit status 1."""
+    import json
+    import sys
+    args = sys.argv[1:] if argv is None else list(argv)
+    try:
+        if len(args) != 1:
+            raise ValueError("usage: python -m seaforce_ros.commissioning.free_finger "
+                             "REQUEST_JSON")
+        request = json.loads(args[0])
+        config = ControllerConfig.from_dict(request["config"])
+        text = reserve_verdict(config, delay=int(request["delay"]), dt=float(request["dt"]))
+    except Exception as exc:         # noqa: BLE001 -- any failure is the answer, in one line
+        print(json.dumps({"error": f"free-finger check: {exc}"}), flush=True)
+        return 1
+    print(json.dumps({"result": {"verdict": text or "", "message": "checked"}}), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -13,7 +13,10 @@ Parameters per channel (``<channel>.mode``, ``.plant.*``, ``.dahl.*``, ``.dob.*`
 ``.target.*``, ``.hold.*``, ...) can change at run time: the on-set callback validates the
 whole new channel configuration in the core (passivity, eq. 28, included) and rejects it with
 the core's reason, leaving everything as it was; an accepted one takes effect at the start of
-the next cycle, bumplessly.
+the next cycle, bumplessly. Whether ``feedforward.damping_reserve`` holds a free finger over
+the model's band is checked at start-up, and after an accepted change of the model, the
+feed-forward or the DOB in a child process (:mod:`.free_finger_watch`); both warn, neither
+refuses.
 
 Faults: faults of the data (``latched_faults``) give the channel zero torque until the
 ``~/reset`` service (std_srvs/Trigger); a stall of the state stream or a plant restart only
@@ -77,6 +80,7 @@ from ..core.params import ControllerConfig, guard_carries
 from ..core.schema import BRINGUP, CONTROLLER
 from ..commissioning.free_finger import reserve_verdict
 from .commissioning import CommissionAction
+from .free_finger_watch import FreeFingerWatch
 from .gripper_actions import gripper_job_actions
 from .jobs import JobAction, JobActions
 from .ros_common import (GRAPH_PERIOD, STATUS_QOS, StartupError, check_undeclared, control_qos,
@@ -90,6 +94,9 @@ from .timing import LoopStats
 #: sees itself when states return (it re-arms and ends the goal); a starved node process
 #: would otherwise take its own scheduling hiccup (70 ms beside a CPU hog) for a dead plant.
 STALL_TIME = 0.5
+
+#: s between looks at a free-finger check's child (:class:`.free_finger_watch.FreeFingerWatch`)
+FREE_FINGER_POLL = 0.5
 
 #: The parameters a friction calibration sets, in the order of its result's arrays.
 _FRICTION_KEYS = ('plant.endpoint_damping', 'plant.endpoint_stiffness', 'dahl.coulomb_force',
@@ -181,9 +188,13 @@ class ControllerNode(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         steady_timer(self, values['diagnostics_period'], self._publish_diagnostics)
+        logger = self.get_logger()
+        self.free_finger = FreeFingerWatch(self._ff_delay(), self.dt, logger.warning,
+                                           logger.info)
         for channel, config in zip(self.channels, self.configs):
             self._warn_guarded(channel, None, config)
             self._warn_free_finger(channel, config)
+        steady_timer(self, FREE_FINGER_POLL, self.free_finger.poll)
         modes = ', '.join(f'{c}={ctrl.mode}' for c, ctrl in zip(self.channels, controllers))
         self.get_logger().info(f'controlling {self.channels} at {values["rate"]:.0f} Hz '
                                f'({modes}), loop={self.loop}')
@@ -242,6 +253,7 @@ class ControllerNode(Node):
             if config.mode != old.mode:
                 self.get_logger().info(f'{self.channels[index]}: mode {old.mode} -> {config.mode}')
             self._warn_guarded(self.channels[index], old, config)
+            self.free_finger.changed(self.channels[index], old, config)
 
     def _warn_guarded(self, channel, old, config):
         """Warn once when an active passivity guard carries a DOB setting outside eq. 28."""
@@ -249,11 +261,17 @@ class ControllerNode(Node):
         if text and (old is None or text != guard_carries(old)):
             self.get_logger().warning(f'{channel}: {text}')
 
+    def _ff_delay(self):
+        """Samples from a state to its command's first sample in this layout."""
+        return 1 if self.loop == 'direct' else 2
+
     def _warn_free_finger(self, channel, config):
         """At start-up: warn when the damping reserve does not hold a free finger over the
-        model's band (commissioning.free_finger; not at a parameter set: it takes 0.1-0.3 s,
-        which the 2 kHz loop cannot wait)."""
-        text = reserve_verdict(config, delay=1 if self.loop == 'direct' else 2, dt=self.dt)
+        model's band (commissioning.free_finger). After a parameter set the check runs in a
+        child process (:class:`.free_finger_watch.FreeFingerWatch`: 0.1-2 s of CPU, which
+        the 2 kHz loop cannot wait)."""
+        text = reserve_verdict(config, delay=self._ff_delay(), dt=self.dt)
+        self.free_finger.started(channel, text)
         if text:
             self.get_logger().warning(f'{channel}: {text}')
 
@@ -426,8 +444,10 @@ class ControllerNode(Node):
                 'adapted_sigma': sigma, 'friction_adaptation_updates': adaptation.updates}
 
     def shutdown(self):
-        """(the node is going down) End every commissioning analysis still running."""
+        """(the node is going down) End every commissioning analysis and free-finger check
+        still running."""
         self.commissioning.close()
+        self.free_finger.close()
 
     # --- faults --------------------------------------------------------------------------
     def _on_reset(self, request, response):
