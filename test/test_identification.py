@@ -143,6 +143,25 @@ def test_dahl_only_on_top_of_existing_params(bags, table_i_run, tmp_path, capsys
     assert abs(again["dahl"]["sigma"] / 12.8 - 1) < 0.15
 
 
+def test_the_written_model_is_checked_for_a_free_finger(bags, table_i_run, tmp_path, capsys):
+    """After writing, identify says whether the file's damping reserve holds a free finger
+    over the written model's band (what controller_node checks at start-up): held with the
+    default; warned about with the reserve set to 0 in the --out file, naming what holds it."""
+    proc, params, _ = table_i_run
+    assert proc.returncode == 0, proc.stderr
+    assert "free finger: feedforward.damping_reserve = 0.009 N m s/rad holds a free finger " \
+        "in dob_full_ff over this model's band (+-20 %)" in proc.stdout, proc.stdout
+    data = yaml.safe_load(params.read_text())
+    data["/**"]["ros__parameters"]["pinch"]["feedforward"] = {"damping_reserve": 0.0}
+    copy = tmp_path / "params.yaml"
+    copy.write_text(yaml.safe_dump(data, default_flow_style=False))
+    code, out, err = _identify(capsys, "--plant-params", copy, "--dahl-bag", bags / "loop",
+                               "--channel", "pinch", "--out", copy)
+    assert code == 0, err
+    assert "warning: free finger: feedforward.damping_reserve = 0 N m s/rad leaves a free " \
+        "finger in dob_full_ff small-signal unstable" in out and "holds it" in out, out
+
+
 def test_linear_only_fit_is_biased_by_hysteresis(bags, table_i_run, tmp_path, capsys):
     """The paper's purely linear endpoint fit lumps the Dahl force into m_e, b_e, k_e: with
     the hysteresis in the data the linear-only b_e is far off (the default fit, which removes

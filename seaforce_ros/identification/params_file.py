@@ -199,6 +199,19 @@ def channel_groups(data: Mapping[Any, Any], channel: str,
     return plant, dahl
 
 
+def channel_settings(data: Mapping[Any, Any], channel: str, w: str,
+                     groups: Sequence[str]) -> Dict[str, Any]:
+    """``{"<group>.<name>": value}``: the ``<channel>.<group>.*`` values of a parsed params
+    file for each of ``groups`` (every node section; a later one overrides an earlier one)."""
+    out: Dict[str, Any] = {}
+    for _names, params in sections(data, w):
+        for name, value in flatten(params).items():
+            parts = name.split(".")
+            if len(parts) > 2 and parts[0] == channel and parts[1] in groups:
+                out[".".join(parts[1:])] = value
+    return out
+
+
 def _number(value: Any, w: str, name: str) -> float:
     number: Optional[float]
     if isinstance(value, str):

@@ -259,8 +259,33 @@ def run(args):
                             plant=plant if args.bag is not None else None, dahl=dahl,
                             comments=comments, option="--out")
     print(f"wrote {out}")
+    print(_free_finger_line(out, args.channel))
     progress("done", 1.0)
     return 0
+
+
+def _free_finger_line(path, channel):
+    """Whether the written model's band is held by the file's ``feedforward.damping_reserve``
+    (or the default), as ``controller_node`` checks it at start-up in the topics layout
+    (:func:`~seaforce_ros.commissioning.free_finger.reserve_verdict`): one line."""
+    from ..commissioning.free_finger import band_spreads, reserve_verdict
+    from ..core.errors import SeaforceError
+    from ..core.params import ControllerConfig
+    from ..identification.errors import IdentificationError
+    from ..identification.params_file import channel_settings, load, where
+    try:
+        values = channel_settings(load(path), channel, where(path),
+                                  ("plant", "dahl", "feedforward", "dob"))
+        config = ControllerConfig.from_dict(values)
+    except (SeaforceError, IdentificationError) as exc:
+        return f"free finger: not checked ({exc})"
+    verdict = reserve_verdict(config, delay=2, dt=5e-4)
+    if verdict:
+        return f"warning: free finger: {verdict}"
+    spread = 100 * max(band_spreads(config).values())
+    return (f"free finger: feedforward.damping_reserve = "
+            f"{config.feedforward.damping_reserve:.3g} N m s/rad holds a free finger in "
+            f"dob_full_ff over this model's band (+-{spread:.0f} %)")
 
 
 def main(argv=None):
