@@ -27,6 +27,8 @@ import numpy as np
 import pytest
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState
 from mcap.reader import make_reader
 from rosbags.rosbag2 import Reader
 from seaforce_msgs.msg import ActuatorCommand, ActuatorState, ControllerStatus
@@ -414,12 +416,24 @@ def test_write_failure_keeps_what_was_written_and_exits_non_zero(processes, tmp_
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
         resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
 
+    def recorder_errors(array):
+        return [s for s in array.status
+                if s.name == 'bag_recorder' and s.level == DiagnosticStatus.ERROR]
+
     probe.record(DiagnosticArray, '/diagnostics')
-    sim = start_node(processes, 'sim_node', 'sim', tmp_path)
+    # the sim inactive (no states) until the recorder's /diagnostics reach the probe: beside a
+    # busy worker the discovery took longer than the recorder lived (it fails 3 s into the
+    # recording and ends 3 s later), and its ERROR reached nobody
+    sim = start_node(processes, 'sim_node', 'sim', tmp_path, {'autostart': 'inactive'})
     out = tmp_path / 'bag'
     rec = _start_recorder(processes, out, '-p', 'split_duration:=30.0', '-p',
                           'topics:=[actuator_state]', '-p', f'storage:={storage}', '-p',
                           'report_period:=1.0', preexec_fn=limit_file_size)
+    probe.wait_messages('/diagnostics', 1, timeout=60, where=lambda a: any(
+        s.name == 'bag_recorder' for s in a.status))
+    activated = probe.call(ChangeState, '/sim/change_state', ChangeState.Request(
+        transition=Transition(id=Transition.TRANSITION_ACTIVATE)), timeout=30)
+    assert activated.success, sim.output()[-3000:]
     code = rec.wait(60)
     sim.send_signal(signal.SIGINT)
     output = rec.output()
@@ -431,9 +445,6 @@ def test_write_failure_keeps_what_was_written_and_exits_non_zero(processes, tmp_
     counts, _files = _final_counts(output)
     received, written, dropped = counts['/actuator_state']
     assert received == written + dropped and dropped > 0 and written > 1000, counts
-    def recorder_errors(array):
-        return [s for s in array.status
-                if s.name == 'bag_recorder' and s.level == DiagnosticStatus.ERROR]
     # (a sample the recorder published before it ended may still be on its way to the probe)
     first = probe.wait_messages('/diagnostics', 1, timeout=10, where=recorder_errors)[0]
     assert reason in recorder_errors(first)[0].message
