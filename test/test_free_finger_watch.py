@@ -77,3 +77,38 @@ def test_close_ends_the_running_child():
         except FileNotFoundError:
             state = 'gone'
         assert state in ('gone', 'Z'), state
+
+
+def test_a_check_that_could_not_run_is_said_and_so_is_the_next_that_passes(monkeypatch):
+    """A child that cannot start: a warning that the reserve is unchecked (with the reason);
+    the next check that passes says so; the children's log is removed at close()."""
+    watch, log = _watch()
+    monkeypatch.setattr('sys.executable', '/nonexistent/python')
+    watch.changed('pinch', BASE, with_reserve(BASE, 0.02))
+    _settle(watch)
+    assert len(log) == 1 and log[0][0] == 'warn' and 'did not run' in log[0][1] \
+        and '/nonexistent/python' in log[0][1] and 'unchecked' in log[0][1], log
+    monkeypatch.undo()
+    watch.changed('pinch', with_reserve(BASE, 0.02), BASE)
+    _settle(watch)
+    assert log[-1] == ('info', "pinch: after the parameter change the damping reserve holds "
+                       "a free finger over the model's band (checked)"), log
+    assert watch._log.exists()
+    watch.close()
+    assert not watch._log.exists()
+
+
+def test_the_child_does_not_import_from_the_working_directory(tmp_path, monkeypatch):
+    """A folder holding a ``seaforce_ros`` package as the node's working directory: the check
+    still runs the installed code (``python -P``)."""
+    fake = tmp_path / 'seaforce_ros' / 'commissioning'
+    fake.mkdir(parents=True)
+    (tmp_path / 'seaforce_ros' / '__init__.py').write_text('')
+    (fake / '__init__.py').write_text('')
+    (fake / 'free_finger.py').write_text(
+        'import json\nprint(json.dumps({"result": {"verdict": "IMPOSTOR"}}))\n')
+    monkeypatch.chdir(tmp_path)
+    watch, log = _watch()
+    watch.changed('pinch', BASE, with_reserve(BASE, 0.0))
+    _settle(watch)
+    assert len(log) == 1 and 'IMPOSTOR' not in log[0][1] and 'may oscillate' in log[0][1], log

@@ -162,6 +162,64 @@ def test_the_written_model_is_checked_for_a_free_finger(bags, table_i_run, tmp_p
         "finger in dob_full_ff small-signal unstable" in out and "holds it" in out, out
 
 
+def test_the_check_reads_the_file_as_controller_node_does():
+    """controller_view: only the sections the node /controller reads (``/**``, ``controller``,
+    ``/**/controller``; not ``sim`` nor ``controller_spare``), the later overriding; the node's
+    rate and loop; a name a typo away from a parameter (the node refuses to start on it)."""
+    from seaforce_ros.core.params import ControllerConfig
+    from seaforce_ros.identification.params_file import controller_view
+    keys = [spec.name for spec in ControllerConfig.rows()]
+    data = {
+        "/**": {"ros__parameters": {"rate": 2000.0, "pinch": {
+            "plant": {"motor_inertia": 0.002}, "feedforward": {"damping_reserve": 0.0}}}},
+        "sim": {"ros__parameters": {"pinch": {"plant": {"motor_inertia": 0.003}}}},
+        "controller_spare": {"ros__parameters": {"pinch": {
+            "feedforward": {"damping_reserve": 0.05}}}},
+        "controller": {"ros__parameters": {"rate": 1000.0, "loop": "direct"}},
+        "/**/controller": {"ros__parameters": {"pinch.feedforward.margin": 3.0,
+                                               "pinch.feedforward.damping_reserv": 0.1,
+                                               "pinch.environment.mode": "free"}},
+    }
+    view = controller_view(data, "pinch", "f.yaml", keys)
+    assert view.values == {"plant.motor_inertia": 0.002, "feedforward.damping_reserve": 0.0,
+                           "feedforward.margin": 3.0}
+    assert view.node == {"rate": 1000.0, "loop": "direct"}
+    assert view.misspelt == [("pinch.feedforward.damping_reserv",
+                              "pinch.feedforward.damping_reserve")]
+    assert controller_view(data, "wrist", "f.yaml", keys).values == {}
+
+
+def test_the_check_says_when_controller_node_would_not_start(bags, table_i_run, tmp_path,
+                                                              capsys):
+    """identify's line after writing: the file's rate in it; a misspelt name or a value the
+    node refuses named as what keeps controller_node from starting (not a traceback, not a
+    verdict on another file); an m_n left to its default follows the identified m."""
+    proc, params, _ = table_i_run
+    data = yaml.safe_load(params.read_text())
+    copy = tmp_path / "params.yaml"
+    argv = ("--plant-params", copy, "--dahl-bag", bags / "loop", "--channel", "pinch", "--out",
+            copy)
+    data["controller"] = {"ros__parameters": {"rate": 4000.0}}
+    copy.write_text(yaml.safe_dump(data, default_flow_style=False))
+    code, out, err = _identify(capsys, *argv)
+    assert code == 0 and "at 4000 Hz in the topics layout" in out, out + err
+    data["controller"] = {"ros__parameters": {"pinch.feedforward.damping_reserv": 0.1}}
+    copy.write_text(yaml.safe_dump(data, default_flow_style=False))
+    code, out, err = _identify(capsys, *argv)
+    assert code == 0 and "warning: controller_node would not start on this file: pinch: " \
+        "pinch.feedforward.damping_reserv: no such parameter (did you mean " \
+        "pinch.feedforward.damping_reserve?)" in out, out + err
+    data["controller"] = {"ros__parameters": {"pinch.dob.nominal_inertia": 1e-5}}
+    copy.write_text(yaml.safe_dump(data, default_flow_style=False))
+    code, out, err = _identify(capsys, *argv)
+    assert code == 0 and "would not start" in out and "eq. 28" in out, out + err
+    del data["controller"]
+    data["/**"]["ros__parameters"]["pinch"]["plant"]["motor_inertia"] = 0.002
+    copy.write_text(yaml.safe_dump(data, default_flow_style=False))
+    code, out, err = _identify(capsys, *argv)
+    assert code == 0 and "would not start" not in out and "free finger" in out, out + err
+
+
 def test_linear_only_fit_is_biased_by_hysteresis(bags, table_i_run, tmp_path, capsys):
     """The paper's purely linear endpoint fit lumps the Dahl force into m_e, b_e, k_e: with
     the hysteresis in the data the linear-only b_e is far off (the default fit, which removes

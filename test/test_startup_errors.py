@@ -270,6 +270,18 @@ def test_a_model_whose_band_the_reserve_does_not_hold_is_warned_about(processes,
     assert 'did not run' not in out and 'Traceback' not in out, out
 
 
+def test_the_nominal_inertia_follows_the_given_motor_inertia(processes, tmp_path, probe):
+    """dob.nominal_inertia unset (the shipped file leaves it to its default, the plant's m):
+    an identified m of 0.002 -- above what Table I's m_n passes in eq. 28 -- starts the node
+    with m_n = 0.002 (before: 'cannot start', eq. 28 against Table I's m_n)."""
+    proc = start_node(processes, 'controller_node', 'controller', tmp_path,
+                      {'pinch.plant.motor_inertia': 0.002})
+    assert 'cannot start' not in proc.output()
+    got = probe.get_parameters('/controller', ['pinch.dob.nominal_inertia',
+                                               'wrist.dob.nominal_inertia'])
+    assert got == {'pinch.dob.nominal_inertia': 0.002, 'wrist.dob.nominal_inertia': 1.1116e-3}
+
+
 # --- integers for float parameters -----------------------------------------------------
 def test_integer_for_a_float_parameter_is_accepted(processes, tmp_path, probe):
     proc = start_node(processes, 'controller_node', 'controller', tmp_path,

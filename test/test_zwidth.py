@@ -174,8 +174,24 @@ def test_zwidth_errors(tmp_path, capsys):
     assert code == 2 and "unknown channel" in err
     code, out, err = _run(capsys, "--simulate", "--channel", "pinch", "--frequencies", "1,x")
     assert code == 2 and "bad frequency" in err
+    assert out == ""          # (the note below comes once every option is checked)
     # a channel that names nothing is said to name nothing, not taken silently
-    assert "--channel pinch only labels the plot" in out
+    code, out, err = _run(capsys, "--simulate", "--channel", "pinch", "--frequencies", "1",
+                          "--modes", "dob", "--amplitude", "0.05")
+    assert code == 0 and "--channel pinch names nothing here" in out, err
+    assert "labels the plot" not in out
+    code, out, err = _run(capsys, "--simulate", "--channel", "pinch", "--frequencies", "1",
+                          "--modes", "dob", "--amplitude", "0.05", "--plot",
+                          tmp_path / "z.png")
+    assert code == 0 and "; it only labels the plot" in out, err
+    code, _, err = _run(capsys, "--simulate", "--channel", " ")
+    assert code == 2 and "--channel: empty" in err
+    # the first problem is named first (not the channel, then the next one)
+    code, _, err = _run(capsys, f"hold={tmp_path / 'bag'}", "--simulate", "--params",
+                        tmp_path / "p.yaml")
+    assert code == 2 and "not both" in err
+    code, _, err = _run(capsys, f"hold={tmp_path / 'bag'}", "--params", tmp_path / "p.yaml")
+    assert code == 2 and "--params is for --simulate" in err
     # the channel is required where something is read by it
     code, _, err = _run(capsys, f"hold={tmp_path / 'bag'}")
     assert code == 2 and "--channel is required" in err and "the bags" in err

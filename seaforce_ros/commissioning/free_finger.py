@@ -28,7 +28,7 @@ import itertools
 import math
 from typing import Dict, List, Mapping, Optional, Sequence, Tuple
 
-from ..core.params import ControllerConfig, FeedforwardParams
+from ..core.params import ControllerConfig, DahlParams, FeedforwardParams, PlantParams
 from .errors import CommissioningError
 from .predictor import PLANT_FIELDS, closed_loop_radius, controller_polynomials
 
@@ -159,14 +159,33 @@ def _worst(config: ControllerConfig, corners: Sequence[Mapping[str, float]], mod
     polys = [controller_polynomials(config, mode, dt, g + 0j) for g in sorted({0.0, sigma_ff})]
     worst, at = -1.0, dict(corners[0])
     for corner in corners:
-        plant = config.plant.scaled(**{k: corner[k] for k in PLANT_FIELDS})
-        dahl = dataclasses.replace(config.dahl, sigma=config.dahl.sigma * corner["sigma"])
+        plant = dataclasses.replace(config.plant, **{
+            k: _in_range(PlantParams, k, getattr(config.plant, k) * corner[k])
+            for k in PLANT_FIELDS})
+        dahl = dataclasses.replace(config.dahl, sigma=_in_range(
+            DahlParams, "sigma", config.dahl.sigma * corner["sigma"]))
+        actual = dict(corner)       # (a factor the range cut: the one taken)
+        for k in PLANT_FIELDS:
+            if getattr(plant, k) != getattr(config.plant, k) * corner[k]:
+                actual[k] = getattr(plant, k) / getattr(config.plant, k)
+        if dahl.sigma != config.dahl.sigma * corner["sigma"]:
+            actual["sigma"] = dahl.sigma / config.dahl.sigma
         for p in polys:
             r = closed_loop_radius(plant, dahl, config, mode, delay=delay, dt=dt,
                                    polynomials=p)
             if r > worst:
-                worst, at = r, dict(corner)
+                worst, at = r, actual
     return worst, at
+
+
+def _in_range(group: type, name: str, value: float) -> float:
+    """``value`` of the parameter ``name`` of ``group`` within the parameter's range (a band
+    around a model near its range's top reaches past it; the corners are the plants the
+    range admits)."""
+    spec = group.spec(name)          # type: ignore[attr-defined]
+    if spec.high is not None and value >= spec.high:
+        return math.nextafter(spec.high, -math.inf) if spec.high_open else float(spec.high)
+    return value
 
 
 def size_reserve(config: ControllerConfig, spreads: Mapping[str, float], *,

@@ -767,9 +767,14 @@ class ControllerConfig(ParameterGroup):
         """A validated config from flat keys, the others from ``base`` (default:
         ``ControllerConfig()``). Keys are those of :data:`PARAMETERS`, optionally prefixed by
         ``<channel>.`` (stripped when the rest is a known key); an unknown key or a bad value
-        raises :class:`InvalidParameterError` naming it."""
+        raises :class:`InvalidParameterError` naming it. Without ``base`` an unset
+        ``dob.nominal_inertia`` is the given plant's motor inertia (its documented default);
+        with one it keeps the base's value."""
+        fresh = base is None
         base = cls() if base is None else base
         nested: Dict[str, Dict[str, Any]] = {name: {} for name, _ in _NESTED}
+        if fresh:
+            nested["dob"]["nominal_inertia"] = None     # resolved from the plant given
         own: Dict[str, Any] = {}
         for raw_key, value in values.items():
             key = raw_key

@@ -35,8 +35,8 @@ from ..core.params import DahlParams, PlantParams
 from .errors import ParamsFileError
 
 __all__ = ["PLANT_KEYS", "DAHL_KEYS", "where", "read_text", "parse", "load", "sections",
-           "flatten", "channel_groups", "plant_params", "dahl_params", "format_value",
-           "update_text"]
+           "flatten", "channel_groups", "controller_view", "ControllerView", "plant_params",
+           "dahl_params", "format_value", "update_text"]
 
 #: The fields of the groups identify writes (their keys: ``plant.<field>``, ``dahl.<field>``).
 PLANT_KEYS = tuple(spec.attribute for spec in PlantParams.SPECS)
@@ -199,16 +199,51 @@ def channel_groups(data: Mapping[Any, Any], channel: str,
     return plant, dahl
 
 
-def channel_settings(data: Mapping[Any, Any], channel: str, w: str,
-                     groups: Sequence[str]) -> Dict[str, Any]:
-    """``{"<group>.<name>": value}``: the ``<channel>.<group>.*`` values of a parsed params
-    file for each of ``groups`` (every node section; a later one overrides an earlier one)."""
-    out: Dict[str, Any] = {}
-    for _names, params in sections(data, w):
+def _node_pattern(names: KeyPath) -> "re.Pattern[str]":
+    """The fully qualified node names a section's path matches, as rcl reads params files:
+    ``/**`` any namespace and node (also none), ``*`` one name."""
+    path = "/" + "/".join(str(n).strip("/") for n in names if str(n).strip("/"))
+    out = ""
+    for part in re.split(r"(/\*\*|\*)", path):
+        out += {"/**": "(?:/.*)?", "*": "[^/]*"}.get(part, re.escape(part))
+    return re.compile(out)
+
+
+@dataclasses.dataclass
+class ControllerView:
+    """What ``controller_node`` (node ``/controller``) reads of one channel from a params file:
+    its controller parameters (``{key relative to <channel>.: value}``), the node's ``rate``
+    and ``loop`` when the file gives them, and the names in its sections a typo away from a
+    parameter of the channel (``[(name, meant)]``: the node refuses to start on them)."""
+
+    values: Dict[str, Any]
+    node: Dict[str, Any]
+    misspelt: List[Tuple[str, str]]
+
+
+def controller_view(data: Mapping[Any, Any], channel: str, w: str, keys: Sequence[str],
+                    node: str = "/controller") -> ControllerView:
+    """:class:`ControllerView` of ``channel`` for the node ``node`` in a parsed params file:
+    only the sections whose node path matches it (``/**``, ``controller``, ``/**/controller``
+    ...), a later value overriding an earlier one; ``keys`` the controller parameters
+    (relative to ``<channel>.``)."""
+    import difflib
+    known = set(keys)
+    out = ControllerView({}, {}, [])
+    for names, params in sections(data, w):
+        if not _node_pattern(names).fullmatch(node):
+            continue
         for name, value in flatten(params).items():
-            parts = name.split(".")
-            if len(parts) > 2 and parts[0] == channel and parts[1] in groups:
-                out[".".join(parts[1:])] = value
+            head, _, rest = name.partition(".")
+            if head == channel and rest:
+                if rest in known:
+                    out.values[rest] = value
+                else:
+                    close = difflib.get_close_matches(rest, keys, n=1, cutoff=0.8)
+                    if close:
+                        out.misspelt.append((name, f"{channel}.{close[0]}"))
+            elif name in ("rate", "loop"):
+                out.node[name] = value
     return out
 
 

@@ -256,7 +256,9 @@ class CommissionAction:
             (run.directory / "request.json").write_text(json.dumps(run.request, indent=1))
 
         run.analysis = AnalysisProcess(
-            [sys.executable, "-m", "seaforce_ros.commissioning.analyse", str(run.directory)],
+            # (-P: the node's working directory is not on the child's import path)
+            [sys.executable, "-P", "-m", "seaforce_ros.commissioning.analyse",
+             str(run.directory)],
             run.directory / "analysis.log", phase="identify",
             progress_span=(EXCITATION_SHARE, 1.0), prepare=prepare)
         return run.analysis

@@ -56,6 +56,7 @@ work from this node's executor (they hand over to the cycle at its next start).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import time
@@ -80,7 +81,7 @@ from ..core.params import ControllerConfig, guard_carries
 from ..core.schema import BRINGUP, CONTROLLER
 from ..commissioning.free_finger import reserve_verdict
 from .commissioning import CommissionAction
-from .free_finger_watch import FreeFingerWatch
+from .free_finger_watch import UNCHECKED, FreeFingerWatch
 from .gripper_actions import gripper_job_actions
 from .jobs import JobAction, JobActions
 from .ros_common import (GRAPH_PERIOD, STATUS_QOS, StartupError, check_undeclared, control_qos,
@@ -143,7 +144,13 @@ class ControllerNode(Node):
         for channel in self.channels:
             specs = ps.controller_channel_specs(channel)
             self._specs.update({s.name: s for s in specs})
-            channel_values = declare(self, specs)
+            # dob.nominal_inertia's default is the given plant's motor inertia (its documented
+            # default), so it is declared after the plant
+            nominal = f'{channel}.dob.nominal_inertia'
+            channel_values = declare(self, [s for s in specs if s.name != nominal])
+            m = channel_values[f'{channel}.plant.motor_inertia']
+            channel_values.update(declare(self, [dataclasses.replace(s, default=m)
+                                                 for s in specs if s.name == nominal]))
             try:
                 config = ControllerConfig.from_dict(ps.channel_values(channel_values, channel))
             except SeaforceError as exc:
@@ -270,10 +277,16 @@ class ControllerNode(Node):
         model's band (commissioning.free_finger). After a parameter set the check runs in a
         child process (:class:`.free_finger_watch.FreeFingerWatch`: 0.1-2 s of CPU, which
         the 2 kHz loop cannot wait)."""
-        text = reserve_verdict(config, delay=self._ff_delay(), dt=self.dt)
+        try:
+            text = reserve_verdict(config, delay=self._ff_delay(), dt=self.dt)
+        except Exception as exc:      # noqa: BLE001 -- the check must not keep the node down
+            text = UNCHECKED
+            self.get_logger().warning(f'{channel}: the free-finger check did not run ({exc}); '
+                                      'the damping reserve is unchecked')
+        else:
+            if text:
+                self.get_logger().warning(f'{channel}: {text}')
         self.free_finger.started(channel, text)
-        if text:
-            self.get_logger().warning(f'{channel}: {text}')
 
     # --- the 2 kHz path ------------------------------------------------------------------
     @shutdown_safe

@@ -13,20 +13,28 @@ reserve does not hold the band, an info line when a channel warned about before 
 again.
 
 One child runs at a time; a channel changed again while its check runs is checked once more
-with its newest configuration when the child ends (sets in quick succession cost one check
-each at most, not one each). :meth:`FreeFingerWatch.close` ends a running child by its PID.
+with its newest configuration when the child ends, and the verdict on the replaced one is
+dropped (sets in quick succession cost two checks, not one each, and nothing is said of a
+configuration no longer in force). A check that could not run is a warning too, and the next
+one that passes says so. :meth:`FreeFingerWatch.close` ends a running child by its PID. The
+child runs ``python -P``: the node's working directory is not on its import path.
 """
 from __future__ import annotations
 
 import json
 import os
+import pathlib
 import sys
+import tempfile
 from typing import Any, Callable, Dict, Optional, Tuple
 
 from ..commissioning.worker import AnalysisProcess
 from ..core.params import ControllerConfig
 
-__all__ = ["FreeFingerWatch", "checked_parts"]
+__all__ = ["FreeFingerWatch", "checked_parts", "UNCHECKED"]
+
+#: What a channel whose last check could not run is remembered as.
+UNCHECKED = "(unchecked)"
 
 
 def checked_parts(config: ControllerConfig) -> Tuple[Any, ...]:
@@ -59,6 +67,8 @@ class FreeFingerWatch:
         self._running: Optional[Tuple[str, AnalysisProcess]] = None
         self._warned: Dict[str, str] = {}       # channel -> the verdict last logged
         self.checks = 0                         # children started (diagnostics, tests)
+        # the children's standard error (the reason of one that fails before it answers)
+        self._log = pathlib.Path(tempfile.gettempdir()) / f"seaforce-free-finger-{os.getpid()}.log"
 
     def started(self, channel: str, verdict: Optional[str]) -> None:
         """The start-up check's verdict of ``channel`` (what a later one is compared with)."""
@@ -79,15 +89,16 @@ class FreeFingerWatch:
             if not child.poll():
                 return
             self._running = None
-            self._report(channel, child)
+            if channel not in self._pending:        # (else replaced meanwhile: say nothing)
+                self._report(channel, child)
         if self._pending:
             channel = next(iter(self._pending))
             config = self._pending.pop(channel)
             request = json.dumps({"config": config.to_dict(), "delay": self._delay,
                                   "dt": self._dt})
             self._running = (channel, AnalysisProcess(
-                [sys.executable, "-m", "seaforce_ros.commissioning.free_finger", request],
-                os.devnull, phase="free finger"))
+                [sys.executable, "-P", "-m", "seaforce_ros.commissioning.free_finger",
+                 request], self._log, phase="free finger"))
             self.checks += 1
 
     @property
@@ -99,19 +110,27 @@ class FreeFingerWatch:
         if child.outcome != "succeeded" or child.result is None:
             self._warn(f"{channel}: the free-finger check after the parameter change did not "
                        f"run ({child.message}); the damping reserve is unchecked")
+            self._warned[channel] = UNCHECKED
             return
         verdict = str(child.result.get("verdict", ""))
         if verdict:
             if self._warned.get(channel) != verdict:
                 self._warn(f"{channel}: after the parameter change: {verdict}")
             self._warned[channel] = verdict
-        elif self._warned.pop(channel, None) is not None:
-            self._info(f"{channel}: after the parameter change the damping reserve holds a "
-                       "free finger over the model's band again")
+        else:
+            before = self._warned.pop(channel, None)
+            if before is not None:
+                self._info(f"{channel}: after the parameter change the damping reserve holds "
+                           "a free finger over the model's band" +
+                           (" (checked)" if before == UNCHECKED else " again"))
 
     def close(self) -> None:
-        """End a running check (by its PID); forget the waiting ones."""
+        """End a running check (by its PID); forget the waiting ones; remove the log."""
         self._pending.clear()
         if self._running is not None:
             self._running[1].close()
             self._running = None
+        try:
+            self._log.unlink()
+        except OSError:
+            pass

@@ -265,27 +265,38 @@ def run(args):
 
 
 def _free_finger_line(path, channel):
-    """Whether the written model's band is held by the file's ``feedforward.damping_reserve``
-    (or the default), as ``controller_node`` checks it at start-up in the topics layout
-    (:func:`~seaforce_ros.commissioning.free_finger.reserve_verdict`): one line."""
+    """What ``controller_node`` started with the written file would say of ``channel``'s free
+    finger, as one line: whether the file's ``feedforward.damping_reserve`` (or the default)
+    holds it over the written model's band (its start-up check,
+    :func:`~seaforce_ros.commissioning.free_finger.reserve_verdict`, at the file's ``rate``
+    and ``loop``), or why the node would not start on the file. Only the sections the node
+    ``/controller`` reads count."""
     from ..commissioning.free_finger import band_spreads, reserve_verdict
     from ..core.errors import SeaforceError
     from ..core.params import ControllerConfig
     from ..identification.errors import IdentificationError
-    from ..identification.params_file import channel_settings, load, where
+    from ..identification.params_file import controller_view, load, where
+    keys = [spec.name for spec in ControllerConfig.rows()]
     try:
-        values = channel_settings(load(path), channel, where(path),
-                                  ("plant", "dahl", "feedforward", "dob"))
-        config = ControllerConfig.from_dict(values)
-    except (SeaforceError, IdentificationError) as exc:
-        return f"free finger: not checked ({exc})"
-    verdict = reserve_verdict(config, delay=2, dt=5e-4)
+        view = controller_view(load(path), channel, where(path), keys)
+        if view.misspelt:
+            name, meant = view.misspelt[0]
+            raise SeaforceError(f"{name}: no such parameter (did you mean {meant}?)")
+        config = ControllerConfig.from_dict(view.values)
+        rate = float(view.node.get("rate", 2000.0))
+        if not math.isfinite(rate) or rate <= 0.0:
+            raise SeaforceError(f"rate = {view.node['rate']!r}: must be a positive number")
+    except (SeaforceError, IdentificationError, TypeError, ValueError) as exc:
+        return f"warning: controller_node would not start on this file: {channel}: {exc}"
+    direct = view.node.get("loop") == "direct"
+    verdict = reserve_verdict(config, delay=1 if direct else 2, dt=1.0 / rate)
     if verdict:
         return f"warning: free finger: {verdict}"
     spread = 100 * max(band_spreads(config).values())
     return (f"free finger: feedforward.damping_reserve = "
             f"{config.feedforward.damping_reserve:.3g} N m s/rad holds a free finger in "
-            f"dob_full_ff over this model's band (+-{spread:.0f} %)")
+            f"dob_full_ff over this model's band (+-{spread:.0f} %) at {rate:g} Hz in the "
+            f"{'direct' if direct else 'topics'} layout")
 
 
 def main(argv=None):

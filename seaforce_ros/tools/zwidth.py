@@ -45,7 +45,7 @@ def build_parser():
     p.add_argument("bags", nargs="*", help="backdrive bags, BAG or MODE=BAG")
     p.add_argument("--channel", help="channel to read from the bags or the params files "
                    "(required with either; with --simulate and no params file the simulated "
-                   "gripper is Table I and the channel only labels the plot)")
+                   "gripper is Table I's and it is not needed)")
     p.add_argument("--simulate", action="store_true", help="run the backdrive experiment "
                    "offline instead of reading bags")
     p.add_argument("--params", help="controller parameters (plant, dahl) for --simulate")
@@ -246,29 +246,46 @@ def _config(path, channel, option, base):
                         dob=replace(base.dob, nominal_inertia=plant.motor_inertia))
 
 
+def _check_sources(args):
+    """Bags or --simulate, each with its options, and --channel where something is read by it
+    (a UsageError naming the first problem); a note to print once every option is checked,
+    or None."""
+    from ..identification.errors import UsageError
+    files = [o for o, v in (("--params", args.params), ("--true-params", args.true_params),
+                            ("--reference-params", args.reference_params)) if v is not None]
+    if args.simulate and args.bags:
+        raise UsageError("give bags or --simulate, not both")
+    if not args.simulate:
+        if not args.bags:
+            raise UsageError("give backdrive bags (BAG or MODE=BAG) or --simulate")
+        given = files + (["--modes"] if args.modes is not None else [])
+        if given:
+            raise UsageError(f"{given[0]} is for --simulate; the bags carry the mode and "
+                             "parameters they were recorded with")
+    if args.channel is not None and not args.channel.strip():
+        raise UsageError("--channel: empty (give the channel's name, e.g. pinch)")
+    if args.channel is None and (files or not args.simulate):
+        raise UsageError("--channel is required: the channel to read from "
+                         f"{files[0] if files else 'the bags'}")
+    if args.channel is not None and args.simulate and not files:
+        return (f"note: --channel {args.channel} names nothing here: no params file is given, "
+                "so the simulated gripper and its controller are Table I's"
+                + ("; it only labels the plot" if args.plot else ""))
+    return None
+
+
 def run(args):
     from ..core.params import ControllerConfig, DahlParams, PlantParams
     from ..identification.errors import UsageError
     from ..identification.output import Progress, check_output_file
 
     progress = Progress("zwidth", quiet=args.quiet)
-    files = [o for o, v in (("--params", args.params), ("--true-params", args.true_params),
-                            ("--reference-params", args.reference_params)) if v is not None]
-    if args.channel is None and (args.simulate or args.bags):
-        if not args.simulate or files:
-            raise UsageError(f"--channel is required: the channel to read from "
-                             f"{'the bags' if not args.simulate else files[0]}")
-        args.channel = "pinch"
-    elif args.channel is not None and args.simulate and not files:
-        print(f"note: --channel {args.channel} only labels the plot: no params file is given, "
-              "so the simulated gripper and its controller are Table I's")
+    note = _check_sources(args)
     if args.plot:
         check_output_file(args.plot)
     curves = {}
     rms_curves = {}
     if args.simulate:
-        if args.bags:
-            raise UsageError("give bags or --simulate, not both")
         # every option is checked before the first (long) simulation; the files first (the
         # simulation's modules take a second or two to import)
         if args.true_params:
@@ -288,6 +305,8 @@ def run(args):
                                               "--reference-params", truth_config)))
         omegas = _frequencies(args.frequencies)
         modes = _modes(args.modes)
+        if note:
+            print(note)
         from ..identification.zwidth_lib import simulate_figures, zwidth_rows
         results = []
         for i, (label, cfg) in enumerate(sets):
@@ -312,14 +331,6 @@ def run(args):
         z_plot = curves[sets[0][0]]
         rms_plot = rms_curves[sets[0][0]]
     else:
-        if not args.bags:
-            raise UsageError("give backdrive bags (BAG or MODE=BAG) or --simulate")
-        given = [o for o, v in (("--params", args.params), ("--true-params", args.true_params),
-                                ("--reference-params", args.reference_params),
-                                ("--modes", args.modes)) if v is not None]
-        if given:
-            raise UsageError(f"{given[0]} is for --simulate; the bags carry the mode and "
-                             "parameters they were recorded with")
         for item in args.bags:
             _bag_item(item)
         from ..identification.zwidth_lib import zwidth_rows
@@ -336,7 +347,8 @@ def run(args):
             for m, z in curves["reference"].items():
                 lines[f"{m} (reference)"] = z
         path = zwidth_fig5c(np.asarray(omegas), lines, args.plot,
-                            f"channel {args.channel}: endpoint impedance per mode",
+                            f"{f'channel {args.channel}' if args.channel else 'Table I'}: "
+                            "endpoint impedance per mode",
                             markers=markers, rms={m: (np.asarray(omegas), r)
                                                   for m, r in rms_plot.items()})
         print(f"wrote {path}")

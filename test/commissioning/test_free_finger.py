@@ -145,3 +145,28 @@ def test_the_verdict_names_the_reserve_that_holds_the_band():
     least = float(text.split("creep; ")[1].split(" N m s/rad")[0])
     assert least > config.feedforward.damping_reserve
     assert reserve_verdict(with_reserve(config, least)) is None
+
+
+@pytest.mark.parametrize("group, name, value", [
+    ("dahl", "sigma", 950000.0), ("plant", "motor_inertia", 9.0),
+    ("plant", "hose_stiffness", PlantParams.spec("hose_stiffness").high)])
+def test_a_model_at_the_top_of_a_range_is_judged_over_the_band_the_range_admits(group, name,
+                                                                               value):
+    """A model value whose band reaches past its parameter's range (a valid model: before, the
+    check raised the range's error for a value nobody set -- and controller_node died at
+    start-up on it): the corners are cut at the range, and the corner named is the one taken
+    (a factor under 1.2 where the range cut it)."""
+    config = ControllerConfig()
+    changes = {name: value}
+    if name == "motor_inertia":
+        changes_dob = {"nominal_inertia": value}
+        config = config.replace(dob=dataclasses.replace(config.dob, **changes_dob))
+    config = config.replace(**{group: dataclasses.replace(getattr(config, group), **changes)})
+    spreads = band_spreads(config)
+    radius, corner = corner_radius(config, spreads, delay=2)
+    assert math.isfinite(radius)
+    high = (PlantParams if group == "plant" else DahlParams).spec(name).high
+    if corner[name] > 1.0:
+        assert value * corner[name] <= high * (1 + 1e-12)
+    text = reserve_verdict(config, delay=2)          # a verdict, not an exception
+    assert text is None or "may oscillate or creep" in text

@@ -140,6 +140,19 @@ def test_from_dict_overrides_base_and_strips_channel_prefix():
         ControllerConfig.from_dict({"plant.motor_inertia": math.nan})
 
 
+def test_an_unset_nominal_inertia_is_the_given_plants_motor_inertia():
+    """dob.nominal_inertia's documented default is plant.motor_inertia: from the plant given,
+    not Table I's (an identified m of 0.002 was refused for eq. 28 against Table I's m_n);
+    given explicitly it is kept, and a base keeps its own."""
+    assert ControllerConfig.from_dict({"plant.motor_inertia": 0.002}).dob.nominal_inertia == 0.002
+    assert ControllerConfig.from_dict({"plant.motor_inertia": 0.002,
+                                       "dob.nominal_inertia": 0.003}).dob.nominal_inertia == 0.003
+    base = ControllerConfig()
+    assert ControllerConfig.from_dict({"plant.motor_inertia": 0.0012}, base=base) \
+        .dob.nominal_inertia == base.dob.nominal_inertia
+    assert ControllerConfig.from_dict({}) == ControllerConfig()
+
+
 def test_every_key_has_a_description_and_a_unit_or_choices():
     for key, spec in PARAMETERS.items():
         assert spec.description, key
