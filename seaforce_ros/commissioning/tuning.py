@@ -48,7 +48,7 @@ from ..core.params import (MIN_UNCERTAINTY, ControllerConfig, DahlParams, DobPar
                            PlantTermsParams, check_dob_passivity, guard_carries)
 from ..core.simulator import discretise
 from .errors import CommissioningError
-from .free_finger import band_spreads, size_reserve, with_reserve
+from .free_finger import RESERVE_LIMIT, band_spreads, size_reserve, with_reserve
 from .predictor import (PLANT_FIELDS, SIGMA_KEYS, LoopModel, closed_loop_radius, hold_verdict,
                         predict_modes, torque_noise)
 
@@ -70,7 +70,13 @@ TUNED_KEYS = tuple(f"plant.{n}" for n in PLANT_FIELDS) + (
     "passivity_guard", "grasp.contact_damping", "feedforward.damping_uncertainty",
     "feedforward.stiffness_uncertainty", "feedforward.dahl_uncertainty",
     "feedforward.stroke_uncertainty", "feedforward.plant_uncertainty",
-    "feedforward.motor_uncertainty", "feedforward.damping_reserve")
+    "feedforward.motor_uncertainty", "feedforward.damping_reserve",
+    "feedforward.dahl_stiffness_share")
+#: The Dahl stiffness shares the tuning falls back to, in turn, when no damping reserve holds
+#: the free finger over the band with the configured share (a lower share cancels less of the
+#: finger's pre-sliding stiffness: the free finger is the more damped and at rest the stiffer;
+#: 0 is the linear feed-forward's friction with the Dahl force's slip only).
+SHARE_FALLBACK = (0.25, 0.0)
 #: Smallest ``min |1 + L|`` of the hold loop at the p99 delay (gain margin >= 6 dB, phase
 #: margin >= 29 deg).
 HOLD_MODULUS_MARGIN = 0.5
@@ -495,8 +501,20 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
                                     + ", ".join(f"{k} {v}" for k, v in failures.items())
                                     + ")")
     spreads = band_spreads(model)
-    best, reserve, radius = _reserved(feasible, start, model, spreads, plant, dahl, figures,
-                                      omega, amplitude, noise_budget)
+    configured = model.feedforward.dahl_stiffness_share
+    shares = [configured] + [s for s in SHARE_FALLBACK if s < configured]
+    for share in shares:
+        trial_model = model.replace(feedforward=dataclasses.replace(
+            model.feedforward, dahl_stiffness_share=share))
+        try:
+            best, reserve, radius = _reserved(feasible, start, trial_model, spreads, plant,
+                                              dahl, figures, omega, amplitude, noise_budget)
+        except InfeasibleTuningError as exc:
+            if exc.constraint != "free_finger" or share == shares[-1]:
+                raise
+            continue
+        model = trial_model
+        break
     lam_index = next((i for i, lam in enumerate(_CUTOFFS) if lam == best.dob.cutoff), -1)
     noisier = [c for c in candidates if c.dob.cutoff > best.dob.cutoff and c is not start
                and c.noise > noise_budget]
@@ -556,13 +574,20 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     bindings.setdefault("grasp.contact_damping", "range: at most 10 b_s")
     bindings.setdefault("passivity_guard", "passivity guard carries m_n below eq. 28"
                         if best.guard else "kept")
-    for key in TUNED_KEYS[-7:-3]:
+    for key in ("feedforward.damping_uncertainty", "feedforward.stiffness_uncertainty",
+                "feedforward.dahl_uncertainty", "feedforward.stroke_uncertainty"):
         bindings.setdefault(key, "the identified 1-sigma and the fit's misfit")
     bindings.setdefault("feedforward.plant_uncertainty", "the free finger's band: the largest "
                         "of m_e, b_s, k_s, sigma's 1-sigma and the fit's misfit")
     bindings.setdefault("feedforward.motor_uncertainty", "the free finger's band: eq. 28's "
                         "passivity_margin 1-sigmas of m, b, k over the margin")
     values["feedforward.damping_reserve"] = reserve
+    share = model.feedforward.dahl_stiffness_share
+    values["feedforward.dahl_stiffness_share"] = share
+    bindings["feedforward.dahl_stiffness_share"] = (
+        "kept" if share == configured else
+        f"free finger: lowered from {configured:g}, where no damping reserve up to "
+        f"{RESERVE_LIMIT:g} N m s/rad holds the band")
     bindings["feedforward.damping_reserve"] = (
         f"free finger: the least that keeps every corner of the band (margin x the "
         f"uncertainties) small-signal stable at p99 = {figures.delay_p99} samples (worst "

@@ -233,3 +233,34 @@ def test_tuning_from_settings_that_violate_eq28_on_the_identified_plant():
     check_dob_passivity(worst_plant(heavy, SIGMA, 2.0), result.config.dob)
     assert result.config.dob.nominal_inertia >= heavy.motor_inertia - \
         heavy.motor_damping / result.config.dob.cutoff
+
+
+def test_a_band_no_reserve_holds_at_the_configured_share_is_held_at_a_lower_one(monkeypatch):
+    """A record over ROS (a short excitation beside a busy worker, 2026-12-06) whose Dahl
+    sigma came out 3x the sim's (39.9 +- 5.0 against 12.8; the port equation's search said
+    11.9): its 1-sigma widens the free finger's band to +-26 %, and no damping reserve up to
+    the limit holds that at the share 0.5 -- commissioning refused to tune ('not tuned
+    (free_finger)') a linear plant. The tuning now lowers the share (0.25 here), says so in
+    the binding, writes it, and the tuned config's band is held (controller_node's start-up
+    check is silent); with no share to fall back to it refuses as before."""
+    plant = PlantParams(motor_inertia=0.00131149, motor_damping=0.0383044,
+                        motor_stiffness=0.157612, endpoint_inertia=0.000924963,
+                        endpoint_damping=0.0243728, endpoint_stiffness=0.0562641,
+                        hose_damping=0.00708535, hose_stiffness=17.8412)
+    sigma = {"motor_inertia": 6.81e-07, "motor_damping": 9.41e-05, "motor_stiffness": 0.00208,
+             "endpoint_inertia": 1.94e-06, "endpoint_damping": 0.000184,
+             "endpoint_stiffness": 0.000974, "hose_damping": 2.13e-05,
+             "hose_stiffness": 0.0153, "sigma": 5.02, "coulomb_force": 0.000695}
+    dahl = DahlParams(sigma=39.9368, coulomb_force=0.0309387)
+    figures = LoopModel(pressure_noise=5.135e-4, encoder_resolution=5.992e-6, delay_p50=1,
+                        delay_p99=1)
+    base = ControllerConfig(plant=PlantParams.table_i(), dahl=DahlParams())
+    result = tune(plant, sigma, dahl, figures, config=base, class_error=0.032)
+    assert result.values["feedforward.dahl_stiffness_share"] == 0.25
+    assert "lowered from 0.5" in result.bindings["feedforward.dahl_stiffness_share"]
+    assert result.config.feedforward.dahl_stiffness_share == 0.25
+    assert reserve_verdict(result.config, delay=figures.delay_p99) is None
+    monkeypatch.setattr("seaforce_ros.commissioning.tuning.SHARE_FALLBACK", ())
+    with pytest.raises(InfeasibleTuningError) as refused:
+        tune(plant, sigma, dahl, figures, config=base, class_error=0.032)
+    assert refused.value.constraint == "free_finger"
