@@ -390,3 +390,36 @@ def test_impedance_with_a_zero_target_is_dob_full_ffs_backdrive_not_simulated_tw
                                ControllerConfig.from_dict({'target.stiffness': 0.5}, config),
                                modes, omegas)
     assert stiff.figures['impedance'][0].z_rms > 2 * stiff.figures['dob_full_ff'][0].z_rms
+
+
+@pytest.mark.parametrize("fitted, fitted_sigma, used", [
+    (39.94, 5.02, "search"),      # a record over ROS: 3x the sim's 12.8, 6 1-sigmas off
+    (22.88, 1.65, "search"),
+    (13.26, 0.47, "fit"),         # within 50 % of the search (11.52): as identified
+    (16.41, 0.51, "fit"),
+    (10.0, 0.3, "fit"),           # below the search: the lower already
+    (20.0, 3.0, "fit"),           # more than 50 % above but within 3 combined 1-sigmas
+])
+def test_the_lower_dahl_sigma_of_fit_and_search_is_the_controllers(fitted, fitted_sigma, used):
+    """The linear fit's Dahl sigma against F_c times the port equation's search's sigma/F_c:
+    where the fit's lies more than 50 % and three combined 1-sigmas above, the controller
+    gets the search's (with its 1-sigma, and a line saying so): a sigma above the finger's,
+    of which the feed-forward cancels a share, leaves the finger's pre-sliding stiffness
+    net negative; otherwise the fit's, untouched."""
+    from seaforce_ros.commissioning.analyse import _lower_sigma
+    port = types.SimpleNamespace(linear={"dahl_ratio": (372.4, 0.87)})
+    dahl = DahlParams(sigma=fitted, coulomb_force=0.0309387)
+    sigma = {"sigma": fitted_sigma, "coulomb_force": 0.000695}
+    lines = []
+    out = _lower_sigma(dahl, sigma, port, lines)
+    searched = 0.0309387 * 372.4
+    if used == "search":
+        assert out.sigma == pytest.approx(searched) and out.coulomb_force == dahl.coulomb_force
+        assert sigma["sigma"] == pytest.approx(searched * math.hypot(0.87 / 372.4,
+                                                                     0.000695 / 0.0309387))
+        assert len(lines) == 1 and "the lower is used" in lines[0]
+    else:
+        assert out == dahl and sigma["sigma"] == fitted_sigma and lines == []
+    assert _lower_sigma(dahl, dict(sigma), None, []) == dahl
+    nan_port = types.SimpleNamespace(linear={"dahl_ratio": (372.4, math.nan)})
+    assert _lower_sigma(dahl, dict(sigma), nan_port, []) == dahl
