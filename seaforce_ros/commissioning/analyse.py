@@ -517,7 +517,7 @@ def _lower_sigma(dahl: Optional[DahlParams], sigma: Dict[str, float], port: Any,
     The lower of the two because the feed-forward cancels ``dahl_stiffness_share`` of it: a
     value above the finger's makes the finger's pre-sliding stiffness net negative. On ten
     short records over ROS of one linear plant (sigma 12.8) the fit gave 11.9-39.9, its
-    1-sigmas 0.2-5 (three of them 6-35 1-sigmas off), the search 11.5-11.9."""
+    1-sigmas 0.2-5 (16.4, 22.9 and 39.9 each 5-7 1-sigmas off), the search 11.5-11.9."""
     if dahl is None or port is None:
         return dahl
     ratio = port.linear.get("dahl_ratio", (0.0, math.nan))
