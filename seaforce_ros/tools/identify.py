@@ -289,7 +289,10 @@ def _free_finger_line(path, channel):
     except (SeaforceError, IdentificationError, TypeError, ValueError) as exc:
         return f"warning: controller_node would not start on this file: {channel}: {exc}"
     direct = view.node.get("loop") == "direct"
-    verdict = reserve_verdict(config, delay=1 if direct else 2, dt=1.0 / rate)
+    try:
+        verdict = reserve_verdict(config, delay=1 if direct else 2, dt=1.0 / rate)
+    except (SeaforceError, ArithmeticError, ValueError) as exc:
+        return f"warning: free finger: not checked ({exc})"
     if verdict:
         return f"warning: free finger: {verdict}"
     spread = 100 * max(band_spreads(config).values())
