@@ -67,8 +67,9 @@ class FreeFingerWatch:
         self._running: Optional[Tuple[str, AnalysisProcess]] = None
         self._warned: Dict[str, str] = {}       # channel -> the verdict last logged
         self.checks = 0                         # children started (diagnostics, tests)
-        # the children's standard error (the reason of one that fails before it answers)
-        self._log = pathlib.Path(tempfile.gettempdir()) / f"seaforce-free-finger-{os.getpid()}.log"
+        # the children's standard error (the reason of one that fails before it answers): a
+        # file of this node's own, made at the first check
+        self._log: Optional[pathlib.Path] = None
 
     def started(self, channel: str, verdict: Optional[str]) -> None:
         """The start-up check's verdict of ``channel`` (what a later one is compared with)."""
@@ -96,6 +97,10 @@ class FreeFingerWatch:
             config = self._pending.pop(channel)
             request = json.dumps({"config": config.to_dict(), "delay": self._delay,
                                   "dt": self._dt})
+            if self._log is None:
+                handle, name = tempfile.mkstemp(prefix="seaforce-free-finger-", suffix=".log")
+                os.close(handle)
+                self._log = pathlib.Path(name)
             self._running = (channel, AnalysisProcess(
                 [sys.executable, "-P", "-m", "seaforce_ros.commissioning.free_finger",
                  request], self._log, phase="free finger"))
@@ -130,7 +135,8 @@ class FreeFingerWatch:
         if self._running is not None:
             self._running[1].close()
             self._running = None
-        try:
-            self._log.unlink()
-        except OSError:
-            pass
+        if self._log is not None:
+            try:
+                self._log.unlink()
+            except OSError:
+                pass
