@@ -4,6 +4,8 @@ logged once, the child ended by close()."""
 import dataclasses
 import time
 
+import pytest
+
 from seaforce_ros.commissioning.free_finger import reserve_verdict, with_reserve
 from seaforce_ros.core.params import ControllerConfig
 from seaforce_ros.nodes.free_finger_watch import FreeFingerWatch
@@ -11,10 +13,22 @@ from seaforce_ros.nodes.free_finger_watch import FreeFingerWatch
 BASE = ControllerConfig()
 
 
+_WATCHES = []
+
+
+@pytest.fixture(autouse=True)
+def _closed():
+    """Every watch a test made is closed after it (its child ended, its log removed)."""
+    yield
+    while _WATCHES:
+        _WATCHES.pop().close()
+
+
 def _watch():
     log = []
     watch = FreeFingerWatch(2, 5e-4, lambda m: log.append(('warn', m)),
                             lambda m: log.append(('info', m)))
+    _WATCHES.append(watch)
     return watch, log
 
 
