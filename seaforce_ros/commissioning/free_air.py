@@ -168,6 +168,14 @@ CONVERGED = 5e-3
 MIN_COHERENCE = 0.5
 #: Seconds at the start the friction fit leaves out (its filter and the Dahl states settle).
 SETTLE_TIME = 0.5
+#: ... and the travel [rad] the estimated endpoint must have covered since the record's start
+#: before the fit counts a sample. A Dahl state forgets its start through motion, not time:
+#: a finger at rest under a preload (after a canceled excitation, |F_p(0)| up to 0.018 N m)
+#: has a Dahl force the fit's states, started at 0, do not have, and the first slide fitted so
+#: pulled the ratio up -- sigma 10.5-39.9 over 17 short records over ROS of one plant (12.8);
+#: counted from 0.1 rad of travel (about 40 pre-sliding displacements at sigma/F_c = 400),
+#: 12.5-14.7. (0.3 rad threw informative sliding away: twice the spread.)
+SETTLE_TRAVEL = 0.1
 #: Zero-phase low-pass [Hz] of the estimated endpoint path that drives the friction fit's Dahl
 #: states (the fit sees nothing above FILTER_CUTOFF).
 DAHL_INPUT_CUTOFF = 100.0
@@ -553,11 +561,22 @@ def _fit_friction(xe: _Real, f_p: _Real, endpoint_inertia: float, dt: float
     center = math.sqrt(lo * hi)
     ratios = ratio_grid(center, math.sqrt(hi / lo))
     fit = FrictionFit(plant, 1.0, ratios, dt * q, FILTER_CUTOFF)
-    settle = int(SETTLE_TIME / (dt * q))
+    settle = _settled(xd, int(SETTLE_TIME / (dt * q)))
     for i, (a, d, b) in enumerate(zip(xd, dd, fd)):
         fit.update(a, d, b, record=i >= settle)
     fit.fold()
     return fit.estimate([fit.solve_candidate(k) for k in range(len(ratios))])
+
+
+def _settled(path: Sequence[float], settle: int) -> int:
+    """The first sample the friction fit counts: ``settle`` or later, once ``path`` has
+    covered :data:`SETTLE_TRAVEL` since its start (``settle`` if it never does)."""
+    a = np.asarray(path, dtype=float)
+    if a.size == 0:
+        return settle
+    travel = np.maximum.accumulate(a) - np.minimum.accumulate(a)
+    moved = np.flatnonzero(travel >= SETTLE_TRAVEL)
+    return max(settle, int(moved[0])) if moved.size else settle
 
 
 def _dahl_spectrum(bt: BlackmanTukey, xe: _Real, dt: float, ratio: float,

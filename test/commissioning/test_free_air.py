@@ -231,3 +231,39 @@ def test_a_linear_start_100x_off_is_fitted_again_from_the_bound():
     err = errors(result, plant, dahl)
     assert {k: e for k, e in err.items() if not abs(e) <= GOALS[k]} == {}, err
     assert result.misfit["port"] < 0.05
+
+
+def _preloaded_endpoint(preload, seed=0):
+    """(X_e, F_p) of a free finger at rest for 0.5 s -- its Dahl force ``preload`` [N m] (a
+    finger left stuck under a pressure force, as after a canceled excitation) -- then driven
+    along sines of 1-8 Hz growing to 0.3 rad: Table I's endpoint and the paper's Dahl model,
+    F_p the force that moves it (a little noise)."""
+    from seaforce_ros.core.dahl import DahlState
+    dt = DT
+    p = PlantParams.table_i()
+    n = int(6.0 / dt)
+    t = np.arange(n) * dt
+    ramp = np.clip((t - 0.5) / 0.3, 0.0, 1.0)
+    xe = np.where(t < 0.5, 0.0, ramp * 0.3 * np.sin(2 * math.pi * (1.0 + 1.2 * (t - 0.5))
+                                                     * (t - 0.5)))
+    dahl = DahlState(DahlParams())
+    dahl.reset(0.0, preload)
+    fd = np.array([dahl.update(x) for x in xe])
+    v = np.gradient(xe, dt)
+    f_p = -(p.endpoint_inertia * np.gradient(v, dt) + p.endpoint_damping * v
+            + p.endpoint_stiffness * xe + fd)
+    return xe, f_p + 1e-4 * np.random.default_rng(seed).standard_normal(n)
+
+
+@pytest.mark.parametrize("preload", [0.0, 0.016, -0.016, 0.028])
+def test_a_finger_stuck_under_a_preload_does_not_bias_the_dahl_stiffness(preload):
+    """The friction fit counts samples from SETTLE_TRAVEL of travel on, not from a time: a
+    Dahl state forgets its start through motion. Counted from 0.5 s (the excitation's start),
+    these gave sigma 85 / 5.8 / 320 for preloads 0.016 / -0.016 / 0.028 N m (12.1 without);
+    short records over ROS of one plant, 10.5-39.9 against 12.8."""
+    from seaforce_ros.commissioning.free_air import _fit_friction
+    xe, f_p = _preloaded_endpoint(preload)
+    est = _fit_friction(xe, f_p, PlantParams.table_i().endpoint_inertia, DT)
+    assert not est.reason, est.reason
+    assert abs(est.sigma / 12.8 - 1.0) < 0.15, est.sigma
+    assert abs(est.coulomb_force / 0.032 - 1.0) < 0.05, est.coulomb_force
