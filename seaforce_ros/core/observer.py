@@ -141,8 +141,8 @@ class EndpointObserver:
                  "dt", "_ks", "_inv_bs", "_a", "_c0", "_c1", "damping", "stiffness", "_rest",
                  "_half_width", "dahl", "_first", "_delta", "_fp_prev", "dahl_input",
                  "position", "velocity", "dahl_force", "compensation", "feedforward",
-                 "_scales", "_reserve", "_kb", "_kk", "_ff", "dahl_ff", "dahl_feedforward", "_relax",
-                 "_coulomb", "_minus_coulomb", "_sigma", "_minus_sigma")
+                 "_scales", "_reserve", "_kb", "_kk", "_ff", "dahl_ff", "dahl_feedforward",
+                 "_relax", "_coulomb", "_minus_coulomb", "_sigma", "_minus_sigma")
 
     def __init__(self, plant: PlantParams, feedforward: FeedforwardParams, dahl: DahlParams,
                  dt: float = 5e-4, terms: PlantTermsParams = _NO_TERMS) -> None:
@@ -276,13 +276,12 @@ class EndpointObserver:
             fdf = dahl_ff.update(xd)
         self.dahl_force = fd
         self.dahl_feedforward = fdf
+        damped = self._kb * ve - self._reserve * v
         if self._stroke:
             u = xe - self._rest
-            fc = self.compensation = (self._kb * ve - self._reserve * v
-                                      + u * (self._kk + u * (self._k2 + u * self._k3)))
+            fc = self.compensation = damped + u * (self._kk + u * (self._k2 + u * self._k3))
         else:
-            fc = self.compensation = (self._kb * ve - self._reserve * v
-                                      + self._kk * (xe - self._rest))
+            fc = self.compensation = damped + self._kk * (xe - self._rest)
         self.feedforward = fc + fdf
 
     def _nonlinear_hose(self, x: float, v: float, f_p: float, steps: int

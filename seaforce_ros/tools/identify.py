@@ -274,21 +274,29 @@ def _free_finger_line(path, channel):
     from ..commissioning.free_finger import band_spreads, reserve_verdict
     from ..core.errors import SeaforceError
     from ..core.params import ControllerConfig
+    from ..core.schema import BRINGUP, CONTROLLER, node_rows
     from ..identification.errors import IdentificationError
     from ..identification.params_file import controller_view, load, where
     keys = [spec.name for spec in ControllerConfig.rows()]
+    # the node's rate and the bringup's loop, checked by their own schema rows
+    node = {s.name: s for s in node_rows(CONTROLLER, per_channel=False)
+            + node_rows(BRINGUP, per_channel=False) if s.name in ("rate", "loop")}
     try:
         view = controller_view(load(path), channel, where(path), keys)
         if view.misspelt:
             name, meant = view.misspelt[0]
             raise SeaforceError(f"{name}: no such parameter (did you mean {meant}?)")
         config = ControllerConfig.from_dict(view.values)
-        rate = float(view.node.get("rate", 2000.0))
-        if not math.isfinite(rate) or rate <= 0.0:
-            raise SeaforceError(f"rate = {view.node['rate']!r}: must be a positive number")
-    except (SeaforceError, IdentificationError, TypeError, ValueError) as exc:
+        settings = {k: s.default for k, s in node.items()}
+        for k, value in view.node.items():
+            reason = node[k].reason(value)
+            if reason:
+                raise SeaforceError(reason)
+            settings[k] = node[k].coerce(value)
+    except (SeaforceError, IdentificationError) as exc:
         return f"warning: controller_node would not start on this file: {channel}: {exc}"
-    direct = view.node.get("loop") == "direct"
+    rate = float(settings["rate"])
+    direct = settings["loop"] == "direct"
     try:
         verdict = reserve_verdict(config, delay=1 if direct else 2, dt=1.0 / rate)
     except (SeaforceError, ArithmeticError, ValueError) as exc:
