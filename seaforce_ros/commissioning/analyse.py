@@ -414,15 +414,16 @@ def model_stage(ident: FreeAirIdentification, terms: Optional[NonlinearTerms]
         fc = m.get("coulomb_force", (0.0, 0.0))
         ratio = port.linear.get("dahl_ratio", (0.0, math.nan)) if port is not None \
             else (0.0, math.nan)
-        if fc[0] > 0.0 and ratio[0] > 0.0 and math.isfinite(ratio[1]):
+        searched_sigma = _searched_sigma(fc, ratio)
+        if searched_sigma is not None:
             # F_c refitted on the Dahl shape sigma/F_c the port's search gave: sigma from
             # both (the linear fit's sigma, biased by the hose's terms it left out, was -52 to
             # +44 % off on 60 draws of the oracle's family; the search's -18 to +2 %)
-            dahl = DahlParams(sigma=fc[0] * ratio[0], coulomb_force=fc[0],
+            dahl = DahlParams(sigma=searched_sigma[0], coulomb_force=fc[0],
                               exponent=(dahl or DahlParams()).exponent)
             searched = True
             sigma["coulomb_force"] = fc[1]
-            sigma["sigma"] = dahl.sigma * math.hypot(fc[1] / fc[0], ratio[1] / ratio[0])
+            sigma["sigma"] = searched_sigma[1]
             missing.update(dahl_error)
         elif fc[0] > 0.0 and dahl is not None:
             dahl = dataclasses.replace(dahl, coulomb_force=fc[0])
@@ -507,6 +508,16 @@ def model_stage(ident: FreeAirIdentification, terms: Optional[NonlinearTerms]
     return ControllerModel(plant, sigma, dahl, model_terms, class_error, lines)
 
 
+def _searched_sigma(coulomb_force: Tuple[float, float], ratio: Tuple[float, float]
+                    ) -> Optional[Tuple[float, float]]:
+    """The Dahl sigma (and its 1-sigma) as F_c times the port equation's search's sigma/F_c,
+    each given as (value, 1-sigma); None where either is not a usable estimate."""
+    (fc, fc_sigma), (r, r_sigma) = coulomb_force, ratio
+    if not (fc > 0.0 and r > 0.0 and math.isfinite(r_sigma)):
+        return None
+    return fc * r, fc * r * math.hypot(fc_sigma / fc, r_sigma / r)
+
+
 def _lower_sigma(dahl: Optional[DahlParams], sigma: Dict[str, float], port: Any,
                  lines: List[str]) -> Optional[DahlParams]:
     """The Dahl stiffness the controller gets when the linear fit's and the port equation's
@@ -522,12 +533,11 @@ def _lower_sigma(dahl: Optional[DahlParams], sigma: Dict[str, float], port: Any,
     plant's."""
     if dahl is None or port is None:
         return dahl
-    ratio = port.linear.get("dahl_ratio", (0.0, math.nan))
-    if not (ratio[0] > 0.0 and math.isfinite(ratio[1]) and dahl.coulomb_force > 0.0):
+    searched = _searched_sigma((dahl.coulomb_force, sigma.get("coulomb_force", 0.0)),
+                               port.linear.get("dahl_ratio", (0.0, math.nan)))
+    if searched is None:
         return dahl
-    found = dahl.coulomb_force * ratio[0]
-    found_sigma = found * math.hypot(ratio[1] / ratio[0],
-                                     sigma.get("coulomb_force", 0.0) / dahl.coulomb_force)
+    found, found_sigma = searched
     if dahl.sigma <= found * (1.0 + SIGMA_DISAGREEMENT):
         return dahl
     lines.append(f"Dahl sigma: the linear fit's {dahl.sigma:.4g} +- {sigma.get('sigma', 0.0):.2g} "
