@@ -119,6 +119,8 @@ class ChannelController:
         Last output F_a [N m].
     disturbance : float
         DOB disturbance estimate ``d_hat = F_a - F_ref`` [N m] (NaN outside the DOB modes).
+    pressure_offset : float
+        The pressure sensor's offset [N m] subtracted from every F_p (``pressure_offset``).
     feedforward : float
         ``F_cmp + F_d`` [N m] (computed in every mode).
     endpoint_velocity_estimate : float
@@ -161,7 +163,7 @@ class ChannelController:
 
     # slots (module docstring)
     __slots__ = (
-        "dt", "cycle", "applied", "mode", "torque", "disturbance",
+        "dt", "cycle", "applied", "mode", "torque", "disturbance", "pressure_offset",
         # hand-overs and the job
         "_pending", "_mode_sets", "_jobs", "job", "_job_sample",
         # the parts
@@ -233,6 +235,7 @@ class ChannelController:
             if c.mode == "passive" or not job.wind_down(reason):
                 self._end_job(reason)
         self.adaptation.configure(c)
+        self._set_offset(c.pressure_offset)
         self._config = c
         self.mode = c.mode
         for m in self._modes.values():
@@ -246,6 +249,16 @@ class ChannelController:
         self.estimator.configure(c.estimator, c.plant, c.feedforward.rest_position,
                                  c.plant_terms)
         self._configure_guard(c)
+
+    def _set_offset(self, offset: float) -> None:
+        """The pressure sensor's offset [N m] from the next sample on, bumplessly: the hose
+        inversion and the contact estimator take the force they had seen as corrected already
+        (a step in F_p would be a velocity spike of ``step / b_s`` in V_e_hat)."""
+        change = offset - getattr(self, "pressure_offset", offset)
+        self.pressure_offset = offset
+        if change:
+            self.observer.shift_pressure(-change)
+            self.estimator.rearm()
 
     def _use_mode(self, name: str) -> None:
         """Run the mode ``name`` from now on -- or, while the runaway monitor's fall-back is
@@ -523,6 +536,7 @@ class ChannelController:
         keep_ledger = False
         if self._pending or self._jobs:
             keep_ledger = self._take_handovers()
+        f_p -= self.pressure_offset         # the force in the hose, as far as the sensor's known
         obs = self.observer
         obs.update(x, v, f_p, steps)
         est = self.estimator

@@ -291,11 +291,16 @@ class NonlinearChannelSimulator(ChannelSimulator):
     def _measure(self) -> Measurement:
         z = self._z
         fp = self.pressure_force
+        if self._biased:
+            fp += self.sensors.pressure_bias(self.t)
         if self._noise_std:
             fp += self._noise_std * self._next_noise()
         xq = quantise(z[0], self._qx)
-        v = (xq - self._xq_prev) / self.dt
-        self._xq_prev = xq
+        if self._vn == 1:
+            v = (xq - self._xq_prev) / self.dt
+            self._xq_prev = xq
+        else:
+            v = self._averaged_velocity(xq)
         q = self._finger(z[2])[0]
         return Measurement(xq, v, adc(fp, self._qp, self._prange), self.applied_torque,
                            quantise(q, self._qe), self.external_force())

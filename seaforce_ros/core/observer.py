@@ -213,6 +213,19 @@ class EndpointObserver:
         self.position = self.velocity = 0.0
         self.dahl_force = self.compensation = self.feedforward = self.dahl_feedforward = 0.0
 
+    def shift_pressure(self, change: float) -> None:
+        """The pressure force reads ``change`` [N m] more from now on for the same hose (a new
+        sensor offset): the hose inversion's state is moved with it, so that the change is no
+        flow through the hose (no spike of V_e_hat)."""
+        if not self._first:
+            self._fp_prev += change
+            if self._hose:          # the elastic force g(d) moves by the change
+                d = self._delta
+                elastic = (self._ks + self._kappa * abs(d)) * d + change
+                self._delta = hose_deflection(elastic, self._ks, self._kappa)
+            else:
+                self._delta += change / self._ks
+
     def update(self, x: float, v: float, f_p: float, steps: int = 1) -> None:
         """One sample: X [rad], V [rad/s], F_p [N m]; ``steps`` sample periods since the
         previous one. The results are the attributes."""

@@ -618,6 +618,10 @@ class ControllerConfig(ParameterGroup):
     passivity: GuardParams = field(default_factory=GuardParams)
     limits: LimitParams = field(default_factory=LimitParams)
     monitor: MonitorParams = field(default_factory=MonitorParams)
+    pressure_offset: float = param(0.0, "N m", "what the pressure sensor reads with no force in "
+                                   "the hose: the controller subtracts it from F_p (commissioning, "
+                                   "~/calibrate_friction and ~/tare measure it)", ge=-10.0,
+                                   le=10.0)
     max_torque: float = param(5.0, "N m", "the controller's fault limit: a computed |F_a| above "
                               "it latches a torque_limit fault (zero torque)", gt=0.0, le=1e3)
     allow_non_passive: bool = param(False, "", "accept DOB / force-feedback / impedance "

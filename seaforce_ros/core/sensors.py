@@ -2,10 +2,14 @@
 
 * Pressure force F_p: a 16-bit ADC over a symmetric range ``[-R, R]`` N m
   (torque-equivalent) with additive Gaussian noise before quantisation.
+  An offset ``pressure_offset`` (what the sensor reads with no force in the
+  hose), changing at ``pressure_drift`` per second, is added before the ADC.
 * Motor encoder: position quantised to ``motor_counts_per_rev`` (rounded to
-  the nearest count). The drive's velocity is the backward difference of the
-  quantised position over one loop period, ``(x_q[k] - x_q[k-1])/dt`` (the
-  mean velocity over the last sample: half a sample of lag, one count/dt of
+  the nearest count). The drive's velocity is the mean of the last
+  ``velocity_samples`` backward differences of the quantised position,
+  ``(x_q[k] - x_q[k-n])/(n dt)`` (n = 1: the mean velocity over the last
+  sample, half a sample of lag, one count/dt of resolution; a drive that
+  averages n of them has (n - 1)/2 samples more lag and n times the
   resolution).
 * Endpoint encoder: 40,000 counts/rev (10,000-line quadrature, paper II-B),
   used for identification and impedance measurement only.
@@ -37,12 +41,24 @@ class SensorParams(ParameterGroup):
     endpoint_counts_per_rev: int = param(40000, "", "endpoint encoder counts per revolution "
                                          "(10,000-line quadrature, paper II-B; 0: ideal)",
                                          ge=0, le=2 ** 40, read_only=True)
+    pressure_offset: float = param(0.0, "N m", "what the pressure sensor reads with no force in "
+                                   "the hose (its offset at start)", ge=-100.0, le=100.0,
+                                   read_only=True)
+    pressure_drift: float = param(0.0, "N m/s", "rate at which the pressure sensor's offset "
+                                  "changes (a thermal drift)", ge=-1.0, le=1.0, read_only=True)
+    velocity_samples: int = param(1, "", "the drive's velocity is the mean of the last this many "
+                                  "backward differences of the motor position (1: the backward "
+                                  "difference)", ge=1, le=64, read_only=True)
 
     @classmethod
     def ideal(cls) -> "SensorParams":
         """No noise, no quantisation (ADC range still clips at 1e9 N m)."""
         return cls(pressure_range=1e9, pressure_bits=0, pressure_noise=0.0,
                    motor_counts_per_rev=0, endpoint_counts_per_rev=0)
+
+    def pressure_bias(self, t: float) -> float:
+        """The sensor's offset [N m] at time ``t`` [s] (no noise)."""
+        return self.pressure_offset + self.pressure_drift * t
 
     @property
     def pressure_quantum(self) -> float:

@@ -24,9 +24,9 @@ all held over the step. The nonlinear forces are integrated robustly:
 * motor torque saturation ``+-torque_saturation`` (the motor and drive's physical
   limit; ``limited`` says it acted this step).
 
-Sensors (:mod:`.sensors`): 16-bit pressure ADC with noise, quantised motor and
-endpoint encoders, drive velocity = backward difference of the quantised
-motor position. ``command_delay=1`` (default) models the EtherCAT frame: the
+Sensors (:mod:`.sensors`): 16-bit pressure ADC with noise and an offset (drifting
+or not), quantised motor and endpoint encoders, drive velocity = the mean of the
+last ``velocity_samples`` backward differences of the quantised motor position. ``command_delay=1`` (default) models the EtherCAT frame: the
 torque computed from the measurement of cycle k is applied from cycle k+1.
 
 Randomness: one Gaussian draw per step (pressure noise), from the
@@ -36,6 +36,7 @@ wall time.
 """
 
 import math
+from collections import deque
 from typing import (Callable, Dict, List, NamedTuple, Optional, Protocol,
                     Sequence, Tuple, TypeVar, Union)
 
@@ -202,6 +203,8 @@ class ChannelSimulator:
         self._qe = self.sensors.endpoint_quantum
         self._prange = float(self.sensors.pressure_range)
         self._noise_std = float(self.sensors.pressure_noise)
+        self._biased = bool(self.sensors.pressure_offset or self.sensors.pressure_drift)
+        self._vn = int(self.sensors.velocity_samples)
         self._dahl = DahlState(dahl if dahl is not None else DahlParams(sigma=0.0))
         # None only until reset() below installs one
         self._env: Environment = None  # type: ignore[assignment]
@@ -225,6 +228,7 @@ class ChannelSimulator:
         self.motor_friction = 0.0
         self.endpoint_friction = 0.0
         self._xq_prev = self._quantise(self._z[0], self._qx)
+        self._xq_history = deque([self._xq_prev] * self._vn, maxlen=self._vn)
         if environment is None:
             environment = self._env if self._env is not None else free()
         self.set_environment(environment)
@@ -350,10 +354,20 @@ class ChannelSimulator:
         self._noise_i = i + 1
         return self._noise[i]
 
+    def _averaged_velocity(self, xq: float) -> float:
+        """The drive's velocity [rad/s] from the quantised position ``xq`` [rad]: the mean of the
+        last ``velocity_samples`` backward differences (:mod:`.sensors`)."""
+        history = self._xq_history
+        v = (xq - history[0]) / (self._vn * self.dt)
+        history.append(xq)
+        return v
+
     def _measure(self) -> Measurement:
         z = self._z
         ks, bs = self._hose
         fp = ks * (z[2] - z[0]) + bs * (z[3] - z[1])
+        if self._biased:
+            fp += self.sensors.pressure_bias(self.t)
         if self._noise_std:
             fp += self._noise_std * self._next_noise()
         r = self._prange
@@ -365,8 +379,11 @@ class ChannelSimulator:
                 fp = r - qp
         qx = self._qx
         xq = qx * round(z[0] / qx) if qx else z[0]
-        v = (xq - self._xq_prev) / self.dt
-        self._xq_prev = xq
+        if self._vn == 1:
+            v = (xq - self._xq_prev) / self.dt
+            self._xq_prev = xq
+        else:
+            v = self._averaged_velocity(xq)
         qe = self._qe
         xe = qe * round(z[2] / qe) if qe else z[2]
         return Measurement(xq, v, fp, self.applied_torque, xe, self.external_force())

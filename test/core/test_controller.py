@@ -26,6 +26,47 @@ def switch_to(mode):
     return lambda sim, ctl: ctl.configure(ctl.config.replace(mode=mode))
 
 
+def _free_finger(config, sensors, samples, change=None):
+    """X_e of a free finger (Table I, exact model) under ``config`` for ``samples``; at the
+    middle sample ``change`` (a config) is configured. Returns (X_e, V_e_hat, torque)."""
+    ctl = ChannelController(config, DT)
+    sim = ChannelSimulator(TABLE_I, DahlParams(), sensors=sensors)
+    m = sim.measurement()
+    out = np.empty((samples, 3))
+    for k in range(samples):
+        if change is not None and k == samples // 2:
+            ctl.configure(change)
+        u = ctl.update(m.x, m.v, m.f_p)
+        out[k] = sim.state[2], ctl.endpoint_velocity_estimate, u
+        m = sim.step(u)
+    return out
+
+
+@pytest.mark.parametrize("offset", [-0.05, 0.02])
+def test_a_pressure_offset_the_controller_knows_leaves_a_free_finger_still(offset):
+    """With the offset unknown the DOB pushes the finger with it (it makes the measured F_p
+    vanish, so the hose pushes the endpoint with the offset, and dob_full_ff cancels most of
+    the finger's stiffness: it slides away); known, the finger stays where it rested."""
+    sensors = SensorParams(pressure_offset=offset)
+    unknown = _free_finger(ControllerConfig(mode="dob_full_ff"), sensors, 6000)
+    known = _free_finger(ControllerConfig(mode="dob_full_ff", pressure_offset=offset), sensors,
+                         6000)
+    assert np.max(np.abs(unknown[:, 0])) > 0.1
+    assert np.sign(unknown[-1, 0]) == np.sign(offset)
+    assert np.max(np.abs(known[:, 0])) < 1e-3
+
+
+def test_a_new_pressure_offset_is_taken_up_without_a_spike():
+    """A changed offset moves the hose inversion's state with it: no jump of V_e_hat (a step
+    of F_p would read as flow, 0.05 N m / b_s = 5 rad/s) and no torque step."""
+    config = ControllerConfig(mode="dob_full_ff")
+    run = _free_finger(config, SensorParams(pressure_noise=0.0), 2000,
+                       change=config.replace(pressure_offset=0.05))
+    around = slice(1000 - 5, 1000 + 5)          # (the finger then moves: it is pushed)
+    assert np.max(np.abs(np.diff(run[around, 1]))) < 0.05      # (3.9 without the shift)
+    assert np.max(np.abs(np.diff(run[around, 2]))) < 0.01      # a ramp (a step of 0.039)
+
+
 @pytest.mark.parametrize("start", ["passive", "dob", "hold", "dob_full_ff"])
 def test_bumpless_switching_at_rest(start):
     """At rest against a static load (endpoint held at 0.5 rad), every switch

@@ -245,14 +245,16 @@ class Side:
 
 def linear_config(config):
     """The config's flat keys and values but those that came after the baseline
-    (``plant_terms.*``, ``feedforward.stroke_uncertainty``) while every term is 0 (the
-    linear model: at 0 they change no float)."""
+    (``plant_terms.*``, ``feedforward.stroke_uncertainty``, ``pressure_offset``) while every
+    term and the offset are 0 (the linear model, no offset: at 0 they change no float)."""
     terms = getattr(config, "plant_terms", None)
     if terms is not None and any(getattr(terms, f.name) for f in dataclasses.fields(terms)):
         return config
+    if getattr(config, "pressure_offset", 0.0):
+        return config
     return tuple(sorted((k, v) for k, v in config.to_dict().items()
                         if not k.startswith("plant_terms.")
-                        and k != "feedforward.stroke_uncertainty"))
+                        and k not in ("feedforward.stroke_uncertainty", "pressure_offset")))
 
 
 def exact(values):

@@ -179,6 +179,27 @@ def test_sensor_quantisation_and_velocity():
         prev = m
 
 
+@pytest.mark.parametrize("samples", [2, 3, 4])
+def test_drive_velocity_averages_the_last_backward_differences(samples):
+    sensors = SensorParams(motor_counts_per_rev=2 ** 14, velocity_samples=samples)
+    sim = ChannelSimulator(TABLE_I, None, sensors=sensors, environment=torque_sine(0.3, 5.0))
+    xs = [sim.measurement().x] * samples
+    for _ in range(400):
+        m = sim.step(0.1)
+        assert m.v == pytest.approx((m.x - xs[-samples]) / (samples * DT), abs=1e-9)
+        xs.append(m.x)
+
+
+def test_pressure_offset_and_its_drift_are_read_with_the_force():
+    drift = 0.01
+    sensors = SensorParams(pressure_bits=0, pressure_noise=0.0, pressure_offset=-0.03,
+                           pressure_drift=drift)
+    sim = ChannelSimulator(TABLE_I, None, sensors=sensors, environment=torque_sine(0.3, 5.0))
+    for _ in range(2000):
+        m = sim.step(0.05)
+        assert m.f_p - sim.pressure_force == pytest.approx(-0.03 + drift * sim.t, abs=1e-12)
+
+
 def test_pressure_noise_statistics():
     sensors = SensorParams(pressure_noise=2e-3, pressure_bits=0)
     sim = ChannelSimulator(TABLE_I, None, sensors=sensors)
