@@ -17,7 +17,9 @@ closed forms, so that what it says of the project is worth something:
   seed 52584 of the compensation test);
 * every effect on, under the project's controller: over a period the work of the finger's
   force and of the motor's torque is what the losses took (the integration keeps energy);
-* the draws stay in the stated ranges, and an effect switched off is off.
+* the draws stay in the stated ranges, and an effect switched off is off;
+* the drawn sensors (a real rig's: encoder, the drive's velocity filter, the pressure ADC with
+  its noise and offset, extra delay) report what they say.
 """
 import math
 
@@ -25,8 +27,8 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from helpers.nonlinear_sim import (EFFECTS, RANGES, STROKE, Effects, NonlinearGripper,
-                                   SinePath, Unpowered, actuator_position, backdrive, diaphragm_force, draw_effects,
+from helpers.nonlinear_sim import (EFFECTS, RANGES, SENSOR_RANGES, STROKE, Effects,
+                                   NonlinearGripper, SinePath, draw_sensors, Unpowered, actuator_position, backdrive, diaphragm_force, draw_effects,
                                    finger_position, hose_force, linear_counterpart, ratio)
 from helpers.second_sim import DAHL, TABLE_I, transfer_functions
 from seaforce_ros.core.analysis import impedance_figures
@@ -175,3 +177,30 @@ def test_draws_stay_in_their_ranges_and_off_is_off():
     assert off.describe().startswith("none")
     assert hose_force(0.01, 2.0, TABLE_I, off) == pytest.approx(
         TABLE_I["hose_stiffness"] * 0.01 + TABLE_I["hose_damping"] * 2.0)
+
+
+def test_drawn_sensors_report_what_a_real_rig_reports():
+    """:func:`draw_sensors` stays in its ranges, and each drawn sensor does what it says: the
+    offset (and its drift) in F_p, the drive's velocity the mean of its last backward
+    differences, the torque applied 1 + extra_delay samples after its sample, the ADC's step."""
+    rng = np.random.default_rng(4)
+    draws = [draw_sensors(rng) for _ in range(40)]
+    for name, (lo, hi) in SENSOR_RANGES.items():
+        values = [math.log2(s.motor_counts) if name == "motor_bits" else getattr(s, name)
+                  for s in draws]
+        assert lo <= min(values) and max(values) <= hi, name
+        assert max(values) > min(values), name             # drawn, not fixed
+    for s in draws[:6]:
+        g = NonlinearGripper(TABLE_I, DAHL, Effects(), None, sensors=s, pressure_drift=0.01)
+        n, q = s.velocity_samples, 2.0 * s.pressure_range / 2 ** s.pressure_bits
+        xs, applied = [g.measurement().x] * n, []
+        for k in range(300):
+            m = g.step(0.2 * math.sin(0.05 * k) + (1.0 if k == 100 else 0.0))
+            applied.append(m.f_a)
+            assert m.v == pytest.approx((m.x - xs[-n]) / (n * g.dt), abs=1e-9)
+            xs.append(m.x)
+            bias = s.pressure_offset + 0.01 * g.t
+            assert abs(m.f_p - g.true_f_p - bias) <= q / 2 + 6 * s.pressure_noise + 1e-12
+        # the pulse commanded at sample 100 is applied over the step ending at sample
+        # 101 + extra_delay (the measurement after the step reports it)
+        assert np.argmax(np.abs(np.diff(applied))) == 100 + s.extra_delay

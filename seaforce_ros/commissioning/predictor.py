@@ -13,7 +13,8 @@ drive of :func:`~seaforce_ros.core.environment.position_sine` at one frequency w
   differ from the true plant): the drive's backward-difference velocity ``(x_k - x_{k-1})/T``;
   the hose inversion of eq. 29 with its first-order-hold coefficients
   (:func:`~seaforce_ros.core.observer.hose_coefficients`); ``F_cmp = b_e V_e_hat + k_e
-  X_e_hat - r V`` (``r = feedforward.damping_reserve``) and the feed-forward's Dahl force,
+  X_e_hat - r HP(V)`` (``r = feedforward.damping_reserve`` through the high-pass of
+  ``feedforward.reserve_cutoff``, :func:`reserve_filter`) and the feed-forward's Dahl force,
   each with the margin of
   ``feedforward.margin`` (:meth:`~seaforce_ros.core.params.ControllerConfig.feedforward_friction`); the DOB of eq. 19 with its trapezoidal integrator
   ``I = (lambda T/2)(1 + z^-1)/(1 - z^-1) (F_ref + F_p - k_n X)``,
@@ -55,7 +56,7 @@ from ..core.simulator import discretise
 from .errors import CommissioningError
 
 __all__ = ["PREDICTED_MODES", "LoopModel", "PredictionError", "dahl_describing_function",
-           "controller_polynomials", "controller_gains", "closed_loop_radius",
+           "controller_polynomials", "controller_gains", "closed_loop_radius", "reserve_filter",
            "predict_impedance", "predict_modes", "ImpedanceBand",
            "predict_band", "perturbed_plants", "torque_noise", "hold_delay_limit",
            "HoldVerdict", "hold_verdict", "WallLimits", "wall_limits", "PLANT_FIELDS",
@@ -238,8 +239,7 @@ def controller_polynomials(config: ControllerConfig, mode: str, dt: float,
     ref_x, ref_p = 0 * one, 0 * one
     if mode != "dob":
         b_ff, k_ff, _ = config.feedforward_friction()       # with the margin
-        # (and the reserve on the motor velocity, feedforward.damping_reserve)
-        ref_x = _P.polyadd(b_ff * ve_x - config.feedforward.damping_reserve * v_x, k_ff * xe_x)
+        ref_x = _P.polyadd(b_ff * ve_x, k_ff * xe_x)
         ref_p = _P.polyadd(b_ff * ve_p, k_ff * xe_p)
     if mode in ("dob_full_ff", "impedance"):
         ref_x = _P.polyadd(ref_x, dahl_gain * xe_x)
@@ -258,7 +258,27 @@ def controller_polynomials(config: ControllerConfig, mode: str, dt: float,
     n_x = _P.polymul(_P.polysub(_P.polyadd(_P.polymul(ref_x, d_i), _P.polymul(integ, error_x)),
                                 _P.polymul(ramp, d_i)), d_h)
     n_p = _P.polyadd(_P.polymul(ref_p, d_i), _P.polymul(integ, _P.polyadd(ref_p, d_h)))
-    return n_x, n_p, _P.polymul(d_h, d_i)
+    den = _P.polymul(d_h, d_i)
+    reserve = config.feedforward.damping_reserve
+    if mode != "dob" and reserve:
+        # F_ref -= r HP(q) V: a part of F_ref enters U as (d_i + integ) d_h over d_h d_i, this
+        # one over the high-pass's denominator as well
+        hp_num, hp_den = reserve_filter(config.feedforward.reserve_cutoff, dt)
+        gain = _P.polymul(_P.polyadd(d_i, integ), d_h)
+        n_x = _P.polysub(_P.polymul(n_x, hp_den),
+                         reserve * _P.polymul(gain, _P.polymul(hp_num, v_x)))
+        n_p = _P.polymul(n_p, hp_den)
+        den = _P.polymul(den, hp_den)
+    return n_x, n_p, den
+
+
+def reserve_filter(cutoff: float, dt: float) -> Tuple[_Coefficients, _Coefficients]:
+    """The damping reserve's high-pass ``HP(q) = a (1 - q)/(1 - a q)``, ``a = exp(-cutoff
+    T)``, as (numerator, denominator) in ``q = z^-1`` (cutoff 0: 1)."""
+    if not cutoff:
+        return np.array([1.0]), np.array([1.0])
+    a = math.exp(-cutoff * dt)
+    return np.array([a, -a]), np.array([1.0, -a])
 
 
 def controller_gains(config: ControllerConfig, mode: str, z: _Complex, dt: float,

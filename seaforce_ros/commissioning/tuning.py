@@ -277,7 +277,10 @@ def _reserved(feasible: List[_Candidate], start: _Candidate, model: ControllerCo
             first.append(c)
     rest = [c for c in order if all(c is not d for d in first)]
     for i, c in enumerate(first + rest):
-        if best is not None and i >= len(first):
+        # the score without the reserve bounds the one with it: the rest, best first, until
+        # none can beat the best so far (weighing only the first three, a larger noise budget
+        # once chose a narrower Z-width than a smaller one)
+        if best is not None and i >= len(first) and c.score <= best[0].score:
             break
         trial = model.replace(dob=c.dob, passivity=_guard(model, c.guard))
         try:

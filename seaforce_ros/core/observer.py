@@ -25,11 +25,16 @@ Inputs per sample: motor position X [rad], motor velocity V [rad/s], pressure fo
   finger oscillate (0.14-0.19 rad/s rms limit cycles in 24 of 40 plants 20 % off; none at half
   the stiffness). So the feed-forward's Dahl force has its own state (:attr:`dahl_feedforward`);
   F_d itself (what the contact estimator and the friction adaptation see) is the model's.
-* The reserve: ``F_cmp`` also has ``- r V``, ``r = damping_reserve`` on the motor velocity
-  (the DOB renders it as nominal damping, in the feed-forward modes only): where the finger's
-  b_e and k_e lie at the margin's edge the feed-forward has cancelled all of its damping, and
-  the sampled loop's own small-signal damping can be negative -- without it 5 of 100 free
-  fingers drawn at the edge of Table I's 20 % band oscillated or crept away.
+* The reserve: ``F_cmp`` also has ``- r HP(V)``, ``r = damping_reserve`` on the motor velocity
+  through a first-order high-pass of corner ``reserve_cutoff`` (the DOB renders it as
+  damping, in the feed-forward modes only): the feed-forward cancels the finger's b_e, which
+  was what damped the motor and finger swinging together on the finger's pre-sliding
+  friction (sigma, a spring stiffer than the hose: 25-130 rad/s), and the sampled loop's own
+  damping of that mode can be negative -- without a reserve 5 of 100 free fingers drawn at
+  the edge of Table I's 20 % band oscillated or crept away. Applied on every frequency the
+  reserve was also a damping floor in the Z-width's band (0.017 N m s/rad is -35 dB); the
+  high-pass leaves it there only as an inertia ``r/cutoff``. Discretised
+  ``y_k = a (y_{k-1} + V_k - V_{k-1})``, ``a = exp(-cutoff T)`` (cutoff 0: ``y = V``).
 
 The identified model's nonlinear terms (``plant_terms``, :class:`~.params.PlantTermsParams`),
 when some are set: the hose ``F_p = k_s d + b_s d' + c |d'| d' + kappa |d| d`` is inverted
@@ -142,6 +147,7 @@ class EndpointObserver:
                  "_half_width", "dahl", "_first", "_delta", "_fp_prev", "dahl_input",
                  "position", "velocity", "dahl_force", "compensation", "feedforward",
                  "_scales", "_reserve", "_kb", "_kk", "_ff", "dahl_ff", "dahl_feedforward",
+                 "_hp_a", "_hp_cutoff", "_hp", "_v_prev",
                  "_relax", "_coulomb", "_minus_coulomb", "_sigma", "_minus_sigma")
 
     def __init__(self, plant: PlantParams, feedforward: FeedforwardParams, dahl: DahlParams,
@@ -167,6 +173,8 @@ class EndpointObserver:
         self._half_width = 0.5 * feedforward.dahl_deadband
         self._scales = feedforward.scales()
         self._reserve = feedforward.damping_reserve
+        self._hp_cutoff = feedforward.reserve_cutoff
+        self._hp_a = _exp(-self._hp_cutoff * self.dt) if self._hp_cutoff else 0.0
         self._ff = feedforward
         self.set_friction(plant.endpoint_damping, plant.endpoint_stiffness, dahl)
 
@@ -204,6 +212,8 @@ class EndpointObserver:
         """Forget the state: the next :meth:`update` starts the hose inversion at rest (``delta
         = F_p/k_s``) and the Dahl state at F_d = 0 where X_e_hat is."""
         self._first = True
+        self._hp = 0.0
+        self._v_prev = math.nan         # (the first update starts the high-pass at rest)
         self._delta = 0.0
         self._dflow = 0.0
         self._fp_prev = 0.0
@@ -289,13 +299,23 @@ class EndpointObserver:
             fdf = dahl_ff.update(xd)
         self.dahl_force = fd
         self.dahl_feedforward = fdf
-        damped = self._kb * ve - self._reserve * v
+        damped = self._kb * ve - self._reserve * self._high_passed(v, steps)
         if self._stroke:
             u = xe - self._rest
             fc = self.compensation = damped + u * (self._kk + u * (self._k2 + u * self._k3))
         else:
             fc = self.compensation = damped + self._kk * (xe - self._rest)
         self.feedforward = fc + fdf
+
+    def _high_passed(self, v: float, steps: int) -> float:
+        """The motor velocity the reserve acts on [rad/s]: ``v`` through the high-pass."""
+        if not self._hp_cutoff:
+            return v
+        a = self._hp_a if steps == 1 else _exp(-self._hp_cutoff * self.dt * steps)
+        prev = self._v_prev
+        y = self._hp = a * (self._hp + v - prev) if prev == prev else 0.0
+        self._v_prev = v
+        return y
 
     def _nonlinear_hose(self, x: float, v: float, f_p: float, steps: int
                         ) -> tuple[float, float]:

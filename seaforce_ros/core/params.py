@@ -248,12 +248,16 @@ class FeedforwardParams(ParameterGroup):
                                         "k_e) through the loop's lag makes the free finger "
                                         "oscillate; 0.5 also covers a sigma off by up to 2x; at "
                                         "most 0.5 unless allow_non_passive", ge=0.0, le=1.0)
-    damping_reserve: float = param(0.009, "N m s/rad", "damping the feed-forward modes add on the "
-                                   "motor velocity (F_ref -= reserve x V): with b_e, k_e at the "
-                                   "margin's edge nothing else damps a free finger, and the "
-                                   "loop's own small-signal damping can be negative; 0.009 keeps "
+    damping_reserve: float = param(0.01, "N m s/rad", "damping the feed-forward modes add on the "
+                                   "motor velocity above reserve_cutoff (F_ref -= reserve x "
+                                   "HP(V)): it damps the free finger's mode on its pre-sliding "
+                                   "friction, which the feed-forward leaves undamped; 0.01 keeps "
                                    "every corner of Table I's +-20 % band stable; commissioning "
                                    "sizes it for the identified model", ge=0.0, le=0.1)
+    reserve_cutoff: float = param(20.0, "rad/s", "corner of the first-order high-pass on the "
+                                  "motor velocity the damping reserve acts on (0: every "
+                                  "frequency): the mode it damps lies at 25-130 rad/s, the "
+                                  "Z-width's band below 10", ge=0.0, le=1e3)
     plant_uncertainty: float = param(0.1, "-", "relative 1-sigma of the model's m_e, b_s, k_s "
                                      "and Dahl sigma: with margin, part of the band the "
                                      "damping reserve must hold a free finger over "

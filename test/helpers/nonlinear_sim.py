@@ -61,10 +61,13 @@ lockstep. The finger is either free
 (F_q = 0) or driven along a prescribed path q(t) (the bonded second finger, a kinematic drive:
 X_e, X_e' and X_e'' follow from q; F_q is the force that takes).
 
-Sensors (the rig's, restated here): pressure force through a 16-bit ADC over +-10 N m with
-5e-4 N m Gaussian noise, motor encoder 2^20 counts/rev, finger encoder 40,000 counts/rev,
-motor velocity the backward difference of the quantised position; the bonded finger's force
-F_q exact.
+Sensors (:class:`Sensors`; by default the rig's, restated here): pressure force through a
+16-bit ADC over +-10 N m with 5e-4 N m Gaussian noise and no offset, motor encoder 2^20
+counts/rev, finger encoder 40,000 counts/rev, motor velocity the backward difference of the
+quantised position, the torque applied one sample after the sample it answers; the bonded
+finger's force F_q exact. :func:`draw_sensors` draws what real rigs have instead: a coarser
+encoder, a drive that averages its velocity, a pressure sensor with range, resolution, noise and
+an offset of its own, and samples of delay beyond the frame's.
 """
 from __future__ import annotations
 
@@ -96,6 +99,55 @@ MAX_SUBSTEPS = 1000
 #: Cogging periods per revolution drawn from (slots x poles of common direct-drive motors).
 COGGING_PERIODS = (24, 36, 42, 48, 56, 72, 84)
 EFFECTS = tuple(RANGES)
+
+
+@dataclass(frozen=True)
+class Sensors:
+    """What the gripper's sensors and drive report (module docstring): ``motor_counts`` per
+    revolution (0: exact), the drive's velocity the mean of the last ``velocity_samples``
+    backward differences, the pressure force over +-``pressure_range`` N m at
+    ``pressure_bits`` (0: not quantised) with ``pressure_noise`` N m of white noise and an
+    offset ``pressure_offset`` N m changing at ``pressure_drift`` N m/s, the torque applied
+    ``1 + extra_delay`` samples after the sample it answers, the finger encoder's
+    ``finger_counts``."""
+
+    motor_counts: int = 2 ** 20
+    velocity_samples: int = 1
+    pressure_range: float = 10.0
+    pressure_bits: int = 16
+    pressure_noise: float = 5e-4
+    pressure_offset: float = 0.0
+    pressure_drift: float = 0.0
+    extra_delay: int = 0
+    finger_counts: int = 40000
+
+    def describe(self):
+        """One line."""
+        return (f"encoder 2^{round(math.log2(self.motor_counts)) if self.motor_counts else 'inf'}"
+                f", velocity over {self.velocity_samples}, pressure +-{self.pressure_range:.0f}"
+                f" N m at {self.pressure_bits} bit, noise {1e3 * self.pressure_noise:.2f} mN m, "
+                f"offset {1e3 * self.pressure_offset:+.1f} mN m, delay +{self.extra_delay}")
+
+
+#: The ranges :func:`draw_sensors` draws from (issue 44's rigs).
+SENSOR_RANGES = {"motor_bits": (14, 20), "velocity_samples": (1, 4), "pressure_range": (10.0, 40.0),
+                 "pressure_bits": (12, 16), "pressure_noise": (2e-4, 2e-3),
+                 "pressure_offset": (-0.05, 0.05), "extra_delay": (0, 2)}
+
+
+def draw_sensors(rng):
+    """Sensors of a real rig, each uniform in :data:`SENSOR_RANGES` (the encoder's bits, the
+    pressure range and noise log-uniform)."""
+    r = SENSOR_RANGES
+    return Sensors(
+        motor_counts=2 ** int(rng.integers(r["motor_bits"][0], r["motor_bits"][1] + 1)),
+        velocity_samples=int(rng.integers(r["velocity_samples"][0],
+                                          r["velocity_samples"][1] + 1)),
+        pressure_range=float(math.exp(rng.uniform(*np.log(r["pressure_range"])))),
+        pressure_bits=int(rng.integers(r["pressure_bits"][0], r["pressure_bits"][1] + 1)),
+        pressure_noise=float(math.exp(rng.uniform(*np.log(r["pressure_noise"])))),
+        pressure_offset=float(rng.uniform(*r["pressure_offset"])),
+        extra_delay=int(rng.integers(r["extra_delay"][0], r["extra_delay"][1] + 1)))
 
 
 @dataclass(frozen=True)
@@ -236,23 +288,23 @@ class NonlinearGripper:
     path : callable t -> (q, q', q'') or None (the finger free)
     dt : float, s; substeps : int >= 1 (RK4 steps per sample)
     seed : int (pressure noise)
-    pressure_noise, pressure_range, pressure_bits, motor_counts, finger_counts : the sensors
-        (0 bits / counts: not quantised)
+    sensors : Sensors, optional
+    **fields : fields of :class:`Sensors` (instead of, or over, ``sensors``)
     """
 
     def __init__(self, plant, dahl=None, effects=None, path=None, dt=5e-4, substeps=2, seed=0,
-                 pressure_noise=5e-4, pressure_range=10.0, pressure_bits=16,
-                 motor_counts=2 ** 20, finger_counts=40000):
+                 sensors=None, **fields):
         self.plant = dict(plant)
         self.dahl = dict(dahl) if dahl else None
         self.effects = effects or Effects()
         self.path = path
         self.dt = dt
         self.substeps = substeps
+        self.sensors = sn = replace(sensors or Sensors(), **fields)
         self._rng = np.random.default_rng(seed)
-        self._noise, self._range = pressure_noise, pressure_range
-        self._qp, self._qx = quanta(pressure_range, pressure_bits, motor_counts)
-        self._qq = quanta(motor_counts=finger_counts)[1]
+        self._noise, self._range = sn.pressure_noise, sn.pressure_range
+        self._qp, self._qx = quanta(sn.pressure_range, sn.pressure_bits, sn.motor_counts)
+        self._qq = quanta(motor_counts=sn.finger_counts)[1]
         self.t = 0.0
         self._path_cache = {}
         self._noise_block = []
@@ -261,9 +313,9 @@ class NonlinearGripper:
             q, qd, _ = path(0.0)
             self.state[2] = actuator_position(q, self.effects)
             self.state[3] = ratio(q, self.effects) * qd
-        self._pending = 0.0
+        self._pending = [0.0] * (1 + sn.extra_delay)     # commands on their way, oldest first
         self.applied = 0.0
-        self._xq_prev = self._quantise(self.state[0], self._qx)
+        self._xq = [self._quantise(self.state[0], self._qx)] * (sn.velocity_samples + 1)
         self.dissipated = 0.0       # energy the losses (and the Dahl force) took [J]
         self.work_in = 0.0          # work of the finger's force and the motor's torque [J]
         self.forces = self._make_forces()
@@ -274,7 +326,7 @@ class NonlinearGripper:
         read anew)."""
         self.state[0] = self.state[2] = float(position)
         self.state[1] = self.state[3] = 0.0
-        self._xq_prev = self._quantise(self.state[0], self._qx)
+        self._xq = [self._quantise(self.state[0], self._qx)] * len(self._xq)
         self._measurement = self._measure()
 
     # --- the model ---------------------------------------------------------------------
@@ -354,12 +406,15 @@ class NonlinearGripper:
 
     def _measure(self):
         y = self.state
-        fp, fe_act = self.forces(y, self.t, self._pending)[5:7]
+        fp, fe_act = self.forces(y, self.t, self._pending[0])[5:7]
         xq = self._quantise(y[0], self._qx)
-        v = (xq - self._xq_prev) / self.dt
+        self._xq[-1] = xq                       # (the last sample's positions before it)
+        n = self.sensors.velocity_samples
+        v = (xq - self._xq[-1 - n]) / (n * self.dt)
         if not self._noise_block:
             self._noise_block = (self._noise * self._rng.standard_normal(4096)).tolist()[::-1]
-        f = fp + self._noise_block.pop()
+        f = fp + self._noise_block.pop() + self.sensors.pressure_offset \
+            + self.sensors.pressure_drift * self.t
         f = min(self._range, max(-self._range, f))
         if self._qp:
             f = min(self._qp * round(f / self._qp), self._range - self._qp)
@@ -378,10 +433,12 @@ class NonlinearGripper:
         torque = float(torque)
         if not math.isfinite(torque):
             raise ValueError(f"torque {torque!r} is not finite")
-        u = self._pending
-        self._pending = torque
+        pending = self._pending
+        u = pending.pop(0)
+        pending.append(torque)
         self.applied = u
-        self._xq_prev = self._quantise(self.state[0], self._qx)
+        self._xq.pop(0)
+        self._xq.append(self._xq[-1])           # (its slot: the new sample's position)
         y = self.state
         substeps = self.substeps
         if self.dahl:       # the Dahl state's stiffness (module docstring)

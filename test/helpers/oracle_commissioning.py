@@ -30,10 +30,11 @@ def draw(rng, effects=True):
 
 
 def excite(plant, dahl, effects, config=None, seed=0, duration=None, band=None, start=0.0,
-           settle=0.0):
+           settle=0.0, sensors=None):
     """The project's free-air excitation job (commissioning) run by its controller on the
-    oracle, the finger at rest at ``start`` [rad] left unpowered ``settle`` [s] first; returns
-    the job's :class:`ExcitationRecord` (raises if the job did not succeed)."""
+    oracle (its ``sensors``: :class:`helpers.nonlinear_sim.Sensors`, default the rig's), the
+    finger at rest at ``start`` [rad] left unpowered ``settle`` [s] first; returns the job's
+    :class:`ExcitationRecord` (raises if the job did not succeed)."""
     from seaforce_ros.commissioning.excitation import ExcitationGoal, FreeAirExcitation
     from seaforce_ros.core.controller import ChannelController
     from seaforce_ros.core.params import ControllerConfig
@@ -42,7 +43,7 @@ def excite(plant, dahl, effects, config=None, seed=0, duration=None, band=None, 
     job = FreeAirExcitation(ExcitationGoal("sim", band, duration), config, DT)
     ctrl.request_job(job)
     free_air_excitation(plant, dahl, effects, ctrl, job, job.capacity, seed=seed, start=start,
-                        settle=settle)
+                        settle=settle, sensors=sensors)
     if job.outcome != "succeeded":
         raise RuntimeError(f"the excitation ended {job.outcome}: {job.message}")
     return job.record()
@@ -64,14 +65,15 @@ def tuned_config(ident, record, config=None, terms=None):
     return tune_stage(model_stage(ident, terms), loop, AnalysisRequest("sim", config)).config
 
 
-def figures(plant, dahl, effects, config, mode, omega=1.0, amplitude=0.5, seed=0):
-    """The impedance figures of a backdrive of ``mode`` on the oracle."""
+def figures(plant, dahl, effects, config, mode, omega=1.0, amplitude=0.5, seed=0,
+            sensors=None):
+    """The impedance figures of a backdrive of ``mode`` on the oracle (with its ``sensors``)."""
     from seaforce_ros.core.analysis import impedance_figures
     from seaforce_ros.core.controller import ChannelController
     ctrl = (Unpowered() if mode == "passive" and config is None
             else ChannelController(config.replace(mode=mode), DT))
     rec = backdrive(plant, dahl, effects, ctrl, amplitude, omega, periods=1,
-                    settle=max(1.0, 2.0 * math.pi / omega), seed=seed)
+                    settle=max(1.0, 2.0 * math.pi / omega), seed=seed, sensors=sensors)
     return impedance_figures(rec["f_e"], rec["x_e"], omega, rec["dt"])
 
 
@@ -89,14 +91,14 @@ __all__ = ["draw", "excite", "identify", "tuned_config", "figures", "truth",
            "relative_errors", "np"]
 
 
-def release(plant, dahl, effects, config, start, seconds=6.0, seed=0):
-    """The free finger on the oracle, at rest at ``start`` [rad] (motor and endpoint there,
-    the hose relaxed), released under the project's controller with ``config``. Returns the
-    true ``x_e``, ``v_e`` per sample, ``dt`` and the controller's first ``fallback`` ('' if
-    none)."""
+def release(plant, dahl, effects, config, start, seconds=6.0, seed=0, sensors=None):
+    """The free finger on the oracle (with its ``sensors``), at rest at ``start`` [rad] (motor
+    and endpoint there, the hose relaxed), released under the project's controller with
+    ``config``. Returns the true ``x_e``, ``v_e`` per sample, ``dt`` and the controller's
+    first ``fallback`` ('' if none)."""
     from helpers.nonlinear_sim import NonlinearGripper
     from seaforce_ros.core.controller import ChannelController
-    g = NonlinearGripper(plant, dahl, effects, None, seed=seed)
+    g = NonlinearGripper(plant, dahl, effects, None, seed=seed, sensors=sensors)
     g.place(start)
     ctrl = ChannelController(config, g.dt)
     n = int(round(seconds / g.dt))
