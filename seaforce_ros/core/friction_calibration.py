@@ -124,7 +124,11 @@ FrictionEstimate = namedtuple(
     "FrictionEstimate", "endpoint_damping endpoint_stiffness coulomb_force sigma "
                         "endpoint_damping_sigma endpoint_stiffness_sigma coulomb_force_sigma "
                         "sigma_sigma velocity_excitation position_excitation dahl_excitation "
-                        "samples reason sigma_reason")
+                        "samples reason sigma_reason pressure_offset pressure_offset_sigma",
+    defaults=(math.nan, math.nan))
+#: The largest pressure offset [N m] a calibration applies (the parameter's range).
+OFFSET_LIMIT = float(ControllerConfig.spec("pressure_offset").high or 0.0)
+
 FrictionEstimate.__doc__ = """A fit of the free endpoint's friction.
 
 endpoint_damping, endpoint_stiffness, coulomb_force, sigma : b_e [N m s/rad], k_e [N m/rad],
@@ -136,6 +140,9 @@ samples : samples fitted (after forgetting)
 reason : '' when b_e, k_e, F_c are identified, else why not (no value is then to be used)
 sigma_reason : '' when sigma is identified too, else why not (the best ratio on the edge of the
     searched range: sigma is then that edge's; or a flat misfit)
+pressure_offset, pressure_offset_sigma : what the pressure force read beyond the endpoint's
+    friction [N m] -- the sensor's offset, with the spring relaxed at the fit's ``rest`` (a
+    rest elsewhere reads as ``k_e`` times the difference) -- and its 1-sigma
 """
 
 
@@ -173,12 +180,17 @@ class FrictionFit:
         X_e - rest``, is known and taken off the pressure force before the fit, which then
         fits the linear b_e, k_e beside them (else k_e would take the stroke stiffening in
         and the feed-forward count it twice). None: the linear model.
+    rest : float
+        Where the endpoint's spring is relaxed [rad] (``feedforward.rest_position``): the
+        fit's constant is the pressure force's offset less ``k_e`` times the first sample's
+        distance from it (:attr:`FrictionEstimate.pressure_offset`).
     """
 
     def __init__(self, plant: PlantParams, exponent: float, ratios: Sequence[float], dt: float,
                  filter_cutoff: float, forgetting_time: float | None = None,
-                 stroke: tuple[float, float, float] | None = None) -> None:
+                 stroke: tuple[float, float, float] | None = None, rest: float = 0.0) -> None:
         self._stroke = stroke
+        self._rest = float(rest)
         self.dt = float(dt)
         self.ratios = [float(r) for r in ratios]
         self.exponent = float(exponent)
@@ -348,6 +360,11 @@ class FrictionFit:
                             "identified")
         sd = np.sqrt(np.abs(np.diag(inv)) * variance)
         be, ke, fc = float(theta[0]), float(theta[1]), float(theta[3])
+        # -F_p,read = ... + k_e (X_e - p0) + c with F_p,read = F_p + o: o = k_e (p0 - rest) - c
+        lever = self._p0 - self._rest
+        offset = ke * lever - float(theta[2])
+        weights = np.array([0.0, lever, -1.0, 0.0])
+        offset_sd = math.sqrt(max(float(weights @ inv @ weights), 0.0) * variance)
         exc = [math.sqrt(1.0 / (n * inv[i, i])) if inv[i, i] > 0.0 else 0.0 for i in (0, 1, 3)]
         if not fc > 3.0 * sd[3]:
             reason = (f"the fitted F_c = {fc:.3g} +- {sd[3]:.2g} N m is not positive by 3 "
@@ -359,7 +376,8 @@ class FrictionFit:
         sigma_sd = (sigma * math.sqrt(var_log_a + (sd[3] / fc) ** 2)
                     if math.isfinite(var_log_a) and fc > 0.0 else nan)
         return FrictionEstimate(be, ke, fc, sigma, float(sd[0]), float(sd[1]), float(sd[3]),
-                                sigma_sd, exc[0], exc[1], exc[2], n, reason, sigma_reason)
+                                sigma_sd, exc[0], exc[1], exc[2], n, reason, sigma_reason,
+                                offset, offset_sd)
 
 
 def ratio_grid(center: float, span: float = RATIO_SPAN,
@@ -484,10 +502,12 @@ class FrictionCalibration(Job):
         p, d = config.plant, config.dahl
         nan = math.nan
         self.old = FrictionEstimate(p.endpoint_damping, p.endpoint_stiffness, d.coulomb_force,
-                                    d.sigma, nan, nan, nan, nan, 0.0, 0.0, 0.0, 0.0, "", "")
+                                    d.sigma, nan, nan, nan, nan, 0.0, 0.0, 0.0, 0.0, "", "",
+                                    config.pressure_offset)
         center = d.sigma / d.coulomb_force if d.sigma > 0.0 else 400.0
         self.fit = FrictionFit(p, d.exponent, ratio_grid(center), self.dt,
-                               config.estimator.filter_cutoff, stroke=stroke_terms(config))
+                               config.estimator.filter_cutoff, stroke=stroke_terms(config),
+                               rest=config.feedforward.rest_position)
         self._limit = min(fp.torque_limit, config.max_torque)
         self._kp, self._kd = config.hold.stiffness, config.hold.damping
         self._amp = float(goal.amplitude)
@@ -650,7 +670,13 @@ class FrictionCalibration(Job):
 
     def _conclude(self) -> None:
         new = self.fit.estimate(self._solutions)
-        self.new = new
+        # the fit saw F_p less the offset in force: what it finds of an offset adds to it
+        offset = self.old.pressure_offset + new.pressure_offset
+        if not abs(offset) <= OFFSET_LIMIT:        # (NaN too: then not identified)
+            offset = new_sigma = math.nan
+        else:
+            new_sigma = new.pressure_offset_sigma
+        new = self.new = new._replace(pressure_offset=offset, pressure_offset_sigma=new_sigma)
         self.progress = 1.0
         implausible = _implausible(new, self.old, self.params.plausible_ratio)
         if new.reason or new.sigma_reason:
@@ -680,8 +706,11 @@ def _implausible(new: FrictionEstimate, old: FrictionEstimate, ratio: float) -> 
 def with_friction(config: ControllerConfig,
                   values: FrictionEstimate | Sequence[float]) -> ControllerConfig:
     """``config`` with b_e, k_e, F_c, sigma replaced by ``values`` (a
-    :class:`FrictionEstimate` or a ``(b_e, k_e, F_c, sigma)`` tuple), validated."""
+    :class:`FrictionEstimate` -- its pressure offset too, where identified -- or a ``(b_e,
+    k_e, F_c, sigma)`` tuple), validated."""
     be, ke, fc, sigma = tuple(values)[:4]
+    if isinstance(values, FrictionEstimate) and math.isfinite(values.pressure_offset):
+        config = config.replace(pressure_offset=float(values.pressure_offset))
     return config.replace(
         plant=dataclasses.replace(config.plant, endpoint_damping=float(be),
                                   endpoint_stiffness=float(ke)),

@@ -101,7 +101,7 @@ FREE_FINGER_POLL = 0.5
 
 #: The parameters a friction calibration sets, in the order of its result's arrays.
 _FRICTION_KEYS = ('plant.endpoint_damping', 'plant.endpoint_stiffness', 'dahl.coulomb_force',
-                  'dahl.sigma')
+                  'dahl.sigma', 'pressure_offset')
 
 #: ROS key -> StateChecks attribute.
 _CHECK_PARAMS = {spec.name: spec.attribute for spec in StateChecks.SPECS}
@@ -437,7 +437,9 @@ class ControllerNode(Node):
         runs on them: the same config comes back, bumplessly)."""
         channel = self.channels[index]
         values = dict(zip(_FRICTION_KEYS, (new.endpoint_damping, new.endpoint_stiffness,
-                                           new.coulomb_force, new.sigma)))
+                                           new.coulomb_force, new.sigma, new.pressure_offset)))
+        if not math.isfinite(values['pressure_offset']):
+            del values['pressure_offset']           # (not identified: not applied either)
         results = self.set_parameters([Parameter(f'{channel}.{key}', value=float(value))
                                        for key, value in values.items()])
         failed = [r.reason for r in results if not r.successful]
@@ -522,15 +524,16 @@ def _calibration_result(index, calibration, message):
     old = new = None
     if calibration is not None:
         old, new = calibration.old, calibration.new
-    olds = ([old.endpoint_damping, old.endpoint_stiffness, old.coulomb_force, old.sigma]
-            if old else [nan] * 4)
-    news = ([new.endpoint_damping, new.endpoint_stiffness, new.coulomb_force, new.sigma]
-            if new else [nan] * 4)
+    n = len(_FRICTION_KEYS)
+    olds = ([old.endpoint_damping, old.endpoint_stiffness, old.coulomb_force, old.sigma,
+             old.pressure_offset] if old else [nan] * n)
+    news = ([new.endpoint_damping, new.endpoint_stiffness, new.coulomb_force, new.sigma,
+             new.pressure_offset] if new else [nan] * n)
     result.old_values = [float(v) for v in olds]
     result.new_values = [float(v) for v in news]
     result.new_values_sigma = ([float(v) for v in (
         new.endpoint_damping_sigma, new.endpoint_stiffness_sigma, new.coulomb_force_sigma,
-        new.sigma_sigma)] if new else [nan] * 4)
+        new.sigma_sigma, new.pressure_offset_sigma)] if new else [nan] * n)
     result.change = [n - o for n, o in zip(result.new_values, result.old_values)]
     result.applied = bool(calibration is not None and calibration.applied)
     return result

@@ -12,7 +12,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from seaforce_ros.core import (ChannelController, ChannelSimulator, ControllerConfig,
-                               DahlParams, PlantParams, position_sine, run_closed_loop)
+                               DahlParams, PlantParams, SensorParams, position_sine,
+                               run_closed_loop)
 from seaforce_ros.core.analysis import impedance_from_position, magnitude_db
 from seaforce_ros.core.control_cycle import ControlCycle
 from seaforce_ros.core.environment import contact_object
@@ -147,8 +148,9 @@ def z_db(model_cfg, plant, dahl, omega=1.0, amp=0.5):
     return magnitude_db(impedance_from_position(rec["f_e"], rec["x_e"], omega, DT, settle))
 
 
-def calibrate(plant, dahl, cfg=CONFIG, amp=0.5, speed=1.0, apply=True, env=None, seed=2):
-    sim = ChannelSimulator(plant, dahl, dt=DT, seed=seed, environment=env)
+def calibrate(plant, dahl, cfg=CONFIG, amp=0.5, speed=1.0, apply=True, env=None, seed=2,
+              sensors=None):
+    sim = ChannelSimulator(plant, dahl, dt=DT, seed=seed, environment=env, sensors=sensors)
     ctl = ChannelController(cfg, DT)
     cal = FrictionCalibration(CalibrationGoal("pinch", amp, speed, apply), cfg, DT)
     n0 = 400
@@ -188,6 +190,24 @@ def test_calibration_after_drift_recovers_parameters_and_impedance(drift):
     if drift == DRIFTS[0]:
         z_old = z_db(CONFIG, true_plant, true_dahl)
         assert z_old > z_true + 10.0             # what the drift costs before recalibrating
+
+
+@pytest.mark.parametrize("offset, known, rest", [(0.04, 0.0, 0.0), (-0.03, -0.01, 0.0),
+                                                  (0.02, 0.0, 0.1)])
+def test_calibration_finds_the_pressure_sensors_offset(offset, known, rest):
+    """The fit's constant is the sensor's offset beyond the one configured (``known``), with
+    the spring relaxed at ``feedforward.rest_position``: the calibration applies the sum. A
+    rest configured 0.1 rad above the finger's true one (0) reads as k_e x 0.1 less offset --
+    the value with which the feed-forward's spring and the finger's agree."""
+    cfg = CONFIG.replace(pressure_offset=known, feedforward=dataclasses.replace(
+        CONFIG.feedforward, rest_position=rest))
+    cal, ctl, _ = calibrate(PLANT, DAHL, cfg, sensors=SensorParams(pressure_offset=offset))
+    assert cal.outcome == "succeeded", cal.message
+    expected = offset - PLANT.endpoint_stiffness * rest
+    assert cal.old.pressure_offset == known
+    assert cal.new.pressure_offset == pytest.approx(expected, abs=1.5e-3)
+    assert 0.0 < cal.new.pressure_offset_sigma < 1e-3
+    assert ctl.config.pressure_offset == cal.new.pressure_offset
 
 
 def test_calibration_is_bumpless_and_apply_false_keeps_the_model():
