@@ -255,13 +255,14 @@ def _json_float(v: Any) -> Optional[float]:
 
 
 # --- 1. identification ----------------------------------------------------------------------
-def identify_stage(record: ExcitationRecord, progress: Optional[Progress] = None
-                   ) -> FreeAirIdentification:
-    """The free-air identification, its progress mapped onto ``progress('identify', ...)``."""
+def identify_stage(record: ExcitationRecord, progress: Optional[Progress] = None,
+                   rest: float = 0.0) -> FreeAirIdentification:
+    """The free-air identification (the finger's spring relaxed at ``rest`` [rad]), its
+    progress mapped onto ``progress('identify', ...)``."""
     def step(message: str, fraction: float) -> None:
         if progress is not None:
             progress("identify", 0.6 * fraction, message)
-    return identify_free_air(record, progress=step)
+    return identify_free_air(record, progress=step, rest=rest)
 
 
 def model_class_stage(record: ExcitationRecord, ident: FreeAirIdentification,
@@ -305,6 +306,9 @@ class ControllerModel:
         (:func:`~.tuning.feedforward_uncertainties`).
     lines : list of str
         What was used, and what was left out and why (for the report).
+    pressure_offset : (float, float)
+        The pressure sensor's offset the record still had [N m] and its 1-sigma (NaN: not
+        identified): the controller's ``pressure_offset`` grows by it.
     """
 
     plant: PlantParams
@@ -313,6 +317,7 @@ class ControllerModel:
     terms: PlantTermsParams
     class_error: float
     lines: List[str] = field(default_factory=list)
+    pressure_offset: Tuple[float, float] = (math.nan, math.nan)
 
 
 #: The linear parameters the nonlinear terms' equations refit (:func:`model_stage`).
@@ -326,8 +331,8 @@ _FROM_TERMS = frozenset({"endpoint_inertia", "endpoint_damping", "endpoint_stiff
                          "hose_damping", "hose_stiffness"})
 
 
-def model_stage(ident: FreeAirIdentification, terms: Optional[NonlinearTerms]
-                ) -> ControllerModel:
+def model_stage(ident: FreeAirIdentification, terms: Optional[NonlinearTerms],
+                rest: float = 0.0) -> ControllerModel:
     """The linear identification's model, with -- per equation -- the resolved nonlinear terms
     and the linear coefficients refitted beside them:
 
@@ -347,6 +352,9 @@ def model_stage(ident: FreeAirIdentification, terms: Optional[NonlinearTerms]
       fit's, the difference between the values used and the endpoint equation's fit with
       every term its criterion chose. Where the linear fit left an endpoint, hose or Dahl
       parameter unidentified, the refitted value stands in; if none does, the error.
+    * the pressure offset: the friction fit's (:attr:`~.free_air.FreeAirIdentification.
+      pressure_offset`), and what the endpoint equation's constant adds to it where that
+      equation gives b_e, k_e (the spring relaxed at ``rest`` [rad]).
 
     Raises CommissioningError (naming what is not identified) as the identification's
     :meth:`~.free_air.FreeAirIdentification.plant`."""
@@ -404,9 +412,17 @@ def model_stage(ident: FreeAirIdentification, terms: Optional[NonlinearTerms]
     # the port equation's search gives m_e beside the terms, the endpoint equation on X_e
     # through the nonlinear hose b_e, k_e, F_c (there: within 5 %, 0.8 dB)
     hose_used = bool(used)
+    offset = ident.pressure_offset
+    pressure_offset = ((offset.value, offset.sigma) if offset.identified
+                       else (math.nan, math.nan))
     if end is not None and (k3 > 0.0 or (hose_used and not stroke_left_out)):
         m = end.model
         ke = m["endpoint_stiffness"][0]
+        # its constant is c = -(offset left) - k_e rest (the column k_e takes is X_e itself)
+        constant, constant_sd = m.get("constant", (0.0, 0.0))
+        if offset.identified:
+            pressure_offset = (offset.value - constant - ke * rest,
+                               math.hypot(offset.sigma, constant_sd))
         plant = dataclasses.replace(plant, endpoint_damping=m["endpoint_damping"][0],
                                     endpoint_stiffness=ke)
         sigma.update(endpoint_damping=m["endpoint_damping"][1],
@@ -505,7 +521,8 @@ def model_stage(ident: FreeAirIdentification, terms: Optional[NonlinearTerms]
     if used:
         lines.insert(0, "the controller's model: " + ", ".join(
             f"{k.replace('_', ' ')} {v:.4g}" for k, v in used.items()))
-    return ControllerModel(plant, sigma, dahl, model_terms, class_error, lines)
+    return ControllerModel(plant, sigma, dahl, model_terms, class_error, lines,
+                           pressure_offset)
 
 
 def _searched_sigma(coulomb_force: Tuple[float, float], ratio: Tuple[float, float]
@@ -567,10 +584,19 @@ def tune_stage(model: ControllerModel, loop: LoopModel, request: AnalysisRequest
                ) -> TuningResult:
     """:func:`~.tuning.tune` on the controller's model from the channel's settings; raises
     InfeasibleTuningError."""
-    return tune(model.plant, model.sigma, model.dahl, loop, band=request.band,
-                noise_budget=request.noise_budget,
-                passivity_margin=request.passivity_margin, allow_guard=request.allow_guard,
-                config=request.config, class_error=model.class_error, terms=model.terms)
+    config = request.config
+    offset, offset_sd = model.pressure_offset
+    if math.isfinite(offset):
+        config = config.replace(pressure_offset=config.pressure_offset + offset)
+    result = tune(model.plant, model.sigma, model.dahl, loop, band=request.band,
+                  noise_budget=request.noise_budget,
+                  passivity_margin=request.passivity_margin, allow_guard=request.allow_guard,
+                  config=config, class_error=model.class_error, terms=model.terms)
+    if math.isfinite(offset):
+        result.bindings["pressure_offset"] = (
+            f"identified: the record read {1e3 * offset:+.2f} +- {1e3 * offset_sd:.2f} mN m "
+            "beyond the free finger's forces")
+    return result
 
 
 # --- 4. prediction --------------------------------------------------------------------------
@@ -1133,14 +1159,15 @@ def analyse(record: ExcitationRecord, request: AnalysisRequest,
     ident = figures = tuning = prediction = None
     try:
         say("identify", 0.0, "the motor plant and the port from the record")
-        ident = analysis.identification = identify_stage(record, say)
+        rest = request.config.feedforward.rest_position
+        ident = analysis.identification = identify_stage(record, say, rest)
         analysis.model_class, analysis.terms = model_class_stage(record, ident, say)
         lap("identify")
         say("loop", 0.0, "pressure noise, encoder quantum, loop delay")
         figures, analysis.loop = loop_stage(record, request.config)
         lap("loop")
         say("tune", 0.0, "lambda, the nominal plant and the hold gains")
-        model = analysis.model = model_stage(ident, analysis.terms)
+        model = analysis.model = model_stage(ident, analysis.terms, rest)
         tuning = analysis.tuning = tune_stage(model, analysis.loop, request)
         lap("tune")
         prediction = predict_stage(model.plant, model.sigma, model.dahl,

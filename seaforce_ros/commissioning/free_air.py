@@ -260,6 +260,10 @@ class FreeAirIdentification:
     iterations : int
         Alternations of the friction fit and the port fit.
     notes : list of str
+    pressure_offset : Estimate
+        What the pressure force read beyond the free finger's forces [N m] -- the sensor's
+        offset less the one the record was already corrected by, with the finger's spring
+        relaxed at the rest position given -- from the friction fit's constant.
     """
 
     parameters: Dict[str, Estimate]
@@ -270,6 +274,8 @@ class FreeAirIdentification:
     motor_band: Tuple[float, float]
     iterations: int
     notes: List[str] = field(default_factory=list)
+    pressure_offset: Estimate = field(
+        default_factory=lambda: Estimate(math.nan, math.nan, "not fitted"))
 
     def value(self, key: str) -> float:
         """The value of one parameter (NaN when not identified)."""
@@ -535,9 +541,10 @@ def _endpoint_estimate(x: _Real, f_p: _Real, hose_damping: float, hose_stiffness
     return np.asarray(x + delta, float)
 
 
-def _fit_friction(xe: _Real, f_p: _Real, endpoint_inertia: float, dt: float
-                  ) -> FrictionEstimate:
-    """:class:`FrictionFit` on X_e_hat and F_p (decimated by :data:`DECIMATE`)."""
+def _fit_friction(xe: _Real, f_p: _Real, endpoint_inertia: float, dt: float,
+                  rest: float = 0.0) -> FrictionEstimate:
+    """:class:`FrictionFit` on X_e_hat and F_p (decimated by :data:`DECIMATE`), the spring
+    relaxed at ``rest`` [rad] (its pressure offset is relative to it)."""
     q = DECIMATE
     # the fit's own inertia term lags: its acceleration is the mean slope of its filtered
     # velocity over the last period, half a (decimated) period late, which biased b_e by -6 %
@@ -560,7 +567,7 @@ def _fit_friction(xe: _Real, f_p: _Real, endpoint_inertia: float, dt: float
     lo, hi = RATIO_RANGE
     center = math.sqrt(lo * hi)
     ratios = ratio_grid(center, math.sqrt(hi / lo))
-    fit = FrictionFit(plant, 1.0, ratios, dt * q, FILTER_CUTOFF)
+    fit = FrictionFit(plant, 1.0, ratios, dt * q, FILTER_CUTOFF, rest=rest)
     settle = _settled(xd, int(SETTLE_TIME / (dt * q)))
     for i, (a, d, b) in enumerate(zip(xd, dd, fd)):
         fit.update(a, d, b, record=i >= settle)
@@ -601,7 +608,8 @@ def _estimate(value: float, sigma: float, reason: str = "") -> Estimate:
 
 
 def identify_free_air(record: ExcitationRecord, *, band: Optional[Tuple[float, float]] = None,
-                      progress: Optional[Progress] = None) -> FreeAirIdentification:
+                      progress: Optional[Progress] = None,
+                      rest: float = 0.0) -> FreeAirIdentification:
     """Identify m, b, k, m_e, b_e, k_e, b_s, k_s and the Dahl sigma, F_c from a free-air
     motor-torque excitation (the module docstring says how each is resolved).
 
@@ -616,6 +624,9 @@ def identify_free_air(record: ExcitationRecord, *, band: Optional[Tuple[float, f
         bottom, 1.2x at the top, at most :data:`PORT_TOP`.
     progress : callable(str, float), optional
         Called with a message and the fraction done (0..1).
+    rest : float
+        Where the finger's spring is relaxed [rad] (``feedforward.rest_position``): the
+        pressure offset is the one with which the finger's spring agrees with it.
 
     Returns
     -------
@@ -688,7 +699,7 @@ def identify_free_air(record: ExcitationRecord, *, band: Optional[Tuple[float, f
         iterations = it + 1
         report(f"friction fit, pass {iterations}", 0.3 + 0.6 * it / MAX_ITERATIONS)
         xe = _endpoint_estimate(x, f_p, theta["hose_damping"], theta["hose_stiffness"], dt)
-        friction = _fit_friction(xe, f_p, theta["endpoint_inertia"], dt)
+        friction = _fit_friction(xe, f_p, theta["endpoint_inertia"], dt, rest)
         if friction.reason or not (friction.endpoint_damping > 0.0
                                    and friction.endpoint_stiffness > 0.0):
             notes.append(f"friction fit: {friction.reason or 'a negative b_e or k_e'}; "
@@ -728,6 +739,9 @@ def identify_free_air(record: ExcitationRecord, *, band: Optional[Tuple[float, f
     for k in ("endpoint_inertia", "hose_damping", "hose_stiffness"):
         estimates[k] = _estimate(theta[k], sig_p[k])
     nan = math.nan
+    offset = Estimate(nan, nan, "no friction fit (see notes)")
+    if friction is not None and math.isfinite(friction.pressure_offset_sigma):
+        offset = Estimate(friction.pressure_offset, friction.pressure_offset_sigma)
     if friction is None:
         for k in ("endpoint_damping", "endpoint_stiffness"):
             estimates[k] = _estimate(theta[k], sig_p[k])
@@ -757,7 +771,7 @@ def identify_free_air(record: ExcitationRecord, *, band: Optional[Tuple[float, f
         motor=_response(resp_a, coh_x, model_a),
         port=_response(resp_p, coh_p, model_p),
         misfit=misfit, band=(lo, hi), motor_band=(lo, motor_hi), iterations=iterations,
-        notes=notes)
+        notes=notes, pressure_offset=offset)
 
 
 def _response(resp: FrequencyResponse, coherence: _Real, model: _Complex) -> Response:

@@ -71,7 +71,7 @@ TUNED_KEYS = tuple(f"plant.{n}" for n in PLANT_FIELDS) + (
     "feedforward.stiffness_uncertainty", "feedforward.dahl_uncertainty",
     "feedforward.stroke_uncertainty", "feedforward.plant_uncertainty",
     "feedforward.motor_uncertainty", "feedforward.damping_reserve",
-    "feedforward.dahl_stiffness_share")
+    "feedforward.dahl_stiffness_share", "pressure_offset")
 #: The Dahl stiffness shares the tuning falls back to, in turn, when no damping reserve holds
 #: the free finger over the band with the configured share (a lower share cancels less of the
 #: finger's pre-sliding stiffness: the free finger is the more damped and at rest the stiffer;
@@ -206,6 +206,7 @@ def _model_values(plant: PlantParams, dahl: DahlParams, base: ControllerConfig) 
     values["dahl.coulomb_force"] = float(dahl.coulomb_force)
     values["grasp.contact_damping"] = contact_damping_within(base.grasp.contact_damping,
                                                             plant.hose_damping)
+    values["pressure_offset"] = float(base.pressure_offset)     # (the model's: given in config)
     return values
 
 
@@ -575,6 +576,7 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
         bindings.setdefault(f"plant_terms.{n}", "resolved by the record" if getattr(terms, n)
                             else "not resolved: the linear model")
     bindings.setdefault("grasp.contact_damping", "range: at most 10 b_s")
+    bindings.setdefault("pressure_offset", "the model's (the starting settings')")
     bindings.setdefault("passivity_guard", "passivity guard carries m_n below eq. 28"
                         if best.guard else "kept")
     for key in ("feedforward.damping_uncertainty", "feedforward.stiffness_uncertainty",
