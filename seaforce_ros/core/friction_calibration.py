@@ -80,6 +80,7 @@ from .estimator import BLOCK, svf_coefficients
 from .jobs import TORQUE, InvalidJobGoalError, Job, JobSample
 from .params import ControllerConfig, FrictionParams, PlantParams
 from .sided import SidedStiffness
+from .signals import faded_sine
 
 if TYPE_CHECKING:
     from .estimator import ContactEstimator
@@ -563,19 +564,7 @@ class FrictionCalibration(Job):
     # --- per sample --------------------------------------------------------------------------
     def reference(self, t: float) -> tuple[float, float]:
         """(X_ref - x_0 [rad], dX_ref/dt [rad/s]) at ``t`` [s] since the start."""
-        w, amp, fade, end = self._w, self._amp, self._fade, self._duration
-        if t <= 0.0 or t >= end:
-            return 0.0, 0.0
-        if t < fade:
-            e = 0.5 * (1.0 - math.cos(math.pi * t / fade))
-            de = 0.5 * math.pi / fade * math.sin(math.pi * t / fade)
-        elif t > end - fade:
-            e = 0.5 * (1.0 - math.cos(math.pi * (end - t) / fade))
-            de = -0.5 * math.pi / fade * math.sin(math.pi * (end - t) / fade)
-        else:
-            e, de = 1.0, 0.0
-        s, c = math.sin(w * t), math.cos(w * t)
-        return amp * e * s, amp * (de * s + e * w * c)
+        return faded_sine(t, self._amp, self._w, self._fade, self._duration)
 
     def step(self, sample: JobSample) -> float:
         """(cycle thread) :meth:`update` on the channel's sample: F_a [N m]."""
