@@ -1,9 +1,13 @@
-"""Friction calibration over ROS: controller_node's ``~/calibrate_friction`` action on the
-simulated gripper whose true endpoint friction drifted at random (lockstep, deterministic).
+"""Friction calibration and the tare over ROS: controller_node's ``~/tare`` service and
+``~/calibrate_friction`` action on the simulated gripper whose true endpoint friction drifted at
+random and whose pressure sensor reads a random offset (lockstep, deterministic).
 
-Bad goals end at once with the reason (unknown, faulted, busy channel; NaN, too fast, beyond
-the joint range); a cancel returns to the mode and changes nothing; a calibration recovers the
-drifted b_e, k_e, F_c, sigma within 10 % of the sim's truth, applies them and sets the
+``~/tare`` tares the free channel and says why it does not tare the faulted one; the offset it
+finds (within 1.5 mN m of the sim's) becomes ``pinch.pressure_offset`` and is in
+``/diagnostics``. Bad calibration goals end at once with the reason (unknown, faulted, busy
+channel; NaN, too fast, beyond the joint range); a cancel returns to the mode and changes
+nothing; a calibration recovers the drifted b_e, k_e, F_c, sigma within 10 % of the sim's
+truth (and what is left of the offset: the sum within 1.5 mN m), applies them and sets the
 channel's parameters to them, and dob_full_ff's |Z| at 1 rad/s (the stiff position drive, 0.5
 rad) is then within 2 dB of what the offline simulator gives with the true parameters."""
 import math
@@ -13,6 +17,7 @@ import numpy as np
 from action_msgs.msg import GoalStatus
 from diagnostic_msgs.msg import DiagnosticArray
 from seaforce_msgs.msg import ActuatorState, ControllerStatus
+from std_srvs.srv import Trigger
 
 from helpers.actions import CalibrationClient
 from helpers.nodes import start_node
@@ -52,10 +57,13 @@ def test_calibrate_friction_after_a_random_drift(processes, tmp_path, probe):
     rng = np.random.default_rng(seed)
     factors = rng.uniform([0.6, 0.6, 0.6, 0.7], [1.6, 1.4, 1.6, 1.4])
     truth = {key: float(MODEL[key] * f) for key, f in zip(KEYS, factors)}
-    where = f'seed {seed}, truth {truth}'
-    sim = {'clock_mode': 'lockstep', **{f'pinch.sim.{key}': v for key, v in truth.items()}}
+    offset = float(rng.uniform(-0.05, 0.05))
+    where = f'seed {seed}, truth {truth}, offset {offset}'
+    sim = {'clock_mode': 'lockstep', 'pinch.sensors.pressure_offset': offset,
+           **{f'pinch.sim.{key}': v for key, v in truth.items()}}
     probe.record(ActuatorState, 'actuator_state')
     probe.record(ControllerStatus, 'controller_status')
+    probe.record(DiagnosticArray, '/diagnostics')
     start_node(processes, 'sim_node', 'sim', tmp_path, sim)
     probe.wait_messages('actuator_state', 1, timeout=60, where=lambda m: m.cycle == 0)
     start_node(processes, 'controller_node', 'controller', tmp_path, {
@@ -71,6 +79,19 @@ def test_calibrate_friction_after_a_random_drift(processes, tmp_path, probe):
                         where=lambda m: 'torque' in value(m, 'wrist', 'fault'))
     assert 'wrist is faulted' in client.rejected(channel='wrist')
 
+    # the tare: pinch tared, wrist not (faulted); the offset set and in /diagnostics
+    answer = probe.call(Trigger, '/controller/tare')
+    assert answer.success and 'taring pinch' in answer.message, answer.message
+    assert 'wrist is faulted' in answer.message
+    probe.wait_for(lambda: abs(probe.get_parameters('/controller', ['pinch.pressure_offset'])[
+        'pinch.pressure_offset'] - offset) < 1.5e-3, timeout=60, what=f'the tare ({where})')
+    probe.wait_messages('/diagnostics', 1, timeout=30, where=lambda m: any(
+        kv.key == 'pressure_tare' and kv.value.startswith('succeeded') for st in m.status
+        for kv in st.values))
+    tared = probe.get_parameters('/controller', ['pinch.pressure_offset'])[
+        'pinch.pressure_offset']
+    model = dict(MODEL, pressure_offset=tared)
+
     # a cancel: back to the mode, nothing applied; a second goal meanwhile is rejected (busy)
     handle, feedback = client.send()
     probe.wait_for(lambda: feedback and feedback[-1].progress > 0.05, timeout=60,
@@ -80,7 +101,7 @@ def test_calibrate_friction_after_a_random_drift(processes, tmp_path, probe):
     assert answer.status == GoalStatus.STATUS_CANCELED, answer.result.message
     assert not answer.result.applied
     assert probe.get_parameters('/controller', [f'pinch.{k}' for k in KEYS]) == {
-        f'pinch.{k}': v for k, v in MODEL.items()}
+        f'pinch.{k}': MODEL[k] for k in KEYS}
     probe.wait_messages('controller_status', 1, where=lambda m: value(
         m, 'pinch', 'mode') == 'dob_full_ff')
 
@@ -89,15 +110,19 @@ def test_calibrate_friction_after_a_random_drift(processes, tmp_path, probe):
     answer = client.result(handle, timeout=240.0)
     result = answer.result
     assert answer.status == GoalStatus.STATUS_SUCCEEDED, f'{result.message} ({where})'
-    assert list(result.names) == list(KEYS) and result.applied
+    assert list(result.names) == list(KEYS) + ['pressure_offset'] and result.applied
     for key, old, new, sigma, change in zip(result.names, result.old_values, result.new_values,
                                             result.new_values_sigma, result.change):
-        assert old == MODEL[key]
-        assert abs(new / truth[key] - 1.0) < 0.10, f'{key}: {new} vs {truth[key]} ({where})'
-        assert 0.0 < sigma < 0.1 * new
+        assert old == model[key]
+        if key == 'pressure_offset':
+            assert abs(new - offset) < 1.5e-3, f'offset {new} vs {offset} ({where})'
+            assert 0.0 < sigma < 1e-3
+        else:
+            assert abs(new / truth[key] - 1.0) < 0.10, f'{key}: {new} vs {truth[key]} ({where})'
+            assert 0.0 < sigma < 0.1 * new
         assert change == new - old
-    params = probe.get_parameters('/controller', [f'pinch.{k}' for k in KEYS])
-    assert [params[f'pinch.{k}'] for k in KEYS] == list(result.new_values)
+    params = probe.get_parameters('/controller', [f'pinch.{k}' for k in result.names])
+    assert [params[f'pinch.{k}'] for k in result.names] == list(result.new_values)
     assert feedback and all(0.0 <= f.progress <= 1.0 for f in feedback)
     assert {f.phase for f in feedback} <= {'move', 'solve'}
 

@@ -18,7 +18,8 @@ DT = 5e-4
 PLANT_KEYS = ('motor_inertia', 'motor_damping', 'motor_stiffness', 'endpoint_inertia',
               'endpoint_damping', 'endpoint_stiffness', 'hose_damping', 'hose_stiffness')
 # --- model error, and what the friction calibration recovers ------------------------------
-FRICTION_LABELS = ('b_e [N m s/rad]', 'k_e [N m/rad]', 'F_c [N m]', 'sigma [N m/rad]')
+FRICTION_LABELS = ('b_e [N m s/rad]', 'k_e [N m/rad]', 'F_c [N m]', 'sigma [N m/rad]',
+                   'offset [N m]')
 CALIBRATION_ATTEMPTS = 3
 CALIBRATION_STATE_TIMEOUT = 0.25   # s, controller state_timeout while calibrating
 #: s for a node to answer a parameter request: a busy host held a sim's answer back 20 s
@@ -221,6 +222,11 @@ def print_calibration(result, truth, seconds):
           f'{"sim truth":>11s}{"error":>9s}')
     for label, key, old, new, sigma in zip(FRICTION_LABELS, result.names, result.old_values,
                                            result.new_values, result.new_values_sigma):
+        if key == 'pressure_offset':    # (the sim's sensor offset; an error in mN m)
+            true = truth.get(f'{CHANNEL}.sensors.pressure_offset', 0.0)
+            print(f'{label:18s}{old:11.4g}{new:14.4g}{sigma:10.2g}{true:11.4g}'
+                  f'{1e3 * (new - true):+6.2f} mN m')
+            continue
         true = truth.get(f'{CHANNEL}.sim.{key}', old)
         print(f'{label:18s}{old:11.4g}{new:14.4g}{sigma:10.2g}{true:11.4g}'
               f'{100.0 * (new / true - 1.0):+8.1f}%')

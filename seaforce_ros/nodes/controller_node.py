@@ -37,9 +37,13 @@ goal holds, no states arriving -- ends at once ABORTED with ``rejected: <reason>
   (``seaforce_msgs/action/CalibrateFriction``) runs a
   :class:`~seaforce_ros.core.friction_calibration.FrictionCalibration`; when it applies the new
   values the node sets the channel's ``plant.endpoint_damping``,
-  ``plant.endpoint_stiffness``, ``dahl.coulomb_force`` and ``dahl.sigma`` to them.
+  ``plant.endpoint_stiffness``, ``dahl.coulomb_force``, ``dahl.sigma`` and, where it found
+  it, ``pressure_offset`` to them.
   ``<channel>.friction.adaptation`` turns the online adaptation on; its state is in
   ``/diagnostics``.
+* The pressure sensor's offset: the service ``~/tare`` (std_srvs/Trigger, :mod:`.tare_service`)
+  tares every free finger (:class:`~seaforce_ros.core.tare.PressureTare`) and sets
+  ``<channel>.pressure_offset``.
 * Commissioning: the action ``~/commission`` (``seaforce_msgs/action/Commission``,
   :mod:`.commissioning`) excites the free finger, identifies the plant, predicts the Z-width,
   tunes, reports, and applies when asked.
@@ -84,6 +88,7 @@ from .commissioning import CommissionAction
 from .free_finger_watch import UNCHECKED, FreeFingerWatch
 from .gripper_actions import gripper_job_actions
 from .jobs import JobAction, JobActions
+from .tare_service import TareService
 from .ros_common import (GRAPH_PERIOD, STATUS_QOS, StartupError, check_undeclared, control_qos,
                          declare, diagnostic_status, diagnostics_publisher, log_events,
                          node_label, publish_diagnostics, run, shutdown_safe,
@@ -190,6 +195,7 @@ class ControllerNode(Node):
             self.jobs.add(action)
         self.commissioning = CommissionAction(self)
         self.jobs.add(self.commissioning.action())
+        self.tare = TareService(self, self.channels, controllers, self.jobs, self._stalled)
         self._state_topic = self.resolve_topic_name('actuator_state')
         steady_timer(self, GRAPH_PERIOD, self._watch_graph)
         self.add_on_set_parameters_callback(self._validate_parameters)
@@ -506,6 +512,7 @@ class ControllerNode(Node):
                  'disturbance': ctrl.disturbance, 'feedforward': ctrl.feedforward,
                  'grasp': ctrl.grasp_phase or 'none', 'contact': ctrl.estimator.contact,
                  'passivity_guard': ctrl.config.passivity.mode,
+                 'pressure_offset': ctrl.pressure_offset, **self.tare.diagnostics(i),
                  **dict(zip(_GUARD_FIELDS, _guard_values(ctrl))),
                  **self._friction_diagnostics(ctrl)}))
             statuses += [_passivity_status(channel, ctrl), _grasp_status(channel, ctrl)]
