@@ -648,9 +648,9 @@ def predict_stage(plant: PlantParams, plant_sigma: Mapping[str, float],
 
 def _noise_sweep(plant: PlantParams, dahl: Optional[DahlParams], config: ControllerConfig,
                  loop: LoopModel, budget: float, rel_sigma: float) -> NoiseSweep:
-    """RMS torque noise of ``dob_full_ff`` against lambda, the rest of the DOB as tuned (the
-    sweep is a prediction: eq. 28 is not enforced along it). Its 1-sigma is the pressure
-    share's relative 1-sigma (the quantum is exact)."""
+    """RMS torque noise of ``dob`` (what ``noise_budget`` bounds) against lambda, the rest of
+    the DOB as tuned (the sweep is a prediction: eq. 28 is not enforced along it). Its 1-sigma
+    is the pressure share's relative 1-sigma (the quantum is exact)."""
     top = min(2.0 * math.pi * 300.0, 0.5 * math.pi / loop.dt)
     lam = np.logspace(math.log10(2.0 * math.pi), math.log10(top), NOISE_POINTS)
     lam = np.unique(np.append(lam, config.dob.cutoff))
@@ -660,7 +660,7 @@ def _noise_sweep(plant: PlantParams, dahl: Optional[DahlParams], config: Control
         try:
             trial = config.replace(dob=dataclasses.replace(config.dob, cutoff=float(cutoff)),
                                    allow_non_passive=True)
-            p, q = torque_noise(plant, dahl, trial, loop)
+            p, q = torque_noise(plant, dahl, trial, loop, "dob")
         except (CommissioningError, SeaforceError):   # a cut-off the core refuses
             continue
         rms[i], pressure[i] = math.hypot(p, q), p
@@ -1086,7 +1086,8 @@ def _summary(analysis: Analysis, request: AnalysisRequest) -> List[str]:
     t = analysis.tuning
     if t is not None:
         lines.append(f"tuned DOB torque noise {1e3 * t.torque_noise:.3g} mN m rms (budget "
-                     f"{1e3 * request.noise_budget:.3g}); hold stable up to "
+                     f"{1e3 * request.noise_budget:.3g}; in dob_full_ff, with the "
+                     f"feed-forward's, {1e3 * t.feedforward_noise:.3g}); hold stable up to "
                      f"{t.hold_delay_limit} samples of delay")
         lines.append(_margin_line(t))
     return lines

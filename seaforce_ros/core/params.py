@@ -453,7 +453,9 @@ class CommissioningParams(ParameterGroup):
     band_high: float = param(10.0, "rad/s", "upper end of that band (> band_low, below the "
                              "Nyquist frequency)", gt=0.0, le=6000.0)
     noise_budget: float = param(0.01, "N m", "largest RMS motor torque the tuned DOB may add "
-                                "from the pressure and encoder noise", gt=0.0, le=10.0)
+                                "from the pressure and encoder noise (in dob: the "
+                                "feed-forward's own noise is reported beside it)", gt=0.0,
+                                le=10.0)
     passivity_margin: float = param(2.0, "-", "1-sigmas of the identified m, b, k against which "
                                     "the tuned DOB must still satisfy eq. 28", ge=0.0,
                                     le=10.0)
