@@ -519,6 +519,14 @@ class MonitorParams(ParameterGroup):
     wall_energy: float = param(0.02, "J", "energy the joint walls may take out of the finger "
                                "within about 2 s (forgotten with that time constant) before "
                                "the finger counts as driven into them", gt=0.0, le=100.0)
+    settle_time: float = param(6.0, "s", "how long a finger may keep moving in a feed-forward "
+                               "mode before /diagnostics warns that, if nothing moves it, the "
+                               "feed-forward over-compensates its friction (a flicked finger "
+                               "whose feed-forward is right rests within a few seconds)",
+                               gt=0.0, le=1e4)
+    wall_time: float = param(2.0, "s", "how long the joint walls may hold the finger still in a "
+                             "mode that runs the DOB before it counts as pushed onto them",
+                             gt=0.0, le=1e4)
     fallback: str = param("dob", "", "what a channel the monitor trips on runs until ~/reset: "
                           "dob (the DOB without feed-forward; a trip in it falls back to "
                           "passive) or passive (zero torque)", choices=FALLBACK_MODES)

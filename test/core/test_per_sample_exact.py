@@ -255,7 +255,8 @@ def linear_config(config):
         return config
     return tuple(sorted((k, v) for k, v in config.to_dict().items()
                         if not k.startswith("plant_terms.")
-                        and k not in ("feedforward.stroke_uncertainty", "pressure_offset")))
+                        and k not in ("feedforward.stroke_uncertainty", "pressure_offset",
+                                      "monitor.settle_time", "monitor.wall_time")))
 
 
 def exact(values):
