@@ -38,9 +38,10 @@ from helpers.baseline_core import BaselineUnavailable, load_core
 #: set within a mode stopped selecting it anew (72503fc: targets kept, a chirp not replayed;
 #: 71c2b09: its re-entry after an interruption in the entry's sample bumpless again), then
 #: until the feed-forward modes added the free finger's damping reserve (58f1b49; its band's
-#: parameters e2ba8c5), then until the reserve acted through a high-pass (63ca16a), then until a friction
-#: calibration applied the pressure offset it identifies, then until the monitor's settling
-#: watch (its two parameters in the config; no float changed where it does not trip) (fe3fcc2; 0c4c6e3).
+#: parameters e2ba8c5), then until the reserve acted through a high-pass (63ca16a), then until
+#: a friction calibration applied the pressure offset it identifies (0c4c6e3), then until the
+#: monitor's settling watch (fe3fcc2: its two parameters in the config; no float changed
+#: where it does not trip).
 #: A deliberate change of behaviour moves it; a speed-up never does.
 BASELINE = "fe3fcc2"
 DT = 5e-4
