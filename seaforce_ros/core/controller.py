@@ -162,11 +162,15 @@ class ChannelController:
         The state's cycle number (-1: not given).
     applied : float
         The torque the plant reports it applied in this sample [N m] (NaN: not given).
+    reference_offset : float
+        A force [N m] added to the DOB's reference F_ref in the modes that run it (0: none;
+        commissioning's verification pulses a free finger with it).
     """
 
     # slots (module docstring)
     __slots__ = (
         "dt", "cycle", "applied", "mode", "torque", "disturbance", "pressure_offset",
+        "reference_offset",
         # hand-overs and the job
         "_pending", "_mode_sets", "_jobs", "job", "_job_sample",
         # the parts
@@ -189,6 +193,7 @@ class ChannelController:
         self.dt = float(dt)
         self.cycle = -1
         self.applied = _NAN
+        self.reference_offset = 0.0
         self._pending: Mailbox[ControllerConfig] = Mailbox()
         self._mode_sets: Mailbox[bool] = Mailbox()        # ... the mode was set with it
         self._jobs: Mailbox[Job] = Mailbox(size=None)     # every job requested, in order
@@ -627,6 +632,8 @@ class ChannelController:
             # second time here: counted twice in the monitor's wall ledger, its grace after a
             # trip spent twice as fast)
             f_ref += w
+            if self.reference_offset:
+                f_ref += self.reference_offset      # (commissioning's verification pulses)
 
         # the guard: damping on the DOB's port (F_p + F_ref, V), Z -> Z + alpha
         if guard is not None:
