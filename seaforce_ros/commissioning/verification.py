@@ -387,30 +387,41 @@ def predict(plant: PlantParams, dahl: Optional[DahlParams], candidates: Sequence
             config: ControllerConfig, delay: int = 1, dt: float = 5e-4,
             seed: int = 0) -> List[CandidateOutcome]:
     """Every candidate's windows on the identified model (the core's simulator: ``plant``,
-    ``dahl``, its default sensors, the torque applied ``delay`` samples after its sample),
-    each candidate verified alone (:class:`FreeFingerVerification` with that one): what the
-    verification should measure."""
+    ``dahl``, its default sensors, the torque applied ``delay`` samples after its sample):
+    what the verification should measure. Each candidate is verified alone, the finger placed
+    at rest at each point in turn (the gripper's move there leaves it so: the dither cycles
+    the hysteresis down), the job stepped on the simulator's samples directly."""
+    from ..core.jobs import JobSample
     from ..core.simulator import ChannelSimulator
-    out = []
     config = config.replace(pressure_offset=0.0)     # (the simulated sensor has none)
+    estimator = ChannelController(config, dt).estimator       # (a JobSample needs one)
+    out = []
     for candidate in candidates:
-        sim = ChannelSimulator(plant, dahl, dt, seed=seed, command_delay=1)
-        ctl = ChannelController(config.replace(mode="passive"), dt)
-        job = FreeFingerVerification([Candidate(candidate.name, candidate.config.replace(
-            pressure_offset=0.0))], config, dt)
-        ctl.request_job(job)
-        pending = [0.0] * max(0, delay - 1)
-        m = sim.measurement()
-        limit = int(job._duration / dt) + int(30.0 / dt)
-        for _ in range(limit):
-            u = ctl.update(m.x, m.v, m.f_p)
-            if pending:
+        outcome = CandidateOutcome(candidate.name, reason="passed", passed=True)
+        for point in FreeFingerVerification([candidate], config, dt).points:
+            job = FreeFingerVerification([Candidate(candidate.name, candidate.config.replace(
+                pressure_offset=0.0))], config, dt)
+            job.points = [point]
+            sim = ChannelSimulator(plant, dahl, dt, seed=seed)
+            sim.reset((point, 0.0, point, 0.0))
+            sample = JobSample(estimator)
+            pending = [0.0] * max(0, delay - 1)
+            m = sim.measurement()
+            u = 0.0
+            assert job.claim()
+            for _ in range(int(job._duration / dt) + int(10.0 / dt)):
+                sample.x, sample.v, sample.f_p, sample.torque = m.x, m.v, m.f_p, u
+                sample.endpoint_position = m.x + m.f_p / plant.hose_stiffness
+                u = job.step(sample)
                 pending.append(u)
-                u = pending.pop(0)
-            m = sim.step(u)
-            if not job.active:
+                m = sim.step(pending.pop(0))
+                if not job.active:
+                    break
+            tried = job.outcomes[0] if job.outcomes else CandidateOutcome(
+                candidate.name, reason=f"not run: {job.message}")
+            outcome.windows.extend(tried.windows)
+            if not tried.passed:
+                outcome.passed, outcome.reason = False, tried.reason
                 break
-        outcome = job.outcomes[0] if job.outcomes else CandidateOutcome(
-            candidate.name, reason=f"not run: {job.message}")
         out.append(outcome)
     return out

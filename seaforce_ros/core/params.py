@@ -496,7 +496,7 @@ class VerificationParams(ParameterGroup):
                          gt=0.0, le=1.0)
     offset: float = param(0.25, "rad", "distance of the second point from the rest position",
                           ge=0.0, le=1.0)
-    candidates: int = param(3, "", "most candidates tried (each about 16 s of rig time)",
+    candidates: int = param(3, "-", "most candidates tried (each about 16 s of rig time)",
                             ge=1, le=10)
 
 
@@ -805,7 +805,8 @@ class ControllerConfig(ParameterGroup):
         out = {}
         for owner, spec in _OWNED:
             value = getattr(getattr(self, owner) if owner else self, spec.attribute)
-            out[spec.name] = value if isinstance(value, (str, bool)) else float(value)
+            out[spec.name] = value if isinstance(value, (str, bool)) or spec.type is int \
+                else float(value)
         return out
 
     @classmethod
