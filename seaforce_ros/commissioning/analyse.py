@@ -882,6 +882,8 @@ class Proposal:
         Most compensation first (:func:`~.candidates.propose`); empty when not tuned.
     predicted : list of CandidateOutcome
         Each candidate's windows on the identified model.
+    rejected : list of (Candidate, CandidateOutcome)
+        The candidates the model predicted to fail, with their windows: not tried.
     """
 
     analysis: Analysis
@@ -889,6 +891,7 @@ class Proposal:
     phases: Dict[str, float]
     candidates: List[Candidate] = field(default_factory=list)
     predicted: List[CandidateOutcome] = field(default_factory=list)
+    rejected: List[Tuple[Candidate, CandidateOutcome]] = field(default_factory=list)
 
 
 @dataclass
@@ -954,9 +957,22 @@ def propose(record: ExcitationRecord, request: AnalysisRequest,
         count = request.config.verification.candidates
         proposal.candidates = propose_candidates(tuning.config, model, analysis.loop,
                                                  request.passivity_margin, count)
-        proposal.predicted = predict_verification(
-            model.plant, model.dahl, proposal.candidates, request.config,
-            delay=analysis.loop.delay_p50, dt=analysis.loop.dt)
+        simulated, simulated_terms = prediction_model(model.plant, model.terms,
+                                                      analysis.terms)
+        predicted = predict_verification(
+            simulated, model.dahl, proposal.candidates, request.config,
+            delay=analysis.loop.delay_p50, dt=analysis.loop.dt, terms=simulated_terms,
+            motor_coulomb=_motor_coulomb(analysis.terms))
+        # the model bounds the search: a candidate it predicts to fail is not tried on the
+        # gripper (the most cautious always is), nor more than ``count`` in all; the report
+        # keeps the ones predicted to fail
+        keep = [i for i, p in enumerate(predicted[:-1]) if p.passed][:max(0, count - 1)]
+        keep.append(len(predicted) - 1)
+        proposal.rejected = [(c, p) for i, (c, p) in
+                             enumerate(zip(proposal.candidates, predicted))
+                             if i not in keep and not p.passed]
+        proposal.candidates = [proposal.candidates[i] for i in keep]
+        proposal.predicted = [predicted[i] for i in keep]
         clock.lap("tune")
     except InfeasibleTuningError as exc:
         analysis.message = f"not tuned ({exc.constraint}): {exc}"
@@ -986,14 +1002,11 @@ def finish(proposal: Proposal, request: AnalysisRequest, verified: Optional[Veri
                                        noise_rel_sigma=(figures.pressure.std_1s / max(
                                            figures.pressure.std, 1e-300)) if figures else 0.0,
                                        progress=say)
-            coulomb = 0.0
-            if analysis.terms is not None and analysis.terms.term("motor_coulomb").resolved:
-                coulomb = analysis.terms.term("motor_coulomb").value
             simulated, simulated_terms = prediction_model(model.plant, model.terms,
                                                           analysis.terms)
             analysis.backdrives = work_loop_stage(simulated, model.dahl, tuning.config,
-                                                  motor_coulomb=coulomb, progress=say,
-                                                  terms=simulated_terms)
+                                                  motor_coulomb=_motor_coulomb(analysis.terms),
+                                                  progress=say, terms=simulated_terms)
             analysis.work_loops = analysis.backdrives.work_loops
             clock.lap("predict")
             analysis.band = prediction.band
@@ -1057,23 +1070,38 @@ def _verified_tuning(proposal: Proposal, request: AnalysisRequest,
                                margin_cost_db=cost)
 
 
+def _motor_coulomb(terms: Optional[NonlinearTerms]) -> float:
+    """The motor's Coulomb friction [N m] where the record resolved it (else 0)."""
+    if terms is not None and terms.term("motor_coulomb").resolved:
+        return terms.term("motor_coulomb").value
+    return 0.0
+
+
 def verification_rows(proposal: Proposal, verified: Optional[Verified]
                       ) -> List[VerificationRow]:
     """Each candidate's windows, measured beside predicted (predicted only where it was not
     tried)."""
     rows = []
     measured = {o.name: o for o in (verified.outcomes if verified is not None else [])}
-    for candidate, predicted in zip(proposal.candidates, proposal.predicted):
+    pairs = list(zip(proposal.candidates, proposal.predicted))
+    rejected = {c.name for c, _ in proposal.rejected}
+    for candidate, predicted in proposal.rejected + pairs:
         outcome = measured.get(candidate.name)
         verdict = ("passed" if outcome.passed else f"failed: {outcome.reason}") \
-            if outcome is not None else "not tried"
-        windows = outcome.windows if outcome is not None else []
-        for i, p in enumerate(predicted.windows):
-            m = windows[i] if i < len(windows) else None
+            if outcome is not None else (
+                f"predicted to fail ({predicted.reason}): not tried"
+                if candidate.name in rejected else "not tried")
+        measured_windows = outcome.windows if outcome is not None else []
+        for i in range(max(len(predicted.windows), len(measured_windows))):
+            p = predicted.windows[i] if i < len(predicted.windows) else None
+            m = measured_windows[i] if i < len(measured_windows) else None
+            w = m or p
+            assert w is not None
             rows.append(VerificationRow(
-                candidate.name, verdict, p.point, p.kind,
-                m.settle if m else math.nan, p.settle, m.decay if m else math.nan, p.decay,
-                m.drift if m else math.nan, p.drift))
+                candidate.name, verdict, w.point, w.kind,
+                m.settle if m else math.nan, p.settle if p else math.nan,
+                m.decay if m else math.nan, p.decay if p else math.nan,
+                m.drift if m else math.nan, p.drift if p else math.nan))
     return rows
 
 

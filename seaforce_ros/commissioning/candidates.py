@@ -32,7 +32,7 @@ __all__ = ["propose", "chosen_values", "SHARES", "FEEDFORWARD_KEYS"]
 
 #: The Dahl shares the statistical candidates take, most compensation first (1 was never
 #: held by any reserve on the oracle's draws: the linearised loop is unstable).
-SHARES = (0.9, 0.75, 0.5)
+SHARES = (0.9, 0.75, 0.6, 0.5)
 #: The keys a candidate sets (its feed-forward; the rest is the tuning's).
 FEEDFORWARD_KEYS = ("feedforward.damping_uncertainty", "feedforward.stiffness_uncertainty",
                     "feedforward.dahl_uncertainty", "feedforward.stroke_uncertainty",
@@ -62,8 +62,8 @@ def _z_db(model: ControllerModel, config: ControllerConfig, loop: LoopModel) -> 
 
 def propose(tuned: ControllerConfig, model: ControllerModel, loop: LoopModel,
             passivity_margin: float, count: int) -> List[Candidate]:
-    """At most ``count`` candidates, most compensation first (module docstring); the tuned
-    (model class's) one is always among them, last."""
+    """The candidates, most compensation first (module docstring); the tuned (model class's)
+    one is always among them, last; none but it where ``count`` is 1."""
     found = []
     for share in SHARES if count > 1 else ():
         config = _statistical(tuned, model, share, passivity_margin)
@@ -83,7 +83,7 @@ def propose(tuned: ControllerConfig, model: ControllerModel, loop: LoopModel,
                          "k_e, F_c x" + "/".join(f"{s:.3g}" for s in ff.scales())
                          + f"), reserve {ff.damping_reserve:.3g} N m s/rad", tuned)
     out = [Candidate(name, config) for _, name, config in found
-           if _feedforward(config) != _feedforward(tuned)][:max(0, count - 1)]
+           if _feedforward(config) != _feedforward(tuned)]
     return out + [cautious]
 
 

@@ -1036,9 +1036,10 @@ def _plain(headers: Sequence[str], rows: Sequence[Sequence[str]], numeric: str) 
 
 
 def _both(measured: float, predicted: float, digits: int) -> str:
-    """``measured / predicted`` (``-`` where not measured)."""
+    """``measured / predicted`` (``-`` where there is none)."""
     m = "-" if math.isnan(measured) else f"{measured:.{digits}f}"
-    return f"{m} / {predicted:.{digits}f}"
+    p = "-" if math.isnan(predicted) else f"{predicted:.{digits}f}"
+    return f"{m} / {p}"
 
 
 def _model_class_lines(model: Optional[ModelClass]) -> List[str]:

@@ -492,8 +492,9 @@ class VerificationParams(ParameterGroup):
                                le=10.0)
     band: float = param(0.005, "rad", "... and then moves less than this over the window's "
                         "last 0.5 s (a creep or a ring fails it)", gt=0.0, le=0.1)
-    pulse: float = param(0.05, "N m", "force of each pulse on the DOB's reference, held 20 ms",
-                         gt=0.0, le=1.0)
+    speed: float = param(1.0, "rad/s", "the finger's speed each pulse aims at (its force, "
+                         "held 80 ms, from the model's motor and endpoint inertia): a flick",
+                         gt=0.0, le=5.0)
     offset: float = param(0.25, "rad", "distance of the second point from the rest position",
                           ge=0.0, le=1.0)
     candidates: int = param(3, "-", "most candidates tried (each about 16 s of rig time)",

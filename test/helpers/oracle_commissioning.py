@@ -120,7 +120,8 @@ def commission(plant, dahl, effects, sensors=None, config=None, seed=0, duration
     """A whole commissioning run on the oracle, as ``~/commission`` runs it on a gripper: the
     excitation job, the analysis' proposal, the verification job on the same finger (``verify``
     False: none, the model class's candidate unverified), the analysis' finish. Returns
-    ``(Analysis, rig time [s])``."""
+    ``(Analysis, rig time [s], the analysis' CPU time [s])``."""
+    import time
     from helpers.nonlinear_sim import run_loop
     from seaforce_ros.commissioning.analyse import AnalysisRequest, Verified, finish, propose
     from seaforce_ros.commissioning.excitation import ExcitationGoal, FreeAirExcitation
@@ -138,7 +139,9 @@ def commission(plant, dahl, effects, sensors=None, config=None, seed=0, duration
     record = job.record()
     rig = len(rec["t"]) * DT
     request = AnalysisRequest("sim", config)
+    cpu = time.process_time()
     proposal = propose(record, request)
+    cpu = time.process_time() - cpu
     verified = None
     if verify and proposal.candidates:
         check = FreeFingerVerification(proposal.candidates, config, DT)
@@ -147,4 +150,6 @@ def commission(plant, dahl, effects, sensors=None, config=None, seed=0, duration
         rig += len(out["t"]) * DT
         verified = Verified(check.outcomes, check.chosen, len(out["t"]) * DT,
                             "" if check.outcome == "succeeded" else check.message)
-    return finish(proposal, request, verified), rig
+    t = time.process_time()
+    analysis = finish(proposal, request, verified)
+    return analysis, rig, cpu + time.process_time() - t
