@@ -62,6 +62,7 @@ from ..core.nonlinear_effects import effects_of_terms
 from ..core.params import (ControllerConfig, DahlParams, PlantParams, PlantTermsParams,
                            settable_order)
 from ..core.schema import by_key
+from ..core.sensors import SensorParams
 from ..identification.errors import IdentificationError
 from ..identification.output import write_values_file
 from .errors import CommissioningError
@@ -962,12 +963,14 @@ def propose(record: ExcitationRecord, request: AnalysisRequest,
         predicted = predict_verification(
             simulated, model.dahl, proposal.candidates, request.config,
             delay=analysis.loop.delay_p50, dt=analysis.loop.dt, terms=simulated_terms,
-            motor_coulomb=_motor_coulomb(analysis.terms))
+            motor_coulomb=_motor_coulomb(analysis.terms), sensors=_sensors(analysis.loop))
         # the model bounds the search: a candidate it predicts to fail is not tried on the
-        # gripper (the most cautious always is), nor more than ``count`` in all; the report
-        # keeps the ones predicted to fail
-        keep = [i for i, p in enumerate(predicted[:-1]) if p.passed][:max(0, count - 1)]
-        keep.append(len(predicted) - 1)
+        # gripper (the model class's ones always are), nor more than ``count`` in all; the
+        # report keeps the ones predicted to fail
+        cautious = sum("model class's" in c.name for c in proposal.candidates)
+        last = len(predicted) - cautious
+        keep = [i for i, p in enumerate(predicted[:last]) if p.passed][:max(0, count - cautious)]
+        keep += list(range(last, len(predicted)))[:max(1, count - len(keep))]
         proposal.rejected = [(c, p) for i, (c, p) in
                              enumerate(zip(proposal.candidates, predicted))
                              if i not in keep and not p.passed]
@@ -1068,6 +1071,16 @@ def _verified_tuning(proposal: Proposal, request: AnalysisRequest,
                           loop.delay_p50, loop.dt, 0.5)
     return dataclasses.replace(tuning, values=values, config=config, bindings=bindings,
                                margin_cost_db=cost)
+
+
+def _sensors(loop: LoopModel) -> SensorParams:
+    """The sensors the record showed: the pressure noise (its ADC's steps in it) and the motor
+    encoder's quantum."""
+    counts = (int(round(2.0 * math.pi / loop.encoder_resolution))
+              if loop.encoder_resolution > 0.0 else 0)
+    return SensorParams(pressure_range=1e9, pressure_bits=0,
+                        pressure_noise=float(loop.pressure_noise),
+                        motor_counts_per_rev=counts)
 
 
 def _motor_coulomb(terms: Optional[NonlinearTerms]) -> float:

@@ -8,7 +8,7 @@ safe for every plant within it, and it costs most of the Z-width the identificat
 statistical band bounds the other end. :func:`propose` lays candidates between them, most
 compensation first -- the feed-forward's uncertainties at their statistical 1-sigmas (at least
 :data:`~seaforce_ros.core.params.MIN_UNCERTAINTY`) with a Dahl share of each of
-:data:`SHARES`, then the tuned model-class one -- each with the damping reserve its own band
+:data:`SHARES`, then the tuned model-class one and the same with twice its margin -- each with the damping reserve its own band
 needs (:func:`~.free_finger.size_reserve`; a candidate no reserve holds is not one), ordered by
 the predicted |Z| of ``dob_full_ff`` at 1 rad/s; the verification on the gripper
 (:mod:`.verification`) takes the first the free finger rests under. :func:`chosen_values`
@@ -17,6 +17,7 @@ starting settings.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any, Dict, List, Mapping, Optional, Sequence
 
@@ -63,9 +64,10 @@ def _z_db(model: ControllerModel, config: ControllerConfig, loop: LoopModel) -> 
 def propose(tuned: ControllerConfig, model: ControllerModel, loop: LoopModel,
             passivity_margin: float, count: int) -> List[Candidate]:
     """The candidates, most compensation first (module docstring); the tuned (model class's)
-    one is always among them, last; none but it where ``count`` is 1."""
+    one and the one with twice its margin always among them, last; none but those where
+    ``count`` is at most 2."""
     found = []
-    for share in SHARES if count > 1 else ():
+    for share in SHARES if count > 2 else ():
         config = _statistical(tuned, model, share, passivity_margin)
         try:
             reserve, _, _ = size_reserve(config, band_spreads(config), delay=loop.delay_p99,
@@ -78,13 +80,31 @@ def propose(tuned: ControllerConfig, model: ControllerModel, loop: LoopModel,
                 + f"), reserve {reserve:.3g} N m s/rad")
         found.append((_z_db(model, config, loop), name, config))
     found.sort(key=lambda c: c[0])
-    ff = tuned.feedforward
-    cautious = Candidate(f"share {ff.dahl_stiffness_share:g}, the model class's band (b_e, "
-                         "k_e, F_c x" + "/".join(f"{s:.3g}" for s in ff.scales())
-                         + f"), reserve {ff.damping_reserve:.3g} N m s/rad", tuned)
     out = [Candidate(name, config) for _, name, config in found
            if _feedforward(config) != _feedforward(tuned)]
-    return out + [cautious]
+    return out + _cautious(tuned, loop)
+
+
+def _cautious(tuned: ControllerConfig, loop: LoopModel) -> List[Candidate]:
+    """The model class's candidate (the tuning's), and the same with twice its margin (where
+    a reserve holds that band: the last resort before the starting settings)."""
+    def name(config: ControllerConfig, what: str) -> str:
+        ff = config.feedforward
+        return (f"share {ff.dahl_stiffness_share:g}, {what} (b_e, k_e, F_c x"
+                + "/".join(f"{s:.3g}" for s in ff.scales())
+                + f"), reserve {ff.damping_reserve:.3g} N m s/rad")
+
+    out = [Candidate(name(tuned, "the model class's band"), tuned)]
+    wider = tuned.replace(feedforward=dataclasses.replace(
+        tuned.feedforward, margin=2.0 * tuned.feedforward.margin))
+    try:
+        reserve, _, _ = size_reserve(wider, band_spreads(wider), delay=loop.delay_p99,
+                                     dt=loop.dt)
+    except CommissioningError:
+        return out
+    wider = with_reserve(wider, reserve)
+    out.append(Candidate(name(wider, "twice the model class's margin"), wider))
+    return out
 
 
 def _feedforward(config: ControllerConfig) -> Dict[str, Any]:

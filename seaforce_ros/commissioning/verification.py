@@ -55,6 +55,7 @@ from ..core.controller import ChannelController
 from ..core.jobs import TORQUE, InvalidJobGoalError, Job, JobSample
 from ..core.params import ControllerConfig, DahlParams, PlantParams, PlantTermsParams
 from ..core.safety import REST_SPEED
+from ..core.sensors import SensorParams
 from ..core.signals import faded_sine
 
 if TYPE_CHECKING:
@@ -394,11 +395,12 @@ class FreeFingerVerification(Job):
 
 def predict(plant: PlantParams, dahl: Optional[DahlParams], candidates: Sequence[Candidate],
             config: ControllerConfig, delay: int = 1, dt: float = 5e-4, seed: int = 0,
-            terms: Optional[PlantTermsParams] = None,
-            motor_coulomb: float = 0.0) -> List[CandidateOutcome]:
+            terms: Optional[PlantTermsParams] = None, motor_coulomb: float = 0.0,
+            sensors: Optional[SensorParams] = None) -> List[CandidateOutcome]:
     """Every candidate's windows on the identified model (the core's simulator: ``plant``,
-    ``dahl``, the nonlinear ``terms`` the record showed and the motor's Coulomb friction, its
-    default sensors, the torque applied ``delay`` samples after its sample): what the
+    ``dahl``, the nonlinear ``terms`` the record showed and the motor's Coulomb friction, the
+    ``sensors`` measured (default the sim's), the torque applied ``delay`` samples after its
+    sample): what the
     verification should measure. Each candidate is verified alone, the finger placed at rest
     at each point in turn (the gripper's move there leaves it so: the dither cycles the
     hysteresis down), the job stepped on the simulator's samples directly."""
@@ -416,7 +418,7 @@ def predict(plant: PlantParams, dahl: Optional[DahlParams], candidates: Sequence
                 pressure_offset=0.0))], config, dt)
             job.points = [point]
             sim = make_simulator(plant, dahl, effects, dt=dt, seed=seed,
-                                 motor_coulomb=motor_coulomb)
+                                 motor_coulomb=motor_coulomb, sensors=sensors)
             sim.reset((point, 0.0, point, 0.0))
             sample = JobSample(estimator)
             pending = [0.0] * max(0, delay - 1)
