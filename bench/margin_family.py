@@ -1,4 +1,4 @@
-"""The feed-forward's margin over a family of grippers with real sensors: issue 44's goals.
+"""The feed-forward's margin over a family of grippers with real sensors, against its goals.
 
 Each draw: a plant of the commissioning family (Table I, sigma and F_c log-uniform in
 [0.5x, 2x]), the linear class (every nonlinear effect off) or the nonlinear one (every effect
