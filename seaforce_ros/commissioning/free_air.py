@@ -687,10 +687,32 @@ def identify_free_air(record: ExcitationRecord, *, band: Optional[Tuple[float, f
     start = dict(_port_start(w, resp_p.h, weight),
                  **{k: float(v) for k, v in zip(fit_a.names, fit_a.values)})
     # two starts (the linear fit's, and one from P's shape, for when the linear fit's m_e is
-    # far off: 70x on one record); the better fit is kept
-    theta, sig_p, misfit_p = min(
-        (_fit_port(w, s_x[0], s_fp[0], None, resp_p.rel_sigma, st, _PORT_KEYS, dt)
-         for st in (start, _resonance_start(w, resp_p.h, start))), key=lambda f: f[2])
+    # far off); without the Dahl force both misfit the port by a few %, so the first friction
+    # pass fits the port from each and keeps the better
+    starts = sorted((_fit_port(w, s_x[0], s_fp[0], None, resp_p.rel_sigma, st, _PORT_KEYS, dt)
+                     for st in (start, _resonance_start(w, resp_p.h, start))),
+                    key=lambda f: f[2])
+    theta, sig_p, misfit_p = starts[0]
+    held_keys = ("endpoint_inertia", "hose_damping", "hose_stiffness")
+
+    def dahl_pass(theta: Dict[str, float]) -> Tuple[Optional[FrictionEstimate], _Real,
+                                                     Optional[_Complex], Dict[str, float],
+                                                     Tuple[Dict[str, float],
+                                                           Dict[str, float], float]]:
+        """(friction, X_e_hat, S_rF_d, the port's start, its fit) from ``theta``'s hose;
+        friction None (and no fit) when the friction fit found no usable hysteresis."""
+        xe = _endpoint_estimate(x, f_p, theta["hose_damping"], theta["hose_stiffness"], dt)
+        friction = _fit_friction(xe, f_p, theta["endpoint_inertia"], dt, rest)
+        if friction.reason or not (friction.endpoint_damping > 0.0
+                                   and friction.endpoint_stiffness > 0.0):
+            return friction, xe, None, theta, (theta, {}, math.inf)
+        held = dict(theta, endpoint_damping=friction.endpoint_damping,
+                    endpoint_stiffness=friction.endpoint_stiffness)
+        s_fd = _dahl_spectrum(bt, xe, dt, friction.sigma / friction.coulomb_force,
+                              friction.coulomb_force)
+        fit = _fit_port(w, s_x[0], s_fp[0], s_fd, resp_p.rel_sigma, held, held_keys, dt)
+        return friction, xe, s_fd, held, fit
+
     friction: Optional[FrictionEstimate] = None
     xe = x
     s_fd: Optional[_Complex] = None
@@ -698,28 +720,23 @@ def identify_free_air(record: ExcitationRecord, *, band: Optional[Tuple[float, f
     for it in range(MAX_ITERATIONS):
         iterations = it + 1
         report(f"friction fit, pass {iterations}", 0.3 + 0.6 * it / MAX_ITERATIONS)
-        xe = _endpoint_estimate(x, f_p, theta["hose_damping"], theta["hose_stiffness"], dt)
-        friction = _fit_friction(xe, f_p, theta["endpoint_inertia"], dt, rest)
-        if friction.reason or not (friction.endpoint_damping > 0.0
-                                   and friction.endpoint_stiffness > 0.0):
+        friction, xe, s_fd, held, fit = dahl_pass(theta)
+        if not it:
+            for other in starts[1:]:
+                alt = dahl_pass(other[0])
+                if alt[4][2] < fit[2]:
+                    friction, xe, s_fd, held, fit = alt
+                    sig_p = dict(other[1])
+        if s_fd is None:
+            assert friction is not None
             notes.append(f"friction fit: {friction.reason or 'a negative b_e or k_e'}; "
                          "b_e and k_e from the port's linear fit, no Dahl force")
             friction = None
             break
-        held = dict(theta, endpoint_damping=friction.endpoint_damping,
-                    endpoint_stiffness=friction.endpoint_stiffness)
-        s_fd = _dahl_spectrum(bt, xe, dt, friction.sigma / friction.coulomb_force,
-                              friction.coulomb_force)
-        held_keys = ("endpoint_inertia", "hose_damping", "hose_stiffness")
-        fit = _fit_port(w, s_x[0], s_fp[0], s_fd, resp_p.rel_sigma, held, held_keys, dt)
         if not it and fit[2] > MODEL_CLASS_THRESHOLD["port"]:
             # a first pass whose misfit would flag the model class is fitted again from P's
             # shape (m_e where |P/Z_s| reaches 1, the linear start's hose), and from a decade
-            # above that m_e, and the best kept: two draws of the family whose resonance was
-            # too damped to peak (0.24, 0.53) ended with m_e 10^4 and 30x too small, 10-32 %
-            # misfit; from there 0.5-1.5 %. The crossing assumes a light endpoint: on a draw
-            # whose Dahl spring (sigma 1.7 k_s) damps the resonance further, it gave m_e 5.5x
-            # low and the fit ended at 0.09x (4.8 % misfit, k_s +58 %); from 10x it: 2.4 %
+            # above that m_e (for a resonance too damped to peak), and the best kept
             crossing = {k: v for k, v in _crossing_start(w, resp_p.h, start).items()
                         if k in held_keys}
             for factor in CROSSING_FACTORS:
@@ -729,8 +746,7 @@ def identify_free_air(record: ExcitationRecord, *, band: Optional[Tuple[float, f
                                   held_keys, dt)
                 fit = min(fit, again, key=lambda f: f[2])
         new, sig_new, misfit_p = fit
-        change = max(abs(new[k] / theta[k] - 1.0)
-                     for k in ("endpoint_inertia", "hose_damping", "hose_stiffness"))
+        change = max(abs(new[k] / theta[k] - 1.0) for k in held_keys)
         theta = new
         sig_p.update(sig_new)
         if change < CONVERGED:
