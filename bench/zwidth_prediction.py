@@ -33,7 +33,8 @@ import numpy as np
 
 from seaforce_ros.commissioning.predictor import (PLANT_FIELDS, PREDICTED_MODES, LoopModel,
                                                   hold_delay_limit, predict_modes)
-from seaforce_ros.commissioning.tuning import InfeasibleTuningError, tune
+from seaforce_ros.commissioning.model import ControllerModel
+from seaforce_ros.commissioning.tuning import InfeasibleTuningError, TuningGoals, tune
 from seaforce_ros.core import ControllerConfig
 from seaforce_ros.core.params import DahlParams, GraspParams, PlantParams, TargetParams
 from seaforce_ros.identification.zwidth_lib import simulate_impedance
@@ -135,7 +136,8 @@ def print_tuning(plants):
         sigma = {n: 0.05 * getattr(plant, n) for n in PLANT_FIELDS}
         t = time.process_time()
         try:
-            r = tune(plant, sigma, dahl, figures, noise_budget=0.005)
+            r = tune(ControllerModel(plant, sigma, dahl), figures,
+                     TuningGoals(noise_budget=0.005))
         except InfeasibleTuningError as exc:
             print(f"  refused ({exc.constraint}): {exc}")
             continue

@@ -81,7 +81,8 @@ from .report import (CommissioningReport, LoopFigure, ModeImpedance, ModelClass,
 from .candidates import FEEDFORWARD_KEYS, chosen_values
 from .candidates import propose as propose_candidates
 from .model import ControllerModel, model_stage
-from .tuning import TUNED_KEYS, InfeasibleTuningError, TuningResult, margin_cost_db, tune
+from .tuning import (TUNED_KEYS, InfeasibleTuningError, TuningGoals, TuningResult,
+                     margin_cost_db, tune)
 from .verification import Candidate, CandidateOutcome, Window
 from .verification import predict as predict_verification
 
@@ -160,6 +161,12 @@ class AnalysisRequest:
     excitation: Dict[str, Any] = field(default_factory=dict)
     seed: Optional[int] = None
     truth: Dict[str, float] = field(default_factory=dict)
+
+    @property
+    def goals(self) -> TuningGoals:
+        """What the tuning aims for (band, noise budget, passivity margin, guard)."""
+        return TuningGoals(self.band, self.noise_budget, self.passivity_margin,
+                           self.allow_guard)
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> "AnalysisRequest":
@@ -320,10 +327,7 @@ def tune_stage(model: ControllerModel, loop: LoopModel, request: AnalysisRequest
     offset, offset_sd = model.pressure_offset
     if math.isfinite(offset):
         config = config.replace(pressure_offset=config.pressure_offset + offset)
-    result = tune(model.plant, model.sigma, model.dahl, loop, band=request.band,
-                  noise_budget=request.noise_budget,
-                  passivity_margin=request.passivity_margin, allow_guard=request.allow_guard,
-                  config=config, class_error=model.class_error, terms=model.terms)
+    result = tune(model, loop, request.goals, config=config)
     if math.isfinite(offset):
         result.bindings["pressure_offset"] = (
             f"identified: the record read {1e3 * offset:+.2f} +- {1e3 * offset_sd:.2f} mN m "
@@ -352,12 +356,12 @@ def zwidth_at(band: ImpedanceBand, omega: Sequence[float]) -> Dict[float, float]
     return {float(o): float(np.interp(math.log(o), w, band.zwidth_db)) for o in omega}
 
 
-def predict_stage(plant: PlantParams, plant_sigma: Mapping[str, float],
-                  dahl: Optional[DahlParams], config: ControllerConfig, loop: LoopModel,
+def predict_stage(model: ControllerModel, config: ControllerConfig, loop: LoopModel,
                   noise_budget: float, draws: int = BAND_DRAWS, noise_rel_sigma: float = 0.0,
                   progress: Optional[Progress] = None) -> Prediction:
     """|Z| per mode with its band, the Z-width chart and wall, the torque noise vs lambda
     (``noise_rel_sigma``: the pressure noise's relative 1-sigma)."""
+    plant, plant_sigma, dahl = model.plant, model.sigma, model.dahl
     omega = _impedance_grid(loop.dt)
     if progress is not None:
         progress("predict", 0.0, f"|Z| of {len(PREDICTED_MODES)} modes over {draws} plants "
@@ -994,8 +998,8 @@ def finish(proposal: Proposal, request: AnalysisRequest, verified: Optional[Veri
         if tuning is not None and model is not None and analysis.loop is not None:
             tuning = analysis.tuning = _verified_tuning(proposal, request, verified)
             say("predict", 0.0, "|Z| of every mode, the Z-width, the torque noise")
-            prediction = predict_stage(model.plant, model.sigma, model.dahl,
-                                       tuning.config, analysis.loop, request.noise_budget,
+            prediction = predict_stage(model, tuning.config, analysis.loop,
+                                       request.noise_budget,
                                        noise_rel_sigma=(figures.pressure.std_1s / max(
                                            figures.pressure.std, 1e-300)) if figures else 0.0,
                                        progress=say)
@@ -1061,8 +1065,7 @@ def _verified_tuning(proposal: Proposal, request: AnalysisRequest,
         bindings[key] = why if key != "feedforward.damping_reserve" or chosen is None \
             else f"{why} (the least its band needs)"
     config = ControllerConfig.from_dict(values, base=tuning.config)
-    cost = margin_cost_db(model.plant, model.dahl, config, model.terms, tuning.omega,
-                          loop.delay_p50, loop.dt, 0.5)
+    cost = margin_cost_db(model, config, tuning.omega, loop.delay_p50, loop.dt, 0.5)
     return dataclasses.replace(tuning, values=values, config=config, bindings=bindings,
                                margin_cost_db=cost)
 

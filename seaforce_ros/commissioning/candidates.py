@@ -45,10 +45,9 @@ FEEDFORWARD_KEYS = ("feedforward.damping_uncertainty", "feedforward.stiffness_un
 def _statistical(tuned: ControllerConfig, model: ControllerModel, share: float,
                  passivity_margin: float) -> ControllerConfig:
     """``tuned`` with the feed-forward's uncertainties at the statistical band and ``share``."""
-    values: Dict[str, Any] = dict(feedforward_uncertainties(
-        model.plant, model.sigma, model.dahl, 0.0, model.terms))
-    values.update(band_uncertainties(model.plant, model.sigma, model.dahl, 0.0,
-                                     passivity_margin, tuned.feedforward.margin))
+    statistical = dataclasses.replace(model, class_error=0.0)
+    values: Dict[str, Any] = dict(feedforward_uncertainties(statistical))
+    values.update(band_uncertainties(statistical, passivity_margin, tuned.feedforward.margin))
     values["feedforward.dahl_stiffness_share"] = share
     values["feedforward.verified_share"] = share if share > 0.5 else 0.0
     return ControllerConfig.from_dict(values, base=tuned.replace(allow_non_passive=True))

@@ -39,9 +39,9 @@ class ControllerModel:
         Their 1-sigmas (PlantParams names; ``sigma``, ``coulomb_force`` for the Dahl model).
     dahl : DahlParams
     terms : PlantTermsParams
-        The nonlinear terms used (0: not resolved).
+        The nonlinear terms used (0: not resolved; default none: the linear model).
     class_error : float
-        The model class's relative error the feed-forward's uncertainty takes
+        The model class's relative error (default 0) the feed-forward's uncertainty takes
         (:func:`~.tuning.feedforward_uncertainties`).
     lines : list of str
         What was used, and what was left out and why (for the report).
@@ -53,8 +53,8 @@ class ControllerModel:
     plant: PlantParams
     sigma: Dict[str, float]
     dahl: DahlParams
-    terms: PlantTermsParams
-    class_error: float
+    terms: PlantTermsParams = field(default_factory=PlantTermsParams)
+    class_error: float = 0.0
     lines: List[str] = field(default_factory=list)
     pressure_offset: Tuple[float, float] = (math.nan, math.nan)
 

@@ -51,14 +51,15 @@ from ..core.params import (MIN_UNCERTAINTY, ControllerConfig, DahlParams, DobPar
 from ..core.simulator import discretise
 from .errors import CommissioningError
 from .free_finger import RESERVE_LIMIT, band_spreads, size_reserve, with_reserve
+from .model import ControllerModel
 from .predictor import (PLANT_FIELDS, SIGMA_KEYS, LoopModel, closed_loop_radius, hold_verdict,
                         predict_modes, torque_noise)
 
 #: The model terms (``plant_terms.*``) a tuning writes.
 TERM_FIELDS = tuple(spec.attribute for spec in PlantTermsParams.SPECS)
 
-__all__ = ["TuningResult", "InfeasibleTuningError", "tune", "worst_plant", "TUNED_KEYS",
-           "margin_cost_db",
+__all__ = ["TuningGoals", "TuningResult", "InfeasibleTuningError", "tune", "worst_plant",
+           "TUNED_KEYS", "margin_cost_db",
            "HOLD_MODULUS_MARGIN", "DELAY_RESERVE", "contact_damping_within",
            "feedforward_uncertainties", "band_uncertainties"]
 
@@ -384,26 +385,12 @@ def _hold_stable(plant: PlantParams, kp: float, kd: float, figures: LoopModel) -
     return True
 
 
-def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
-         figures: LoopModel, *, band: Tuple[float, float] = (0.3, 10.0),
-         noise_budget: float = 0.01, passivity_margin: float = 2.0,
-         allow_guard: bool = False, config: Optional[ControllerConfig] = None,
-         amplitude: float = 0.5, points: int = 8, class_error: float = 0.0,
-         terms: Optional[PlantTermsParams] = None) -> TuningResult:
-    """Choose the DOB and hold settings that widen the predicted Z-width (module docstring).
+@dataclass(frozen=True)
+class TuningGoals:
+    """What the tuning aims for and within what (the commissioning goal's settings).
 
-    Parameters
+    Attributes
     ----------
-    plant : PlantParams
-        Identified m, b, k, m_e, b_e, k_e, b_s, k_s.
-    plant_sigma : mapping str -> float >= 0
-        Their 1-sigma, keyed by the PlantParams field names (missing: 0); ``'sigma'`` and
-        ``'coulomb_force'`` for the Dahl model's, ``'stroke_asymmetry'`` and
-        ``'stroke_stiffness'`` for the stroke terms'.
-    dahl : DahlParams
-        Identified sigma [N m/rad], F_c [N m], n.
-    figures : LoopModel
-        Pressure noise [N m], encoder resolution [rad], delay p50/p99 [samples], T [s].
     band : (float, float), 0 < low < high < pi/T
         Where the Z-width counts [rad/s].
     noise_budget : float > 0
@@ -411,8 +398,35 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     passivity_margin : float >= 0
         Sigmas of m, b, k against which eq. 28 must hold.
     allow_guard : bool
-        m_n may go below eq. 28 as far as the passivity guard's ``max_damping`` (from
-        ``config``) covers; the result then sets ``passivity_guard: active``.
+        m_n may go below eq. 28 as far as the passivity guard's ``max_damping`` covers; the
+        result then sets ``passivity_guard: active``.
+    """
+
+    band: Tuple[float, float] = (0.3, 10.0)
+    noise_budget: float = 0.01
+    passivity_margin: float = 2.0
+    allow_guard: bool = False
+
+
+def tune(model: ControllerModel, figures: LoopModel, goals: TuningGoals = TuningGoals(), *,
+         config: Optional[ControllerConfig] = None, amplitude: float = 0.5,
+         points: int = 8) -> TuningResult:
+    """Choose the DOB and hold settings that widen the predicted Z-width (module docstring).
+
+    Parameters
+    ----------
+    model : ControllerModel
+        The identified model: the plant's m, b, k, m_e, b_e, k_e, b_s, k_s, their 1-sigmas
+        (PlantParams names, missing: 0; ``'sigma'``, ``'coulomb_force'`` for the Dahl model's,
+        ``'stroke_asymmetry'``, ``'stroke_stiffness'`` for the stroke terms'), the Dahl model,
+        the model class's error (with each endpoint term's relative 1-sigma it makes the
+        feed-forward's uncertainty, :func:`feedforward_uncertainties`) and the nonlinear terms
+        the record resolved (written as they are, 0 clearing a term an earlier commissioning
+        wrote; the predictions stay on the linear model).
+    figures : LoopModel
+        Pressure noise [N m], encoder resolution [rad], delay p50/p99 [samples], T [s].
+    goals : TuningGoals
+        The band, the noise budget, the passivity margin and whether the guard may be used.
     config : ControllerConfig, optional
         The settings to start from (default: the defaults on the identified model); the
         result keeps everything tuning does not set.
@@ -420,15 +434,6 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
         Drive amplitude of the predicted Z [rad].
     points : int >= 2
         Frequencies of the band's log grid.
-    class_error : float >= 0
-        The model class's relative error as the fit's misfit shows it (the port response's
-        rms relative misfit): with each endpoint term's relative 1-sigma it makes the
-        feed-forward's uncertainty (:func:`feedforward_uncertainties`).
-    terms : PlantTermsParams, optional
-        The model's nonlinear terms the record resolved (``plant_terms``; default none: the
-        linear model). They are written as they are (0: a term not resolved, which also
-        clears a term an earlier commissioning wrote); the predictions stay on the linear
-        model.
 
     Returns
     -------
@@ -442,6 +447,10 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     CommissioningError
         Bad input.
     """
+    plant, plant_sigma, dahl = model.plant, model.sigma, model.dahl
+    class_error, terms = model.class_error, model.terms
+    band, noise_budget = goals.band, goals.noise_budget
+    passivity_margin, allow_guard = goals.passivity_margin, goals.allow_guard
     _check_inputs(plant, plant_sigma, figures, band, noise_budget, passivity_margin)
     if not (math.isfinite(class_error) and class_error >= 0.0):
         raise CommissioningError(f"class_error = {class_error!r}: the misfit, >= 0 and finite")
@@ -452,13 +461,11 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     # the model it was set for): this config only predicts; every candidate is checked
     # (and the feed-forward's uncertainties from the identification: its margin sets the
     # feed-forward's gains, hence the torque noise of every candidate)
-    uncertainties = feedforward_uncertainties(plant, plant_sigma, dahl, class_error, terms)
-    uncertainties.update(band_uncertainties(plant, plant_sigma, dahl, class_error,
-                                            passivity_margin, base.feedforward.margin))
-    terms = PlantTermsParams() if terms is None else terms
+    uncertainties = feedforward_uncertainties(model)
+    uncertainties.update(band_uncertainties(model, passivity_margin, base.feedforward.margin))
     # (the candidates are scored without the free finger's damping reserve, an upper bound
     # of their Z-width: the reserve is sized for the best of them below)
-    model = ControllerConfig.from_dict({**uncertainties, "feedforward.damping_reserve": 0.0},
+    scoring = ControllerConfig.from_dict({**uncertainties, "feedforward.damping_reserve": 0.0},
                                        base=base.replace(
         plant=plant, dahl=dahl, plant_terms=terms, allow_non_passive=True,
         grasp=dataclasses.replace(base.grasp, contact_damping=(
@@ -486,7 +493,7 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
         if not _passive(worst, c, base):
             failures["passivity"] = failures.get("passivity", 0) + 1
             continue
-        trial = model.replace(dob=c.dob, passivity=_guard(model, c.guard),
+        trial = scoring.replace(dob=c.dob, passivity=_guard(scoring, c.guard),
                               allow_non_passive=False)
         c.noise = math.hypot(*torque_noise(plant, dahl, trial, figures, "dob"))
         quietest = min(quietest, c.noise)
@@ -509,12 +516,12 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
         raise InfeasibleTuningError(constraint, f"tune: {detail} (candidates failing: "
                                     + ", ".join(f"{k} {v}" for k, v in failures.items())
                                     + ")")
-    spreads = band_spreads(model)
-    configured = model.feedforward.dahl_stiffness_share
+    spreads = band_spreads(scoring)
+    configured = scoring.feedforward.dahl_stiffness_share
     shares = [configured] + [s for s in SHARE_FALLBACK if s < configured]
     for share in shares:
-        trial_model = model.replace(feedforward=dataclasses.replace(
-            model.feedforward, dahl_stiffness_share=share))
+        trial_model = scoring.replace(feedforward=dataclasses.replace(
+            scoring.feedforward, dahl_stiffness_share=share))
         try:
             best, reserve, radius = _reserved(feasible, start, trial_model, spreads, plant,
                                               dahl, figures, omega, amplitude, noise_budget)
@@ -522,7 +529,7 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
             if exc.constraint != "free_finger" or share == shares[-1]:
                 raise
             continue
-        model = trial_model
+        scoring = trial_model
         break
     lam_index = next((i for i, lam in enumerate(_CUTOFFS) if lam == best.dob.cutoff), -1)
     noisier = [c for c in candidates if c.dob.cutoff > best.dob.cutoff and c is not start
@@ -549,7 +556,7 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
             f"{figures.delay_p99 + DELAY_RESERVE} samples of delay: shorten the loop delay")
     scored = []
     for kp, kd in stable:
-        trial = model.replace(hold=HoldParams(stiffness=kp, damping=kd))
+        trial = scoring.replace(hold=HoldParams(stiffness=kp, damping=kd))
         z = predict_modes(plant, dahl, trial, ("hold",), omega, delay=figures.delay_p50,
                           dt=dt, amplitude=amplitude)["hold"]
         scored.append((_mean_db(z), kp, kd))
@@ -592,7 +599,7 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     bindings.setdefault("feedforward.motor_uncertainty", "the free finger's band: eq. 28's "
                         "passivity_margin 1-sigmas of m, b, k over the margin")
     values["feedforward.damping_reserve"] = reserve
-    share = model.feedforward.dahl_stiffness_share
+    share = scoring.feedforward.dahl_stiffness_share
     values["feedforward.dahl_stiffness_share"] = share
     values["feedforward.verified_share"] = 0.0       # (the verification's to raise)
     bindings["feedforward.verified_share"] = "not verified: the model's band alone"
@@ -607,18 +614,16 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     tuned = ControllerConfig.from_dict(values, base=base)
     after = predict_modes(plant, dahl, tuned, ("hold", "dob_full_ff"), omega,
                           delay=figures.delay_p50, dt=dt, amplitude=amplitude)
-    margin_cost = margin_cost_db(plant, dahl, tuned, terms, omega, figures.delay_p50, dt,
-                               amplitude)
+    margin_cost = margin_cost_db(model, tuned, omega, figures.delay_p50, dt, amplitude)
     verdict = hold_verdict(plant, kp, kd, delay=figures.delay_p99, dt=dt)
     return TuningResult(values, tuned, omega, _zwidth(before), _zwidth(after), bindings,
                         best.noise, verdict.delay_limit, verdict.margins, guard_carries(tuned),
                         margin_cost, math.hypot(*torque_noise(plant, dahl, tuned, figures)))
 
 
-def margin_cost_db(plant: PlantParams, dahl: DahlParams, tuned: ControllerConfig,
-                 terms: PlantTermsParams, omega: _Float, delay: int, dt: float,
-                 amplitude: float) -> _Float:
-    """``dob_full_ff``'s predicted |Z| with the tuned margin over the same with the model
+def margin_cost_db(model: ControllerModel, tuned: ControllerConfig, omega: _Float,
+                   delay: int, dt: float, amplitude: float) -> _Float:
+    """``dob_full_ff``'s predicted |Z| with the tuned margin over the same with ``model``
     inverted exactly [dB]. The stroke stiffening k_3 X_e^3 counts by its describing function
     on the fundamental at the drive amplitude A, a stiffness ``c = 3/4 k_3 A^2`` in the plant,
     of which the feed-forward cancels ``1 - margin u_s`` against ``1 - margin u_k`` of k_e:
@@ -627,15 +632,14 @@ def margin_cost_db(plant: PlantParams, dahl: DahlParams, tuned: ControllerConfig
     stroke margin's cost went unpredicted: on a plant whose diaphragm stiffens 33 % at 0.5 rad,
     a model within 6 % put ``dob_full_ff`` 4.4 dB above the linear class's with 0.3 dB
     predicted."""
-    ff = tuned.feedforward
-    stroke = 0.75 * terms.stroke_stiffness * amplitude ** 2
+    plant, dahl, ff = model.plant, model.dahl, tuned.feedforward
+    stroke = 0.75 * model.terms.stroke_stiffness * amplitude ** 2
     k_scale = ff.scales()[1]
     if stroke > 0.0 and k_scale > 0.0:
         k_e = plant.endpoint_stiffness
         plant = dataclasses.replace(plant, endpoint_stiffness=k_e + stroke)
-        model = dataclasses.replace(tuned.plant, endpoint_stiffness=k_e + stroke
-                                    * ff.stroke_scale() / k_scale)
-        tuned = tuned.replace(plant=model)
+        tuned = tuned.replace(plant=dataclasses.replace(
+            tuned.plant, endpoint_stiffness=k_e + stroke * ff.stroke_scale() / k_scale))
     after = predict_modes(plant, dahl, tuned, ("dob_full_ff",), omega, delay=delay, dt=dt,
                           amplitude=amplitude)
     exact = tuned.replace(plant=dataclasses.replace(tuned.plant,
@@ -671,8 +675,7 @@ def _relative(plant_sigma: Mapping[str, float], key: str, value: float) -> float
     return sd / value if value > 0.0 and math.isfinite(sd) else 1.0
 
 
-def band_uncertainties(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
-                       class_error: float, passivity_margin: float, margin: float
+def band_uncertainties(model: ControllerModel, passivity_margin: float, margin: float
                        ) -> Dict[str, float]:
     """``feedforward.motor_uncertainty`` and ``plant_uncertainty`` after an identification:
     the largest relative uncertainty of m, b, k such that the band (``margin`` of them)
@@ -680,21 +683,21 @@ def band_uncertainties(plant: PlantParams, plant_sigma: Mapping[str, float], dah
     of m_e, b_s, k_s and the Dahl sigma ``hypot(sigma_rel, class_error)`` as the
     feed-forward's; each at least :data:`~seaforce_ros.core.params.MIN_UNCERTAINTY`, at
     most 1."""
+    plant, class_error = model.plant, model.class_error
+
     def rel(key: str, value: float) -> float:
-        return _relative(plant_sigma, key, value)
+        return _relative(model.sigma, key, value)
 
     motor = max(passivity_margin / max(margin, 1e-12) * rel(k, getattr(plant, k))
                 for k in ("motor_inertia", "motor_damping", "motor_stiffness"))
     other = max([math.hypot(rel(k, getattr(plant, k)), class_error)
                  for k in ("endpoint_inertia", "hose_damping", "hose_stiffness")]
-                + [math.hypot(rel("sigma", dahl.sigma), class_error)])
+                + [math.hypot(rel("sigma", model.dahl.sigma), class_error)])
     return {"feedforward.motor_uncertainty": min(1.0, max(MIN_UNCERTAINTY, motor)),
             "feedforward.plant_uncertainty": min(1.0, max(MIN_UNCERTAINTY, other))}
 
 
-def feedforward_uncertainties(plant: PlantParams, plant_sigma: Mapping[str, float],
-                              dahl: DahlParams, class_error: float,
-                              terms: Optional[PlantTermsParams] = None) -> Dict[str, float]:
+def feedforward_uncertainties(model: ControllerModel) -> Dict[str, float]:
     """The feed-forward's relative uncertainties (``feedforward.*_uncertainty``) after an
     identification: per term ``hypot(sigma_rel, class_error)`` -- the fit's statistical
     1-sigma, relative, and the model class's error the misfit shows (a parameter whose
@@ -706,6 +709,9 @@ def feedforward_uncertainties(plant: PlantParams, plant_sigma: Mapping[str, floa
     (``plant_sigma``) and :data:`TERM_UNCERTAINTY`, with the class error (without stroke
     terms, :data:`TERM_UNCERTAINTY`). Each at least
     :data:`~seaforce_ros.core.params.MIN_UNCERTAINTY`, at most 1."""
+    plant, plant_sigma, terms = model.plant, model.sigma, model.terms
+    class_error = model.class_error
+
     def rel(name: str, value: float) -> float:
         return _relative(plant_sigma, name, value)
 
@@ -714,7 +720,7 @@ def feedforward_uncertainties(plant: PlantParams, plant_sigma: Mapping[str, floa
 
     stroke = TERM_UNCERTAINTY
     for name in ("stroke_asymmetry", "stroke_stiffness"):
-        value = 0.0 if terms is None else abs(getattr(terms, name))
+        value = abs(getattr(terms, name))
         if value:
             sd = float(plant_sigma.get(name, 0.0))
             stroke = max(stroke, sd / value if math.isfinite(sd) else 1.0)
@@ -723,7 +729,8 @@ def feedforward_uncertainties(plant: PlantParams, plant_sigma: Mapping[str, floa
                                                         plant.endpoint_damping)),
             "feedforward.stiffness_uncertainty": term(rel("endpoint_stiffness",
                                                           plant.endpoint_stiffness)),
-            "feedforward.dahl_uncertainty": term(rel("coulomb_force", dahl.coulomb_force)),
+            "feedforward.dahl_uncertainty": term(rel("coulomb_force",
+                                                     model.dahl.coulomb_force)),
             "feedforward.stroke_uncertainty": term(stroke)}
 
 

@@ -306,6 +306,7 @@ def test_the_stroke_floor_leaves_a_term_up_to_40_percent_high_under_compensated(
     """A resolved stroke term whose 1-sigma is small gets the floor (TERM_UNCERTAINTY): its
     margin leaves a term up to 40 % high -- the range the free-finger property test of
     test_safety draws -- under-compensated; a larger 1-sigma takes a larger margin."""
+    from seaforce_ros.commissioning.model import ControllerModel
     from seaforce_ros.commissioning.tuning import TERM_UNCERTAINTY, feedforward_uncertainties
     from seaforce_ros.core.params import FeedforwardParams, PlantTermsParams
 
@@ -313,7 +314,8 @@ def test_the_stroke_floor_leaves_a_term_up_to_40_percent_high_under_compensated(
 
     def stroke_scale(sd):
         sigma = {'endpoint_damping': 1e-4, 'endpoint_stiffness': 1e-4, 'stroke_stiffness': sd}
-        u = feedforward_uncertainties(TRUE, sigma, DahlParams(), 0.01, model_terms)
+        u = feedforward_uncertainties(ControllerModel(TRUE, sigma, DahlParams(), model_terms,
+                                                     0.01))
         return dataclasses.replace(FeedforwardParams(), **{
             k.split('.')[1]: v for k, v in u.items()}).stroke_scale()
 

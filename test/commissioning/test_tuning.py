@@ -15,7 +15,8 @@ from seaforce_ros.commissioning.free_finger import (RADIUS_TARGET, band_spreads,
                                                     reserve_verdict)
 from seaforce_ros.commissioning.predictor import (PLANT_FIELDS, LoopModel, hold_delay_limit,
                                                   predict_modes, torque_noise)
-from seaforce_ros.commissioning.tuning import (DELAY_RESERVE, TUNED_KEYS,
+from seaforce_ros.commissioning.model import ControllerModel
+from seaforce_ros.commissioning.tuning import (DELAY_RESERVE, TUNED_KEYS, TuningGoals,
                                                InfeasibleTuningError, tune, worst_plant)
 from seaforce_ros.core.errors import NonPassiveError
 from seaforce_ros.core.params import (ControllerConfig, DahlParams, GraspParams, PlantParams,
@@ -84,8 +85,8 @@ def test_tuned_settings_meet_every_constraint(case):
     that names the constraint."""
     plant, sigma, dahl, figures, budget, margin, allow_guard = case
     try:
-        result = tune(plant, sigma, dahl, figures, noise_budget=budget,
-                      passivity_margin=margin, allow_guard=allow_guard)
+        result = tune(ControllerModel(plant, sigma, dahl), figures, TuningGoals(
+            noise_budget=budget, passivity_margin=margin, allow_guard=allow_guard))
     except InfeasibleTuningError as exc:
         assert exc.constraint in CONSTRAINTS
         assert exc.constraint.split("_")[0] in str(exc) or "noise" in str(exc)
@@ -141,14 +142,16 @@ SIGMA = {n: 0.05 * getattr(TABLE_I, n) for n in PLANT_FIELDS}
 def test_table_i_tuning_is_bound_where_it_says():
     """A budget below the starting setting's noise (0.0015 N m): lambda is bound by the noise
     budget, m_n by eq. 28, the hold by its stability, the reserve by the free finger."""
-    result = tune(TABLE_I, SIGMA, DahlParams(), FIGURES, noise_budget=0.0014)
+    result = tune(ControllerModel(TABLE_I, SIGMA, DahlParams()), FIGURES,
+                  TuningGoals(noise_budget=0.0014))
     assert result.torque_noise <= 0.0014
     assert result.bindings["feedforward.damping_reserve"].startswith("free finger")
     assert result.bindings["dob.cutoff"].startswith("noise budget")
     assert result.bindings["dob.nominal_inertia"].startswith("passivity")
     assert result.bindings["hold.stiffness"].startswith("hold stability")
     # a larger budget lets lambda rise; the Z-width does not narrow
-    wider = tune(TABLE_I, SIGMA, DahlParams(), FIGURES, noise_budget=0.03)
+    wider = tune(ControllerModel(TABLE_I, SIGMA, DahlParams()), FIGURES,
+                 TuningGoals(noise_budget=0.03))
     assert wider.config.dob.cutoff > result.config.dob.cutoff
     assert np.mean(wider.zwidth_after_db) >= np.mean(result.zwidth_after_db) - 1e-9
     assert result.gain_db >= 0.0
@@ -159,9 +162,10 @@ def test_the_guard_is_chosen_only_where_it_widens_the_zwidth(budget):
     """The guarded candidates (m_n below eq. 28, the guard covering the deficit) are weighed
     with the damping reserve a free finger then needs -- on Table I with 5 % 1-sigmas more
     than without the guard, so it does not pay here; the guard never narrows the Z-width."""
-    plain = tune(TABLE_I, SIGMA, DahlParams(), FIGURES, noise_budget=budget)
-    guarded = tune(TABLE_I, SIGMA, DahlParams(), FIGURES, noise_budget=budget,
-                   allow_guard=True)
+    plain = tune(ControllerModel(TABLE_I, SIGMA, DahlParams()), FIGURES,
+                 TuningGoals(noise_budget=budget))
+    guarded = tune(ControllerModel(TABLE_I, SIGMA, DahlParams()), FIGURES,
+                   TuningGoals(noise_budget=budget, allow_guard=True))
     if guarded.config.passivity.mode == "active":
         assert "covers" in guarded.guard
     # (to the reserve's resolution: its bisection may start from another corner)
@@ -170,7 +174,7 @@ def test_the_guard_is_chosen_only_where_it_widens_the_zwidth(budget):
 
 def test_budgets_nothing_meets_are_refused_with_the_constraint():
     with pytest.raises(InfeasibleTuningError, match="noise_budget") as noise:
-        tune(TABLE_I, SIGMA, DahlParams(), FIGURES, noise_budget=1e-7)
+        tune(ControllerModel(TABLE_I, SIGMA, DahlParams()), FIGURES, TuningGoals(noise_budget=1e-7))
     assert noise.value.constraint == "noise_budget"
     assert isinstance(noise.value, CommissioningError)
     assert "raise the budget" in str(noise.value)
@@ -180,8 +184,10 @@ def test_long_delays_soften_the_hold():
     """A p99 of 20 samples still finds a hold, softer, stable at 22 samples."""
     slow = LoopModel(pressure_noise=5e-4, encoder_resolution=1e-5, delay_p50=1,
                        delay_p99=20)
-    fast = tune(TABLE_I, SIGMA, DahlParams(), FIGURES, noise_budget=0.03)
-    result = tune(TABLE_I, SIGMA, DahlParams(), slow, noise_budget=0.03)
+    fast = tune(ControllerModel(TABLE_I, SIGMA, DahlParams()), FIGURES,
+                TuningGoals(noise_budget=0.03))
+    result = tune(ControllerModel(TABLE_I, SIGMA, DahlParams()), slow,
+                  TuningGoals(noise_budget=0.03))
     assert result.config.hold.stiffness < fast.config.hold.stiffness
     assert result.hold_delay_limit >= 22
 
@@ -195,9 +201,9 @@ def test_long_delays_soften_the_hold():
 ])
 def test_bad_input_is_refused(kwargs, match):
     with pytest.raises(CommissioningError, match=match):
-        tune(TABLE_I, SIGMA, DahlParams(), FIGURES, **kwargs)
+        tune(ControllerModel(TABLE_I, SIGMA, DahlParams()), FIGURES, TuningGoals(**kwargs))
     with pytest.raises(CommissioningError, match="plant_sigma"):
-        tune(TABLE_I, {"mass": 1.0}, DahlParams(), FIGURES)
+        tune(ControllerModel(TABLE_I, {"mass": 1.0}, DahlParams()), FIGURES)
 
 
 @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -210,8 +216,9 @@ def test_tuning_from_settings_made_for_another_plant(case):
     plant, sigma, dahl, figures, budget, margin, allow_guard = case
     start = ControllerConfig()
     try:
-        result = tune(plant, sigma, dahl, figures, noise_budget=budget,
-                      passivity_margin=margin, allow_guard=allow_guard, config=start)
+        result = tune(ControllerModel(plant, sigma, dahl), figures, TuningGoals(
+            noise_budget=budget, passivity_margin=margin, allow_guard=allow_guard),
+            config=start)
     except InfeasibleTuningError as exc:
         assert exc.constraint in CONSTRAINTS
         return
@@ -230,8 +237,8 @@ def test_tuning_from_settings_that_violate_eq28_on_the_identified_plant():
     heavy = TABLE_I.scaled(motor_inertia=1.4)
     with pytest.raises(NonPassiveError):
         check_dob_passivity(heavy, ControllerConfig().dob)
-    result = tune(heavy, SIGMA, DahlParams(), FIGURES, noise_budget=0.01,
-                  config=ControllerConfig())
+    result = tune(ControllerModel(heavy, SIGMA, DahlParams()), FIGURES,
+                  TuningGoals(noise_budget=0.01), config=ControllerConfig())
     check_dob_passivity(worst_plant(heavy, SIGMA, 2.0), result.config.dob)
     assert result.config.dob.nominal_inertia >= heavy.motor_inertia - \
         heavy.motor_damping / result.config.dob.cutoff
@@ -257,12 +264,12 @@ def test_a_band_no_reserve_holds_at_the_configured_share_is_held_at_a_lower_one(
     figures = LoopModel(pressure_noise=5.135e-4, encoder_resolution=5.992e-6, delay_p50=1,
                         delay_p99=1)
     base = ControllerConfig(plant=PlantParams.table_i(), dahl=DahlParams())
-    result = tune(plant, sigma, dahl, figures, config=base, class_error=0.032)
+    result = tune(ControllerModel(plant, sigma, dahl, class_error=0.032), figures, config=base)
     assert result.values["feedforward.dahl_stiffness_share"] == 0.25
     assert "lowered from 0.5" in result.bindings["feedforward.dahl_stiffness_share"]
     assert result.config.feedforward.dahl_stiffness_share == 0.25
     assert reserve_verdict(result.config, delay=figures.delay_p99) is None
     monkeypatch.setattr("seaforce_ros.commissioning.tuning.SHARE_FALLBACK", ())
     with pytest.raises(InfeasibleTuningError) as refused:
-        tune(plant, sigma, dahl, figures, config=base, class_error=0.032)
+        tune(ControllerModel(plant, sigma, dahl, class_error=0.032), figures, config=base)
     assert refused.value.constraint == "free_finger"

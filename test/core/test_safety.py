@@ -547,6 +547,7 @@ def test_a_free_finger_on_the_richer_model_comes_to_rest_over_the_stroke(
     flick: it comes to rest (no limit cycle), runs no further out than where it started
     (plus 0.1 rad of the flick's travel) and never trips the monitor -- the unmodelled finger
     ratio and cogging included."""
+    from seaforce_ros.commissioning.model import ControllerModel
     from seaforce_ros.commissioning.tuning import feedforward_uncertainties
     effects, coulomb = draw_effects(np.random.default_rng(seed))
     truth = model_terms(effects, TABLE_I)
@@ -562,7 +563,7 @@ def test_a_free_finger_on_the_richer_model_comes_to_rest_over_the_stroke(
     sigmas = {"endpoint_damping": size * model.endpoint_damping,
               "endpoint_stiffness": size * model.endpoint_stiffness,
               "coulomb_force": size * dahl.coulomb_force}
-    ff = feedforward_uncertainties(model, sigmas, dahl, size, terms)
+    ff = feedforward_uncertainties(ControllerModel(model, sigmas, dahl, terms, size))
     config = ControllerConfig.from_dict(ff, base=ControllerConfig(
         mode="dob_full_ff", plant=model, dahl=dahl, plant_terms=terms))
     sim = NonlinearChannelSimulator(TABLE_I, DAHL, effects, seed=seed, motor_coulomb=coulomb)
