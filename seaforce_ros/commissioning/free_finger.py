@@ -24,13 +24,16 @@ I's band an interior sigma came out 1.4e-5 above the worst corner, within that m
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import math
 from typing import Dict, List, Mapping, Optional, Sequence, Tuple
 
+import numpy as np
+
 from ..core.params import ControllerConfig, DahlParams, FeedforwardParams, PlantParams
 from .errors import CommissioningError
-from .predictor import PLANT_FIELDS, closed_loop_radius, controller_polynomials
+from .predictor import PLANT_FIELDS, closed_loop_matrix, controller_polynomials
 
 __all__ = ["BAND_KEYS", "corner_radius", "radius_at", "size_reserve", "band_spreads",
            "reserve_verdict", "with_reserve", "RESERVE_LIMIT", "RADIUS_TARGET", "SPREAD_LIMIT"]
@@ -157,25 +160,40 @@ def _worst(config: ControllerConfig, corners: Sequence[Mapping[str, float]], mod
         raise CommissioningError(f"mode {mode!r}: one of " + ", ".join(_MODES))
     sigma_ff = config.feedforward.dahl(config.dahl).sigma if mode != "dob_linear_ff" else 0.0
     polys = [controller_polynomials(config, mode, dt, g + 0j) for g in sorted({0.0, sigma_ff})]
-    worst, at = -1.0, dict(corners[0])
+    matrices, actuals = [], []
     for corner in corners:
-        plant = dataclasses.replace(config.plant, **{
-            k: _in_range(PlantParams, k, getattr(config.plant, k) * corner[k])
-            for k in PLANT_FIELDS})
-        dahl = dataclasses.replace(config.dahl, sigma=_in_range(
-            DahlParams, "sigma", config.dahl.sigma * corner["sigma"]))
-        actual = dict(corner)       # (a factor the range cut: the one taken)
-        for k in PLANT_FIELDS:
-            if getattr(plant, k) != getattr(config.plant, k) * corner[k]:
-                actual[k] = getattr(plant, k) / getattr(config.plant, k)
-        if dahl.sigma != config.dahl.sigma * corner["sigma"]:
-            actual["sigma"] = dahl.sigma / config.dahl.sigma
-        for p in polys:
-            r = closed_loop_radius(plant, dahl, config, mode, delay=delay, dt=dt,
-                                   polynomials=p)
-            if r > worst:
-                worst, at = r, actual
-    return worst, at
+        plant, dahl, actual = _corner_plant(config.plant, config.dahl,
+                                            tuple(corner[k] for k in BAND_KEYS))
+        actuals.append(dict(actual))
+        matrices.append([closed_loop_matrix(plant, dahl, config, mode, delay=delay, dt=dt,
+                                            polynomials=p) for p in polys])
+    # one eigenvalue call per controller polynomial over every corner (a tuning asks for
+    # tens of thousands of small matrices: the calls' overhead was most of its time)
+    radii = np.max([np.max(np.abs(np.linalg.eigvals(np.stack([m[i] for m in matrices]))),
+                           axis=1) for i in range(len(polys))], axis=0)
+    i = int(np.argmax(radii))
+    return float(radii[i]), actuals[i]
+
+
+@functools.lru_cache(maxsize=4096)
+def _corner_plant(plant: PlantParams, dahl: DahlParams, factors: Tuple[float, ...]
+                  ) -> Tuple[PlantParams, DahlParams, Dict[str, float]]:
+    """The plant and Dahl model at a corner (the factors in :data:`BAND_KEYS`' order), each
+    within its range, and the factors taken (a factor the range cut: the one taken); remembered,
+    as a reserve's bisection visits the same corners of one model many times (never write into
+    the dict)."""
+    corner = dict(zip(BAND_KEYS, factors))
+    at = dataclasses.replace(plant, **{
+        k: _in_range(PlantParams, k, getattr(plant, k) * corner[k]) for k in PLANT_FIELDS})
+    at_dahl = dataclasses.replace(dahl, sigma=_in_range(DahlParams, "sigma",
+                                                        dahl.sigma * corner["sigma"]))
+    actual = dict(corner)
+    for k in PLANT_FIELDS:
+        if getattr(at, k) != getattr(plant, k) * corner[k]:
+            actual[k] = getattr(at, k) / getattr(plant, k)
+    if at_dahl.sigma != dahl.sigma * corner["sigma"]:
+        actual["sigma"] = at_dahl.sigma / dahl.sigma
+    return at, at_dahl, actual
 
 
 def _in_range(group: type, name: str, value: float) -> float:

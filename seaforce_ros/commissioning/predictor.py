@@ -56,7 +56,8 @@ from ..core.simulator import discretise
 from .errors import CommissioningError
 
 __all__ = ["PREDICTED_MODES", "LoopModel", "PredictionError", "dahl_describing_function",
-           "controller_polynomials", "controller_gains", "closed_loop_radius", "reserve_filter",
+           "controller_polynomials", "controller_gains", "closed_loop_radius",
+           "closed_loop_matrix", "reserve_filter",
            "predict_impedance", "predict_modes", "ImpedanceBand",
            "predict_band", "perturbed_plants", "torque_noise", "hold_delay_limit",
            "HoldVerdict", "hold_verdict", "WallLimits", "wall_limits", "PLANT_FIELDS",
@@ -297,8 +298,20 @@ def closed_loop_radius(true_plant: PlantParams, true_dahl: Optional[DahlParams],
                        endpoint_damping: float = 0.0, feedforward_dahl: float = 0.0,
                        polynomials: Optional[Tuple[_Coefficients, _Coefficients,
                                                    _Coefficients]] = None) -> float:
-    """Spectral radius of the sampled closed loop of ``mode`` (< 1: stable), the endpoint
-    tied to ground by a spring-damper (0, 0: free; the position drive's 1000 N m/rad,
+    """Spectral radius of :func:`closed_loop_matrix` (its arguments): < 1, stable."""
+    return float(np.max(np.abs(np.linalg.eigvals(closed_loop_matrix(
+        true_plant, true_dahl, config, mode, delay=delay, dt=dt,
+        endpoint_stiffness=endpoint_stiffness, endpoint_damping=endpoint_damping,
+        feedforward_dahl=feedforward_dahl, polynomials=polynomials)))))
+
+
+def closed_loop_matrix(true_plant: PlantParams, true_dahl: Optional[DahlParams],
+                       config: ControllerConfig, mode: str, *, delay: int = 1,
+                       dt: float = 5e-4, endpoint_stiffness: float = 0.0,
+                       endpoint_damping: float = 0.0, feedforward_dahl: float = 0.0,
+                       polynomials: Optional[Tuple[_Coefficients, _Coefficients,
+                                                   _Coefficients]] = None) -> _Float:
+    """The state matrix of the sampled closed loop of ``mode``, the endpoint tied to ground by a spring-damper (0, 0: free; the position drive's 1000 N m/rad,
     1.2 N m s/rad: held). The plant's Dahl hysteresis is its initial stiffness sigma (small
     motion); the feed-forward's stays in its play, or, given ``feedforward_dahl`` [N m/rad],
     is that stiffness on X_e_hat (its initial one, beyond the play: the feed-forward's sigma).
@@ -343,7 +356,7 @@ def closed_loop_radius(true_plant: PlantParams, true_dahl: Optional[DahlParams],
         A[iu] = u_row
     for i in range(1, M):
         A[iu + i, iu + i - 1] = 1.0
-    return float(np.max(np.abs(np.linalg.eigvals(A))))
+    return A
 
 
 @functools.lru_cache(maxsize=4096)
