@@ -145,6 +145,8 @@ PORT_RESTARTS = 2
 #: The m_e of the first friction pass's retry from P's shape, as multiples of the crossing's
 #: (:func:`_crossing_start`; when that pass's misfit would flag the model class).
 CROSSING_FACTORS = (1.0, 10.0)
+#: Two port fits whose parameters are all within this (of the log) ended at one minimum.
+SAME_FIT = 0.05
 #: Sanathanan-Koerner iterations of the port's linear start.
 SK_ITERATIONS = 8
 #: Frequencies of the spectral grid.
@@ -687,11 +689,13 @@ def identify_free_air(record: ExcitationRecord, *, band: Optional[Tuple[float, f
     start = dict(_port_start(w, resp_p.h, weight),
                  **{k: float(v) for k, v in zip(fit_a.names, fit_a.values)})
     # two starts (the linear fit's, and one from P's shape, for when the linear fit's m_e is
-    # far off); without the Dahl force both misfit the port by a few %, so the first friction
-    # pass fits the port from each and keeps the better
+    # far off); without the Dahl force both misfit the port by a few %, so where they ended
+    # apart the first friction pass fits the port from each and keeps the better
     starts = sorted((_fit_port(w, s_x[0], s_fp[0], None, resp_p.rel_sigma, st, _PORT_KEYS, dt)
                      for st in (start, _resonance_start(w, resp_p.h, start))),
                     key=lambda f: f[2])
+    starts = starts[:1] + [f for f in starts[1:] if max(
+        abs(math.log(f[0][k] / starts[0][0][k])) for k in _PORT_KEYS) > SAME_FIT]
     theta, sig_p, misfit_p = starts[0]
     held_keys = ("endpoint_inertia", "hose_damping", "hose_stiffness")
 
