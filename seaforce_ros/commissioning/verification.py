@@ -14,9 +14,11 @@ tries each candidate in turn, most compensation first, on the free finger:
    (the ``hold`` gains) takes the finger there along a raised-cosine path (at most
    :data:`MOVE_SPEED`) and dithers it about the point (``20 mrad`` falling to 0 over
    :data:`DITHER_CYCLES` cycles at :data:`DITHER_FREQUENCY`: the hysteresis cycled down to
-   nothing);
+   nothing) and holds it still for :data:`STILL_TIME` (the torque at the start of the job
+   fading in :data:`~seaforce_ros.core.modes.TRANSFER_TIME`);
 2. then the candidate runs the channel as ``dob_full_ff`` would (a controller of its own, with
-   its walls and its runaway monitor armed, entered bumplessly from the servo's torque): the
+   its walls and its runaway monitor armed, entered from the servo's mean torque over the
+   still's second half, the finger's static load): the
    finger, released there, is pulsed on the DOB's reference for :data:`PULSE_TIME` -- a force
    that would take the model's motor and endpoint inertia to ``verification.speed`` -- and
    watched for ``verification.settle_time`` and :data:`DRIFT_TIME`, then pulsed the other way;
@@ -54,6 +56,7 @@ from typing import TYPE_CHECKING, Dict, List, Optional, Sequence
 from ..core.controller import ChannelController
 from ..core.jobs import TORQUE, InvalidJobGoalError, Job, JobSample
 from ..core.params import ControllerConfig, DahlParams, PlantParams, PlantTermsParams
+from ..core.modes import TRANSFER_TIME
 from ..core.safety import REST_SPEED
 from ..core.sensors import SensorParams
 from ..core.signals import faded_sine
@@ -62,12 +65,17 @@ if TYPE_CHECKING:
     from ..core.estimator import ContactEstimator
 
 __all__ = ["Candidate", "Window", "CandidateOutcome", "FreeFingerVerification", "predict",
-           "PULSE_TIME", "DRIFT_TIME", "CHUNK", "KINDS"]
+           "PULSE_TIME", "DRIFT_TIME", "STILL_TIME", "CHUNK", "KINDS"]
 
 #: Largest speed [rad/s] of the servo's moves between points.
 MOVE_SPEED = 0.3
 #: The dither before a candidate takes over: amplitude [rad], cycles, frequency [Hz].
 DITHER_AMPLITUDE, DITHER_CYCLES, DITHER_FREQUENCY = 0.02, 3, 3.0
+#: The servo holds the finger still this long [s] after the dither before the candidate takes
+#: over: its torque is then the finger's static load, not the dither's tracking error (at the
+#: tuned hold gains 0.3 N m, which the candidate's DOB took over as a push: a flick of 3-4
+#: rad/s that carried a finger the candidate held to the walls).
+STILL_TIME = 0.15
 #: The pulse's length [s]: the finger slides a few tenths of a radian, as a flick does (a
 #: pulse of 20 ms moved it a few hundredths, and a candidate whose finger rested after those
 #: swung across +-0.3 rad after a hand's flick of 4 mN m s).
@@ -161,6 +169,7 @@ class FreeFingerVerification(Job):
         # channel's may be a hand-typed hold that a rig's delay makes unstable)
         servo = self.candidates[-1].config.hold
         self._kp, self._kd = servo.stiffness, servo.damping
+        self._decay = math.exp(-self.dt / TRANSFER_TIME)
         rest = config.feedforward.rest_position
         lim = config.limits
         room = lim.wall_band + DITHER_AMPLITUDE + 0.05
@@ -186,6 +195,7 @@ class FreeFingerVerification(Job):
         self._t = 0.0                  # time in the present step [s]
         self._x0 = math.nan            # the servo's start and the torque it entered with
         self._bias = 0.0
+        self._still = [0.0, 0]         # the servo's torque summed over the still, samples
         self._move = 0.0
         self._move_time = 0.0
         self._kind = 0                 # which window of KINDS
@@ -211,7 +221,8 @@ class FreeFingerVerification(Job):
 
     def _estimated_duration(self) -> float:
         """Rig time [s] for every candidate (the moves as if from rest)."""
-        per_point = (2.0 + DITHER_CYCLES / DITHER_FREQUENCY + len(KINDS) * self._window)
+        per_point = (2.0 + DITHER_CYCLES / DITHER_FREQUENCY + STILL_TIME
+                     + len(KINDS) * self._window)
         return len(self.candidates) * len(self.points) * per_point
 
     # --- per sample ------------------------------------------------------------------------
@@ -246,6 +257,7 @@ class FreeFingerVerification(Job):
             self._move = self.points[self._p] - xe
             self._move_time = max(0.2, 0.5 * math.pi * abs(self._move) / MOVE_SPEED)
             self._t = 0.0
+            self._still = [0.0, 0]
             self.phase = "move"
             self.message = (f"candidate {self._c + 1} of {len(self.candidates)}: moving to "
                             f"{self.points[self._p]:.3g} rad")
@@ -259,14 +271,22 @@ class FreeFingerVerification(Job):
             dither = DITHER_CYCLES / DITHER_FREQUENCY
             fade = 0.5 * dither
             w = 2.0 * math.pi * DITHER_FREQUENCY
-            r, rd = faded_sine(t - tm, DITHER_AMPLITUDE, w, fade, dither)
+            r, rd = faded_sine(t - tm, DITHER_AMPLITUDE, w, fade, dither) \
+                if t - tm < dither else (0.0, 0.0)
             r += self._move
-            if t - tm >= dither:
-                u = self._bias + self._kp * (self._x0 + self._move - x) - self._kd * v
+            if t - tm >= dither + STILL_TIME:
+                # from the servo's mean torque over the still's second half: the finger's
+                # static load (a coarse encoder's count is kp x 0.4 mrad of torque)
+                u = self._still[0] / max(self._still[1], 1)
                 self._enter(u)
                 return u
         self._t = t + self.dt * steps
-        return self._bias + self._kp * (self._x0 + r - x) + self._kd * (rd - v)
+        u = self._bias + self._kp * (self._x0 + r - x) + self._kd * (rd - v)
+        self._bias *= self._decay if steps == 1 else self._decay ** steps
+        if t >= tm and t - tm >= DITHER_CYCLES / DITHER_FREQUENCY + 0.5 * STILL_TIME:
+            self._still[0] += max(-self._limit, min(self._limit, u)) * steps
+            self._still[1] += steps
+        return u
 
     def _enter(self, torque: float) -> None:
         """The candidate takes the channel over from ``torque`` [N m], bumplessly."""

@@ -150,6 +150,36 @@ values = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.floats(-2.
                    st.floats(-0.01, 0.01))
 
 
+@pytest.mark.parametrize("start", [0.0, 0.2, 0.25])
+def test_the_candidate_takes_over_from_the_static_load(start):
+    """A stiff servo (the tuned hold: K_p 600 N m/rad) on a coarse encoder (2^14 counts/rev:
+    one count is 0.23 N m of its torque) holds the finger at 0.25 rad; the candidate enters
+    from the servo's mean torque over the still (the finger's static load), not from the
+    count it happened to be on -- entered from that, its DOB pushed the finger with it, a
+    flick of 3-4 rad/s to the walls. The shipped feed-forward on the finger of its model
+    passes from every start, and no window's peak speed is beyond twice the pulse's aim."""
+    from seaforce_ros.core.sensors import SensorParams
+    config = CONFIG.replace(hold=CONFIG.hold.__class__(stiffness=600.0, damping=1.0))
+    sim = ChannelSimulator(PlantParams.table_i(), DahlParams(), seed=3,
+                           sensors=SensorParams(motor_counts_per_rev=2 ** 14))
+    sim.reset((start, 0.0, start, 0.0))
+    candidate = Candidate("the shipped feed-forward", config)
+    job = FreeFingerVerification([candidate], config.replace(
+        verification=dataclasses.replace(config.verification, offset=0.25)), DT)
+    job.points = [0.25]
+    ctl = ChannelController(config.replace(mode="passive"), DT)
+    ctl.request_job(job)
+    m = sim.measurement()
+    for _ in range(int(30.0 / DT)):
+        m = sim.step(ctl.update(m.x, m.v, m.f_p))
+        if not job.active:
+            break
+    outcome = job.outcomes[0]
+    assert outcome.passed, outcome.reason
+    assert all(w.peak_speed < 2.0 * config.verification.speed for w in outcome.windows), [
+        w.peak_speed for w in outcome.windows]
+
+
 @settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(st.tuples(values, values, values, values, values), min_size=1, max_size=80),
        st.floats(1e-3, 5.0), st.floats(1e-3, 10.0))
