@@ -157,7 +157,8 @@ def main():
     silent = [(s, r) for s, r in moving if r["trip_at"] is None and not r["diagnosed"]]
     print(f"  of those, with no fall-back and no settling-watch diagnostic (restless or "
           f"creeping): {len(silent)}")
-    for s, r in moving[:10]:
+    # the silent ones first: they are what the monitor and the watch missed
+    for s, r in (silent + [m for m in moving if all(m is not q for q in silent)])[:10]:
         named = ("fell back" if r["trip_at"] is not None else
                  "diagnosed" if r["diagnosed"] else "silent")
         print(f"  seed {s}: rms |V_e| {r['rest_v']:.3f} rad/s over the last second ({named})")
