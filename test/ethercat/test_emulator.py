@@ -166,15 +166,20 @@ def test_cia402_enable_applies_torque_and_moves_the_plant(bus_in_op):
     assert cia402_state(bus.command(0, CW_DISABLE_VOLTAGE).statusword) == "switch_on_disabled"
 
 
-def test_torque_needs_cyclic_synchronous_torque_mode(bus_in_op):
+def test_the_drive_follows_the_mode_it_is_in(bus_in_op):
+    """CST applies the target torque; CSP (mode 8) servos to the target position, here the
+    unmapped 0x607A = 0, whatever torque is sent -- the accident of a drive enabled in the
+    wrong mode -- and the emulator counts every such frame as evidence."""
     emu, bus = bus_in_op
-    bus.enable(1, 200)
-    d = bus.command(1, CW_ENABLE_OPERATION, 200, mode=8, cycles=5)   # CSP: not supported
+    bus.enable(1, 0)
+    d = bus.command(1, CW_ENABLE_OPERATION, 200, mode=10, cycles=200)
+    assert d.mode == 10 and d.torque == 200 and d.statusword & 0x1000
+    assert d.position > 0                              # pushed ahead by 0.1 N m
+    assert emu.client.slave("pinch_drive")["enables_outside_cst"] == 0
+    d = bus.command(1, CW_ENABLE_OPERATION, 200, mode=8, cycles=5)
     assert cia402_state(d.statusword) == "operation_enabled"
-    assert d.mode == 8 and d.torque == 0 and not d.statusword & 0x1000
-    assert not emu.client.torque_applied("pinch_drive")
-    d = bus.command(1, CW_ENABLE_OPERATION, 200, mode=10, cycles=5)
-    assert d.mode == 10 and d.torque == 200
+    assert d.mode == 8 and d.torque < 0              # back towards position 0, not +200
+    assert emu.client.slave("pinch_drive")["enables_outside_cst"] >= 5
 
 
 def test_position_drive_backdrives_the_finger(ecat_emulator, soem_master):

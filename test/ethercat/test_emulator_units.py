@@ -27,9 +27,19 @@ class FakeClock:
         return self.t
 
 
+def legacy_config():
+    """The default line with drives without a mailbox (their mapping fixed in the SII): the
+    ESC-level tests below program SMs and FMMUs by hand, as SOEM does for such slaves."""
+    config = cfg.default_config()
+    for spec in config["slaves"]:
+        if spec["type"] == "cia402_drive":
+            spec["profile"] = "no_mailbox"
+    return config
+
+
 def make_bus(config=None):
     clock = FakeClock()
-    return cfg.build(config or cfg.default_config(), clock=clock), clock
+    return cfg.build(config or legacy_config(), clock=clock), clock
 
 
 def send(bus, datagrams, index=3):
@@ -409,7 +419,7 @@ def test_pressure_chain_and_adc():
 
 
 def test_drive_inputs_scale_plant_state():
-    config = cfg.default_config()
+    config = legacy_config()
     config["channels"]["wrist"]["pressure_noise"] = 0.0
     bus, _ = make_bus(config)
     configure_addresses(bus)
@@ -453,6 +463,11 @@ def test_documented_yaml_example_builds(tmp_path):
     path = tmp_path / "bus.yaml"
     path.write_text(text)
     bus = cfg.build(cfg.load(path))
-    assert [s.name for s in bus.slaves] == ["wrist_drive", "pinch_drive", "pressure_terminal"]
+    assert [s.name for s in bus.slaves] == ["wrist_drive", "pinch_drive", "coupler",
+                                            "pressure_terminal"]
     assert bus.physics.channel("pinch").sim.environment.mode == "position_sine"
-    assert bus.slaves[2].identity.product_code == 0x0C1E3052
+    assert bus.slaves[3].identity.product_code == 0x0C1E3052
+    pinch = bus.slaves[1]
+    assert pinch.profile.name == "elmo_like" and pinch.profile.requires_dc
+    assert pinch.profile.required == {(0x60C2, 1): 5, (0x60C2, 2): -4}
+    assert bus.slaves[2].kind == "coupler"
