@@ -134,9 +134,13 @@ class DriveProfile:
         0x10F1:02 at power-up (0: no sync supervision).
     device_name : str
         0x1008 (and the SII name).
+    product_code : int
+        The default product code: another model, another code (SOEM copies the SII data of
+        an earlier slave with the same identity instead of reading it).
     """
 
     name: str = "standard"
+    product_code: int = 0x00000402
     rx: Dict[int, Mapping] = field(default_factory=lambda: {0x1600: CST_RX})
     tx: Dict[int, Mapping] = field(default_factory=lambda: {0x1A00: CST_TX})
     rx_assign: Tuple[int, ...] = (0x1600,)
@@ -162,7 +166,7 @@ PROFILES = {
     "standard": DriveProfile(),
     # default RxPDO with target position and digital outputs, no target torque; starts in CSP
     "elmo_like": DriveProfile(
-        name="elmo_like",
+        name="elmo_like", product_code=0x00001402,
         rx={0x1600: ((0x607A, 0, 32), (0x60FE, 1, 32), (0x6040, 0, 16)),
             0x1601: ((0x6071, 0, 16), (0x6060, 0, 8))},
         tx={0x1A00: ((0x6064, 0, 32), (0x60FD, 0, 32), (0x6041, 0, 16)),
@@ -170,25 +174,25 @@ PROFILES = {
         initial_mode=MODE_CSP, device_name="SEAforce CiA402 drive, CSP mapping (emulated)"),
     # nothing assigned, nothing mapped at power-up; a small mailbox (segmented transfers)
     "ingenia_like": DriveProfile(
-        name="ingenia_like", rx={0x1600: (), 0x1601: ()}, tx={0x1A00: (), 0x1A01: ()},
+        name="ingenia_like", product_code=0x00002402, rx={0x1600: (), 0x1601: ()}, tx={0x1A00: (), 0x1A01: ()},
         rx_assign=(), tx_assign=(), sii_pdos=False, mailbox_size=48, complete_access=False,
         device_name="SEAforce CiA402 drive with no default mapping (emulated)"),
     # starts in CSP with 0x607A = 0; its default mapping has neither 0x6060 nor 0x6061
     "csp_start": DriveProfile(
-        name="csp_start",
+        name="csp_start", product_code=0x00003402,
         rx={0x1600: ((0x6040, 0, 16), (0x6071, 0, 16))},
         tx={0x1A00: ((0x6041, 0, 16), (0x6064, 0, 32), (0x606C, 0, 32), (0x6077, 0, 16))},
         initial_mode=MODE_CSP, device_name="SEAforce CiA402 drive in CSP (emulated)"),
     # refuses OP (AL 0x0030) unless SYNC0 runs at 0.5 ms
-    "requires_dc": DriveProfile(name="requires_dc", requires_dc=True,
+    "requires_dc": DriveProfile(name="requires_dc", product_code=0x00004402, requires_dc=True,
                                 device_name="SEAforce CiA402 drive, DC only (emulated)"),
     # refuses OP (AL 0x0035) unless 0x60C2 (interpolation time period) is 0.5 ms
     "requires_60c2": DriveProfile(
-        name="requires_60c2", required={(0x60C2, 1): 5, (0x60C2, 2): -4},
+        name="requires_60c2", product_code=0x00005402, required={(0x60C2, 1): 5, (0x60C2, 2): -4},
         device_name="SEAforce CiA402 drive needing 0x60C2 (emulated)"),
     # looks at the controlword every 2 ms
     "slow_controlword": DriveProfile(
-        name="slow_controlword", controlword_period=0.002,
+        name="slow_controlword", product_code=0x00006402, controlword_period=0.002,
         device_name="SEAforce CiA402 drive, 2 ms controlword (emulated)"),
     # no mailbox: the fixed SII mapping, no CoE (the emulator's first drive)
     "no_mailbox": DriveProfile(name="no_mailbox", mailbox_size=0, dc=False,

@@ -254,9 +254,10 @@ def build(config, clock=None):
             counts[channel] = cpr
             channel_specs.setdefault(channel, {})
             profile = _profile(spec, key)
+            default = dataclasses.replace(DRIVE_IDENTITY, product_code=profile.product_code)
             try:
                 slave = Cia402Drive(
-                    name, channel, identity=_identity(spec, DRIVE_IDENTITY, key),
+                    name, channel, identity=_identity(spec, default, key),
                     profile=profile,
                     rated_torque=(_float(spec["rated_torque"], key + ".rated_torque")
                                   if "rated_torque" in spec else None),
