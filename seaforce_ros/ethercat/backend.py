@@ -181,7 +181,6 @@ class EthercatBackend(PlantBackend):
         self.al_status = ''                      # slaves not in OP (diagnostics)
         self.recoveries = 0
         self._sync: Dict[str, Dict[str, int]] = {}
-        self._emcy_registered: set = set()       # drives whose emergencies are reported
 
     def describe(self) -> str:
         """One line for the node's start-up log."""
@@ -197,7 +196,6 @@ class EthercatBackend(PlantBackend):
     def configure(self) -> str:
         bus = self.bus
         self.notes = []
-        self._emcy_registered = set()
         bus.configure()
         self._scaling()
         bus.set_process_data_watchdog(self.drive_watchdog)
@@ -332,7 +330,7 @@ class EthercatBackend(PlantBackend):
 
     def close(self) -> str:
         bus = self.bus
-        if bus.master is None:
+        if not bus.is_open:
             self.state = 'closed'
             return ''
         done = ''
@@ -472,7 +470,7 @@ class EthercatBackend(PlantBackend):
     def _fetch(self, c: _Channel) -> None:
         try:
             with self._coe_lock:
-                if self.bus.master is None:
+                if not self.bus.is_open:
                     return
                 self._poll_emergencies(c)
                 if not c.has_error_code:
@@ -483,20 +481,10 @@ class EthercatBackend(PlantBackend):
             c.fault_fetch = False
 
     def _poll_emergencies(self, c: _Channel) -> None:
-        """Read the drive's mailbox once: an emergency in it becomes ``c.emergency``."""
-        bus = self.bus
-        slave = bus.master.slaves[c.drive]
-        pysoem = bus._pysoem
-        if c.drive not in self._emcy_registered:
-            def on_emergency(msg: Any, c: _Channel = c) -> None:
-                c.emergency = (f'0x{msg.error_code:04X} register 0x{msg.error_reg:02X}'
-                               if msg.error_code else '')
-            slave.add_emergency_callback(on_emergency)
-            self._emcy_registered.add(c.drive)
-        try:
-            slave.mbx_receive()
-        except (pysoem.Emergency, pysoem.MailboxError, pysoem.PacketError):
-            pass
+        """Read the drive's mailbox once: the newest emergency in it becomes ``c.emergency``
+        (an error reset, code 0, clears it)."""
+        for code, register in self.bus.poll_emergencies(c.drive):
+            c.emergency = f'0x{code:04X} register 0x{register:02X}' if code else ''
 
     def write(self, command: PlantOutput) -> None:
         bus = self.bus
@@ -559,7 +547,7 @@ class EthercatBackend(PlantBackend):
         bus = self.bus
         if self._coe_lock.acquire(blocking=False):
             try:
-                if bus.master is not None and self.state == 'active':
+                if bus.is_open and self.state == 'active':
                     self._refresh_monitoring()
             except Exception:
                 pass

@@ -158,6 +158,9 @@ class EthercatBus:
         How long ``exchange`` waits for the frame to come back [us].
     cycle_ns : int
         The node's cycle [ns]: SYNC0's cycle on the DC slaves.
+    pysoem : module, optional
+        The pysoem module (default: imported by :meth:`open`); tests pass a stand-in, and
+        the interface is then not touched.
 
     Attributes
     ----------
@@ -170,13 +173,14 @@ class EthercatBus:
     """
 
     def __init__(self, config: BusConfig, interface: str, receive_timeout_us: int = 400,
-                 cycle_ns: int = 500000) -> None:
+                 cycle_ns: int = 500000, pysoem: Any = None) -> None:
         self.config = config
         self.interface = interface
         self.receive_timeout_us = int(receive_timeout_us)
         self.cycle_ns = int(cycle_ns)
         self.master: Any = None
-        self._pysoem: Any = None
+        self._pysoem: Any = pysoem
+        self._injected = pysoem is not None
         self._was_promiscuous: Optional[bool] = None  # the flag before open(); None: not open
         self.expected_wkc: Optional[int] = None
         self._outputs: List[bytearray] = [bytearray(s.outputs.size) for s in config.slaves]
@@ -189,11 +193,18 @@ class EthercatBus:
         self.dc_active = False
         self.timings: Dict[str, float] = {}
         self._ports: Dict[int, PysoemSdoPort] = {}
+        self._emergencies: Dict[int, List[Tuple[int, int]]] = {}
+        self._emcy_registered: set = set()
 
     # --- bring-up ------------------------------------------------------------------------
     def open(self) -> None:
         """Open the interface (a raw socket; nothing is sent yet). Raises :class:`BusError`
         naming what to check; then nothing is left open."""
+        if self._injected:
+            master = self._pysoem.Master()
+            master.open(self.interface)
+            self.master = master
+            return
         try:
             import pysoem
         except ImportError as exc:
@@ -243,6 +254,7 @@ class EthercatBus:
         self.expected_wkc = None
         self.drive_findings = {}
         self._ports = {}
+        self._emcy_registered = set()       # config_init makes new slave objects
         self.dc_active = False
         self._inputs = [bytes(s.inputs.size) for s in self.config.slaves]
         for out in self._outputs:
@@ -559,6 +571,28 @@ class EthercatBus:
         """:meth:`send` then :meth:`receive` (bring-up and shut-down); returns the WKC."""
         self.send()
         return self.receive()
+
+    @property
+    def is_open(self) -> bool:
+        return self.master is not None
+
+    def poll_emergencies(self, position: int) -> List[Tuple[int, int]]:
+        """Read the slave's mailbox once; the emergency messages that were in it (error
+        code, error register), oldest first."""
+        received = self._emergencies.setdefault(position, [])
+        slave = self.master.slaves[position]
+        if position not in self._emcy_registered:
+            slave.add_emergency_callback(
+                lambda msg: received.append((msg.error_code, msg.error_reg)))
+            self._emcy_registered.add(position)
+        p = self._pysoem
+        try:
+            slave.mbx_receive()
+        except (p.Emergency, p.MailboxError, p.PacketError, p.WkcError):
+            pass
+        out = list(received)
+        received.clear()
+        return out
 
     def dc_time(self) -> int:
         """The reference clock's system time [ns] the last frame read (0 without DC)."""
