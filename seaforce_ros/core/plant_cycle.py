@@ -237,6 +237,7 @@ class PlantCycle:
         self._bus_fault = ""
         self._conflict = ""
         self._wkc_errors = 0                 # consecutive
+        self._fresh = True                   # the newest exchange was complete
         self._crowded_ep = Episode(self.events, quiet_period, severity=ERROR)
         self._reject_ep = {kind: Episode(self.events, quiet_period)
                            for kind in ("stale", "future", "malformed", "unknown")}
@@ -340,7 +341,8 @@ class PlantCycle:
 
     def exchange(self, wkc: int, expected_wkc: int) -> bool:
         """Result of this cycle's process-data exchange (hardware); True if complete."""
-        if wkc == expected_wkc:
+        self._fresh = wkc == expected_wkc
+        if self._fresh:
             self._wkc_errors = 0
             return True
         self._wkc_errors += 1
@@ -417,7 +419,8 @@ class PlantCycle:
                 ch.fault = reason
                 self.events.add(ERROR, f"{self.channels[i]}: the fault is {reason}")
         else:
-            ch.grace = 0
+            if self._fresh:                 # (a stale sample says nothing about the reset)
+                ch.grace = 0
             if ch.was_allowed and not allowed and self.out.enable[i] and not ch.fault:
                 self._latch(i, "drive left Operation enabled without being told to "
                                "(quick stop, safe torque off, mode change?)")

@@ -323,7 +323,7 @@ class EthercatBus:
             mode = want.pdo_mapping
             if mode == 'auto':
                 mode = 'write' if sii.has_coe and want.kind != 'passive' else 'sii'
-            if mode == 'sii':
+            if mode == 'sii' or want.complete_access:
                 sii = self._sii(position, categories=True)
             out[position] = sii
             if mode in ('write', 'check') and not sii.has_coe:

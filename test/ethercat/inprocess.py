@@ -16,7 +16,6 @@ then all inputs) and requests SAFE-OP. The veth tests keep SOEM itself as the ju
 """
 
 import struct
-import time
 
 from ethercat.emulator import config as cfg
 from ethercat.emulator import frames as F
@@ -111,6 +110,7 @@ class FakeSlave:
 
     def sdo_write(self, index, subindex, data, ca=False, release_gil=None):
         od = self._od()
+        self._master._owner.sdo_writes.append((self._pos, index, subindex, ca))
         try:
             od.download(index, subindex, data, self._esc.al_state, ca)
         except SdoAbort as exc:
@@ -288,6 +288,9 @@ class FakeMaster:
         return expected if all(x == expected for x in states) else min(states)
 
     def send_processdata(self):
+        clock = self._owner.clock
+        if hasattr(clock, 'advance'):
+            clock.advance(self._owner.cycle_time)
         data = bytearray(self._n_out + self._n_in)
         for s in self.slaves:
             data[s._out_log:s._out_log + len(s._out)] = s._out
@@ -319,6 +322,20 @@ class FakeMaster:
         return wkc
 
 
+class _StepClock:
+    """The line's clock: one cycle per process-data frame (and what :meth:`idle` adds), so
+    watchdogs and SYNC0 run on the frames, not on this host's load."""
+
+    def __init__(self, start=1000.0):
+        self.t = start
+
+    def __call__(self):
+        return self.t
+
+    def advance(self, seconds):
+        self.t += seconds
+
+
 class FakePysoem:
     """A ``pysoem`` stand-in over an in-process emulator line built from ``emulator_config``
     (``bus``: the emulator's :class:`~ethercat.emulator.bus.Bus`)."""
@@ -329,10 +346,19 @@ class FakePysoem:
     SdoError, WkcError, MailboxError, PacketError = SdoError, WkcError, MailboxError, PacketError
     Emergency, ConfigMapError = Emergency, ConfigMapError
 
-    def __init__(self, emulator_config=None, clock=time.monotonic):
-        self.bus = cfg.build(emulator_config or cfg.default_config(), clock=clock)
+    def __init__(self, emulator_config=None, clock=None):
+        config = emulator_config or cfg.default_config()
+        self.clock = clock or _StepClock()
+        self.bus = cfg.build(config, clock=self.clock)
+        self.cycle_time = self.bus.physics.cycle_time
         self.opened = 0
         self.frames = 0
+        self.sdo_writes = []          # (position, index, subindex, complete access)
+
+    def idle(self, seconds):
+        """Time passes on the line without a frame (a pulled cable, a stalled master)."""
+        self.clock.advance(seconds)
+        self.bus.poll()
 
     def Master(self):
         return FakeMaster(self)

@@ -24,6 +24,7 @@ DRIVE_ID = (0x5EA0, 0x402, 0x10000)
 TERMINAL_ID = (0x2, 0x0C1E3052, 0x00100000)
 COUNTS_PER_RAD = 2 ** 20 / (2 * math.pi)
 EXPECTED_WKC = 7            # 2 drives x (LRW read + write = 3) + terminal (read = 1)
+SAFEOP_WKC = 3              # in SAFE-OP the drives take no outputs: their reads only
 
 
 def wait_until(predicate, what, timeout=10.0, step=None):
@@ -99,7 +100,7 @@ def test_op_and_cyclic_working_counter(ecat_bus, soem_master):
     # busy test process reads the emulator's status after the cycles
     for i in bus.drives:
         bus.slaves[i].set_watchdog("processdata", SAFE_WATCHDOG_MS)
-    assert bus.cycle() == [EXPECTED_WKC]
+    assert bus.cycle() == [SAFEOP_WKC]
     assert bus.request_state(pysoem.OP_STATE) == pysoem.OP_STATE
     steps0 = ecat_bus.client.status()["physics_steps"]
     wkcs = bus.cycle(2000)
@@ -255,9 +256,10 @@ def test_cable_pull_gives_wkc_errors_and_watchdog_removes_torque(bus_in_op):
     assert (wrist["al_state"], wrist["al_error"], wrist["al_status_code"]) == (4, True, 0x1B)
     assert wrist["cia402_state"] == "fault"
     emu.client.silent(False)
-    # back on the wire: process data flows again (SAFE-OP still serves it), the master
-    # sees the drive in SAFE-OP + error with code 0x1B and the fault bit
-    assert bus.cycle(3)[-1] == EXPECTED_WKC
+    # back on the wire: process data flows again (SAFE-OP still serves the inputs, not the
+    # outputs: the WKC shows the drives out of OP), the master sees the drive in SAFE-OP +
+    # error with code 0x1B and the fault bit
+    assert bus.cycle(3)[-1] == SAFEOP_WKC
     bus.master.read_state()
     assert bus.slaves[0].state == pysoem.SAFEOP_STATE | pysoem.STATE_ERROR
     assert bus.slaves[0].al_status == 0x1B
@@ -290,7 +292,7 @@ def test_watchdog_drops_torque_when_process_data_stop(bus_in_op):
     assert pinch["cia402_state"] == "fault" and pinch["al_status_code"] == 0x1B
     assert emu.client.slave("wrist_drive")["watchdog_expiries"] == 1    # not enabled, also expired
     assert emu.client.slave("pressure_terminal")["al_state"] == pysoem.OP_STATE
-    assert bus.cycle() == [EXPECTED_WKC]
+    assert bus.cycle() == [SAFEOP_WKC]
     d = bus.drive(1)
     assert cia402_state(d.statusword) == "fault" and d.torque == 0
     assert emu.client.channel("pinch")["torque"] == 0.0

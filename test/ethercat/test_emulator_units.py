@@ -189,6 +189,11 @@ def test_process_data_wkc_and_fmmu_copy():
     al_request(bus, 0x04)
     assert [al_status(bus, 0x1001 + i) for i in range(3)] == [(4, 0)] * 3
     out = struct.pack("<Hhb", 0x1234, -5, 10) + struct.pack("<Hhb", 0x0006, 7, 9)
+    # SAFE-OP: inputs served, outputs not taken (the output SM stays deactivated)
+    (data, wkc, _), = send(bus, [(F.LRW, 0, None, out + bytes(iomap - 10))])
+    assert wkc == 3                                             # 2 drives + terminal, reads
+    assert bytes(bus.slaves[0].mem[0x1100:0x1105]) == bytes(5)
+    al_request(bus, 0x08)
     (data, wkc, _), = send(bus, [(F.LRW, 0, None, out + bytes(iomap - 10))])
     assert wkc == 7                                             # 2 x 3 + 1
     assert data[:10] == out                                     # outputs pass unchanged
@@ -201,11 +206,12 @@ def test_process_data_wkc_and_fmmu_copy():
     assert wkc == 3
     (_, wkc, _), = send(bus, [(F.LWR, 0, None, bytes(10))])
     assert wkc == 2
-    # a window over only the terminal's inputs
+    # a window over only the terminal's inputs (what it holds before the frame's step)
+    before = bus.slaves[2].values[0]
     (data, wkc, _), = send(bus, [(F.LRW, 36, None, bytes(8))])
     assert wkc == 1
     status, value = struct.unpack_from("<Hh", data, 0)
-    assert value == bus.slaves[2].values[0]
+    assert value == before
 
 
 def test_physics_steps_once_per_process_frame():

@@ -509,6 +509,7 @@ class Cia402Drive(EscSlave):
         self._x = self._v = 0.0          # the newest measured motor state (CSP/CSV servo)
         self._inputs_ok = False          # the inputs in SM3 show Operation enabled in CST
         self._master_knows_ok = False    # ... in the newest reply the master received
+        self._delivered_ok = None        # ... in the reply of the frame being taken now
         self._was_outside = False
         self._cw_frames = 0              # frames since the controlword was last sampled
         self._sync_last = None           # SYNC0 period index of the last fresh frame
@@ -602,8 +603,9 @@ class Cia402Drive(EscSlave):
                 and self.mode_display == MODE_CST)
 
     def reply_delivered(self):
-        """The reply of a process-data frame reached the master: it now knows these inputs."""
-        self._master_knows_ok = self._inputs_ok
+        """The reply of a process-data frame reaches the master: once this frame's outputs
+        are taken (they were decided without it), the master knows these inputs."""
+        self._delivered_ok = self._inputs_ok
 
     def process_outputs(self):
         fresh = self.outputs_fresh
@@ -629,6 +631,8 @@ class Cia402Drive(EscSlave):
                 if (0x6060, 0) in self._rx_index and mode in SUPPORTED_MODES:
                     od.set(0x6061, 0, mode)
                 self._sample_controlword()
+        if self._delivered_ok is not None:
+            self._master_knows_ok, self._delivered_ok = self._delivered_ok, None
         enabled = self.sm402.state == OPERATION_ENABLED and self.al_state == OP
         if enabled and self.mode_display != MODE_CST:
             self.enables_outside_cst += 1

@@ -407,12 +407,16 @@ class EscSlave:
                 return start, length, control, activate
         return None
 
-    def _pd_accessible(self, phys):
+    def _pd_accessible(self, phys, write=False):
         """Process data SMs are served only when enabled and in SAFE-OP or OP (the PDI
-        enables them at PRE-OP -> SAFE-OP)."""
+        enables them at PRE-OP -> SAFE-OP); the outputs' SM only in OP (in SAFE-OP the
+        application keeps it deactivated, as slave stacks do: a write is not taken and not
+        counted, so a slave that fell back to SAFE-OP shows in the working counter)."""
         sm = self._sm_at(phys)
         if sm is None:
             return True
+        if write:
+            return bool(sm[3] & 1) and self.al_state == OP
         return bool(sm[3] & 1) and self.al_state in (SAFEOP, OP)
 
     def logical(self, cmd, address, data):
@@ -434,7 +438,7 @@ class EscSlave:
                 if lo >= hi:
                     continue
                 p = phys + lo - log_start
-                if not self._pd_accessible(p):
+                if not self._pd_accessible(p, write=True):
                     continue
                 self.mem[p:p + hi - lo] = data[lo - address:hi - address]
                 write_hit = True
