@@ -177,6 +177,7 @@ class EthercatBackend(PlantBackend):
         self._correction = 0.0
         self._mode_timeout = max(1, int(round(MODE_TIMEOUT / self.dt)))
         self._coe_lock = threading.Lock()        # SDO users off the cycle thread, one at a time
+        self._seen_complete = True               # a complete frame came while disabling
         self.notes: List[str] = []               # what configure/activate found worth saying
         self.al_status = ''                      # slaves not in OP (diagnostics)
         self.recoveries = 0
@@ -321,7 +322,11 @@ class EthercatBackend(PlantBackend):
         self._applied = [0.0] * len(self.ch)
         powered = self._disable_drives()
         self.state = 'configured'
+        states = '' if self._seen_complete else bus.states_text()
         bus.request_safe_op()
+        if not self._seen_complete:
+            raise BusError('no complete frame while disabling the drives: their states are '
+                           f'unknown ({states}); the bus is in SAFE-OP (outputs safe)')
         if powered:
             raise BusError('drive(s) still powered after '
                            f'{DISABLE_TIMEOUT:g} s of disable voltage: ' + ', '.join(powered)
@@ -370,8 +375,9 @@ class EthercatBackend(PlantBackend):
         self._zero_outputs()
         deadline = time.monotonic() + DISABLE_TIMEOUT
         cycles = 0
+        self._seen_complete = False
         while True:
-            bus.exchange()
+            self._seen_complete |= bus.exchange() == bus.expected_wkc
             cycles += 1
             powered = [f'{c.cfg.drive}: {state_of(bus.get_input(c.drive, "statusword")).value}'
                        for c in self.ch

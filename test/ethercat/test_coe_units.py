@@ -377,4 +377,4 @@ def test_csp_servos_to_the_target_position_whatever_torque_is_sent():
     d._x = 0.3                        # the motor measured at 0.3 rad before the next frame
     _frame(bus, d, 15, torque=200, mode=8)
     assert d.mode_display == 8 and d.applied_permille < 0           # back to 0x607A = 0
-    assert d.enables_outside_cst >= 1
+    assert d.enables_outside_cst == 1 and d.frames_outside_cst == 2

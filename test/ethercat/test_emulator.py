@@ -180,7 +180,10 @@ def test_the_drive_follows_the_mode_it_is_in(bus_in_op):
     d = bus.command(1, CW_ENABLE_OPERATION, 200, mode=8, cycles=5)
     assert cia402_state(d.statusword) == "operation_enabled"
     assert d.mode == 8 and d.torque < 0              # back towards position 0, not +200
-    assert emu.client.slave("pinch_drive")["enables_outside_cst"] >= 5
+    assert emu.client.slave("pinch_drive")["frames_outside_cst"] >= 5
+    bus.command(1, CW_SWITCH_ON, 0, mode=8, cycles=3)          # disable operation, then
+    bus.command(1, CW_ENABLE_OPERATION, 0, mode=8, cycles=3)   # enabled in CSP: counted
+    assert emu.client.slave("pinch_drive")["enables_outside_cst"] == 1
 
 
 def test_position_drive_backdrives_the_finger(ecat_emulator, soem_master):

@@ -306,6 +306,44 @@ def test_after_a_watchdog_the_reset_acknowledges_the_al_error_and_re_enables():
         rig.down()
 
 
+@pytest.mark.parametrize('variant', ['neither', 'display_only'])
+def test_a_mode_changed_while_inactive_is_seen_before_any_enable(variant):
+    """A vendor tool leaves the drive in CSP between two activations: where 0x6061 is not
+    mapped, activate reads it over CoE and sets 10 again; where it is, the drive is held in
+    Switched on until it shows 10 (here: never, as 0x6060 is not in the outputs either), and
+    after MODE_TIMEOUT its channel faults: no enable in CSP either way."""
+    emu = line('standard', 'standard')
+    outputs = [['controlword', 0x6040, 0, 'u16'], ['target_torque', 0x6071, 0, 'i16']]
+    keys = {'outputs': outputs}
+    if variant == 'neither':
+        keys['inputs'] = [e for e in bus_yaml(emu)['slaves'][0]['inputs']
+                          if e[0] != 'mode_display']
+    rig = Rig(emu, bus_yaml(emu, drive0=keys)).up()
+    try:
+        rig.cycles(100)
+        rig.backend.deactivate()
+        drive = rig.drive('drive0')
+        drive.od.objects[0x6060].entries[0].value = 8
+        drive.od.set(0x6061, 0, 8)
+        drive.refresh_inputs()
+        rig.activate()
+        rig.cycles(1100)                  # past MODE_TIMEOUT (0.5 s) held in Switched on
+        st = drive.status()
+        if variant == 'neither':
+            assert st['mode_display'] == 10 and st['cia402_state'] == 'operation_enabled'
+            assert st['applied_torque'] == pytest.approx(0.1, abs=5e-4)
+        else:
+            # held in Switched on, then the channel's fault disables it
+            assert st['mode_display'] == 8 and st['cia402_state'] == 'switch_on_disabled'
+            assert st['cycles_enabled'] == 0
+            assert rig.plant.latched_faults() == [
+                'c0: drive shows mode 8, not cyclic synchronous torque (10): held in Switched '
+                'on, no torque']
+        assert_no_unsafe_torque(rig)
+    finally:
+        rig.down()
+
+
 def test_deactivate_then_activate_acknowledges_an_al_error():
     rig = Rig(line('standard', 'standard')).up()
     try:

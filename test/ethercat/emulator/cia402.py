@@ -32,7 +32,8 @@ drive enforce, as real drives do:
 Evidence for the tests, counted by the drive: ``unsafe_torque_frames`` -- outputs with a
 non-zero target torque that arrived when the newest inputs the master had received did not
 show *Operation enabled* in CST (what a master must never send), and ``enables_outside_cst``
--- frames the drive spent in *Operation enabled* (in OP) in another mode than CST.
+-- entries into *Operation enabled* (in OP) in another mode than CST (``frames_outside_cst``
+counts the frames spent so, whoever changed the mode).
 """
 
 import struct
@@ -510,7 +511,8 @@ class Cia402Drive(EscSlave):
         self._inputs_ok = False          # the inputs in SM3 show Operation enabled in CST
         self._master_knows_ok = False    # ... in the newest reply the master received
         self._delivered_ok = None        # ... in the reply of the frame being taken now
-        self._was_outside = False
+        self._was_enabled = False
+        self.frames_outside_cst = 0
         self._cw_frames = 0              # frames since the controlword was last sampled
         self._sync_last = None           # SYNC0 period index of the last fresh frame
         self._sync_errors = 0            # the sync error counter (+3 missed, -1 good)
@@ -634,11 +636,12 @@ class Cia402Drive(EscSlave):
         if self._delivered_ok is not None:
             self._master_knows_ok, self._delivered_ok = self._delivered_ok, None
         enabled = self.sm402.state == OPERATION_ENABLED and self.al_state == OP
-        if enabled and self.mode_display != MODE_CST:
+        if enabled and not self._was_enabled and self.mode_display != MODE_CST:
             self.enables_outside_cst += 1
-            if not self._was_outside:
-                self._event("Operation enabled in mode %d (not CST)" % self.mode_display)
-        self._was_outside = enabled and self.mode_display != MODE_CST
+            self._event("Operation enabled in mode %d (not CST)" % self.mode_display)
+        if enabled and self.mode_display != MODE_CST:
+            self.frames_outside_cst += 1
+        self._was_enabled = enabled
         self.applied_permille = self._torque() if enabled else 0
         if self.torque_enabled():
             self.cycles_enabled += 1
@@ -810,6 +813,7 @@ class Cia402Drive(EscSlave):
             "cycles_enabled": self.cycles_enabled,
             "unsafe_torque_frames": self.unsafe_torque_frames,
             "enables_outside_cst": self.enables_outside_cst,
+            "frames_outside_cst": self.frames_outside_cst,
             "emergencies": self.emergencies,
             "rx_mapping": [[pdo, self.od.mapping(pdo)] for pdo in self.od.assigned(C.ASSIGN_RX)],
             "tx_mapping": [[pdo, self.od.mapping(pdo)] for pdo in self.od.assigned(C.ASSIGN_TX)],
