@@ -335,7 +335,7 @@ def test_a_mode_changed_while_inactive_is_seen_before_any_enable(variant):
         else:
             # held in Switched on, then the channel's fault disables it
             assert st['mode_display'] == 8 and st['cia402_state'] == 'switch_on_disabled'
-            assert st['cycles_enabled'] == 0
+            assert st['frames_outside_cst'] == 0
             assert rig.plant.latched_faults() == [
                 'c0: drive shows mode 8, not cyclic synchronous torque (10): held in Switched '
                 'on, no torque']
