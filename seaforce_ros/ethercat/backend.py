@@ -317,6 +317,9 @@ class EthercatBackend(PlantBackend):
 
     def deactivate(self) -> str:
         bus = self.bus
+        if self.state != 'active':           # a failed activate: nothing was enabled
+            bus.request_safe_op()
+            return 'no drive was enabled; bus in SAFE-OP'
         for c in self.ch:
             c.sequencer.enable = False
         self._applied = [0.0] * len(self.ch)
@@ -566,7 +569,8 @@ class EthercatBackend(PlantBackend):
                                   'al_status': self.al_status or 'all in OP',
                                   'bus_recoveries': self.recoveries}
         if bus.dc_active:
-            values['dc_phase_error_us'] = round(self._lock.error_ns * 1e-3, 1)
+            values['dc_phase_error_us'] = round(self._lock.mean_ns * 1e-3, 1)
+            values['dc_phase_jitter_us'] = round(self._lock.jitter_ns * 1e-3, 1)
         for name, counters in self._sync.items():
             for key, value in counters.items():
                 values[f'{name}.{key}'] = value

@@ -35,14 +35,20 @@ class DcLock:
     error_ns : float
         The newest phase error [ns] (the frame passed the reference clock this much after
         phase 0; wrapped into +-cycle/2).
+    mean_ns, jitter_ns : float
+        Running mean of the phase error and of its distance from that mean [ns] (the frame's
+        send time varies with the cycle's work: the lock centres it, the jitter remains).
     locked : bool
-        The error has stayed within :attr:`LOCK_BAND` of the cycle for a while.
+        The mean phase error has stayed within :attr:`LOCK_BAND` of the cycle for
+        :attr:`LOCK_CYCLES` cycles.
     """
 
-    #: Fraction of the cycle the phase error must stay within to count as locked.
-    LOCK_BAND = 0.1
+    #: Fraction of the cycle the mean phase error must stay within to count as locked.
+    LOCK_BAND = 0.05
     #: Cycles it must stay there.
     LOCK_CYCLES = 200
+    #: Weight of the newest error in the running mean and jitter.
+    AVERAGING = 0.02
 
     def __init__(self, cycle_ns: int, kp: float = 0.1, ki: float = 0.002,
                  max_step_ns: float = 20000.0) -> None:
@@ -54,7 +60,7 @@ class DcLock:
         self.reset()
 
     def reset(self) -> None:
-        self.error_ns = 0.0
+        self.error_ns = self.mean_ns = self.jitter_ns = 0.0
         self._integral = 0.0
         self._inside = 0
         self.updates = 0
@@ -71,7 +77,10 @@ class DcLock:
         if e > cycle / 2:
             e -= cycle
         self.error_ns = e
-        self._inside = self._inside + 1 if abs(e) < self.LOCK_BAND * cycle else 0
+        a = self.AVERAGING
+        self.mean_ns += a * (e - self.mean_ns)
+        self.jitter_ns += a * (abs(e - self.mean_ns) - self.jitter_ns)
+        self._inside = self._inside + 1 if abs(self.mean_ns) < self.LOCK_BAND * cycle else 0
         self._integral += e
         limit = self.max_step_ns / max(self.ki, 1e-12)
         self._integral = max(-limit, min(limit, self._integral))

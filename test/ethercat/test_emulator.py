@@ -117,7 +117,7 @@ def test_block_lrw_makes_soem_use_lwr_and_lrd(ecat_emulator, soem_master):
     # on the terminal: SOEM copies the SII data of a slave identical to an earlier one
     # (the pinch drive gets the wrist drive's), so the flag would be missed there
     config["slaves"][2]["block_lrw"] = True
-    emu = ecat_emulator(config)
+    emu = ecat_emulator(config, evidence=False)
     bus = SoemBus(soem_master(emu.master_interface))
     assert bus.bring_up() == pysoem.OP_STATE
     frames0 = emu.client.status()["counters"]["datagrams"]
@@ -195,7 +195,7 @@ def test_position_drive_backdrives_the_finger(ecat_emulator, soem_master):
         "inputs": [{"channel": "pinch", "quantity": "endpoint_position",
                     "volts_per_unit": 10 / math.pi},
                    {"channel": "pinch", "quantity": "external_force", "volts_per_unit": 2.0}]})
-    emu = ecat_emulator(config)
+    emu = ecat_emulator(config, evidence=False)
     master = soem_master(emu.master_interface)
     bus = SoemBus(master)
     assert bus.bring_up() == pysoem.OP_STATE
@@ -355,7 +355,7 @@ def test_wrong_identity_is_visible_to_the_master(ecat_bus, soem_master):
 def test_wrong_identity_from_the_configuration(ecat_emulator, soem_master):
     config = default_config()
     config["slaves"][2]["product_code"] = "0x0C1E3053"
-    emu = ecat_emulator(config)
+    emu = ecat_emulator(config, evidence=False)
     master = soem_master(emu.master_interface)
     assert master.config_init() == 3
     assert master.slaves[2].id == 0x0C1E3053 and master.slaves[0].id == DRIVE_ID[1]
