@@ -57,8 +57,11 @@ def measure(plant, dahl, effects, sensors, config, seed):
     for m in ("hold", "dob_full_ff"):
         for w in OMEGAS:
             try:
-                out[(m, w)] = figures(plant, dahl, effects, config, m, w, backdrive_amplitude(w),
-                                      seed, sensors=sensors)
+                fig = figures(plant, dahl, effects, config, m, w, backdrive_amplitude(w), seed,
+                              sensors=sensors)
+                if not fig.z_rms_db < 100.0:           # (|F_e| beyond any max_torque)
+                    raise FloatingPointError
+                out[(m, w)] = fig
             except (ValueError, FloatingPointError, OverflowError):
                 print(f"  {m} at {w:g} rad/s: the loop diverged", flush=True)
                 out[(m, w)] = Unstable()

@@ -30,9 +30,10 @@ stages per sample (:meth:`ChannelController.update`):
    F_c, sigma follow the friction fit slowly while the estimator sees no contact
    (``dob_linear_ff``, ``dob_full_ff``, ``impedance``, and a grasp's approach);
 5. **monitor** -- wherever the DOB runs (the reference modes, a grasp) the runaway monitor
-   (:mod:`.safety`) watches the finger's speed and the energy the walls take out of it; a
-   trip ends a job and falls back, in this sample, to ``monitor.fallback`` until
-   :meth:`~ChannelController.clear_fallback` (``~/reset``);
+   (:mod:`.safety`) watches the finger's speed and the energy the walls take out of it, and
+   outside a job the settling watch a finger that never comes to rest (kept moving in a
+   feed-forward mode, or held on a wall); a trip ends a job and falls back, in this sample,
+   to ``monitor.fallback`` until :meth:`~ChannelController.clear_fallback` (``~/reset``);
 6. **mode and walls** -- the mode (:mod:`.modes`, keyed by name) commands F_a itself
    (passive, hold, force_feedback, chirp) or gives the DOB's reference F_ref (dob,
    dob_linear_ff, dob_full_ff, impedance, force); the joint walls' force (:mod:`.safety`) is
@@ -85,7 +86,7 @@ from .modes import (MODE_TYPES, Dob, DobFullFeedforward, Mode, Passive, Referenc
 from .observer import EndpointObserver
 from .params import ControllerConfig, DahlParams
 from .passivity_guard import PassivityGuard
-from .safety import JointWalls, RunawayMonitor
+from .safety import JointWalls, RunawayMonitor, SettlingWatch
 
 __all__ = ["ChannelController"]
 
@@ -144,6 +145,8 @@ class ChannelController:
         The joint walls (their ``force`` this sample).
     monitor : RunawayMonitor
         The runaway monitor.
+    settling : SettlingWatch
+        The watch for a finger that never comes to rest (in the DOB modes, outside a job).
     fallback : str
         The mode the monitor fell back to ('' when none), latched until
         :meth:`clear_fallback`; ``fallback_reason`` says why.
@@ -159,15 +162,20 @@ class ChannelController:
         The state's cycle number (-1: not given).
     applied : float
         The torque the plant reports it applied in this sample [N m] (NaN: not given).
+    reference_offset : float
+        A force [N m] added to the DOB's reference F_ref in the modes that run it (0: none;
+        commissioning's verification pulses a free finger with it).
     """
 
     # slots (module docstring)
     __slots__ = (
         "dt", "cycle", "applied", "mode", "torque", "disturbance", "pressure_offset",
+        "reference_offset",
         # hand-overs and the job
         "_pending", "_mode_sets", "_jobs", "job", "_job_sample",
         # the parts
-        "observer", "estimator", "adaptation", "walls", "monitor", "passivity_guard", "_dob",
+        "observer", "estimator", "adaptation", "walls", "monitor", "settling", "passivity_guard",
+        "_dob",
         "_modes", "_config",
         # the mode in force and its entry
         "_torque_mode", "_reference_mode", "_reads_feedforward", "_uses_feedforward", "_walled",
@@ -185,6 +193,7 @@ class ChannelController:
         self.dt = float(dt)
         self.cycle = -1
         self.applied = _NAN
+        self.reference_offset = 0.0
         self._pending: Mailbox[ControllerConfig] = Mailbox()
         self._mode_sets: Mailbox[bool] = Mailbox()        # ... the mode was set with it
         self._jobs: Mailbox[Job] = Mailbox(size=None)     # every job requested, in order
@@ -203,6 +212,7 @@ class ChannelController:
         self.adaptation = FrictionAdaptation(config, self.dt)
         self.walls = JointWalls(config.limits, config.max_torque)
         self.monitor = RunawayMonitor(config.monitor, self.dt)
+        self.settling = SettlingWatch(config.monitor, self.dt)
         self.fallback = self.fallback_reason = self.tripped = self.beyond = ""
         self._wall = 0.0
         self._still = 0                 # samples a contact has stood with the finger still
@@ -242,6 +252,7 @@ class ChannelController:
             m.configure(c)
         self.walls.configure(c.limits, c.max_torque)
         self.monitor.configure(c.monitor)
+        self.settling.configure(c.monitor)
         self._use_mode(c.mode)
         self._adapting = c.friction.adaptation
         self.observer.configure(c.plant, c.feedforward, c.dahl, c.plant_terms)
@@ -573,14 +584,21 @@ class ChannelController:
                 self._trip(monitor.reason)
                 job = None
                 mode = self._torque_mode
+            elif job is None and self.settling.update(obs.position, self._wall,
+                                                      self._uses_feedforward, steps):
+                # (the walls' force of the last sample: this one's comes with the mode)
+                self._trip(self.settling.reason)
+                mode = self._torque_mode
 
         # the mode: F_a itself, or the DOB's reference; the walls add to either
         entry = self._entry
         guard = self.passivity_guard
         if entry:
             self._entry = 0
-            if entry == _ENTER and guard is not None and not keep_ledger:
-                guard.reset()       # a new port: the full reserve, no damping (bumpless)
+            if entry == _ENTER:
+                self.settling.reset()
+                if guard is not None and not keep_ledger:
+                    guard.reset()   # a new port: the full reserve, no damping (bumpless)
         if job is not None:
             # the job's endpoint force on minimum impedance: a grasp closes its own loop
             # around the endpoint (a speed servo, then the object and the contact damping), so
@@ -614,6 +632,8 @@ class ChannelController:
             # second time here: counted twice in the monitor's wall ledger, its grace after a
             # trip spent twice as fast)
             f_ref += w
+            if self.reference_offset:
+                f_ref += self.reference_offset      # (commissioning's verification pulses)
 
         # the guard: damping on the DOB's port (F_p + F_ref, V), Z -> Z + alpha
         if guard is not None:

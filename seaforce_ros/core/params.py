@@ -24,7 +24,7 @@ __all__ = [
     "MODES", "DOB_MODES", "PlantParams", "PlantTermsParams", "DahlParams", "DobParams", "TargetParams",
     "HoldParams", "ForceFeedbackParams", "ChirpParams", "FeedforwardParams", "EstimatorParams",
     "GraspParams", "FrictionParams", "CommissioningParams", "GUARD_MODES", "GuardParams",
-    "LimitParams", "MonitorParams", "FALLBACK_MODES", "MIN_UNCERTAINTY",
+    "LimitParams", "MonitorParams", "VerificationParams", "FALLBACK_MODES", "MIN_UNCERTAINTY",
     "guard_carries", "settable_order",
     "check_dob_passivity", "ControllerConfig", "PARAMETERS", "DEFAULT_CUTOFF",
     "DEFAULT_HOLD_STIFFNESS", "DEFAULT_HOLD_DAMPING", "MIN_CLOSING_VELOCITY", "MODE_RENAMED",
@@ -248,6 +248,10 @@ class FeedforwardParams(ParameterGroup):
                                         "k_e) through the loop's lag makes the free finger "
                                         "oscillate; 0.5 also covers a sigma off by up to 2x; at "
                                         "most 0.5 unless allow_non_passive", ge=0.0, le=1.0)
+    verified_share: float = param(0.0, "-", "the largest dahl_stiffness_share a free finger "
+                                  "was verified to rest under, on the gripper (commissioning "
+                                  "writes it; 0: none): the share may go up to it instead of "
+                                  "0.5", ge=0.0, le=1.0)
     damping_reserve: float = param(0.01, "N m s/rad", "damping the feed-forward modes add on the "
                                    "motor velocity above reserve_cutoff (F_ref -= reserve x "
                                    "HP(V)): it damps the free finger's mode on its pre-sliding "
@@ -453,7 +457,9 @@ class CommissioningParams(ParameterGroup):
     band_high: float = param(10.0, "rad/s", "upper end of that band (> band_low, below the "
                              "Nyquist frequency)", gt=0.0, le=6000.0)
     noise_budget: float = param(0.01, "N m", "largest RMS motor torque the tuned DOB may add "
-                                "from the pressure and encoder noise", gt=0.0, le=10.0)
+                                "from the pressure and encoder noise (in dob: the "
+                                "feed-forward's own noise is reported beside it)", gt=0.0,
+                                le=10.0)
     passivity_margin: float = param(2.0, "-", "1-sigmas of the identified m, b, k against which "
                                     "the tuned DOB must still satisfy eq. 28", ge=0.0,
                                     le=10.0)
@@ -470,6 +476,28 @@ class CommissioningParams(ParameterGroup):
             raise InvalidParameterError("commissioning.end_frequency", self.end_frequency,
                                         f"> commissioning.start_frequency = "
                                         f"{self.start_frequency:g} Hz")
+
+
+@group("verification")
+class VerificationParams(ParameterGroup):
+    """Commissioning's verification of the feed-forward on the free finger
+    (:mod:`seaforce_ros.commissioning.verification`): each candidate in turn, at rest and
+    pulsed, at two points of the stroke; the most compensating one whose finger comes to rest
+    is taken."""
+
+    enabled: bool = param(True, "", "verify the candidates on the gripper before one is tuned "
+                          "(false: the model's most cautious candidate, unverified)")
+    settle_time: float = param(2.0, "s", "a candidate passes where the finger, pulsed, comes to "
+                               "rest within this (each window lasts this and 0.5 s)", gt=0.0,
+                               le=10.0)
+    band: float = param(0.005, "rad", "... and then moves less than this over the window's "
+                        "last 0.5 s (a creep or a ring fails it)", gt=0.0, le=0.1)
+    pulse: float = param(0.05, "N m", "force of each pulse on the DOB's reference, held 20 ms",
+                         gt=0.0, le=1.0)
+    offset: float = param(0.25, "rad", "distance of the second point from the rest position",
+                          ge=0.0, le=1.0)
+    candidates: int = param(3, "", "most candidates tried (each about 16 s of rig time)",
+                            ge=1, le=10)
 
 
 @group("limits")
@@ -517,6 +545,14 @@ class MonitorParams(ParameterGroup):
     wall_energy: float = param(0.02, "J", "energy the joint walls may take out of the finger "
                                "within about 2 s (forgotten with that time constant) before "
                                "the finger counts as driven into them", gt=0.0, le=100.0)
+    settle_time: float = param(6.0, "s", "how long a finger may keep moving in a feed-forward "
+                               "mode before /diagnostics warns that, if nothing moves it, the "
+                               "feed-forward over-compensates its friction (a flicked finger "
+                               "whose feed-forward is right rests within a few seconds)",
+                               gt=0.0, le=1e4)
+    wall_time: float = param(2.0, "s", "how long the joint walls may hold the finger still in a "
+                             "mode that runs the DOB before it counts as pushed onto them",
+                             gt=0.0, le=1e4)
     fallback: str = param("dob", "", "what a channel the monitor trips on runs until ~/reset: "
                           "dob (the DOB without feed-forward; a trip in it falls back to "
                           "passive) or passive (zero torque)", choices=FALLBACK_MODES)
@@ -619,6 +655,7 @@ class ControllerConfig(ParameterGroup):
     grasp: GraspParams = field(default_factory=GraspParams)
     friction: FrictionParams = field(default_factory=FrictionParams)
     commissioning: CommissioningParams = field(default_factory=CommissioningParams)
+    verification: VerificationParams = field(default_factory=VerificationParams)
     passivity: GuardParams = field(default_factory=GuardParams)
     limits: LimitParams = field(default_factory=LimitParams)
     monitor: MonitorParams = field(default_factory=MonitorParams)
@@ -735,11 +772,13 @@ class ControllerConfig(ParameterGroup):
         uncertainty claims an exact model: else a free finger whose friction is within the
         model's uncertainty may be active (net negative stiffness, damping or hysteresis)."""
         ff = self.feedforward
-        if ff.dahl_stiffness_share > 0.5:
+        if ff.dahl_stiffness_share > max(0.5, ff.verified_share):
             raise NonPassiveError(
                 "feedforward.dahl_stiffness_share", ff.dahl_stiffness_share,
-                "<= 0.5 (cancelling more of the Dahl pre-sliding stiffness sigma through the "
-                "loop's lag made a free finger oscillate in 24 of 40 plants 20 % off)")
+                f"<= {max(0.5, ff.verified_share):g} (cancelling more of the Dahl pre-sliding "
+                "stiffness sigma through the loop's lag made a free finger oscillate in 24 of "
+                "40 plants 20 % off; a share above 0.5 needs feedforward.verified_share: "
+                "commissioning's verification on the gripper)")
         if ff.margin < 1.0:
             raise NonPassiveError(
                 "feedforward.margin", ff.margin,

@@ -43,10 +43,30 @@ Two stages of :meth:`ChannelController.update <seaforce_ros.core.controller.Chan
   feed-forward with negative net damping bounced a free finger between them at 3.5 rad/s rms,
   below ``max_speed``.
 
+* :class:`SettlingWatch` (``monitor.wall_time``, ``monitor.settle_time``) -- beside the
+  monitor, in the modes that run the DOB, outside a job: a finger that never comes to rest.
+  Every :data:`SETTLE_CHECK` samples it measures the finger's speed from the path X_e_hat
+  travelled (its total variation: an oscillation counts as much as a drift), low-passed at
+  :data:`PATH_CUTOFF` first (the pressure noise alone moves X_e_hat by 40 urad a sample:
+  0.06 rad/s of path unfiltered); it counts as at rest again after :data:`REST_TIME` below
+  :data:`REST_SPEED`. A free finger
+  whose feed-forward is right comes to rest within a few seconds of a flick (its residual
+  friction, ``1 - margin x uncertainty`` of the model's, damps it). A finger the walls have
+  held still for ``wall_time`` trips the fall-back: the controller pushes it onto them (a
+  pressure offset, or an over-compensated stiffness: 4 of 24 fingers 0.5x..2x of the
+  hand-typed model stayed pressed there), or a hand holds it against the joint limit, which
+  falls back too (the conservative side). A finger that has kept moving faster than
+  :data:`REST_SPEED` for ``settle_time`` in a feed-forward mode (:attr:`SettlingWatch.restless`)
+  and one that creeps steadily one way (:attr:`SettlingWatch.creeping`) are diagnostics, not
+  trips: a hand that backdrives the finger for minutes (the bonded-finger experiments, a
+  rehab user) looks the same to every signal the controller has -- the estimated external
+  force's power is ``(1 - s)`` times the model friction's whether a hand drives the finger or
+  an over-compensating feed-forward does (``s`` the feed-forward's share).
+
 What the monitor cannot see: a finger that drifts slowly (a negative net stiffness or damping
-small enough to stay below ``max_speed``) -- the walls keep that one in range; and it cannot
-tell a hand that moves the finger faster than ``max_speed`` from a runaway (it falls back
-then too: the conservative side).
+small enough to stay below ``max_speed``) -- the walls keep that one in range, and the watch
+ends it; and it cannot tell a hand that moves the finger faster than ``max_speed`` from a
+runaway (it falls back then too: the conservative side).
 """
 
 from __future__ import annotations
@@ -55,7 +75,8 @@ import math
 
 from .params import LimitParams, MonitorParams
 
-__all__ = ["JointWalls", "RunawayMonitor", "WALL_MEMORY"]
+__all__ = ["JointWalls", "RunawayMonitor", "SettlingWatch", "WALL_MEMORY", "SETTLE_CHECK",
+           "REST_SPEED"]
 
 #: Time constant [s] with which the monitor forgets the energy the walls dissipated.
 WALL_MEMORY = 2.0
@@ -252,3 +273,114 @@ class RunawayMonitor:
                        f"{1e3 * (self.over - 1) * self.dt:.3g} ms")
         self.disarm()
         return True
+
+
+#: Samples between the settling watch's looks (50 ms at 2 kHz).
+SETTLE_CHECK = 100
+#: The speed [rad/s] below which the finger counts as at rest (the contact estimator's).
+REST_SPEED = 0.05
+#: A creep: the finger has moved one way, at least this share of its path, for 1 s.
+CREEP_SHARE = 0.8
+#: The path's low-pass [Hz] and how long [s] the finger must stay below REST_SPEED to count as
+#: at rest (a slow oscillation passes through rest twice a period).
+PATH_CUTOFF, REST_TIME = 20.0, 0.5
+
+
+class SettlingWatch:
+    """The finger that never comes to rest (module docstring).
+
+    Parameters
+    ----------
+    monitor : MonitorParams
+        ``settle_time`` and ``wall_time`` [s].
+    dt : float > 0
+        Sample period [s].
+
+    Attributes
+    ----------
+    moving, walled : float
+        How long the finger has kept moving [s]; how long the walls have held it still [s].
+    restless : bool
+        It has kept moving for ``settle_time`` in a feed-forward mode (a diagnostic).
+    creeping : float
+        The speed [rad/s] of a finger creeping one way over the last second (0: none).
+    reason : str
+        Why it trips (set on the look it trips), or ''.
+    """
+
+    __slots__ = ("dt", "_settle", "_wall_time", "_count", "_travel", "_last", "_start",
+                 "_window", "_window_travel", "moving", "walled", "creeping", "reason", "_a",
+                 "_still", "restless")
+
+    def __init__(self, monitor: MonitorParams, dt: float) -> None:
+        self.dt = float(dt)
+        self._a = 1.0 - math.exp(-2.0 * math.pi * PATH_CUTOFF * self.dt)
+        self.configure(monitor)
+        self.reset()
+
+    def configure(self, monitor: MonitorParams) -> None:
+        """New (validated) settings; the times go on."""
+        self._settle = monitor.settle_time
+        self._wall_time = monitor.wall_time
+
+    def reset(self) -> None:
+        """Forget everything (a mode entry, a job's end, a fall-back)."""
+        self._count = SETTLE_CHECK
+        self._travel = 0.0
+        self._last = math.nan
+        self._start = math.nan             # X_e_hat at the start of the creep window
+        self._window = 0
+        self._window_travel = 0.0
+        self.moving = self.walled = self.creeping = self._still = 0.0
+        self.restless = False
+        self.reason = ""
+
+    def update(self, xe: float, walls: float, feedforward: bool, steps: int = 1) -> bool:
+        """One sample: X_e_hat [rad], the walls' force [N m] this sample, whether the mode
+        cancels the finger's friction; True on the look that trips (:attr:`reason`)."""
+        last = self._last
+        if last == last:
+            y = last + self._a * (xe - last) if steps == 1 else xe
+            self._travel += abs(y - last)
+        else:
+            y = self._start = xe
+        self._last = y
+        self._count -= steps
+        if self._count > 0:
+            return False
+        span = (SETTLE_CHECK - self._count) * self.dt
+        self._count = SETTLE_CHECK
+        speed = self._travel / span
+        self._travel = 0.0
+        moving = speed > REST_SPEED
+        self._still = 0.0 if moving else self._still + span
+        if moving:
+            self.moving += span
+        elif self._still >= REST_TIME:
+            self.moving = 0.0
+        self.walled = self.walled + span if (walls != 0.0 and not moving) else 0.0
+        self._creep(y, speed * span, moving)
+        self.restless = feedforward and self.moving >= self._settle
+        if self.walled >= self._wall_time:
+            self.reason = (f"finger held on the joint wall for {self.walled:.3g} s (beyond "
+                           f"monitor.wall_time = {self._wall_time:g} s, the wall pushing with "
+                           f"{abs(walls):.3g} N m): the controller pushes it there -- a "
+                           "pressure offset (~/tare) or an over-compensated stiffness -- or "
+                           "something holds it")
+            return True
+        return False
+
+    def _creep(self, xe: float, path: float, moving: bool) -> None:
+        """Over windows of about 1 s: the finger moved one way (its net displacement at least
+        :data:`CREEP_SHARE` of its path) while moving: :attr:`creeping` its speed."""
+        self._window += SETTLE_CHECK
+        self._window_travel += path
+        if self._window * self.dt < 1.0:
+            return
+        net = xe - self._start
+        seconds = self._window * self.dt
+        self.creeping = (net / seconds if moving and self._window_travel > 0.0
+                         and abs(net) >= CREEP_SHARE * self._window_travel else 0.0)
+        self._start = xe
+        self._window = 0
+        self._window_travel = 0.0

@@ -81,7 +81,7 @@ from ..core.errors import SeaforceError
 from ..core.friction_calibration import (CalibrationGoal, FrictionCalibration,
                                        check_calibration_goal)
 from ..core.grasp import Grasp, GraspGoal, check_goal
-from ..core.params import ControllerConfig, guard_carries
+from ..core.params import DOB_MODES, ControllerConfig, guard_carries
 from ..core.schema import BRINGUP, CONTROLLER
 from ..commissioning.free_finger import reserve_verdict
 from .commissioning import CommissionAction
@@ -502,21 +502,45 @@ class ControllerNode(Node):
             fault = cycle.fault(i)
             # a latched fault, or the runaway monitor's fall-back (latched until ~/reset too)
             stopped = bool(cycle.latched(i) or ctrl.fallback)
+            creep = self._creep_line(channel, ctrl)
             statuses.append(diagnostic_status(
                 f'controller: {channel}', 'seaforce_controller',
                 DiagnosticStatus.ERROR if stopped else (
-                    DiagnosticStatus.WARN if fault else DiagnosticStatus.OK),
-                f'FAULT: {fault}' if stopped else (fault or ctrl.mode),
+                    DiagnosticStatus.WARN if fault or creep else DiagnosticStatus.OK),
+                f'FAULT: {fault}' if stopped else (fault or creep or ctrl.mode),
                 {'mode': ctrl.mode, 'fault': fault or 'none', 'torque': ctrl.torque,
                  'fallback': ctrl.fallback or 'none', 'wall_force': ctrl.walls.force,
                  'disturbance': ctrl.disturbance, 'feedforward': ctrl.feedforward,
                  'grasp': ctrl.grasp_phase or 'none', 'contact': ctrl.estimator.contact,
                  'passivity_guard': ctrl.config.passivity.mode,
                  'pressure_offset': ctrl.pressure_offset, **self.tare.diagnostics(i),
+                 'creeping_speed': ctrl.settling.creeping,
+                 'unexplained_force': ctrl.estimator.bias + ctrl.estimator.force,
                  **dict(zip(_GUARD_FIELDS, _guard_values(ctrl))),
                  **self._friction_diagnostics(ctrl)}))
             statuses += [_passivity_status(channel, ctrl), _grasp_status(channel, ctrl)]
         publish_diagnostics(self, self.diag_pub, statuses)
+
+
+    def _creep_line(self, channel, ctrl):
+        """A finger that creeps steadily one way, or keeps moving, in a mode that runs the
+        DOB, in words (and a warning, at most every 10 s per channel), or ''."""
+        watch = ctrl.settling
+        if not (watch.creeping or watch.restless) or ctrl.mode not in DOB_MODES or \
+                ctrl.fallback or ctrl.job is not None:
+            return ''
+        force = ctrl.estimator.bias + ctrl.estimator.force
+        if watch.creeping:
+            line = (f'the finger creeps at {watch.creeping:+.3g} rad/s with a steady '
+                    f'unexplained force of {1e3 * force:+.3g} mN m on it: if nothing pushes '
+                    'it, a pressure offset (call ~/tare) or over-compensated friction '
+                    '(commission the gripper)')
+        else:
+            line = (f'the finger has kept moving for {watch.moving:.3g} s: if nothing moves '
+                    'it, the feed-forward over-compensates its friction (commission the '
+                    'gripper)')
+        self.get_logger().warning(f'{channel}: {line}', throttle_duration_sec=10.0)
+        return line
 
 
 def _calibration_result(index, calibration, message):

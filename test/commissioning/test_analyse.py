@@ -328,7 +328,7 @@ def test_a_plant_the_linear_fit_leaves_unidentified_takes_the_terms_equations_va
     them) and the terms' equations give them, the controller's model takes those (m_e with
     the port search's 1-sigma, sigma from F_c and the search's sigma/F_c) and says so;
     where the equations do not give one, the run is refused naming it."""
-    from seaforce_ros.commissioning.analyse import model_stage
+    from seaforce_ros.commissioning.model import model_stage
     from seaforce_ros.commissioning.errors import CommissioningError
     from seaforce_ros.commissioning.free_air import Estimate, identify_free_air
     from seaforce_ros.commissioning.nonlinear_terms import EquationFit, NonlinearTerms
@@ -407,7 +407,7 @@ def test_the_lower_dahl_sigma_of_fit_and_search_is_the_controllers(fitted, fitte
     gets the search's (with its 1-sigma, and a line saying so): a sigma above the finger's,
     of which the feed-forward cancels a share, leaves the finger's pre-sliding stiffness
     net negative; otherwise the fit's, untouched."""
-    from seaforce_ros.commissioning.analyse import _lower_sigma
+    from seaforce_ros.commissioning.model import _lower_sigma
     port = types.SimpleNamespace(linear={"dahl_ratio": (372.4, 0.87)})
     dahl = DahlParams(sigma=fitted, coulomb_force=0.0309387)
     sigma = {"sigma": fitted_sigma, "coulomb_force": 0.000695}

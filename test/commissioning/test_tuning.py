@@ -62,7 +62,7 @@ def meets_constraints(config, worst, dahl, figures, budget):
         check_dob_passivity(worst, config.dob)
     except NonPassiveError:
         return False
-    return (math.hypot(*torque_noise(config.plant, dahl, config, figures)) <= budget
+    return (math.hypot(*torque_noise(config.plant, dahl, config, figures, "dob")) <= budget
             and all(hold_delay_limit(config.plant, config.hold.stiffness, config.hold.damping,
                                      endpoint=e) >= figures.delay_p99 + DELAY_RESERVE
                     for e in ("free", "clamped")))
@@ -77,7 +77,7 @@ def test_tuned_settings_meet_every_constraint(case):
     stable at every corner of the band the margin covers, at the p99 delay (the linearised
     sampled loop, its spectral radius below 1; the band ``feedforward.plant_uncertainty``
     and the feed-forward's uncertainties name, which controller_node checks at start-up, so it
-    does not warn about a tuned config); predicted torque noise <= budget; the hold
+    does not warn about a tuned config); the DOB's predicted torque noise <= budget; the hold
     stable at every delay up to p99 + 2 (endpoint free and clamped); from_dict gives the
     result's config; mean Z-width over the band >= the default settings' (with the same
     feed-forward uncertainties) wherever those meet the constraints themselves. Or a refusal
@@ -106,9 +106,11 @@ def test_tuned_settings_meet_every_constraint(case):
     assert radius < RADIUS_TARGET, corner
     # (the band the config itself names: controller_node's start-up check agrees)
     assert reserve_verdict(config, delay=figures.delay_p99, dt=figures.dt) is None
-    noise = math.hypot(*torque_noise(plant, dahl, config, figures))
+    noise = math.hypot(*torque_noise(plant, dahl, config, figures, "dob"))
     assert noise <= budget * (1 + 1e-9)
     assert result.torque_noise == pytest.approx(noise, rel=1e-9)
+    assert result.feedforward_noise == pytest.approx(
+        math.hypot(*torque_noise(plant, dahl, config, figures)), rel=1e-9)
     for endpoint in ("free", "clamped"):
         assert hold_delay_limit(plant, config.hold.stiffness, config.hold.damping,
                                 dt=figures.dt, endpoint=endpoint,

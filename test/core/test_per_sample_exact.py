@@ -38,10 +38,12 @@ from helpers.baseline_core import BaselineUnavailable, load_core
 #: set within a mode stopped selecting it anew (72503fc: targets kept, a chirp not replayed;
 #: 71c2b09: its re-entry after an interruption in the entry's sample bumpless again), then
 #: until the feed-forward modes added the free finger's damping reserve (58f1b49; its band's
-#: parameters e2ba8c5), then until the reserve acted through a high-pass (63ca16a), then until a friction
-#: calibration applied the pressure offset it identifies (0c4c6e3).
+#: parameters e2ba8c5), then until the reserve acted through a high-pass (63ca16a), then until
+#: a friction calibration applied the pressure offset it identifies (0c4c6e3), then until the
+#: monitor's settling watch (fe3fcc2: its two parameters in the config; no float changed
+#: where it does not trip).
 #: A deliberate change of behaviour moves it; a speed-up never does.
-BASELINE = "0c4c6e3"
+BASELINE = "fe3fcc2"
 DT = 5e-4
 _T0_NS = 1_700_000_000_000_000_000
 FIELDS = ("motor_inertia", "motor_damping", "motor_stiffness", "endpoint_inertia",
@@ -255,7 +257,8 @@ def linear_config(config):
         return config
     return tuple(sorted((k, v) for k, v in config.to_dict().items()
                         if not k.startswith("plant_terms.")
-                        and k not in ("feedforward.stroke_uncertainty", "pressure_offset")))
+                        and k not in ("feedforward.stroke_uncertainty", "pressure_offset",
+                                      "monitor.settle_time", "monitor.wall_time")))
 
 
 def exact(values):

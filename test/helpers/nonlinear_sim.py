@@ -286,6 +286,8 @@ class NonlinearGripper:
     dahl : dict ``{sigma, coulomb_force}`` or None
     effects : Effects (default: none)
     path : callable t -> (q, q', q'') or None (the finger free)
+    hand : callable (t, X_e, X_e') -> force [N m] on the actuator's endpoint, or None: a force
+        on the free finger (a hand that flicks or moves it; ``path`` None)
     dt : float, s; substeps : int >= 1 (RK4 steps per sample)
     seed : int (pressure noise)
     sensors : Sensors, optional
@@ -293,11 +295,12 @@ class NonlinearGripper:
     """
 
     def __init__(self, plant, dahl=None, effects=None, path=None, dt=5e-4, substeps=2, seed=0,
-                 sensors=None, **fields):
+                 sensors=None, hand=None, **fields):
         self.plant = dict(plant)
         self.dahl = dict(dahl) if dahl else None
         self.effects = effects or Effects()
         self.path = path
+        self.hand = hand
         self.dt = dt
         self.substeps = substeps
         self.sensors = sn = replace(sensors or Sensors(), **fields)
@@ -367,6 +370,7 @@ class NonlinearGripper:
         sigma = self.dahl["sigma"] if self.dahl else 0.0
         inv_fc = 1.0 / self.dahl["coulomb_force"] if self.dahl else 0.0
         path = self._endpoint_from_path if self.path is not None else None
+        hand = self.hand
         tanh, sin = math.tanh, math.sin
         vs = COULOMB_VELOCITY
 
@@ -389,8 +393,8 @@ class NonlinearGripper:
                 dfd = 0.0
             resist = fp + be * ve + fk + fd
             if path is None:
-                fe_act = 0.0
-                ae = -resist / me
+                fe_act = 0.0 if hand is None else hand(t, xe, ve)
+                ae = (fe_act - resist) / me
             else:
                 fe_act = me * ae + resist
             loss = fb_hose * rate + be * ve * ve + b * v * v + friction * v + fd * ve
