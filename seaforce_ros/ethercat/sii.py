@@ -32,6 +32,7 @@ class SiiPdo:
     sm: int
     entries: Tuple[Tuple[int, int, int], ...]
     name: str = ''
+    types: Tuple[int, ...] = ()           # each entry's CoE data type (0: none given)
 
     @property
     def assigned(self) -> bool:
@@ -113,15 +114,16 @@ def _pdos(data: bytes, strings: List[str]) -> List[SiiPdo]:
     while off + 8 <= len(data):
         index, n, sm, _, name_idx, _ = struct.unpack_from('<HBBBBH', data, off)
         off += 8
-        entries = []
+        entries, types = [], []
         for _ in range(n):
             if off + 8 > len(data):
                 break
-            e_index, e_sub, _, _, bits, _ = struct.unpack_from('<HBBBBH', data, off)
+            e_index, e_sub, _, dtype, bits, _ = struct.unpack_from('<HBBBBH', data, off)
             entries.append((e_index, e_sub, bits))
+            types.append(dtype)
             off += 8
         name = strings[name_idx - 1] if 0 < name_idx <= len(strings) else ''
-        out.append(SiiPdo(index, sm, tuple(entries), name))
+        out.append(SiiPdo(index, sm, tuple(entries), name, tuple(types)))
     return out
 
 

@@ -69,11 +69,11 @@ def bus_yaml(emulator, needs=True, **per_drive):
             slaves.append(entry)
             n = len(channels)
             channels[spec['channel']] = {
-                'drive': spec['name'], 'rated_torque': 0.5, 'position': COUNTS,
-                'velocity': COUNTS,
+                'drive': spec['name'], 'rated_torque': 0.5, 'position': copy.deepcopy(COUNTS),
+                'velocity': copy.deepcopy(COUNTS),
                 'pressure': {'source': {'slave': 'pressure_terminal',
                                         'entry': f'value{n % 2 + 1}'},
-                             'steps': PRESSURE}}
+                             'steps': copy.deepcopy(PRESSURE)}}
         elif spec['type'] == 'coupler':
             slaves.append({'name': spec['name'], 'kind': 'coupler', 'vendor_id': COUPLER_ID[0],
                            'product_code': COUPLER_ID[1], 'revision': COUPLER_ID[2]})
