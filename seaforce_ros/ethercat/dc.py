@@ -57,13 +57,15 @@ class DcLock:
         self.cycle_ns = int(cycle_ns)
         self.kp, self.ki = float(kp), float(ki)
         self.max_step_ns = float(max_step_ns)
+        self._half = self.cycle_ns // 2
+        self._band = self.LOCK_BAND * self.cycle_ns
+        self._limit = self.max_step_ns / max(self.ki, 1e-12)   # the integral's, anti-windup
         self.reset()
 
     def reset(self) -> None:
         self.error_ns = self.mean_ns = self.jitter_ns = 0.0
         self._integral = 0.0
         self._inside = 0
-        self.updates = 0
 
     @property
     def locked(self) -> bool:
@@ -71,20 +73,25 @@ class DcLock:
 
     def update(self, dc_time_ns: int) -> float:
         """The reference clock's time in the newest frame [ns] -> the shift of the host's
-        next deadlines [s] (negative: earlier)."""
+        next deadlines [s] (negative: earlier). (Once per cycle: kept to plain arithmetic.)"""
         cycle = self.cycle_ns
-        e = float(dc_time_ns % cycle)
-        if e > cycle / 2:
+        e = dc_time_ns % cycle
+        if e > self._half:
             e -= cycle
         self.error_ns = e
-        a = self.AVERAGING
-        self.mean_ns += a * (e - self.mean_ns)
-        self.jitter_ns += a * (abs(e - self.mean_ns) - self.jitter_ns)
-        self._inside = self._inside + 1 if abs(self.mean_ns) < self.LOCK_BAND * cycle else 0
-        self._integral += e
-        limit = self.max_step_ns / max(self.ki, 1e-12)
-        self._integral = max(-limit, min(limit, self._integral))
-        step = -(self.kp * e + self.ki * self._integral)
-        step = max(-self.max_step_ns, min(self.max_step_ns, step))
-        self.updates += 1
+        mean = self.mean_ns + self.AVERAGING * (e - self.mean_ns)
+        self.mean_ns = mean
+        self.jitter_ns += self.AVERAGING * (abs(e - mean) - self.jitter_ns)
+        self._inside = self._inside + 1 if -self._band < mean < self._band else 0
+        integral = self._integral + e
+        if integral > self._limit:
+            integral = self._limit
+        elif integral < -self._limit:
+            integral = -self._limit
+        self._integral = integral
+        step = -(self.kp * e + self.ki * integral)
+        if step > self.max_step_ns:
+            step = self.max_step_ns
+        elif step < -self.max_step_ns:
+            step = -self.max_step_ns
         return step * 1e-9

@@ -281,8 +281,8 @@ def test_sync0_without_outputs_is_counted_and_past_the_limit_is_a_sync_error():
     d.al_control(0x08)
     assert d.al_state == 8
 
-    def frame():
-        d.outputs_fresh = True
+    def frame():                         # outputs arriving now (what logical() records)
+        d.outputs_fresh, d._wd_last = True, clock.t
         d.process_outputs()
 
     for _ in range(10):                  # one frame per cycle: nothing missed

@@ -686,7 +686,9 @@ class Cia402Drive(EscSlave):
         """Per fresh frame in OP: SYNC0 events without outputs, frames within one cycle, the
         sync error counter and its limit."""
         od = self.od
-        now = self.system_time_ns()
+        # when the outputs reached the ESC (the SM buffer fills as the frame passes), not
+        # when this application got round to them
+        now = self.system_time_ns(int(self._wd_last * 1e9) + self._dc_base)
         if self._last_frame_ns is not None:
             od.set(0x1C32, 2, now - self._last_frame_ns if not self.sync0_active()
                    else self.sync0_cycle_ns())

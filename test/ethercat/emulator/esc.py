@@ -444,7 +444,7 @@ class EscSlave:
                 write_hit = True
                 sm = self._sm_at(p)
                 if sm is not None and sm[2] & SM_CONTROL_WATCHDOG:
-                    self._wd_last = self.clock()
+                    self._wd_last = self.clock()      # (also when the outputs arrived)
                     self.outputs_fresh = True
         if cmd != F.LWR:
             for log_start, length, phys, ftype in fmmus:
