@@ -11,8 +11,9 @@ sensors), with the project's controller in lock-step:
 * **hand-typed**: the shipped configuration (Table I, its uncertainties) -- ``dob_full_ff``
   and ``hold`` backdriven (0.5 rad, at most 0.5 rad/s, as the commissioning demo) at 1 and
   3 rad/s;
-* **commissioned**: the project's excitation job on the oracle, its analysis, the tuned
-  configuration backdriven the same way;
+* **commissioned**: the project's excitation job on the oracle, its analysis' proposal, the
+  verification job on the same finger, the analysis' finish (as ``~/commission`` runs them),
+  the tuned configuration backdriven the same way;
 * the margin's cost at 1 rad/s as the tuning predicts it (tuned ``dob_full_ff`` against the
   exact inversion of the identified model);
 * a free finger entered into ``dob_full_ff`` at rest (the motor from ``passive``) after
@@ -22,7 +23,9 @@ Printed per draw, then per class the median and the range of each figure beside 
 
 Run (from the repository root, environment sourced)::
 
-    python bench/margin_family.py [N per class] [seed] [--linear | --nonlinear]
+    python bench/margin_family.py [N per class] [seed] [--linear | --nonlinear] [--unverified]
+
+(``--unverified``: no verification, the model class's candidate, as before it.)
 """
 import math
 import pathlib
@@ -33,10 +36,9 @@ import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "test"))
 from helpers.nonlinear_sim import draw_sensors  # noqa: E402
-from helpers.oracle_commissioning import draw, excite, figures, release  # noqa: E402
+from helpers.oracle_commissioning import commission, draw, figures, release  # noqa: E402
 
-from seaforce_ros.commissioning.analyse import (AnalysisRequest, analyse,  # noqa: E402
-                                                backdrive_amplitude)
+from seaforce_ros.commissioning.analyse import backdrive_amplitude  # noqa: E402
 from seaforce_ros.core.params import ControllerConfig  # noqa: E402
 
 OMEGAS = (1.0, 3.0)
@@ -75,11 +77,8 @@ def draw_row(cls, seed0, i):
     print(f"{cls} {i}: {sensors.describe()}", flush=True)
     before = measure(plant, dahl, effects, sensors, HAND_TYPED, i)
     t0 = time.time()
-    record = excite(plant, dahl, effects, config=HAND_TYPED, seed=i, sensors=sensors)
-    rig = len(record) * record.dt
-    cpu = time.process_time()
-    a = analyse(record, AnalysisRequest("sim", HAND_TYPED), None)
-    cpu = time.process_time() - cpu
+    a, rig, cpu = commission(plant, dahl, effects, sensors, HAND_TYPED, seed=i,
+                             verify="--unverified" not in sys.argv)
     row = {"rig": rig, "cpu": cpu}
     for w in OMEGAS:
         row[f"hand_ff{w:g}"] = before[("dob_full_ff", w)].z_rms_db
@@ -102,6 +101,8 @@ def draw_row(cls, seed0, i):
     row["moved"] = float(np.max(np.abs(free["x_e"] - free["x_e"][0])))
     row["fallback"] = free["fallback"]
     ff = config.feedforward
+    row["verified"] = a.tuning.bindings.get("feedforward.dahl_stiffness_share", "")
+    print(f"  feed-forward: {row['verified']}")
     print(f"  dob_full_ff rms at 1 rad/s {row['hand_ff1']:.1f} -> {row['ff1']:.1f} dB "
           f"(fundamental {row['ff_fund1']:.1f}); Z-width on the rms {row['hand_zw1']:.1f} -> "
           f"{row['zw1']:.1f} dB at 1 rad/s, {row['hand_zw3']:.1f} -> {row['zw3']:.1f} at 3; "
@@ -147,6 +148,8 @@ def main(argv):
                       + (f" ({np.isnan(v).sum()} diverged)" if np.isnan(v).any() else ""))
         print(f"  fell back in the free-finger test: {sum(bool(r['fallback']) for r in tuned)}",
               flush=True)
+        kinds = [r["verified"].split(":")[0] for r in tuned]
+        print("  feed-forward: " + ", ".join(f"{k} {kinds.count(k)}" for k in sorted(set(kinds))))
     return 0
 
 

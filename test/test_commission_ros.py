@@ -6,8 +6,8 @@ One stack, in order: goals refused with the reason (unknown channel, a latched f
 upside down, NaN, a finger that is not free, a second goal while one runs); a cancel
 mid-excitation (CANCELED, zero torque on that channel from the next command on, nothing
 written or applied, no run directory left); a dry run with the ``commission`` tool (a report, no params file, the
-parameters unchanged, the identified plant within twice the goals: one draw); a run
-that applies (the channel's parameters become the result's new values, the identified plant
+parameters unchanged, the identified plant within twice the goals: one draw; the feed-forward's candidate verified on the free finger, its windows in the
+summary); a run that applies (the channel's parameters become the result's new values, the identified plant
 within twice the goals of the sim's truth, the torque continuous across the change, the drift against the
 dry run reported); the rollback file restores every value it replaced.
 """
@@ -43,7 +43,10 @@ PLANT_KEYS = tuple(f'plant.{k}' for k in ('motor_inertia', 'motor_damping', 'mot
 GOAL = {k: 2.0 * (0.05 if k in ('plant.motor_inertia', 'plant.endpoint_inertia',
                                 'plant.hose_stiffness') else 0.15) for k in PLANT_KEYS}
 EXCITATION = {'pinch.commissioning.duration': 12.0, 'pinch.commissioning.start_frequency': 1.0,
-              'pinch.commissioning.end_frequency': 400.0}
+              'pinch.commissioning.end_frequency': 400.0,
+              # the verification of one candidate at one point (5 s of rig time: its physics
+              # is test/commissioning/test_verification.py's)
+              'pinch.verification.candidates': 1, 'pinch.verification.offset': 0.0}
 
 
 class CommissionClient(ActionTestClient):
@@ -235,8 +238,9 @@ def test_commission_over_ros(processes, tmp_path, probe):
     assert 'dry run (nothing applied)' in text and 'identified 10 of 10' in text, \
         f'{text}\n{where}'
     assert 'params file:' not in text and 'rollback file:' not in text, text
-    for phase in ('excite', 'identify', 'predict'):
+    for phase in ('excite', 'identify', 'verify', 'predict'):
         assert f'[commission] {phase}' in text, text
+    assert 'candidate feed-forward' in text and 'pulse + at 0 rad' in text, text
     report = pathlib.Path(re.search(r'^report: (\S+)$', text, re.M).group(1))
     run_dir = report.parent
     assert report.is_file() and (run_dir / 'report.json').is_file()

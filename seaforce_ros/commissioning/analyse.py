@@ -47,6 +47,7 @@ import datetime
 import json
 import math
 import pathlib
+import pickle
 import sys
 import time
 from dataclasses import dataclass, field
@@ -61,6 +62,7 @@ from ..core.nonlinear_effects import effects_of_terms
 from ..core.params import (ControllerConfig, DahlParams, PlantParams, PlantTermsParams,
                            settable_order)
 from ..core.schema import by_key
+from ..core.sensors import SensorParams
 from ..identification.errors import IdentificationError
 from ..identification.output import write_values_file
 from .errors import CommissioningError
@@ -73,12 +75,20 @@ from .predictor import (PREDICTED_MODES, ImpedanceBand, LoopModel, predict_band,
 from .record import ExcitationRecord, load_record
 from .report import (CommissioningReport, LoopFigure, ModeImpedance, ModelClass, NoiseSweep,
                      ParameterRow,
-                     PortResponse, ReportMeta, Tuning, TuningRow, WallBoundary, WorkLoop,
-                     ZWidthChart, load_report, summary_table, write_report)
+                     PortResponse, ReportMeta, Tuning, TuningRow, VerificationRow,
+                     WallBoundary, WorkLoop, ZWidthChart, load_report, summary_table,
+                     write_report)
+from .candidates import FEEDFORWARD_KEYS, chosen_values
+from .candidates import propose as propose_candidates
 from .model import ControllerModel, model_stage
-from .tuning import TUNED_KEYS, InfeasibleTuningError, TuningResult, tune
+from .tuning import TUNED_KEYS, InfeasibleTuningError, TuningResult, margin_cost_db, tune
+from .verification import Candidate, CandidateOutcome, Window
+from .verification import predict as predict_verification
 
-__all__ = ["AnalysisRequest", "Analysis", "AnalysisError", "Prediction", "analyse",
+__all__ = ["AnalysisRequest", "Analysis", "AnalysisError", "Prediction", "analyse", "propose",
+           "finish", "Proposal", "Verified", "verification_rows", "save_verified",
+           "load_verified", "propose_directory", "finish_directory", "PROPOSAL_FILE",
+           "CANDIDATES_FILE", "VERIFICATION_FILE",
            "analyse_directory", "zwidth_at", "identification_rows",
            "identify_stage", "model_class_stage", "loop_stage", "model_stage", "ControllerModel",
            "tune_stage", "predict_stage", "work_loop_stage", "torque_lines", "TORQUE_WARNING",
@@ -214,6 +224,9 @@ class Analysis:
         The candidate nonlinear terms (:mod:`.nonlinear_terms`).
     backdrives : Backdrives or None
         The backdrives simulated on the identified model: the rms prediction.
+    model : ControllerModel or None
+    verification : list of VerificationRow
+        The feed-forward's candidates' windows, measured on the gripper beside predicted.
     """
 
     report: CommissioningReport
@@ -235,6 +248,7 @@ class Analysis:
     terms: Optional[NonlinearTerms] = None
     backdrives: Optional["Backdrives"] = None
     model: Optional[ControllerModel] = None
+    verification: List[VerificationRow] = field(default_factory=list)
 
     def result(self) -> Dict[str, Any]:
         """The JSON result the action's client gets (numeric keys only in the value arrays;
@@ -694,7 +708,8 @@ def report_stage(request: AnalysisRequest, phases: Mapping[str, float], *,
                  prediction: Optional[Prediction] = None,
                  summary: Sequence[str] = (),
                  backdrives: Optional[Backdrives] = None,
-                 model: Optional[ModelClass] = None) -> CommissioningReport:
+                 model: Optional[ModelClass] = None,
+                 verification: Sequence[VerificationRow] = ()) -> CommissioningReport:
     """The report of what the stages reached (None: not reached)."""
     previous, note = _previous_rows(request.previous)
     meta = ReportMeta(request.channel, request.started or _now(), dict(phases),
@@ -718,6 +733,7 @@ def report_stage(request: AnalysisRequest, phases: Mapping[str, float], *,
     if backdrives is not None:
         data.work_loops = list(backdrives.work_loops)
     data.model_class = model
+    data.verification = list(verification)
     return data
 
 
@@ -850,100 +866,363 @@ def _margin_line(t: TuningResult) -> str:
             f"{ff.damping_reserve:.2g} N m s/rad)")
 
 
-def analyse(record: ExcitationRecord, request: AnalysisRequest,
-            directory: Optional[pathlib.Path] = None,
-            progress: Optional[Progress] = None) -> Analysis:
-    """Run the stages (module docstring) and, given a ``directory``, write the files."""
+@dataclass
+class Proposal:
+    """The analysis up to the verification (:func:`propose`): the stages that identify and
+    tune, and the feed-forward candidates with their windows as the model predicts them.
+
+    Attributes
+    ----------
+    analysis : Analysis
+        Its identification, model class, terms, loop, model and tuning (not the predictions,
+        the report or the files: :func:`finish`'s).
+    figures : LoopFigures or None
+    phases : dict str -> float
+        The stages' times [s].
+    candidates : list of Candidate
+        Most compensation first (:func:`~.candidates.propose`); empty when not tuned.
+    predicted : list of CandidateOutcome
+        Each candidate's windows on the identified model.
+    rejected : list of (Candidate, CandidateOutcome)
+        The candidates the model predicted to fail, with their windows: not tried.
+    """
+
+    analysis: Analysis
+    figures: Optional[LoopFigures]
+    phases: Dict[str, float]
+    candidates: List[Candidate] = field(default_factory=list)
+    predicted: List[CandidateOutcome] = field(default_factory=list)
+    rejected: List[Tuple[Candidate, CandidateOutcome]] = field(default_factory=list)
+
+
+@dataclass
+class Verified:
+    """What the verification on the gripper found: ``outcomes`` per candidate tried, the index
+    of the one ``chosen`` (None: none passed), its rig time [s]; ``message`` when it could
+    not run (then nothing of it counts)."""
+
+    outcomes: List[CandidateOutcome]
+    chosen: Optional[int]
+    duration: float = 0.0
+    message: str = ""
+
+
+Verify = Callable[[List[Candidate]], Verified]
+
+
+class _Clock:
+    """The stages' times and the progress mapped onto the phases' spans."""
+
+    SPANS = {"identify": (0.0, 0.45), "loop": (0.45, 0.5), "tune": (0.5, 0.6),
+             "verify": (0.6, 0.65), "predict": (0.65, 0.95), "report": (0.95, 1.0)}
+
+    def __init__(self, phases: Dict[str, float], progress: Optional[Progress]) -> None:
+        self.phases, self._progress = phases, progress
+        self._t = time.monotonic()
+
+    def lap(self, name: str) -> None:
+        now = time.monotonic()
+        self.phases[name] = self.phases.get(name, 0.0) + now - self._t
+        self._t = now
+
+    def say(self, phase: str, fraction: float, what: str) -> None:
+        if self._progress is not None:
+            lo, hi = self.SPANS[phase]
+            self._progress(phase, lo + (hi - lo) * min(1.0, max(0.0, fraction)), what)
+
+
+def propose(record: ExcitationRecord, request: AnalysisRequest,
+            progress: Optional[Progress] = None) -> Proposal:
+    """Identify, tune and propose the feed-forward's candidates (stages 1-3)."""
     phases: Dict[str, float] = {}
     if request.excitation.get("duration"):
         phases["excitation"] = float(request.excitation["duration"])
-    clock = time.monotonic()
-
-    def lap(name: str) -> None:
-        nonlocal clock
-        now = time.monotonic()
-        phases[name] = now - clock
-        clock = now
-
-    def say(phase: str, fraction: float, what: str) -> None:
-        if progress is not None:
-            span = {"identify": (0.0, 0.55), "loop": (0.55, 0.6), "tune": (0.6, 0.75),
-                    "predict": (0.75, 0.95), "report": (0.95, 1.0)}[phase]
-            progress(phase, span[0] + (span[1] - span[0]) * min(1.0, max(0.0, fraction)),
-                     what)
-
+    clock = _Clock(phases, progress)
+    say = clock.say
     analysis = Analysis(CommissioningReport(ReportMeta(request.channel, _now(), {}, False)),
                         "")
-    old = request.config.to_dict()
-    ident = figures = tuning = prediction = None
+    proposal = Proposal(analysis, None, phases)
     try:
         say("identify", 0.0, "the motor plant and the port from the record")
         rest = request.config.feedforward.rest_position
         ident = analysis.identification = identify_stage(record, say, rest)
         analysis.model_class, analysis.terms = model_class_stage(record, ident, say)
-        lap("identify")
+        clock.lap("identify")
         say("loop", 0.0, "pressure noise, encoder quantum, loop delay")
-        figures, analysis.loop = loop_stage(record, request.config)
-        lap("loop")
+        proposal.figures, analysis.loop = loop_stage(record, request.config)
+        clock.lap("loop")
         say("tune", 0.0, "lambda, the nominal plant and the hold gains")
         model = analysis.model = model_stage(ident, analysis.terms, rest)
         tuning = analysis.tuning = tune_stage(model, analysis.loop, request)
-        lap("tune")
-        prediction = predict_stage(model.plant, model.sigma, model.dahl,
-                                   tuning.config, analysis.loop, request.noise_budget,
-                                   noise_rel_sigma=figures.pressure.std_1s
-                                   / max(figures.pressure.std, 1e-300), progress=say)
-        coulomb = 0.0
-        if analysis.terms is not None and analysis.terms.term("motor_coulomb").resolved:
-            coulomb = analysis.terms.term("motor_coulomb").value
+        say("tune", 0.7, "the feed-forward's candidates and their damping reserves")
+        count = request.config.verification.candidates
+        proposal.candidates = propose_candidates(tuning.config, model, analysis.loop,
+                                                 request.passivity_margin, count)
         simulated, simulated_terms = prediction_model(model.plant, model.terms,
                                                       analysis.terms)
-        analysis.backdrives = work_loop_stage(simulated, model.dahl, tuning.config,
-                                              motor_coulomb=coulomb, progress=say,
-                                              terms=simulated_terms)
-        analysis.work_loops = analysis.backdrives.work_loops
-        lap("predict")
-        analysis.band = prediction.band
-        analysis.before_db = {w: float(np.interp(math.log(w), np.log(tuning.omega),
-                                                 tuning.zwidth_before_db))
-                              for w in HEADLINE_OMEGA}
-        analysis.after_db = zwidth_at(prediction.band, HEADLINE_OMEGA)
-        analysis.apply = dict(tuning.values)
-        analysis.old_values = {k: old[k] for k in tuning.values if k in old}
-        analysis.tuned = True
-        analysis.message = (f"tuned: {tuning.bindings.get('dob.cutoff', '')}; predicted "
-                            f"Z-width at 1 rad/s {analysis.after_db[1.0]:.1f} dB (was "
-                            f"{analysis.before_db[1.0]:.1f})")
+        predicted = predict_verification(
+            simulated, model.dahl, proposal.candidates, request.config,
+            delay=analysis.loop.delay_p50, dt=analysis.loop.dt, terms=simulated_terms,
+            motor_coulomb=_motor_coulomb(analysis.terms), sensors=_sensors(analysis.loop))
+        # the model bounds the search: a candidate it predicts to fail is not tried on the
+        # gripper (the model class's ones always are), nor more than ``count`` in all; the
+        # report keeps the ones predicted to fail
+        cautious = sum("model class's" in c.name for c in proposal.candidates)
+        last = len(predicted) - cautious
+        keep = [i for i, p in enumerate(predicted[:last]) if p.passed][:max(0, count - cautious)]
+        keep += list(range(last, len(predicted)))[:max(1, count - len(keep))]
+        proposal.rejected = [(c, p) for i, (c, p) in
+                             enumerate(zip(proposal.candidates, predicted))
+                             if i not in keep and not p.passed]
+        proposal.candidates = [proposal.candidates[i] for i in keep]
+        proposal.predicted = [predicted[i] for i in keep]
+        clock.lap("tune")
     except InfeasibleTuningError as exc:
         analysis.message = f"not tuned ({exc.constraint}): {exc}"
     except CommissioningError as exc:
         analysis.message = f"not tuned: {exc}"
+    return proposal
+
+
+def finish(proposal: Proposal, request: AnalysisRequest, verified: Optional[Verified],
+           directory: Optional[pathlib.Path] = None,
+           progress: Optional[Progress] = None) -> Analysis:
+    """Take the verification's verdict into the tuning (:func:`~.candidates.chosen_values`),
+    predict, report and, given a ``directory``, write the files (stages 4-6)."""
+    analysis, figures = proposal.analysis, proposal.figures
+    clock = _Clock(proposal.phases, progress)
+    say = clock.say
+    if verified is not None and verified.duration:
+        proposal.phases["verification"] = verified.duration
+    old = request.config.to_dict()
+    tuning, prediction, model = analysis.tuning, None, analysis.model
+    try:
+        if tuning is not None and model is not None and analysis.loop is not None:
+            tuning = analysis.tuning = _verified_tuning(proposal, request, verified)
+            say("predict", 0.0, "|Z| of every mode, the Z-width, the torque noise")
+            prediction = predict_stage(model.plant, model.sigma, model.dahl,
+                                       tuning.config, analysis.loop, request.noise_budget,
+                                       noise_rel_sigma=(figures.pressure.std_1s / max(
+                                           figures.pressure.std, 1e-300)) if figures else 0.0,
+                                       progress=say)
+            simulated, simulated_terms = prediction_model(model.plant, model.terms,
+                                                          analysis.terms)
+            analysis.backdrives = work_loop_stage(simulated, model.dahl, tuning.config,
+                                                  motor_coulomb=_motor_coulomb(analysis.terms),
+                                                  progress=say, terms=simulated_terms)
+            analysis.work_loops = analysis.backdrives.work_loops
+            clock.lap("predict")
+            analysis.band = prediction.band
+            analysis.before_db = {w: float(np.interp(math.log(w), np.log(tuning.omega),
+                                                     tuning.zwidth_before_db))
+                                  for w in HEADLINE_OMEGA}
+            analysis.after_db = zwidth_at(prediction.band, HEADLINE_OMEGA)
+            analysis.apply = dict(tuning.values)
+            analysis.old_values = {k: old[k] for k in tuning.values if k in old}
+            analysis.tuned = True
+            analysis.message = (f"tuned: {tuning.bindings.get('dob.cutoff', '')}; predicted "
+                                f"Z-width at 1 rad/s {analysis.after_db[1.0]:.1f} dB (was "
+                                f"{analysis.before_db[1.0]:.1f})")
+    except CommissioningError as exc:
+        analysis.message = f"not tuned: {exc}"
+    analysis.verification = verification_rows(proposal, verified)
     say("report", 0.0, "report, params and rollback files")
     loop_pair = None if figures is None or analysis.loop is None else (figures, analysis.loop)
-    analysis.report = report_stage(request, phases, ident=ident, loop=loop_pair,
-                                   tuning=tuning, prediction=prediction,
+    analysis.report = report_stage(request, proposal.phases, ident=analysis.identification,
+                                   loop=loop_pair, tuning=tuning, prediction=prediction,
                                    summary=_summary(analysis, request),
                                    backdrives=analysis.backdrives,
-                                   model=analysis.model_class)
+                                   model=analysis.model_class,
+                                   verification=analysis.verification)
     if directory is not None:
         write_stage(directory, analysis, request)
-    lap("report")
+    clock.lap("report")
     return analysis
 
 
-def analyse_directory(directory: pathlib.Path, progress: Optional[Progress] = None
-                      ) -> Analysis:
-    """:func:`analyse` on a run directory's ``request.json`` and ``record.npz``."""
-    directory = pathlib.Path(directory)
+def _verified_tuning(proposal: Proposal, request: AnalysisRequest,
+                     verified: Optional[Verified]) -> TuningResult:
+    """The tuning with the feed-forward the verification chose (module docstring of
+    :mod:`.candidates`), its bindings saying so, its margin's cost for it."""
+    tuning, model, loop = proposal.analysis.tuning, proposal.analysis.model, \
+        proposal.analysis.loop
+    assert tuning is not None and model is not None and loop is not None
+    candidates = proposal.candidates
+    ran = verified is not None and not verified.message and bool(candidates)
+    values = dict(tuning.values)
+    chosen = verified.chosen if verified is not None and ran else None
+    values.update(chosen_values(candidates, chosen, request.config, ran) if candidates
+                  else {})
+    if not ran:
+        why = ("unverified (" + (verified.message if verified is not None and verified.message
+                                 else "no verification on the gripper") + "): the model "
+               "class's band, the most cautious candidate")
+    elif chosen is None:
+        why = ("verification: no candidate's free finger came to rest: the starting "
+               "settings kept")
+    else:
+        why = f"verified on the gripper: {candidates[chosen].name}"
+    bindings = dict(tuning.bindings)
+    for key in FEEDFORWARD_KEYS:
+        bindings[key] = why if key != "feedforward.damping_reserve" or chosen is None \
+            else f"{why} (the least its band needs)"
+    config = ControllerConfig.from_dict(values, base=tuning.config)
+    cost = margin_cost_db(model.plant, model.dahl, config, model.terms, tuning.omega,
+                          loop.delay_p50, loop.dt, 0.5)
+    return dataclasses.replace(tuning, values=values, config=config, bindings=bindings,
+                               margin_cost_db=cost)
+
+
+def _sensors(loop: LoopModel) -> SensorParams:
+    """The sensors the record showed: the pressure noise (its ADC's steps in it) and the motor
+    encoder's quantum."""
+    counts = (int(round(2.0 * math.pi / loop.encoder_resolution))
+              if loop.encoder_resolution > 0.0 else 0)
+    return SensorParams(pressure_range=1e9, pressure_bits=0,
+                        pressure_noise=float(loop.pressure_noise),
+                        motor_counts_per_rev=counts)
+
+
+def _motor_coulomb(terms: Optional[NonlinearTerms]) -> float:
+    """The motor's Coulomb friction [N m] where the record resolved it (else 0)."""
+    if terms is not None and terms.term("motor_coulomb").resolved:
+        return terms.term("motor_coulomb").value
+    return 0.0
+
+
+def verification_rows(proposal: Proposal, verified: Optional[Verified]
+                      ) -> List[VerificationRow]:
+    """Each candidate's windows, measured beside predicted (predicted only where it was not
+    tried)."""
+    rows = []
+    measured = {o.name: o for o in (verified.outcomes if verified is not None else [])}
+    pairs = list(zip(proposal.candidates, proposal.predicted))
+    rejected = {c.name for c, _ in proposal.rejected}
+    for candidate, predicted in proposal.rejected + pairs:
+        outcome = measured.get(candidate.name)
+        verdict = ("passed" if outcome.passed else f"failed: {outcome.reason}") \
+            if outcome is not None else (
+                f"predicted to fail ({predicted.reason}): not tried"
+                if candidate.name in rejected else "not tried")
+        measured_windows = outcome.windows if outcome is not None else []
+        for i in range(max(len(predicted.windows), len(measured_windows))):
+            p = predicted.windows[i] if i < len(predicted.windows) else None
+            m = measured_windows[i] if i < len(measured_windows) else None
+            w = m or p
+            assert w is not None
+            rows.append(VerificationRow(
+                candidate.name, verdict, w.point, w.kind,
+                m.settle if m else math.nan, p.settle if p else math.nan,
+                m.decay if m else math.nan, p.decay if p else math.nan,
+                m.drift if m else math.nan, p.drift if p else math.nan))
+    return rows
+
+
+def analyse(record: ExcitationRecord, request: AnalysisRequest,
+            directory: Optional[pathlib.Path] = None, progress: Optional[Progress] = None,
+            verify: Optional[Verify] = None) -> Analysis:
+    """Run the stages (module docstring): :func:`propose`, the verification (``verify``: the
+    candidates on the gripper; None: unverified, the model class's candidate) and
+    :func:`finish`, which, given a ``directory``, writes the files."""
+    proposal = propose(record, request, progress)
+    verified = verify(proposal.candidates) if verify is not None and proposal.candidates \
+        else None
+    return finish(proposal, request, verified, directory, progress)
+
+
+PROPOSAL_FILE = "proposal.pkl"
+CANDIDATES_FILE = "candidates.json"
+VERIFICATION_FILE = "verification.json"
+
+
+def _request_and_record(directory: pathlib.Path) -> Tuple[AnalysisRequest, ExcitationRecord]:
     try:
         data = json.loads((directory / REQUEST_FILE).read_text())
     except OSError as exc:
         raise AnalysisError(f"{directory / REQUEST_FILE}: {exc.strerror}") from None
     except ValueError as exc:
         raise AnalysisError(f"{directory / REQUEST_FILE}: not JSON ({exc})") from None
-    request = AnalysisRequest.from_json(data)
-    record = load_record(directory / RECORD_FILE)
-    return analyse(record, request, directory, progress)
+    return AnalysisRequest.from_json(data), load_record(directory / RECORD_FILE)
+
+
+def save_verified(path: pathlib.Path, verified: Verified) -> None:
+    """``verification.json``: what the verification found (:class:`Verified`)."""
+    data = {"outcomes": [dataclasses.asdict(o) for o in verified.outcomes],
+            "chosen": verified.chosen, "duration": verified.duration,
+            "message": verified.message}
+    path.write_text(json.dumps(data, indent=1, default=lambda v: None))
+
+
+def load_verified(path: pathlib.Path) -> Optional[Verified]:
+    """``verification.json`` back (None: there is none); AnalysisError when it is unreadable."""
+    if not path.exists():
+        return None
+    try:
+        data = json.loads(path.read_text())
+        outcomes = [CandidateOutcome(str(o["name"]), [_window(w) for w in o["windows"]],
+                                     bool(o["passed"]), str(o["reason"]))
+                    for o in data["outcomes"]]
+        chosen = data.get("chosen")
+        return Verified(outcomes, None if chosen is None else int(chosen),
+                        float(data.get("duration", 0.0)), str(data.get("message", "")))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise AnalysisError(f"{path}: {exc}") from None
+
+
+def _window(w: Mapping[str, Any]) -> Window:
+    """A :class:`Window` from JSON (null: a settling time never reached, other figures NaN)."""
+    def number(key: str, none: float) -> float:
+        v = w.get(key)
+        return none if v is None else float(v)
+    return Window(float(w["point"]), str(w["kind"]), number("peak_speed", math.nan),
+                  number("settle", math.inf), number("decay", math.nan),
+                  number("drift", math.nan), str(w.get("failed", "")))
+
+
+def analyse_directory(directory: pathlib.Path, progress: Optional[Progress] = None
+                      ) -> Analysis:
+    """:func:`analyse` on a run directory's ``request.json`` and ``record.npz`` (with its
+    ``verification.json``, where the gripper verified the candidates)."""
+    directory = pathlib.Path(directory)
+    request, record = _request_and_record(directory)
+    verified = load_verified(directory / VERIFICATION_FILE)
+    proposal = propose(record, request, progress)
+    return finish(proposal, request, verified, directory, progress)
+
+
+def propose_directory(directory: pathlib.Path, progress: Optional[Progress] = None
+                      ) -> Proposal:
+    """:func:`propose` on a run directory; writes ``proposal.pkl`` (for :func:`finish`) and
+    ``candidates.json`` (each candidate's name and configuration, for the verification)."""
+    directory = pathlib.Path(directory)
+    request, record = _request_and_record(directory)
+    proposal = propose(record, request, progress)
+    try:
+        with open(directory / PROPOSAL_FILE, "wb") as fh:
+            pickle.dump(proposal, fh)
+        (directory / CANDIDATES_FILE).write_text(json.dumps(
+            [{"name": c.name, "config": c.config.to_dict()} for c in proposal.candidates],
+            indent=1))
+    except OSError as exc:
+        raise AnalysisError(f"cannot write the proposal into {directory}: {exc}") from None
+    return proposal
+
+
+def finish_directory(directory: pathlib.Path, progress: Optional[Progress] = None
+                     ) -> Analysis:
+    """:func:`finish` on a run directory's ``proposal.pkl`` and ``verification.json``."""
+    directory = pathlib.Path(directory)
+    request, _ = _request_and_record(directory)
+    try:
+        with open(directory / PROPOSAL_FILE, "rb") as fh:
+            proposal = pickle.load(fh)
+    except (OSError, pickle.UnpicklingError, EOFError, AttributeError) as exc:
+        raise AnalysisError(f"{directory / PROPOSAL_FILE}: {exc} (run the analysis again "
+                            "without --finish)") from None
+    if not isinstance(proposal, Proposal):
+        raise AnalysisError(f"{directory / PROPOSAL_FILE}: not a proposal")
+    return finish(proposal, request, load_verified(directory / VERIFICATION_FILE), directory,
+                  progress)
 
 
 def _emit(obj: Mapping[str, Any]) -> None:
@@ -955,15 +1234,30 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     """The child's entry point (:mod:`.worker`'s protocol)."""
     parser = argparse.ArgumentParser(
         prog="python -m seaforce_ros.commissioning.analyse",
-        description="Analyse one commissioning run directory (request.json, record.npz).")
+        description="Analyse one commissioning run directory (request.json, record.npz; "
+                    "verification.json where the gripper verified the candidates).")
     parser.add_argument("directory", type=pathlib.Path)
+    stage = parser.add_mutually_exclusive_group()
+    stage.add_argument("--propose", action="store_true",
+                       help="identify, tune and write the feed-forward's candidates only")
+    stage.add_argument("--finish", action="store_true",
+                       help="take the verification into the tuning, predict and report")
     args = parser.parse_args(argv)
 
     def progress(phase: str, fraction: float, measuring: str) -> None:
         _emit({"phase": phase, "progress": fraction, "measuring": measuring})
 
     try:
-        analysis = analyse_directory(args.directory, progress)
+        if args.propose:
+            proposal = propose_directory(args.directory, progress)
+            _emit({"result": {"candidates": [c.name for c in proposal.candidates],
+                              "message": proposal.analysis.message}})
+            if not proposal.candidates:
+                _emit({"error": proposal.analysis.message or "no candidate"})
+                return 1
+            return 0
+        analysis = (finish_directory if args.finish else analyse_directory)(
+            args.directory, progress)
     except CommissioningError as exc:
         _emit({"error": str(exc)})
         return 1

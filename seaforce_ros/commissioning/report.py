@@ -560,6 +560,25 @@ class ReportMeta:
 
 
 @dataclass
+class VerificationRow:
+    """One window of one candidate feed-forward's verification on the free finger
+    (:mod:`.verification`): the ``candidate`` (its name) and ``verdict``, the window's
+    ``point`` [rad] and ``kind``, its settling time [s], decay rate [1/s] and drift [rad],
+    measured on the gripper (NaN: not tried) and predicted on the identified model."""
+
+    candidate: str
+    verdict: str
+    point: float
+    kind: str
+    settle: float
+    settle_predicted: float
+    decay: float
+    decay_predicted: float
+    drift: float
+    drift_predicted: float
+
+
+@dataclass
 class CommissioningReport:
     """Everything one commissioning run reports. A section it did not reach is empty (a
     list) or None; its figure is then not drawn."""
@@ -575,6 +594,7 @@ class CommissioningReport:
     summary: List[str] = field(default_factory=list)
     work_loops: List[WorkLoop] = field(default_factory=list)
     model_class: Optional[ModelClass] = None
+    verification: List[VerificationRow] = field(default_factory=list)
 
 
 # --- report.json --------------------------------------------------------------------------
@@ -1015,6 +1035,13 @@ def _plain(headers: Sequence[str], rows: Sequence[Sequence[str]], numeric: str) 
     return format_table(headers, cells, (None,) * len(headers))
 
 
+def _both(measured: float, predicted: float, digits: int) -> str:
+    """``measured / predicted`` (``-`` where there is none)."""
+    m = "-" if math.isnan(measured) else f"{measured:.{digits}f}"
+    p = "-" if math.isnan(predicted) else f"{predicted:.{digits}f}"
+    return f"{m} / {p}"
+
+
 def _model_class_lines(model: Optional[ModelClass]) -> List[str]:
     """The model class's verdict: the misfits against their thresholds, the warning, the
     candidate terms."""
@@ -1055,6 +1082,15 @@ def summary_table(data: CommissioningReport) -> str:
         lines += ["", _plain(("sensor / loop figure", "value +- 1-sigma", "unit"),
                              [(f.name, _pm(f.value, f.sigma), f.unit) for f in data.loop],
                              "tnt")]
+    if data.verification:
+        lines += ["", _plain(("candidate feed-forward", "verdict", "window", "settling [s]",
+                              "decay [1/s]", "drift [mrad]"),
+                             [(r.candidate, r.verdict, f"{r.kind} at {r.point:.3g} rad",
+                               _both(r.settle, r.settle_predicted, 2),
+                               _both(r.decay, r.decay_predicted, 1),
+                               _both(1e3 * r.drift, 1e3 * r.drift_predicted, 2))
+                              for r in data.verification], "tttnnn"),
+                  "  (measured on the gripper / predicted on the identified model)"]
     if data.tuning is not None:
         if data.tuning.rows:
             lines += ["", _plain(("tuned parameter", "old", "new", "unit", "bound by"),
@@ -1190,6 +1226,18 @@ def render_html(data: CommissioningReport, figures: Sequence[RenderedFigure]) ->
              _cards(data)]
     if data.tuning is not None:
         parts += ["<h2>Tuning: what changed</h2>", _tuning_html(data.tuning)]
+    if data.verification:
+        parts += ["<h2>The feed-forward verified on the free finger</h2>", _table(
+            ["candidate", "verdict", "window", "settling [s] measured / predicted",
+             "decay [1/s]", "drift [mrad]"],
+            [("bad" if r.verdict.startswith("failed") else
+              "changed" if r.verdict == "passed" else "",
+              [(_e(r.candidate), ""), (_e(r.verdict), ""),
+               (_e(f"{r.kind} at {r.point:.3g} rad"), ""),
+               (_e(_both(r.settle, r.settle_predicted, 2)), "n"),
+               (_e(_both(r.decay, r.decay_predicted, 1)), "n"),
+               (_e(_both(1e3 * r.drift, 1e3 * r.drift_predicted, 2)), "n")])
+             for r in data.verification])]
     parts.append("<h2>Identified parameters</h2>")
     parts.append(_identification_html(data.identification) if data.identification
                  else '<p class="missing">No identification in this run.</p>')

@@ -58,6 +58,7 @@ from .predictor import (PLANT_FIELDS, SIGMA_KEYS, LoopModel, closed_loop_radius,
 TERM_FIELDS = tuple(spec.attribute for spec in PlantTermsParams.SPECS)
 
 __all__ = ["TuningResult", "InfeasibleTuningError", "tune", "worst_plant", "TUNED_KEYS",
+           "margin_cost_db",
            "HOLD_MODULUS_MARGIN", "DELAY_RESERVE", "contact_damping_within",
            "feedforward_uncertainties", "band_uncertainties"]
 
@@ -73,7 +74,7 @@ TUNED_KEYS = tuple(f"plant.{n}" for n in PLANT_FIELDS) + (
     "feedforward.stiffness_uncertainty", "feedforward.dahl_uncertainty",
     "feedforward.stroke_uncertainty", "feedforward.plant_uncertainty",
     "feedforward.motor_uncertainty", "feedforward.damping_reserve",
-    "feedforward.dahl_stiffness_share", "pressure_offset")
+    "feedforward.dahl_stiffness_share", "feedforward.verified_share", "pressure_offset")
 #: The Dahl stiffness shares the tuning falls back to, in turn, when no damping reserve holds
 #: the free finger over the band with the configured share (a lower share cancels less of the
 #: finger's pre-sliding stiffness: the free finger is the more damped and at rest the stiffer;
@@ -593,6 +594,8 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     values["feedforward.damping_reserve"] = reserve
     share = model.feedforward.dahl_stiffness_share
     values["feedforward.dahl_stiffness_share"] = share
+    values["feedforward.verified_share"] = 0.0       # (the verification's to raise)
+    bindings["feedforward.verified_share"] = "not verified: the model's band alone"
     bindings["feedforward.dahl_stiffness_share"] = (
         "kept" if share == configured else
         f"free finger: lowered from {configured:g}, where no damping reserve up to "
@@ -604,7 +607,7 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
     tuned = ControllerConfig.from_dict(values, base=base)
     after = predict_modes(plant, dahl, tuned, ("hold", "dob_full_ff"), omega,
                           delay=figures.delay_p50, dt=dt, amplitude=amplitude)
-    margin_cost = _margin_cost(plant, dahl, tuned, terms, omega, figures.delay_p50, dt,
+    margin_cost = margin_cost_db(plant, dahl, tuned, terms, omega, figures.delay_p50, dt,
                                amplitude)
     verdict = hold_verdict(plant, kp, kd, delay=figures.delay_p99, dt=dt)
     return TuningResult(values, tuned, omega, _zwidth(before), _zwidth(after), bindings,
@@ -612,7 +615,7 @@ def tune(plant: PlantParams, plant_sigma: Mapping[str, float], dahl: DahlParams,
                         margin_cost, math.hypot(*torque_noise(plant, dahl, tuned, figures)))
 
 
-def _margin_cost(plant: PlantParams, dahl: DahlParams, tuned: ControllerConfig,
+def margin_cost_db(plant: PlantParams, dahl: DahlParams, tuned: ControllerConfig,
                  terms: PlantTermsParams, omega: _Float, delay: int, dt: float,
                  amplitude: float) -> _Float:
     """``dob_full_ff``'s predicted |Z| with the tuned margin over the same with the model

@@ -17,9 +17,10 @@ tries each candidate in turn, most compensation first, on the free finger:
    nothing);
 2. then the candidate runs the channel as ``dob_full_ff`` would (a controller of its own, with
    its walls and its runaway monitor armed, entered bumplessly from the servo's torque): the
-   finger, released there, is pulsed by ``+verification.pulse`` on the DOB's reference for
-   :data:`PULSE_TIME` and watched for ``verification.settle_time`` and :data:`DRIFT_TIME`, then
-   by ``-verification.pulse``; the end
+   finger, released there, is pulsed on the DOB's reference for :data:`PULSE_TIME` -- a force
+   that would take the model's motor and endpoint inertia to ``verification.speed`` -- and
+   watched for ``verification.settle_time`` and :data:`DRIFT_TIME`, then pulsed the other way;
+   the end
    of each window is the finger at rest under the candidate, where a pre-sliding limit cycle
    or a creep shows;
 3. each window's figures (:class:`Window`): the finger's speed -- X_e_hat's path over
@@ -52,8 +53,9 @@ from typing import TYPE_CHECKING, Dict, List, Optional, Sequence
 
 from ..core.controller import ChannelController
 from ..core.jobs import TORQUE, InvalidJobGoalError, Job, JobSample
-from ..core.params import ControllerConfig, PlantParams, DahlParams
+from ..core.params import ControllerConfig, DahlParams, PlantParams, PlantTermsParams
 from ..core.safety import REST_SPEED
+from ..core.sensors import SensorParams
 from ..core.signals import faded_sine
 
 if TYPE_CHECKING:
@@ -66,8 +68,10 @@ __all__ = ["Candidate", "Window", "CandidateOutcome", "FreeFingerVerification", 
 MOVE_SPEED = 0.3
 #: The dither before a candidate takes over: amplitude [rad], cycles, frequency [Hz].
 DITHER_AMPLITUDE, DITHER_CYCLES, DITHER_FREQUENCY = 0.02, 3, 3.0
-#: The pulse's length [s].
-PULSE_TIME = 0.02
+#: The pulse's length [s]: the finger slides a few tenths of a radian, as a flick does (a
+#: pulse of 20 ms moved it a few hundredths, and a candidate whose finger rested after those
+#: swung across +-0.3 rad after a hand's flick of 4 mN m s).
+PULSE_TIME = 0.08
 #: The drift is X_e_hat's range over the window's last this [s] (a window lasts
 #: ``verification.settle_time`` and this).
 DRIFT_TIME = 0.5
@@ -122,8 +126,9 @@ class FreeFingerVerification(Job):
     candidates : sequence of Candidate
         Most compensation first.
     config : ControllerConfig
-        The channel's (``verification.*``, ``hold`` gains, ``commissioning.max_torque``,
-        ``max_torque``, ``feedforward.rest_position``, ``limits``).
+        The channel's (``verification.*``, ``commissioning.max_torque``, ``max_torque``,
+        ``feedforward.rest_position``, ``limits``); the servo between the candidates takes the
+        last candidate's ``hold`` gains.
     dt : float > 0
         Sample period [s].
 
@@ -147,10 +152,15 @@ class FreeFingerVerification(Job):
         self.config = config
         self.dt = float(dt)
         v = config.verification
-        self._settle, self._band, self._pulse = v.settle_time, v.band, v.pulse
+        p = config.plant
+        self._settle, self._band = v.settle_time, v.band
+        self._pulse = v.speed * (p.motor_inertia + p.endpoint_inertia) / PULSE_TIME
         self._window = v.settle_time + DRIFT_TIME
         self._limit = min(config.commissioning.max_torque, config.max_torque)
-        self._kp, self._kd = config.hold.stiffness, config.hold.damping
+        # (the servo's gains: the last candidate's, tuned for the loop measured -- the
+        # channel's may be a hand-typed hold that a rig's delay makes unstable)
+        servo = self.candidates[-1].config.hold
+        self._kp, self._kd = servo.stiffness, servo.damping
         rest = config.feedforward.rest_position
         lim = config.limits
         room = lim.wall_band + DITHER_AMPLITUDE + 0.05
@@ -384,33 +394,50 @@ class FreeFingerVerification(Job):
 
 
 def predict(plant: PlantParams, dahl: Optional[DahlParams], candidates: Sequence[Candidate],
-            config: ControllerConfig, delay: int = 1, dt: float = 5e-4,
-            seed: int = 0) -> List[CandidateOutcome]:
+            config: ControllerConfig, delay: int = 1, dt: float = 5e-4, seed: int = 0,
+            terms: Optional[PlantTermsParams] = None, motor_coulomb: float = 0.0,
+            sensors: Optional[SensorParams] = None) -> List[CandidateOutcome]:
     """Every candidate's windows on the identified model (the core's simulator: ``plant``,
-    ``dahl``, its default sensors, the torque applied ``delay`` samples after its sample),
-    each candidate verified alone (:class:`FreeFingerVerification` with that one): what the
-    verification should measure."""
-    from ..core.simulator import ChannelSimulator
-    out = []
+    ``dahl``, the nonlinear ``terms`` the record showed and the motor's Coulomb friction, the
+    ``sensors`` measured (default the sim's), the torque applied ``delay`` samples after its
+    sample): what the
+    verification should measure. Each candidate is verified alone, the finger placed at rest
+    at each point in turn (the gripper's move there leaves it so: the dither cycles the
+    hysteresis down), the job stepped on the simulator's samples directly."""
+    from ..core.jobs import JobSample
+    from ..core.nonlinear_effects import effects_of_terms
+    from ..core.nonlinear_simulator import make_simulator
+    effects = None if terms is None else effects_of_terms(terms, plant)
     config = config.replace(pressure_offset=0.0)     # (the simulated sensor has none)
+    estimator = ChannelController(config, dt).estimator       # (a JobSample needs one)
+    out = []
     for candidate in candidates:
-        sim = ChannelSimulator(plant, dahl, dt, seed=seed, command_delay=1)
-        ctl = ChannelController(config.replace(mode="passive"), dt)
-        job = FreeFingerVerification([Candidate(candidate.name, candidate.config.replace(
-            pressure_offset=0.0))], config, dt)
-        ctl.request_job(job)
-        pending = [0.0] * max(0, delay - 1)
-        m = sim.measurement()
-        limit = int(job._duration / dt) + int(30.0 / dt)
-        for _ in range(limit):
-            u = ctl.update(m.x, m.v, m.f_p)
-            if pending:
+        outcome = CandidateOutcome(candidate.name, reason="passed", passed=True)
+        for point in FreeFingerVerification([candidate], config, dt).points:
+            job = FreeFingerVerification([Candidate(candidate.name, candidate.config.replace(
+                pressure_offset=0.0))], config, dt)
+            job.points = [point]
+            sim = make_simulator(plant, dahl, effects, dt=dt, seed=seed,
+                                 motor_coulomb=motor_coulomb, sensors=sensors)
+            sim.reset((point, 0.0, point, 0.0))
+            sample = JobSample(estimator)
+            pending = [0.0] * max(0, delay - 1)
+            m = sim.measurement()
+            u = 0.0
+            assert job.claim()
+            for _ in range(int(job._duration / dt) + int(10.0 / dt)):
+                sample.x, sample.v, sample.f_p, sample.torque = m.x, m.v, m.f_p, u
+                sample.endpoint_position = m.x + m.f_p / plant.hose_stiffness
+                u = job.step(sample)
                 pending.append(u)
-                u = pending.pop(0)
-            m = sim.step(u)
-            if not job.active:
+                m = sim.step(pending.pop(0))
+                if not job.active:
+                    break
+            tried = job.outcomes[0] if job.outcomes else CandidateOutcome(
+                candidate.name, reason=f"not run: {job.message}")
+            outcome.windows.extend(tried.windows)
+            if not tried.passed:
+                outcome.passed, outcome.reason = False, tried.reason
                 break
-        outcome = job.outcomes[0] if job.outcomes else CandidateOutcome(
-            candidate.name, reason=f"not run: {job.message}")
         out.append(outcome)
     return out

@@ -584,11 +584,14 @@ class ChannelController:
                 self._trip(monitor.reason)
                 job = None
                 mode = self._torque_mode
-            elif job is None and self.settling.update(obs.position, self._wall,
-                                                      self._uses_feedforward, steps):
-                # (the walls' force of the last sample: this one's comes with the mode)
-                self._trip(self.settling.reason)
-                mode = self._torque_mode
+            elif job is None:
+                watch = self.settling
+                watch.due -= steps
+                if watch.due <= 0 and watch.update(obs.position, self._wall,
+                                                   self._uses_feedforward):
+                    # (the walls' force of the last sample: this one's comes with the mode)
+                    self._trip(watch.reason)
+                    mode = self._torque_mode
 
         # the mode: F_a itself, or the DOB's reference; the walls add to either
         entry = self._entry

@@ -492,11 +492,12 @@ class VerificationParams(ParameterGroup):
                                le=10.0)
     band: float = param(0.005, "rad", "... and then moves less than this over the window's "
                         "last 0.5 s (a creep or a ring fails it)", gt=0.0, le=0.1)
-    pulse: float = param(0.05, "N m", "force of each pulse on the DOB's reference, held 20 ms",
-                         gt=0.0, le=1.0)
+    speed: float = param(1.0, "rad/s", "the finger's speed each pulse aims at (its force, "
+                         "held 80 ms, from the model's motor and endpoint inertia): a flick",
+                         gt=0.0, le=5.0)
     offset: float = param(0.25, "rad", "distance of the second point from the rest position",
                           ge=0.0, le=1.0)
-    candidates: int = param(3, "", "most candidates tried (each about 16 s of rig time)",
+    candidates: int = param(3, "-", "most candidates tried (each about 16 s of rig time)",
                             ge=1, le=10)
 
 
@@ -805,7 +806,8 @@ class ControllerConfig(ParameterGroup):
         out = {}
         for owner, spec in _OWNED:
             value = getattr(getattr(self, owner) if owner else self, spec.attribute)
-            out[spec.name] = value if isinstance(value, (str, bool)) else float(value)
+            out[spec.name] = value if isinstance(value, (str, bool)) or spec.type is int \
+                else float(value)
         return out
 
     @classmethod

@@ -46,10 +46,12 @@ Two stages of :meth:`ChannelController.update <seaforce_ros.core.controller.Chan
 * :class:`SettlingWatch` (``monitor.wall_time``, ``monitor.settle_time``) -- beside the
   monitor, in the modes that run the DOB, outside a job: a finger that never comes to rest.
   Every :data:`SETTLE_CHECK` samples it measures the finger's speed from the path X_e_hat
-  travelled (its total variation: an oscillation counts as much as a drift), low-passed at
-  :data:`PATH_CUTOFF` first (the pressure noise alone moves X_e_hat by 40 urad a sample:
-  0.06 rad/s of path unfiltered); it counts as at rest again after :data:`REST_TIME` below
-  :data:`REST_SPEED`. A free finger
+  travelled (its total variation: an oscillation counts as much as a drift), sampled every
+  :data:`WATCH_EVERY` samples and low-passed at :data:`PATH_CUTOFF` (the pressure noise
+  alone moves X_e_hat by 40 urad a sample: 0.06 rad/s of path unfiltered at 2 kHz; 0.004
+  so); it counts as at rest again after :data:`REST_TIME` below :data:`REST_SPEED`. The
+  controller counts the samples down (:attr:`SettlingWatch.due`) and calls it when due: its
+  per-sample cost is one subtraction. A free finger
   whose feed-forward is right comes to rest within a few seconds of a flick (its residual
   friction, ``1 - margin x uncertainty`` of the model's, damps it). A finger the walls have
   held still for ``wall_time`` trips the fall-back: the controller pushes it onto them (a
@@ -76,7 +78,7 @@ import math
 from .params import LimitParams, MonitorParams
 
 __all__ = ["JointWalls", "RunawayMonitor", "SettlingWatch", "WALL_MEMORY", "SETTLE_CHECK",
-           "REST_SPEED"]
+           "WATCH_EVERY", "REST_SPEED"]
 
 #: Time constant [s] with which the monitor forgets the energy the walls dissipated.
 WALL_MEMORY = 2.0
@@ -275,8 +277,9 @@ class RunawayMonitor:
         return True
 
 
-#: Samples between the settling watch's looks (50 ms at 2 kHz).
-SETTLE_CHECK = 100
+#: Samples between the settling watch's looks (50 ms at 2 kHz), and between its samples of
+#: X_e_hat (5 ms).
+SETTLE_CHECK, WATCH_EVERY = 100, 10
 #: The speed [rad/s] below which the finger counts as at rest (the contact estimator's).
 REST_SPEED = 0.05
 #: A creep: the finger has moved one way, at least this share of its path, for 1 s.
@@ -310,11 +313,11 @@ class SettlingWatch:
 
     __slots__ = ("dt", "_settle", "_wall_time", "_count", "_travel", "_last", "_start",
                  "_window", "_window_travel", "moving", "walled", "creeping", "reason", "_a",
-                 "_still", "restless")
+                 "_still", "restless", "due")
 
     def __init__(self, monitor: MonitorParams, dt: float) -> None:
         self.dt = float(dt)
-        self._a = 1.0 - math.exp(-2.0 * math.pi * PATH_CUTOFF * self.dt)
+        self._a = 1.0 - math.exp(-2.0 * math.pi * PATH_CUTOFF * WATCH_EVERY * self.dt)
         self.configure(monitor)
         self.reset()
 
@@ -334,13 +337,19 @@ class SettlingWatch:
         self.moving = self.walled = self.creeping = self._still = 0.0
         self.restless = False
         self.reason = ""
+        self.due = WATCH_EVERY
 
-    def update(self, xe: float, walls: float, feedforward: bool, steps: int = 1) -> bool:
-        """One sample: X_e_hat [rad], the walls' force [N m] this sample, whether the mode
-        cancels the finger's friction; True on the look that trips (:attr:`reason`)."""
+    def update(self, xe: float, walls: float, feedforward: bool) -> bool:
+        """When :attr:`due` has counted down to 0 (or below: samples skipped): X_e_hat [rad],
+        the walls' force [N m] now, whether the mode cancels the finger's friction; True on
+        the look that trips (:attr:`reason`)."""
+        steps = WATCH_EVERY - self.due
+        self.due = WATCH_EVERY
         last = self._last
         if last == last:
-            y = last + self._a * (xe - last) if steps == 1 else xe
+            a = self._a if steps == WATCH_EVERY else \
+                1.0 - math.exp(-2.0 * math.pi * PATH_CUTOFF * steps * self.dt)
+            y = last + a * (xe - last)
             self._travel += abs(y - last)
         else:
             y = self._start = xe

@@ -13,11 +13,16 @@ One goal commissions one channel, through the node's one job path (:mod:`.jobs`)
 2. the excitation, a core job (:class:`~seaforce_ros.commissioning.excitation.FreeAirExcitation`)
    in the control cycle: a contact, a tracking error, a fault, a stall or a cancel ends it
    with zero torque, and the goal with it;
-3. the analysis, a follow-up off the control thread
-   (:class:`~seaforce_ros.commissioning.worker.AnalysisProcess`, a child process: the
-   identification's CPU does not compete with the 2 kHz loop for the interpreter): the record
-   and the request are written to the run's directory, the child identifies, predicts, tunes,
-   writes the report, the params file and the rollback file (none on ``dry_run``);
+3. the analysis, a follow-up off the control thread (:class:`_FollowUp`): the record and the
+   request are written to the run's directory; a child process
+   (:class:`~seaforce_ros.commissioning.worker.AnalysisProcess`: the identification's CPU does
+   not compete with the 2 kHz loop for the interpreter) identifies, tunes and proposes the
+   feed-forward's candidates (``analyse --propose``); the verification, a core job again
+   (:class:`~seaforce_ros.commissioning.verification.FreeFingerVerification`, unless
+   ``verification.enabled`` is false), tries them on the free finger and writes
+   ``verification.json``; a second child takes its verdict into the tuning, predicts, writes
+   the report, the params file and the rollback file (none on ``dry_run``; ``analyse
+   --finish``);
 4. the end: with ``apply`` (and not ``dry_run``) the tuned values are set as the channel's
    parameters -- validated like any parameter change and taken at the start of a cycle,
    bumplessly; the result carries the summary, the paths, the values old and new.
@@ -35,15 +40,20 @@ import json
 import math
 import pathlib
 import sys
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
 from rclpy.parameter import Parameter
 from seaforce_msgs.action import Commission
 
+from ..commissioning.analyse import (CANDIDATES_FILE, VERIFICATION_FILE, Verified,
+                                     save_verified)
 from ..commissioning.excitation import ExcitationGoal, FreeAirExcitation
 from ..commissioning.record import save_record
+from ..commissioning.verification import Candidate, FreeFingerVerification
 from ..commissioning.worker import AnalysisProcess
+from ..core.params import ControllerConfig
 from ..core.estimator import REST_SPEED, STANDING_TIME
 from ..core.jobs import InvalidJobGoalError, Job
 from .jobs import JobAction
@@ -53,8 +63,9 @@ __all__ = ["CommissionAction", "DEFAULT_DIRECTORY", "run_directory", "previous_r
 #: Where runs go when ``commissioning.directory`` is empty (relative to the working directory).
 DEFAULT_DIRECTORY = "seaforce_commissioning"
 
-#: The share of the goal's progress the excitation takes (the analysis takes the rest).
-EXCITATION_SHARE = 0.7
+#: The shares of the goal's progress the excitation, the proposal and the verification take
+#: (the finish takes the rest).
+EXCITATION_SHARE, PROPOSAL_SHARE, VERIFICATION_SHARE = 0.55, 0.15, 0.2
 #: A contact reported this long ago [s] still counts at a goal: a finger pushed back and forth
 #: drops its contact flag around each reversal of the force (and the estimator re-arms after
 #: STANDING_TIME still), and a goal must not slip through there.
@@ -127,9 +138,134 @@ class _Run:
     """One goal's run: its request, directory, follow-up and outcome."""
     request: dict[str, Any]
     directory: pathlib.Path
-    analysis: AnalysisProcess | None = None
+    analysis: "_FollowUp | None" = None
     applied: bool = False
     result: dict[str, Any] = field(default_factory=dict)
+
+
+class _FollowUp:
+    """What follows the excitation (module docstring, step 3), polled by the node's job
+    actions (:class:`~.jobs.FollowUp`): the proposal's child, the verification job on the
+    channel, the finish's child. ``outcome``, ``message`` and ``result`` are the finish's (or
+    the stage's that ended the run)."""
+
+    def __init__(self, node: Any, index: int, directory: pathlib.Path,
+                 prepare: Any) -> None:
+        self._node, self._index, self._directory = node, index, directory
+        self.outcome: str | None = None
+        self.message = "starting the analysis"
+        self.result: dict[str, Any] | None = None
+        self._canceled = ""
+        self._job: FreeFingerVerification | None = None
+        self._started = 0.0
+        self._finishing = False
+        self._child = self._analysis("--propose", "identify",
+                                     (EXCITATION_SHARE, EXCITATION_SHARE + PROPOSAL_SHARE),
+                                     prepare)
+
+    def _analysis(self, stage: str, phase: str, span: tuple[float, float],
+                  prepare: Any = None) -> AnalysisProcess:
+        # (-P: the node's working directory is not on the child's import path)
+        return AnalysisProcess([sys.executable, "-P", "-m", "seaforce_ros.commissioning.analyse",
+                                str(self._directory), stage],
+                               self._directory / "analysis.log", phase=phase,
+                               progress_span=span, prepare=prepare)
+
+    @property
+    def pid(self) -> int | None:
+        return self._child.pid if self._child is not None else None
+
+    def poll(self) -> bool:
+        """Advance (never blocking); True once the run has ended."""
+        if self.outcome is not None:
+            return True
+        if self._job is not None:
+            return self._poll_job(self._job)
+        if not self._child.poll():
+            return False
+        child = self._child
+        if child.outcome == "canceled" or self._canceled:
+            return self._end("canceled", self._canceled or child.message)
+        if self._finishing:
+            self.result = child.result
+            return self._end(child.outcome or "aborted", child.message)
+        # the proposal's end: an untuned run (no candidate) is finished too, for its report
+        names = (child.result or {}).get("candidates", [])
+        if not (self._directory / "proposal.pkl").exists():
+            self.result = child.result
+            return self._end("aborted", child.message)
+        config = self._node.controllers[self._index].config
+        if names and config.verification.enabled:
+            return self._verify(config)
+        return self._finish_stage()
+
+    def _verify(self, config: ControllerConfig) -> bool:
+        try:
+            data = json.loads((self._directory / CANDIDATES_FILE).read_text())
+            candidates = [Candidate(str(c["name"]), ControllerConfig.from_dict(c["config"]))
+                          for c in data]
+            job = FreeFingerVerification(candidates, config, self._node.dt)
+        except Exception as exc:        # noqa: BLE001 -- any failure: unverified, said so
+            self._save(Verified([], None, 0.0, f"the verification could not start: {exc}"))
+            return self._finish_stage()
+        self._job = job
+        self._started = time.monotonic()
+        self.message = "verifying the feed-forward's candidates on the free finger"
+        self._node.controllers[self._index].request_job(job)
+        return False
+
+    def _poll_job(self, job: FreeFingerVerification) -> bool:
+        if self._canceled and job.active:
+            if not job.withdraw(self._canceled, "canceled"):
+                job.request_cancel(self._canceled)
+        stalled = self._node._stalled()
+        if job.active and job.started and stalled:
+            job.request_abort(stalled + ": the plant stopped, or the link to it")
+        if job.active and not job.started and time.monotonic() - self._started > 1.0:
+            job.withdraw("the control cycle did not take the verification within 1 s")
+        if job.active:
+            return False
+        self._job = None
+        if job.outcome == "canceled" or self._canceled:
+            return self._end("canceled", self._canceled or job.message)
+        self._save(Verified(job.outcomes, job.chosen, time.monotonic() - self._started,
+                            "" if job.outcome == "succeeded" else job.message))
+        return self._finish_stage()
+
+    def _save(self, verified: Verified) -> None:
+        try:
+            save_verified(self._directory / VERIFICATION_FILE, verified)
+        except OSError as exc:
+            self.message = f"verification.json not written: {exc}"
+
+    def _finish_stage(self) -> bool:
+        self._finishing = True
+        self._child = self._analysis(
+            "--finish", "predict",
+            (EXCITATION_SHARE + PROPOSAL_SHARE + VERIFICATION_SHARE, 1.0))
+        return False
+
+    def _end(self, outcome: str, message: str) -> bool:
+        self.outcome, self.message = outcome, message
+        return True
+
+    def cancel(self, reason: str) -> None:
+        self._canceled = reason
+        if self._job is None:
+            self._child.cancel(reason)
+
+    def close(self) -> None:
+        if self._job is not None and self._job.active:
+            self._job.request_abort("the node is going down")
+        self._child.close()
+
+    def feedback(self) -> dict[str, float | str]:
+        job = self._job
+        if job is None:
+            return self._child.feedback()
+        lo = EXCITATION_SHARE + PROPOSAL_SHARE
+        return {"phase": "verify", "progress": lo + VERIFICATION_SHARE * job.progress,
+                "measuring": job.message}
 
 
 class CommissionAction:
@@ -244,7 +380,7 @@ class CommissionAction:
         return "commissioning in free air" + (f" ({', '.join(flags)})" if flags else "")
 
     # --- the job's end -> the analysis -------------------------------------------------------
-    def _follow(self, index: int, job: Job) -> AnalysisProcess:
+    def _follow(self, index: int, job: Job) -> "_FollowUp":
         run = self._runs[index]
         assert isinstance(job, FreeAirExcitation)
         record = job.record()
@@ -255,12 +391,7 @@ class CommissionAction:
             save_record(record, run.directory / "record.npz")
             (run.directory / "request.json").write_text(json.dumps(run.request, indent=1))
 
-        run.analysis = AnalysisProcess(
-            # (-P: the node's working directory is not on the child's import path)
-            [sys.executable, "-P", "-m", "seaforce_ros.commissioning.analyse",
-             str(run.directory)],
-            run.directory / "analysis.log", phase="identify",
-            progress_span=(EXCITATION_SHARE, 1.0), prepare=prepare)
+        run.analysis = _FollowUp(self._node, index, run.directory, prepare)
         return run.analysis
 
     def _finish(self, index: int, job: Job) -> str:

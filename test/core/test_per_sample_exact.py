@@ -41,9 +41,10 @@ from helpers.baseline_core import BaselineUnavailable, load_core
 #: parameters e2ba8c5), then until the reserve acted through a high-pass (63ca16a), then until
 #: a friction calibration applied the pressure offset it identifies (0c4c6e3), then until the
 #: monitor's settling watch (fe3fcc2: its two parameters in the config; no float changed
-#: where it does not trip).
+#: where it does not trip), then until the verification's parameters (75f804c: the config's keys
+#: only; no float changed).
 #: A deliberate change of behaviour moves it; a speed-up never does.
-BASELINE = "fe3fcc2"
+BASELINE = "75f804c"
 DT = 5e-4
 _T0_NS = 1_700_000_000_000_000_000
 FIELDS = ("motor_inertia", "motor_damping", "motor_stiffness", "endpoint_inertia",

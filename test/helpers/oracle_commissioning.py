@@ -113,3 +113,43 @@ def release(plant, dahl, effects, config, start, seconds=6.0, seed=0, sensors=No
         xe[k], ve[k] = g.state[2], g.state[3]
         m = g.step(u)
     return {"x_e": xe, "v_e": ve, "dt": g.dt, "fallback": fallback}
+
+
+def commission(plant, dahl, effects, sensors=None, config=None, seed=0, duration=None,
+               verify=True):
+    """A whole commissioning run on the oracle, as ``~/commission`` runs it on a gripper: the
+    excitation job, the analysis' proposal, the verification job on the same finger (``verify``
+    False: none, the model class's candidate unverified), the analysis' finish. Returns
+    ``(Analysis, rig time [s], the analysis' CPU time [s])``."""
+    import time
+    from helpers.nonlinear_sim import run_loop
+    from seaforce_ros.commissioning.analyse import AnalysisRequest, Verified, finish, propose
+    from seaforce_ros.commissioning.excitation import ExcitationGoal, FreeAirExcitation
+    from seaforce_ros.commissioning.verification import FreeFingerVerification
+    from seaforce_ros.core.controller import ChannelController
+    from seaforce_ros.core.params import ControllerConfig
+    config = (config or ControllerConfig(max_torque=20.0)).replace(mode="passive")
+    ctrl = ChannelController(config, DT)
+    job = FreeAirExcitation(ExcitationGoal("sim", None, duration), config, DT)
+    ctrl.request_job(job)
+    rec, gripper = free_air_excitation(plant, dahl, effects, ctrl, job, job.capacity,
+                                       seed=seed, sensors=sensors)
+    if job.outcome != "succeeded":
+        raise RuntimeError(f"the excitation ended {job.outcome}: {job.message}")
+    record = job.record()
+    rig = len(rec["t"]) * DT
+    request = AnalysisRequest("sim", config)
+    cpu = time.process_time()
+    proposal = propose(record, request)
+    cpu = time.process_time() - cpu
+    verified = None
+    if verify and proposal.candidates:
+        check = FreeFingerVerification(proposal.candidates, config, DT)
+        ctrl.request_job(check)
+        out = run_loop(gripper, ctrl, int(300.0 / DT), job_done=lambda: not check.active)
+        rig += len(out["t"]) * DT
+        verified = Verified(check.outcomes, check.chosen, len(out["t"]) * DT,
+                            "" if check.outcome == "succeeded" else check.message)
+    t = time.process_time()
+    analysis = finish(proposal, request, verified)
+    return analysis, rig, cpu + time.process_time() - t
