@@ -44,10 +44,13 @@ from control_loop import (CONFIG, LIB, SETTLE, DiagnosticsListener, _stop,  # no
 BUS = ROOT / 'test' / 'data' / 'bus_emulated.yaml'
 
 
-def measure(argvs, name, seconds, listener, attempts=2):
+def measure(argvs, name, seconds, listener, attempts=2, probe=None):
     """The figures of one layout from its ``name`` diagnostics rows; None when none came.
     A run whose rows did not come is run again once (the nodes' stderr tails are printed:
-    a smoke run once saw no rows for the topics layout on a quiet host)."""
+    a smoke run once saw no rows for the topics layout on a quiet host). ``probe()``, if
+    given, is called at the end of the window, before the nodes stop (its result in
+    ``'probe'``)."""
+    seen = None
     for attempt in range(1, attempts + 1):
         with tempfile.TemporaryFile() as err:
             procs = {k: subprocess.Popen(a, stdout=subprocess.DEVNULL, stderr=err,
@@ -55,6 +58,7 @@ def measure(argvs, name, seconds, listener, attempts=2):
                      for k, a in argvs.items()}
             try:
                 rows, cpu = observe(procs, listener, name, SETTLE['nodes'] + 1.0, seconds)
+                seen = probe() if probe is not None else None
             finally:
                 _stop(procs.values())
             if len(rows) >= 2:
@@ -77,7 +81,7 @@ def measure(argvs, name, seconds, listener, attempts=2):
             'busy50': med('busy_p50_ms'), 'busy99': med('busy_p99_ms'),
             'rtt50': med('round_trip_p50_ms'), 'rtt99': med('round_trip_p99_ms'),
             'in_time': 1.0 - late / max(1, cycles), 'wkc': wkc, 'cycles': cycles,
-            'cpu': cpu}
+            'cpu': cpu, 'probe': seen}
 
 
 def main():
@@ -153,10 +157,11 @@ def run_profiles(args):
                                              str(params)]}
                 print(f'[bench] hardware direct, pinch drive {profile}: {args.seconds:.0f} s',
                       flush=True)
-                results[profile] = measure(argvs=argv, name='hardware: bus',
-                                           seconds=args.seconds, listener=listener)
-                status = harness.client.slave('pinch_drive')
-                results[profile] = (results[profile], status)
+                result = measure(argvs=argv, name='hardware: bus', seconds=args.seconds,
+                                 listener=listener,
+                                 probe=lambda: harness.client.slave('pinch_drive'))
+                status = (result or {}).get('probe') or harness.client.slave('pinch_drive')
+                results[profile] = (result, status)
             finally:
                 harness.stop()
     listener.close()
