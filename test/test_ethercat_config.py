@@ -56,7 +56,7 @@ def test_scaling_chain_compiles_and_inverts():
     (lambda d: d['channels']['pinch'].update(external_force={'from_channel': 'elbow'}),
      ['elbow']),
     (lambda d: d['channels']['pinch'].pop('pressure'), ['pressure']),
-    # the keys this issue added: each mistake named with what to write
+    # the keys of CoE, DC and the kinds: each mistake named with what to write
     (lambda d: d['slaves'][0].update(pdo_maping='write'), ['pdo_maping', 'pdo_mapping']),
     (lambda d: d['slaves'][0].update(pdo_mapping='always'), ['always', 'auto, write, check']),
     (lambda d: d['slaves'][0].update(rx_pdo=0x1A00), ['rx_pdo', '0x1600..0x17FF']),
