@@ -213,15 +213,16 @@ def judge(rec: Record, channel: str, torque: float, plant: PlantParams,
                           '0x6064 gives: fix the velocity factor (counts/s -> rad/s)')
     else:
         f.lines.append(f'velocity scaling: {f.velocity_ratio:.3f} x the position\'s')
-    # torque scale: the acceleration in the first milliseconds of each pulse
+    # torque scale: the acceleration in the first milliseconds of each pulse (its size: the
+    # direction is judged above)
     scales = []
-    for pulse, sign in (('plus', 1.0), ('minus', -1.0)):
+    for pulse in ('plus', 'minus'):
         idx = _window(rec, pulse)
         if idx:
             t0 = rec.t[idx[0]]
             early = [k for k in idx if rec.t[k] - t0 <= ACCEL_WINDOW]
             a = _slope([rec.t[k] for k in early], [rec.v[k] for k in early])
-            scales.append(sign * a * m / torque)
+            scales.append(abs(a) * m / torque)
     f.torque_scale = _mean(scales)
     if not 0.5 <= f.torque_scale <= 2.0:
         f.problems.append(f'the motor accelerates {f.torque_scale:.3g} times what the model\'s '

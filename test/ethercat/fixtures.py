@@ -13,8 +13,9 @@
   torque to it unless the newest inputs its master had showed Operation enabled in CST, and
   that it never entered Operation enabled in another mode (:func:`torque_evidence`);
   emulator tests driving pysoem by hand pass False.
-* ``ecat_bus`` -- the default bus (wrist drive, pinch drive, pressure terminal), started, for a
-  bare pysoem master.
+* ``ecat_bus`` -- the default bus (wrist drive, pinch drive, pressure terminal), for a bare
+  pysoem master: one emulator per test module, reset to power-up before each test (the
+  ``reset`` command).
 * ``soem_master`` -- factory ``open(interface) -> pysoem.Master``; each master is closed
   at teardown.
 """
@@ -108,10 +109,37 @@ def ecat_emulator(tmp_path):
                             % violations)
 
 
+@pytest.fixture(scope="module")
+def _shared_line(tmp_path_factory):
+    """One default line per test module (``ecat_bus`` resets it before each test)."""
+    priority = EMULATOR_PRIORITY if realtime_allowed() else 0
+    h = EmulatorHarness(None, workdir=tmp_path_factory.mktemp("ecat_line"), realtime=priority)
+    h.start()
+    try:
+        yield h
+    finally:
+        log = h.log()
+        h.stop()
+        print("---- shared emulator %s log ----\n%s" % (h.master_interface, log))
+
+
 @pytest.fixture
-def ecat_bus(ecat_emulator):
-    """The default line for a bare pysoem master (no torque evidence asked)."""
-    return ecat_emulator(evidence=False)
+def ecat_bus(_shared_line):
+    """The default line for a bare pysoem master (no torque evidence asked), shared by the
+    tests of a module: reset to power-up (every slave, the physics, the counters) before
+    each test -- a veth pair, a namespace and a process less per test."""
+    _shared_line.client.reset()
+    _shared_line.client.clear_history()
+    try:
+        yield _shared_line
+    finally:
+        try:
+            events = _shared_line.client.events()
+        except Exception as exc:
+            events = ["(no events: %s)" % exc]
+        print("---- emulator %s events (last 40) ----" % _shared_line.master_interface)
+        for event in events[-40:]:
+            print(event)
 
 
 @pytest.fixture

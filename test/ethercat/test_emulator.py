@@ -1,7 +1,8 @@
 """The emulator proven against SOEM: pysoem 1.1.13 is the master, on a veth pair whose
 slave end lives in a network namespace with the emulator process.
 
-Every test gets its own emulator (fixture ``ecat_bus`` / ``ecat_emulator``) and its own
+The tests on the default line share one emulator, reset to power-up before each (fixture
+``ecat_bus``); those with another line get their own (``ecat_emulator``); each test has its own
 pysoem master (``soem_master``); teardown removes processes, links and namespaces.
 """
 

@@ -48,11 +48,18 @@ def steps(y, channel, key):
         y['channels'][channel]['pressure']['steps']
 
 
-def test_free_fingers_pass_and_their_offsets_are_tared():
-    def offset(y):                                   # c0's sensor reads +20 mN m at no force
+@pytest.fixture(scope='module')
+def free():
+    """Both fingers free; c0's sensor reads +20 mN m at no force, c1's -10."""
+    def offset(y):
         steps(y, 'c0', 'pressure')[2]['offset'] += 0.020
-    found, fake, out = run(tweak=offset)
-    for name, true in (('c0', 0.020), ('c1', 0.0)):
+        steps(y, 'c1', 'pressure')[2]['offset'] -= 0.010
+    return run(tweak=offset)
+
+
+def test_free_fingers_pass_and_their_offsets_are_tared(free):
+    found, fake, out = free
+    for name, true in (('c0', 0.020), ('c1', -0.010)):
         f = found[name]
         assert f.passed, f.report()
         assert f.offset == pytest.approx(true, abs=2e-3), f.report()
@@ -74,41 +81,48 @@ def test_a_finger_that_is_not_free_or_not_at_rest_is_refused():
     assert not found['c0'].passed and not found['c1'].passed
 
 
-@pytest.mark.parametrize('mistake,channel,words', [
-    ('position_sign', 'c0', 'negate the position and velocity factors'),
-    ('pressure_sign', 'c1', 'negate the pressure chain\'s factor'),
-    ('velocity_scale', 'c0', 'fix the velocity factor'),
-    ('counts_per_turn', 'c1', 'check the rated torque (0x6076) and the position scaling'),
-])
-def test_a_wrongly_signed_or_scaled_channel_is_named_with_its_fix(mistake, channel, words):
+def _mistake(y, mistake, channel):
+    if mistake == 'position_sign':
+        for key in ('position', 'velocity'):
+            steps(y, channel, key)[0]['factor'] *= -1
+    elif mistake == 'pressure_sign':
+        chain = steps(y, channel, 'pressure')
+        chain[2]['factor'] *= -1
+        chain[2]['offset'] *= -1
+    elif mistake == 'velocity_scale':
+        steps(y, channel, 'velocity')[0]['factor'] *= 2
+    else:                                          # 2^18 counts per turn taken for 2^20
+        for key in ('position', 'velocity'):
+            steps(y, channel, key)[0]['factor'] *= 4
+
+
+@pytest.mark.parametrize('mistakes', [(('position_sign', 'negate the position and velocity '
+                                        'factors'),
+                                       ('pressure_sign', 'negate the pressure chain\'s factor')),
+                                      (('velocity_scale', 'fix the velocity factor'),
+                                       ('counts_per_turn', 'check the rated torque (0x6076) and '
+                                        'the position scaling'))])
+def test_a_wrongly_signed_or_scaled_channel_is_named_with_its_fix(mistakes):
+    """One mistake per channel (c0, c1), each found and named with its fix, nothing else."""
     def tweak(y):
-        if mistake == 'position_sign':
-            for key in ('position', 'velocity'):
-                steps(y, channel, key)[0]['factor'] *= -1
-        elif mistake == 'pressure_sign':
-            chain = steps(y, channel, 'pressure')
-            chain[2]['factor'] *= -1
-            chain[2]['offset'] *= -1
-        elif mistake == 'velocity_scale':
-            steps(y, channel, 'velocity')[0]['factor'] *= 2
-        else:                                      # 2^18 counts per turn taken for 2^20
-            for key in ('position', 'velocity'):
-                steps(y, channel, key)[0]['factor'] *= 4
-    found, _, _ = run(channels=[channel], tweak=tweak)
-    f = found[channel]
-    assert not f.passed and not f.refused, f.report()
-    assert any(words in p for p in f.problems), f.report()
+        for (mistake, _), channel in zip(mistakes, ('c0', 'c1')):
+            _mistake(y, mistake, channel)
+    found, _, _ = run(tweak=tweak)
+    for (mistake, words), channel in zip(mistakes, ('c0', 'c1')):
+        f = found[channel]
+        assert not f.passed and not f.refused, f.report()
+        assert len(f.problems) == 1 and words in f.problems[0], f.report()
 
 
-def test_the_offsets_go_into_a_params_file_as_the_controller_reads_them(tmp_path):
-    found, _, _ = run(tweak=lambda y: steps(y, 'c1', 'pressure')[2].update(offset=-5.0 - 0.01))
+def test_the_offsets_go_into_a_params_file_as_the_controller_reads_them(free, tmp_path):
+    found, _, _ = free
     path = tmp_path / 'setup.yaml'
     path.write_text('# the setup\n/**:\n  ros__parameters:\n    c0:\n      mode: passive  # kept\n')
     write_offsets(str(path), list(found.values()))
     text = path.read_text()
     assert '# the setup' in text and 'mode: passive  # kept' in text
     keys = [spec.name for spec in ControllerConfig.rows()]
-    for name, true in (('c0', 0.0), ('c1', -0.010)):
+    for name, true in (('c0', 0.020), ('c1', -0.010)):
         view = pf.controller_view(pf.load(path), name, str(path), keys)
         config = ControllerConfig.from_dict(view.values)
         assert config.pressure_offset == pytest.approx(true, abs=2e-3)
