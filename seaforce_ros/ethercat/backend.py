@@ -238,7 +238,7 @@ class EthercatBackend(PlantBackend):
                         RATED_TORQUE_TOLERANCE * drive_rated:
                     raise BusConfigError(
                         f'{name}: rated_torque {c.cfg.rated_torque:g} N m in the bus YAML but '
-                        f'the drive\'s 0x6076 is {found.rated_torque_mnm} mN m '
+                        f'the drive\'s 0x6076 is {round(drive_rated * 1e3)} mN m '
                         f'({drive_rated:g} N m): every torque would be scaled wrong; remove '
                         'rated_torque from the YAML to use the drive\'s, or correct it')
             c.units_per_nm = 1000.0 / c.rated_torque

@@ -597,7 +597,7 @@ def _channel(name: Any, raw: Any, by_name: Dict[str, SlaveConfig], where: str) -
         raise BusConfigError(f'{what}: a channel is a mapping (drive, position, velocity, '
                              'pressure, ...)')
     _check_keys(raw, 'channel', what)
-    drive = by_name.get(raw.get('drive'))
+    drive = by_name.get(str(raw.get('drive')))
     if drive is None or drive.kind != 'cia402_drive':
         raise BusConfigError(f'{what}: drive {raw.get("drive")!r} must name a cia402_drive slave')
     rated = raw.get('rated_torque')

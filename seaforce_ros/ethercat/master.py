@@ -596,7 +596,7 @@ class EthercatBus:
 
     def dc_time(self) -> int:
         """The reference clock's system time [ns] the last frame read (0 without DC)."""
-        return self.master.dc_time if self.dc_active else 0       # type: ignore[no-any-return]
+        return int(self.master.dc_time) if self.dc_active else 0
 
     # --- shut-down -----------------------------------------------------------------------
     def to_init(self) -> bool:

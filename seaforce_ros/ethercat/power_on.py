@@ -47,7 +47,7 @@ import math
 import sys
 import time
 from dataclasses import dataclass, field
-from typing import Any, Dict, List, Optional, Sequence, Tuple
+from typing import Any, Dict, List, Optional, Sequence, Tuple, cast
 
 from ..core.backend import PlantSample
 from ..core.params import ControllerConfig, DahlParams, PlantParams
@@ -340,7 +340,7 @@ class PowerOnCheck:
         from ..core.tare import PressureTare
         from ..core.jobs import JobSample
         job = PressureTare(config, self.dt)
-        sample = JobSample(None)           # type: ignore[arg-type]  (the tare needs none)
+        sample = JobSample(cast(Any, None))    # (the tare reads no contact estimator)
         k_s = config.plant.hose_stiffness
         efforts = [0.0] * len(self.channels)
         state: Dict[str, float] = {'torque': 0.0}
