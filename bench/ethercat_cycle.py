@@ -22,6 +22,8 @@ on a line of two CoE drives, an EK1100-like coupler and the EL3102-like terminal
 * **INIT -> OP**: open, configure (config_init, identities, SII, CoE configuration of each
   drive at PRE-OP -- start-up SDOs, mapping written and read back, 0x6060 = 10, scaling --
   config_map, SAFE-OP) and activate (OP), median of ``--bring-ups`` runs, with its parts;
+* **drive fault -> code**: a fault injected in each drive, the time until the latched fault
+  names its 0x603F code (mapped on one drive, read over CoE on the other) and its emergency;
 * **cycle CPU**: the node's cycle (read, drives, PlantCycle, write) at 2 kHz, free run (the
   baseline, measured in the same run) and with distributed clocks on both drives (SYNC0, the
   FRMW of the reference clock in every frame, the PI lock of the cycle): the thread's CPU time
@@ -148,6 +150,45 @@ def run(args):
     return 0
 
 
+def fault_latency(harness, backend, plant, channels, period):
+    """A drive fault injected on each drive (c0: 0x603F mapped, c1: not): how long until
+    the latched fault names its code, and its emergency [ms]; then reset."""
+    drive = {"c0": "drive0", "c1": "drive1"}
+    code = {"c0": 0x2310, "c1": 0x3210}
+    for ch in channels:
+        harness.client.drive_fault(drive[ch], code=code[ch])
+    t0 = time.monotonic()
+    seen, cycles = {}, 0
+    from seaforce_ros.core.backend import PlantSample
+    while len(seen) < 3 and time.monotonic() - t0 < 1.0:
+        sample = PlantSample(2)
+        link = backend.read(sample)
+        if link.received and plant.exchange(link.counter, link.expected):
+            plant.command(list(channels), [0.0, 0.0], plant.state_published())
+        backend.write(plant.step(time.monotonic(), sample.velocity, backend.drives()))
+        cycles += 1
+        faults = plant.latched_faults()
+        now = 1e3 * (time.monotonic() - t0)
+        for ch in channels:
+            text = next((f for f in faults if f.startswith(ch + ":")), "")
+            if "0x%04X" % code[ch] in text.split("emergency")[0] and ch not in seen:
+                seen[ch] = (now, cycles)
+            if "emergency 0x%04X" % code[ch] in text and ch == "c1" and "em" not in seen:
+                seen["em"] = (now, cycles)
+        time.sleep(period)
+    plant.request_reset()
+    for _ in range(200):
+        sample = PlantSample(2)
+        link = backend.read(sample)
+        if link.received and plant.exchange(link.counter, link.expected):
+            plant.command(list(channels), [0.0, 0.0], plant.state_published())
+        backend.write(plant.step(time.monotonic(), sample.velocity, backend.drives()))
+        time.sleep(period)
+    nan = (float("nan"), 0)
+    return (seen.get("c0", nan)[0], seen.get("c0", nan)[1], seen.get("c1", nan)[0],
+            seen.get("em", nan)[0])
+
+
 def master_figures(args):
     """INIT -> OP and the cycle's CPU with and without DC, through the project's master."""
     import statistics
@@ -162,6 +203,9 @@ def master_figures(args):
     harness = EmulatorHarness(emulator, realtime=args.realtime + 10 if args.realtime else 0)
     harness.start()
     plain = bus_yaml(emulator)
+    # the second drive without 0x603F in its inputs: its code is read over CoE on a fault
+    plain["slaves"][1]["inputs"] = [e for e in plain["slaves"][1]["inputs"]
+                                    if e[0] != "error_code"]
     with_dc = bus_yaml(emulator, **{d: {"dc": {"assign_activate": 0x0300},
                                         "sdo": [[0x10F1, 2, "u16", 1000]]}
                                     for d in ("drive0", "drive1")})
@@ -215,6 +259,8 @@ def master_figures(args):
                 cpu[k] = tt() - c0
                 if mono() > deadline + period:
                     deadline = mono()
+            if name == "free run" and "fault" not in rows:
+                rows["fault"] = fault_latency(harness, backend, plant, channels, period)
             lock = backend._lock
             after = harness.client.status()["slaves"]
             missed = sum(a["sm_event_missed"] - b["sm_event_missed"]
@@ -226,7 +272,10 @@ def master_figures(args):
                           missed + (old[4] if old else 0), lock.locked,
                           backend.wkc_errors_total + (old[6] if old else 0),
                           n + (old[7] if old else 0), cpu_all)
-            backend.deactivate()
+            try:
+                backend.deactivate()
+            except Exception as exc:           # a figure too: what went wrong
+                print("  %s: %s" % (name, exc))
             backend.close()
     finally:
         harness.stop()
@@ -236,6 +285,9 @@ def master_figures(args):
           "SII + CoE + config_map %.0f, configure %.0f, activate to OP %.0f ms)"
           % (med[0], len(bring_ups), med[1], med[2], med[3], med[4]))
     base = rows["free run"][0]
+    fault = rows.pop("fault")
+    print("  drive fault -> its code in the latched fault: 0x603F mapped %.1f ms (%d cycles), "
+          "read over CoE %.1f ms; its emergency %.1f ms" % fault)
     for name, (cpu_med, cpu_mean, phase, jitter, missed, locked, wkc, n, _) in rows.items():
         dc = ("" if name == "free run" else
               "; lock %s, phase %+.1f us, jitter %.1f us, SYNC0 without outputs %d"

@@ -41,6 +41,9 @@ STATE_NAMES = {1: 'INIT', 2: 'PRE-OP', 3: 'BOOT', 4: 'SAFE-OP', 8: 'OP'}
 #: ESC feature register bit: distributed clocks
 ESC_FEATURES, ESC_DC = 0x0008, 0x0004
 REG_AL_STATUS = 0x0130
+#: How long a single register read may take, resent every 2 ms meanwhile [us] (SOEM's own
+#: single try, 2 ms, fails now and then on a loaded host)
+REGISTER_TIMEOUT_US = 10000
 
 #: AL status codes (ETG.1000.6 table 11) and what to do about them.
 AL_CODES = {
@@ -352,7 +355,12 @@ class EthercatBus:
         for position, want in enumerate(self.config.slaves):
             if want.dc is None:
                 continue
-            features = struct.unpack('<H', master.slaves[position]._fprd(ESC_FEATURES, 2))[0]
+            try:
+                features = struct.unpack('<H', master.slaves[position]._fprd(
+                    ESC_FEATURES, 2, REGISTER_TIMEOUT_US))[0]
+            except self._pysoem.WkcError:
+                raise BusError(f'{self.slave_name(position)} did not answer a read of its ESC '
+                               'features: check the slave') from None
             if not features & ESC_DC:
                 raise BusConfigError(f'{self.slave_name(position)} has no distributed clocks '
                                      '(ESC feature register): remove its dc: entry')
@@ -459,9 +467,10 @@ class EthercatBus:
         out = []
         for slave in self.master.slaves:
             try:
-                status, _, code = struct.unpack('<HHH', slave._fprd(REG_AL_STATUS, 6))
+                status, _, code = struct.unpack('<HHH', slave._fprd(REG_AL_STATUS, 6,
+                                                                    REGISTER_TIMEOUT_US))
             except Exception:
-                status, code = 0, 0
+                status, code = 0, 0          # no answer: shown as state 0
             out.append((status, code))
         return out
 
@@ -470,7 +479,8 @@ class EthercatBus:
         states = self.slave_states() if states is None else states
         parts = []
         for want, (status, code) in zip(self.config.slaves, states):
-            name = STATE_NAMES.get(status & 0x0F, f'0x{status & 0x0F:X}')
+            name = STATE_NAMES.get(status & 0x0F, 'no answer' if not status else
+                                   f'0x{status & 0x0F:X}')
             text = f'{want.name}: {name}'
             if status & ACK:
                 text += f'+ERR {al_text(code)}'

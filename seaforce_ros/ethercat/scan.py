@@ -29,7 +29,7 @@ from typing import Any, List, Optional, Sequence, Tuple
 from .bus_config import DRIVE_OBJECTS, BusConfig, entry_name
 from .coe import (NO_OBJECT, NO_SUBINDEX, CoeError, SdoAbortError, read_drive, read_mapping)
 from .errors import EthercatError
-from .master import ESC_DC, ESC_FEATURES, PysoemSdoPort
+from .master import ESC_DC, ESC_FEATURES, REGISTER_TIMEOUT_US, PysoemSdoPort
 from .sii import describe, read_sii
 
 #: CiA 402 device profile number in 0x1000's low word
@@ -150,7 +150,7 @@ def scan_slave(master: Any, position: int, pysoem: Any) -> Found:
     found = Found(position, sii.name or slave.name, slave.man, slave.id, slave.rev, sii.serial,
                   coe=sii.has_coe)
     try:
-        features = struct.unpack('<H', slave._fprd(ESC_FEATURES, 2))[0]
+        features = struct.unpack('<H', slave._fprd(ESC_FEATURES, 2, REGISTER_TIMEOUT_US))[0]
         found.dc = bool(features & ESC_DC)
     except Exception:
         found.notes.append('ESC features not readable')
