@@ -50,9 +50,11 @@ from dataclasses import dataclass, field
 from typing import Any, Dict, List, Optional, Sequence, Tuple, cast
 
 from ..core.backend import PlantSample
+from ..core.jobs import JobSample
 from ..core.params import ControllerConfig, DahlParams, PlantParams
 from ..core.plant_cycle import PlantCycle, PlantLimits
 from ..core.schema import InvalidParameterError
+from ..core.tare import PressureTare            # (imported here: not in the middle of the cycles)
 from .backend import EthercatBackend
 from .bus_config import BusConfig
 from .coe import CoeError
@@ -337,8 +339,6 @@ class PowerOnCheck:
              timeout: float = 20.0) -> Tuple[float, float, str, bool]:
         """The pressure offset of channel ``channel`` by ``~/tare``'s job on ``config``:
         ``(offset, 1-sigma, message, succeeded)`` [N m]."""
-        from ..core.tare import PressureTare
-        from ..core.jobs import JobSample
         job = PressureTare(config, self.dt)
         sample = JobSample(cast(Any, None))    # (the tare reads no contact estimator)
         k_s = config.plant.hose_stiffness

@@ -112,3 +112,25 @@ def test_an_sdo_abort_through_soem_is_one_line_naming_object_and_code(emulator, 
                               'SDO abort 0x06090031 (value of parameter written too high)')
     assert emulator.client.slave('drive1')['cycles_enabled'] == enabled     # never enabled
     assert pysoem.INIT_STATE == emulator.client.slave('drive1')['al_state']
+
+
+def test_first_power_on_over_soem(emulator, tmp_path, capsys):
+    """first_power_on itself on this line (one channel, paced at 2 kHz through SOEM): it
+    lowers the drive's 0x6072 over CoE for the check and gives it back, finds the channel
+    right, tares a +15 mN m sensor offset and writes it as the controller's parameter."""
+    from ethercat.lines import bus_yaml
+    from seaforce_ros.ethercat import power_on
+    config = bus_yaml(line('elmo_like', 'ingenia_like', cycle_time=DT))
+    config['channels']['c0']['pressure']['steps'][2]['offset'] += 0.015
+    bus = tmp_path / 'bus.yaml'
+    bus.write_text(yaml.safe_dump(config))
+    out = tmp_path / 'offsets.yaml'
+    code = power_on.main(['--interface', emulator.master_interface, '--bus-config', str(bus),
+                          '--channels', 'c0', '--output', str(out)])
+    printed = capsys.readouterr()
+    assert code == 0, printed
+    assert 'c0: drive max torque 0x6072 = 212 per mille' in printed.out
+    assert 'c0: passed' in printed.out, printed.out
+    offset = yaml.safe_load(out.read_text())['/**']['ros__parameters']['c0']['pressure_offset']
+    assert offset == pytest.approx(0.015, abs=3e-3)
+    assert emulator.client.slave('drive0')['max_torque_permille'] == 32767    # given back
