@@ -7,8 +7,9 @@
 With the hardware node stopped (the bus is this tool's), each channel in turn, the others at
 zero torque, the motor and its finger free and at rest:
 
-1. **rest** (0.3 s, zero torque): the motor must not move (a finger moved by something else, a
-   drive that is not holding zero, is refused);
+1. **rest** (0.3 s, zero torque, repeated while the finger still settles, up to 1.5 s): the
+   motor must not move (a finger moved by something else, a drive that is not holding zero,
+   is refused);
 2. **pulses**: ``+torque`` for 0.2 s, zero for 0.5 s, ``-torque`` for 0.2 s, zero for 0.5 s.
    The drive itself is held to the pulse (its max torque 0x6072 lowered to it for the check,
    restored after), and the node's safety rules run as in the node (torque_limit at the pulse,
@@ -65,8 +66,10 @@ REST, PULSE, SETTLE = 0.3, 0.2, 0.5          # s
 MAX_VELOCITY = 10.0
 #: a motion of less than this [rad] is no motion
 MIN_MOTION = 0.005
-#: at rest the motor moves less than this [rad]
+#: at rest the motor moves less than this [rad] in a rest window
 REST_MOTION = 0.002
+#: rest windows waited for a finger that still settles
+REST_TRIES = 5
 #: the finger counts as free when it moves at least this share of the model's free finger
 FREE_SHARE = 0.25
 #: and F_p's apparent stiffness over the motion stays below this many times the model's free
@@ -366,10 +369,20 @@ class PowerOnCheck:
         return job.offset, job.offset_sigma, job.message, job.outcome == 'succeeded'
 
     def run(self, channel: int) -> Record:
-        """The sequence on channel ``channel`` (the others at zero torque)."""
+        """The sequence on channel ``channel`` (the others at zero torque). The rest lasts
+        until the motor is still (a finger that settles after a motion: up to
+        :data:`REST_TRIES` windows); the record keeps the last rest window."""
         rec = Record()
         efforts = [0.0] * len(self.channels)
-        for phase, seconds, torque in (('rest', REST, 0.0), ('plus', PULSE, self.torque),
+        for _ in range(REST_TRIES):
+            rest = Record()
+            for _ in range(int(round(REST / self.dt))):
+                self._cycle(efforts, rest, channel, 'rest')
+            if rest.x and max(rest.x) - min(rest.x) <= REST_MOTION:
+                break
+        rec.t, rec.x, rec.v, rec.fp = rest.t, rest.x, rest.v, rest.fp
+        rec.torque, rec.phase = rest.torque, rest.phase
+        for phase, seconds, torque in (('plus', PULSE, self.torque),
                                        ('after_plus', SETTLE, 0.0),
                                        ('minus', PULSE, -self.torque),
                                        ('after_minus', SETTLE, 0.0)):
@@ -402,9 +415,10 @@ def model(params_file: Optional[str], channel: str) -> ControllerConfig:
 
 def check_bus(backend: EthercatBackend, channels: Sequence[str], torque: Optional[float],
               params_file: Optional[str] = None, pace: bool = True,
-              out: Any = sys.stdout) -> List[Finding]:
+              out: Any = None) -> List[Finding]:
     """Open, configure and activate ``backend``, run the check on ``channels``, close it; the
     drives' max torque (0x6072) is lowered to the pulse for the check and restored after."""
+    out = out if out is not None else sys.stdout
     models = {c: model(params_file, c) for c in channels}
     findings: List[Finding] = []
     backend.open()
@@ -466,12 +480,16 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                         '(default 3 F_c: enough to slide the endpoint\'s friction)')
     parser.add_argument('--output', default='pressure_offsets.yaml', help='params file the '
                         'offsets are written to (updated in place if it exists)')
+    parser.add_argument('--drive-watchdog', type=float, default=0.1, help="the drives' "
+                        "process-data watchdog [s], as hardware_node's drive_watchdog (run "
+                        "the tool under chrt -f 40, as the node)")
     args = parser.parse_args(argv)
     try:
         config = BusConfig.load(args.bus_config)
         channels = [c for c in args.channels.split(',') if c] or [c.name for c in
                                                                   config.channels]
-        backend = EthercatBackend(config, channels, args.interface, 5e-4)
+        backend = EthercatBackend(config, channels, args.interface, 5e-4,
+                                  drive_watchdog=args.drive_watchdog)
         findings = check_bus(backend, channels, args.torque, args.params_file)
     except (EthercatError, ValueError) as exc:
         print(f'first_power_on: {exc}', file=sys.stderr)

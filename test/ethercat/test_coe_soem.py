@@ -125,8 +125,9 @@ def test_first_power_on_over_soem(emulator, tmp_path, capsys):
     bus = tmp_path / 'bus.yaml'
     bus.write_text(yaml.safe_dump(config))
     out = tmp_path / 'offsets.yaml'
+    # (a 0.5 s drive watchdog, as the node tests': this test process is not real-time)
     code = power_on.main(['--interface', emulator.master_interface, '--bus-config', str(bus),
-                          '--channels', 'c0', '--output', str(out)])
+                          '--channels', 'c0', '--output', str(out), '--drive-watchdog', '0.5'])
     printed = capsys.readouterr()
     assert code == 0, printed
     assert 'c0: drive max torque 0x6072 = 212 per mille' in printed.out
