@@ -41,6 +41,9 @@ STATE_NAMES = {1: 'INIT', 2: 'PRE-OP', 3: 'BOOT', 4: 'SAFE-OP', 8: 'OP'}
 #: ESC feature register bit: distributed clocks
 ESC_FEATURES, ESC_DC = 0x0008, 0x0004
 REG_AL_STATUS = 0x0130
+#: Tries of an SDO transfer that got no answer (a lost mailbox frame on a loaded host: SOEM
+#: gives a mailbox write 6 ms); an abort is never retried
+SDO_ATTEMPTS = 3
 #: How long a single register read may take, resent every 2 ms meanwhile [us] (SOEM's own
 #: single try, 2 ms, fails now and then on a loaded host)
 REGISTER_TIMEOUT_US = 10000
@@ -135,18 +138,28 @@ class PysoemSdoPort:
                         f'{type(exc).__name__} {getattr(exc, "desc", exc)}')
 
     def read(self, index: int, subindex: int, size: int = 0, ca: bool = False) -> bytes:
-        try:
-            return bytes(self.slave.sdo_read(index, subindex, size, ca=ca))
-        except (self._pysoem.SdoError, self._pysoem.WkcError, self._pysoem.MailboxError,
-                self._pysoem.PacketError) as exc:
-            raise self._failed(exc, index, subindex, 'upload') from None
+        p = self._pysoem
+        for attempt in range(SDO_ATTEMPTS):
+            try:
+                return bytes(self.slave.sdo_read(index, subindex, size, ca=ca))
+            except p.WkcError as exc:             # no answer: the mailbox frames were lost
+                if attempt + 1 == SDO_ATTEMPTS:
+                    raise self._failed(exc, index, subindex, 'upload') from None
+            except (p.SdoError, p.MailboxError, p.PacketError) as exc:
+                raise self._failed(exc, index, subindex, 'upload') from None
+        raise AssertionError('unreachable')
 
     def write(self, index: int, subindex: int, data: bytes, ca: bool = False) -> None:
-        try:
-            self.slave.sdo_write(index, subindex, bytes(data), ca=ca)
-        except (self._pysoem.SdoError, self._pysoem.WkcError, self._pysoem.MailboxError,
-                self._pysoem.PacketError) as exc:
-            raise self._failed(exc, index, subindex, 'download') from None
+        p = self._pysoem
+        for attempt in range(SDO_ATTEMPTS):
+            try:
+                self.slave.sdo_write(index, subindex, bytes(data), ca=ca)
+                return
+            except p.WkcError as exc:             # no answer (a write is sent whole again)
+                if attempt + 1 == SDO_ATTEMPTS:
+                    raise self._failed(exc, index, subindex, 'download') from None
+            except (p.SdoError, p.MailboxError, p.PacketError) as exc:
+                raise self._failed(exc, index, subindex, 'download') from None
 
 
 class EthercatBus:

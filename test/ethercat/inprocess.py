@@ -95,6 +95,10 @@ class FakeSlave:
 
     # CoE
     def _od(self):
+        owner = self._master._owner
+        if owner.sdo_losses > 0:          # a lost mailbox exchange: SOEM returns no answer
+            owner.sdo_losses -= 1
+            raise WkcError()
         od = getattr(self._esc, 'od', None)
         if od is None or self._esc.mailbox is None or not self._esc.mailbox_active():
             raise WkcError()
@@ -354,6 +358,7 @@ class FakePysoem:
         self.opened = 0
         self.frames = 0
         self.sdo_writes = []          # (position, index, subindex, complete access)
+        self.sdo_losses = 0           # the next SDO transfers that get no answer
 
     def idle(self, seconds):
         """Time passes on the line without a frame (a pulled cable, a stalled master)."""
