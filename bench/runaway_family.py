@@ -68,7 +68,8 @@ def run(plant, dahl, config, seconds, flick, seed=0):
     return {"peak_x": peak_x, "peak_v": peak_v, "in_range": in_range, "trip_at": trip_at,
             "rest_v": math.sqrt(sum(last) / max(1, len(last))),
             "trip_x": trip_x, "fallback": ctl.fallback, "fault": rig.cycle.latched(0),
-            "faults": rig.cycle.faults_latched}
+            "faults": rig.cycle.faults_latched,
+            "diagnosed": ctl.settling.restless or ctl.settling.creeping > 0.0}
 
 
 def family_run(args):
@@ -153,8 +154,13 @@ def main():
     moving = [(s, r) for s, r in results if r["rest_v"] >= 0.01]
     print(f"monitor trips: {len(trips)}; latched faults: {len(faults)}; still moving in the "
           f"last second (rms |V_e| >= 0.01 rad/s): {len(moving)}")
+    silent = [(s, r) for s, r in moving if r["trip_at"] is None and not r["diagnosed"]]
+    print(f"  of those, with no fall-back and no settling-watch diagnostic (restless or "
+          f"creeping): {len(silent)}")
     for s, r in moving[:10]:
-        print(f"  seed {s}: rms |V_e| {r['rest_v']:.3f} rad/s over the last second")
+        named = ("fell back" if r["trip_at"] is not None else
+                 "diagnosed" if r["diagnosed"] else "silent")
+        print(f"  seed {s}: rms |V_e| {r['rest_v']:.3f} rad/s over the last second ({named})")
     for s, r in trips[:10]:
         print(f"  seed {s}: fell back to {r['fallback']} at {r['trip_at']:.3f} s, "
               f"|X_e| {r['trip_x']:.3f} rad then, peak |V_e| {r['peak_v']:.2f}")

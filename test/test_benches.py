@@ -68,6 +68,9 @@ SMOKE = {
     'loop_figures_accuracy.py': [
         ((), [rf'k=4 chirp to 1 kHz\s+std 5e-04 N m: error [-+]{NUM} %',
               rf'^\s+1048576 chirp\s+: q {NUM}'])],
+    'margin_family.py': [
+        ((), [r'^linear class, 1 of 1 draws tuned', rf'^\s+zw1\s+{NUM}',
+              r'^\s+feed-forward: (verified|verification)'])],
     'model_class.py': [
         ((), [r'^over 1 draws \(seed 1\); misfit', rf'^\s+all effects\s+motor\s+{NUM} /\s+{NUM}',
               r'^CPU \d+ s'])],

@@ -955,27 +955,21 @@ def propose(record: ExcitationRecord, request: AnalysisRequest,
         model = analysis.model = model_stage(ident, analysis.terms, rest)
         tuning = analysis.tuning = tune_stage(model, analysis.loop, request)
         say("tune", 0.7, "the feed-forward's candidates and their damping reserves")
-        count = request.config.verification.candidates
-        proposal.candidates = propose_candidates(tuning.config, model, analysis.loop,
-                                                 request.passivity_margin, count)
         simulated, simulated_terms = prediction_model(model.plant, model.terms,
                                                       analysis.terms)
-        predicted = predict_verification(
-            simulated, model.dahl, proposal.candidates, request.config,
-            delay=analysis.loop.delay_p50, dt=analysis.loop.dt, terms=simulated_terms,
-            motor_coulomb=_motor_coulomb(analysis.terms), sensors=_sensors(analysis.loop))
-        # the model bounds the search: a candidate it predicts to fail is not tried on the
-        # gripper (the model class's ones always are), nor more than ``count`` in all; the
-        # report keeps the ones predicted to fail
-        cautious = sum("model class's" in c.name for c in proposal.candidates)
-        last = len(predicted) - cautious
-        keep = [i for i, p in enumerate(predicted[:last]) if p.passed][:max(0, count - cautious)]
-        keep += list(range(last, len(predicted)))[:max(1, count - len(keep))]
-        proposal.rejected = [(c, p) for i, (c, p) in
-                             enumerate(zip(proposal.candidates, predicted))
-                             if i not in keep and not p.passed]
-        proposal.candidates = [proposal.candidates[i] for i in keep]
-        proposal.predicted = [predicted[i] for i in keep]
+        loop = analysis.loop
+        sensors, coulomb = _sensors(loop), _motor_coulomb(analysis.terms)
+
+        def predict_one(candidate: Candidate) -> CandidateOutcome:
+            return predict_verification(
+                simulated, model.dahl, [candidate], request.config, delay=loop.delay_p50,
+                dt=loop.dt, terms=simulated_terms, motor_coulomb=coulomb, sensors=sensors)[0]
+
+        offered = propose_candidates(tuning.config, model, analysis.loop,
+                                     request.passivity_margin,
+                                     request.config.verification.candidates, predict_one)
+        proposal.candidates, proposal.predicted = offered.candidates, offered.predicted
+        proposal.rejected = offered.rejected
         clock.lap("tune")
     except InfeasibleTuningError as exc:
         analysis.message = f"not tuned ({exc.constraint}): {exc}"

@@ -18,18 +18,18 @@ starting settings.
 from __future__ import annotations
 
 import dataclasses
-import math
-from typing import Any, Dict, List, Mapping, Optional, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from ..core.params import ControllerConfig
 from .errors import CommissioningError
 from .free_finger import band_spreads, size_reserve, with_reserve
 from .model import ControllerModel
-from .predictor import LoopModel, predict_modes
+from .predictor import LoopModel
 from .tuning import band_uncertainties, feedforward_uncertainties
-from .verification import Candidate
+from .verification import Candidate, CandidateOutcome
 
-__all__ = ["propose", "chosen_values", "SHARES", "FEEDFORWARD_KEYS"]
+__all__ = ["propose", "Proposed", "chosen_values", "SHARES", "FEEDFORWARD_KEYS"]
 
 #: The Dahl shares the statistical candidates take, most compensation first (1 was never
 #: held by any reserve on the oracle's draws: the linearised loop is unstable).
@@ -54,20 +54,30 @@ def _statistical(tuned: ControllerConfig, model: ControllerModel, share: float,
     return ControllerConfig.from_dict(values, base=tuned.replace(allow_non_passive=True))
 
 
-def _z_db(model: ControllerModel, config: ControllerConfig, loop: LoopModel) -> float:
-    """Predicted |Z| of dob_full_ff at 1 rad/s, 0.5 rad [dB]."""
-    z = predict_modes(model.plant, model.dahl, config, ("dob_full_ff",), [1.0],
-                      delay=loop.delay_p50, dt=loop.dt, amplitude=0.5)["dob_full_ff"]
-    return 20.0 * math.log10(abs(complex(z[0])))
+@dataclass
+class Proposed:
+    """What :func:`propose` offers the verification: the ``candidates`` to try, in order,
+    with their windows as ``predicted`` on the identified model, and the ones ``rejected``
+    (predicted to fail: not tried)."""
+
+    candidates: List[Candidate] = field(default_factory=list)
+    predicted: List[CandidateOutcome] = field(default_factory=list)
+    rejected: List[Tuple[Candidate, CandidateOutcome]] = field(default_factory=list)
 
 
 def propose(tuned: ControllerConfig, model: ControllerModel, loop: LoopModel,
-            passivity_margin: float, count: int) -> List[Candidate]:
-    """The candidates, most compensation first (module docstring); the tuned (model class's)
-    one and the one with twice its margin always among them, last; none but those where
-    ``count`` is at most 2."""
-    found = []
-    for share in SHARES if count > 2 else ():
+            passivity_margin: float, count: int,
+            predict: Callable[[Candidate], CandidateOutcome]) -> Proposed:
+    """The candidates the verification tries, most compensation first (module docstring):
+    the statistical band's shares in turn, each predicted (``predict``: its windows on the
+    identified model), until ``count - 2`` are predicted to pass (the model bounds the
+    search: one it predicts to fail is not tried, and the ones after the last tried are not
+    even predicted); then the model class's candidate and the one with twice its margin,
+    always (none but those where ``count`` is at most 2)."""
+    out = Proposed()
+    for share in SHARES:
+        if len(out.candidates) >= count - 2:
+            break
         config = _statistical(tuned, model, share, passivity_margin)
         try:
             reserve, _, _ = size_reserve(config, band_spreads(config), delay=loop.delay_p99,
@@ -75,26 +85,32 @@ def propose(tuned: ControllerConfig, model: ControllerModel, loop: LoopModel,
         except CommissioningError:
             continue                        # no reserve holds its band: not a candidate
         config = with_reserve(config, reserve).replace(allow_non_passive=False)
-        name = (f"share {share:g}, the statistical 1-sigmas (b_e, k_e, F_c x"
-                + "/".join(f"{s:.3g}" for s in config.feedforward.scales())
-                + f"), reserve {reserve:.3g} N m s/rad")
-        found.append((_z_db(model, config, loop), name, config))
-    found.sort(key=lambda c: c[0])
-    out = [Candidate(name, config) for _, name, config in found
-           if _feedforward(config) != _feedforward(tuned)]
-    return out + _cautious(tuned, loop)
+        if _feedforward(config) == _feedforward(tuned):
+            continue
+        candidate = Candidate(_name(config, "the statistical 1-sigmas"), config)
+        outcome = predict(candidate)
+        if outcome.passed:
+            out.candidates.append(candidate)
+            out.predicted.append(outcome)
+        else:
+            out.rejected.append((candidate, outcome))
+    for candidate in _cautious(tuned, loop)[:max(1, count - len(out.candidates))]:
+        out.candidates.append(candidate)
+        out.predicted.append(predict(candidate))
+    return out
+
+
+def _name(config: ControllerConfig, what: str) -> str:
+    ff = config.feedforward
+    return (f"share {ff.dahl_stiffness_share:g}, {what} (b_e, k_e, F_c x"
+            + "/".join(f"{s:.3g}" for s in ff.scales())
+            + f"), reserve {ff.damping_reserve:.3g} N m s/rad")
 
 
 def _cautious(tuned: ControllerConfig, loop: LoopModel) -> List[Candidate]:
     """The model class's candidate (the tuning's), and the same with twice its margin (where
     a reserve holds that band: the last resort before the starting settings)."""
-    def name(config: ControllerConfig, what: str) -> str:
-        ff = config.feedforward
-        return (f"share {ff.dahl_stiffness_share:g}, {what} (b_e, k_e, F_c x"
-                + "/".join(f"{s:.3g}" for s in ff.scales())
-                + f"), reserve {ff.damping_reserve:.3g} N m s/rad")
-
-    out = [Candidate(name(tuned, "the model class's band"), tuned)]
+    out = [Candidate(_name(tuned, "the model class's band"), tuned)]
     wider = tuned.replace(feedforward=dataclasses.replace(
         tuned.feedforward, margin=2.0 * tuned.feedforward.margin))
     try:
@@ -103,7 +119,7 @@ def _cautious(tuned: ControllerConfig, loop: LoopModel) -> List[Candidate]:
     except CommissioningError:
         return out
     wider = with_reserve(wider, reserve)
-    out.append(Candidate(name(wider, "twice the model class's margin"), wider))
+    out.append(Candidate(_name(wider, "twice the model class's margin"), wider))
     return out
 
 

@@ -7,7 +7,9 @@ Section II-C, motor frame) is ``F_p = -(k_e (X_e - rest) + F_d)``: the Dahl forc
 in ``[-F_c, F_c]`` after the finger stopped, hides the offset as well as any offset would. So
 the tare moves the finger: a position servo on the motor (the ``hold`` gains) takes it to its
 rest (``feedforward.rest_position``: a raised-cosine path at most :data:`MOVE_SPEED` fast, from
-wherever the finger's friction held it) and there tracks ``X_ref = rest + A e(t) sin(w t)``
+wherever the finger's friction held it; it starts from the channel's torque, that step fading
+in :data:`~.modes.TRANSFER_TIME`, so that no torque of the mode it interrupted stays on as an
+offset of the servo) and there tracks ``X_ref = rest + A e(t) sin(w t)``
 (``A`` = :data:`AMPLITUDE`, ``w`` = 2 pi :data:`FREQUENCY`, raised-cosine fades of one period
 at both ends, :data:`CYCLES` whole periods between them). At rest the model's k_e hardly
 matters below (tared 0.24 rad from rest on a nonlinear oracle plant, the spring's error there
@@ -39,6 +41,7 @@ import math
 from typing import TYPE_CHECKING
 
 from .jobs import TORQUE, Job, JobSample
+from .modes import TRANSFER_TIME
 from .params import ControllerConfig
 from .sided import SidedStiffness
 from .signals import faded_sine
@@ -107,6 +110,7 @@ class PressureTare(Job):
         fp = config.friction
         self._limit = min(fp.torque_limit, config.max_torque)
         self._kp, self._kd = config.hold.stiffness, config.hold.damping
+        self._decay = math.exp(-self.dt / TRANSFER_TIME)
         self._ke = config.plant.endpoint_stiffness
         self._rest = config.feedforward.rest_position
         self._w = 2.0 * math.pi * FREQUENCY
@@ -175,6 +179,7 @@ class PressureTare(Job):
             return 0.0
         u = self._bias + self._kp * error + self._kd * (rd - v)
         u = max(-self._limit, min(self._limit, u))
+        self._bias *= self._decay if sample.steps == 1 else self._decay ** sample.steps
         if self._abort_request is not None:
             self._finish("aborted", self._abort_request + ", nothing applied")
             return u

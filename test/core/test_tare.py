@@ -12,6 +12,7 @@
   max_torque)``, a non-finite input ends it aborted with zero torque.
 """
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -22,6 +23,7 @@ from seaforce_ros.core import (ChannelController, ChannelSimulator, ControllerCo
                                DahlParams, PlantParams, SensorParams)
 from seaforce_ros.core.environment import contact_object, position_sine
 from seaforce_ros.core.jobs import JobSample
+from seaforce_ros.core.params import HoldParams
 from seaforce_ros.core.tare import PressureTare
 
 from helpers.configs import unlimited
@@ -63,6 +65,31 @@ def test_the_tare_finds_a_drawn_offset_on_the_oracle(seed):
     assert tare.offset == pytest.approx(sensors.pressure_offset, abs=1.5e-3), sensors.describe()
     assert ctl.config.pressure_offset == tare.offset and tare.applied
     assert abs(g.state[2] - CONFIG.feedforward.rest_position) < 0.03     # it was taken home
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_tare_requested_while_the_offset_drives_the_finger(seed):
+    """``dob_full_ff`` with the hand-typed model turns an offset of 30-50 mN m into a finger
+    running at up to 1 rad/s; the tare, requested 0.1-0.35 s into that, with the shipped hold
+    gains (K_p 20: the mode's torque at the request, up to 0.3 N m, would hold the servo
+    15 mrad off the dither's centre if it stayed on), finds the offset and the sides balanced."""
+    rng = np.random.default_rng([4402, seed])
+    plant, dahl, effects = draw(rng, effects=bool(seed % 2))
+    sensors = draw_sensors(rng)
+    sensors = replace(sensors, pressure_offset=float(rng.choice([-1, 1]) * rng.uniform(0.03, 0.05)))
+    g = NonlinearGripper(plant, dahl, effects, None, seed=seed, sensors=sensors)
+    config = CONFIG.replace(mode="dob_full_ff", hold=HoldParams(stiffness=20.0, damping=0.1))
+    ctl = ChannelController(config, DT)
+    m = g.measurement()
+    for _ in range(int(rng.integers(200, 700))):
+        m = g.step(ctl.update(m.x, m.v, m.f_p))
+    speed = abs(g.state[3])
+    tare = PressureTare(ctl.config, DT)
+    run_tare(g, ctl, tare)
+    where = f"{sensors.describe()}, entered at {speed:.2f} rad/s"
+    assert tare.outcome == "succeeded", f"{tare.message} ({where})"
+    assert tare.offset == pytest.approx(sensors.pressure_offset, abs=1.5e-3), where
+    assert abs(tare.contact_test.upper - tare.contact_test.lower) < 0.5, where
 
 
 @pytest.mark.parametrize("depth", [0.01, 0.1])

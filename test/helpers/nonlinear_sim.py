@@ -129,7 +129,7 @@ class Sensors:
                 f"offset {1e3 * self.pressure_offset:+.1f} mN m, delay +{self.extra_delay}")
 
 
-#: The ranges :func:`draw_sensors` draws from (issue 44's rigs).
+#: The ranges :func:`draw_sensors` draws from.
 SENSOR_RANGES = {"motor_bits": (14, 20), "velocity_samples": (1, 4), "pressure_range": (10.0, 40.0),
                  "pressure_bits": (12, 16), "pressure_noise": (2e-4, 2e-3),
                  "pressure_offset": (-0.05, 0.05), "extra_delay": (0, 2)}
