@@ -19,8 +19,9 @@ from seaforce_ros.core.backend import PlantSample
 from seaforce_ros.core.plant_cycle import PlantCycle, PlantLimits
 from seaforce_ros.ethercat.backend import EthercatBackend
 from seaforce_ros.ethercat.bus_config import BusConfig
+from seaforce_ros.ethercat.coe import CoeError, SdoAbortError
 from seaforce_ros.ethercat.errors import BusConfigError, BusError
-from seaforce_ros.ethercat.master import EthercatBus
+from seaforce_ros.ethercat.master import SDO_ATTEMPTS, EthercatBus, PysoemSdoPort
 
 DT = 5e-4
 
@@ -230,16 +231,18 @@ def test_a_fault_is_reported_with_its_0x603f_code_and_emergency():
         assert 'c0: drive fault 0x2310 (continuous over current)' in first[0]
         assert first[1].startswith('c1: drive reports a fault (statusword 0x')
         assert first[1].endswith('; reading 0x603F)')
-        # the reading runs off the cycle thread: cycle until it is in (a loaded host can
-        # keep that thread waiting; the time it takes is bench/ethercat_cycle.py's figure)
+        # the reading runs off the cycle thread: cycle until both its parts are in (the
+        # emergency is taken before 0x603F is read: waiting for the emergency alone could stop
+        # between the two; a loaded host can keep that thread waiting, and the time it takes
+        # is bench/ethercat_cycle.py's figure, not this test's)
+        whole = '0x2310 (continuous over current), emergency 0x2310 register 0x03'
         end = time.monotonic() + 30.0
         while time.monotonic() < end:
             rig.cycles(1)
-            if all('emergency 0x2310' in f for f in plant.latched_faults()):
+            if all(whole in f for f in plant.latched_faults()):
                 break
             time.sleep(0.001)
-        assert all('0x2310 (continuous over current), emergency 0x2310 register 0x03' in f
-                   for f in plant.latched_faults()), plant.latched_faults()
+        assert all(whole in f for f in plant.latched_faults()), plant.latched_faults()
         values = rig.backend.diagnostics().channels[1].values
         assert values['error_code'] == '0x2310 (continuous over current)'
         assert values['emergency'] == '0x2310 register 0x03'
@@ -417,3 +420,69 @@ def test_an_sdo_without_answer_is_tried_again_then_named():
     assert str(info.value) == ('slave 1 (drive0): no answer to the SDO download of 0x1C12:00 '
                                '(mailbox timeout): is it powered, in PRE-OP or above, with a '
                                'CoE mailbox?')
+
+
+class _AnsweringSlave:
+    """A pysoem slave whose next transfers fail with ``failures`` (in turn), then answer."""
+
+    def __init__(self, failures):
+        self.failures = list(failures)
+        self.calls = 0
+
+    def add_emergency_callback(self, callback):
+        pass
+
+    def _transfer(self):
+        self.calls += 1
+        if self.failures:
+            raise self.failures.pop(0)
+
+    def sdo_read(self, index, subindex, size=0, ca=False):
+        self._transfer()
+        return b'\x0a'
+
+    def sdo_write(self, index, subindex, data, ca=False):
+        self._transfer()
+
+
+def _transfer(port, direction):
+    if direction == 'upload':
+        assert port.read(0x6061, 0) == b'\x0a'
+    else:
+        port.write(0x6060, 0, b'\x0a')
+
+
+@pytest.mark.parametrize('direction', ['upload', 'download'])
+def test_an_sdo_without_answer_is_tried_up_to_three_times(direction):
+    """No answer (pysoem's WkcError: a lost mailbox frame) twice: the third try answers; three
+    times: one line naming the object, after exactly three tries."""
+    slave = _AnsweringSlave([FakePysoem.WkcError(), FakePysoem.WkcError()])
+    _transfer(PysoemSdoPort(slave, 'slave 1 (drive0)', FakePysoem), direction)
+    assert slave.calls == SDO_ATTEMPTS == 3
+    slave = _AnsweringSlave([FakePysoem.WkcError()] * 3)
+    with pytest.raises(CoeError) as info:
+        _transfer(PysoemSdoPort(slave, 'slave 1 (drive0)', FakePysoem), direction)
+    assert slave.calls == 3
+    index = '0x6061:00' if direction == 'upload' else '0x6060:00'
+    assert str(info.value).startswith(f'slave 1 (drive0): no answer to the SDO {direction} of '
+                                      f'{index} (mailbox timeout)')
+
+
+@pytest.mark.parametrize('direction', ['upload', 'download'])
+@pytest.mark.parametrize('failure', ['abort', 'mailbox', 'packet'])
+def test_an_sdo_that_was_answered_with_an_error_is_never_tried_again(direction, failure):
+    """An abort (the drive said no), a mailbox or a packet error is the answer: one try, one
+    error naming it."""
+    exc = {'abort': FakePysoem.SdoError(1, 0x6060, 0, 0x06090030, 'range'),
+           'mailbox': FakePysoem.MailboxError(),
+           'packet': FakePysoem.PacketError()}[failure]
+    slave = _AnsweringSlave([exc, exc, exc])
+    with pytest.raises(CoeError) as info:
+        _transfer(PysoemSdoPort(slave, 'slave 1 (drive0)', FakePysoem), direction)
+    assert slave.calls == 1
+    if failure == 'abort':
+        assert isinstance(info.value, SdoAbortError) and info.value.code == 0x06090030
+        assert 'aborted: 0x06090030 (value range of parameter exceeded)' in str(info.value)
+    else:
+        assert 'failed: ' in str(info.value)
+
