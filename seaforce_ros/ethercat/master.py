@@ -28,7 +28,8 @@ import fcntl
 import socket
 import struct
 import time
-from typing import Any, Callable, Dict, List, Optional, Tuple
+from collections import deque
+from typing import Any, Callable, Deque, Dict, List, Optional, Tuple
 
 from .bus_config import BusConfig, SlaveConfig
 from .coe import CoeError, DriveFindings, SdoAbortError, abort_text, configure_slave
@@ -44,6 +45,8 @@ REG_AL_STATUS = 0x0130
 #: Tries of an SDO transfer that got no answer (a lost mailbox frame on a loaded host: SOEM
 #: gives a mailbox write 6 ms); an abort is never retried
 SDO_ATTEMPTS = 3
+#: Emergency messages a slave's port keeps until they are read (the oldest are dropped)
+EMERGENCIES_KEPT = 16
 #: How long a single register read may take, resent every 2 ms meanwhile [us] (SOEM's own
 #: single try, 2 ms, fails now and then on a loaded host)
 REGISTER_TIMEOUT_US = 10000
@@ -119,10 +122,22 @@ def _hex(value: Optional[int]) -> str:
 
 
 class PysoemSdoPort:
-    """:class:`~.coe.SdoPort` over one pysoem slave (SDO errors -> :class:`CoeError`)."""
+    """:class:`~.coe.SdoPort` over one pysoem slave (SDO errors -> :class:`CoeError`).
+
+    It listens to the slave's emergency messages from the start: SOEM empties the slave's
+    mailbox before a transfer, and pysoem raises an emergency it found there out of the
+    transfer (its answer lost) unless a callback takes it. They are kept in
+    :attr:`emergencies` ((error code, error register), oldest first, the newest
+    :data:`EMERGENCIES_KEPT`) for whoever reads them.
+    """
 
     def __init__(self, slave: Any, name: str, pysoem: Any) -> None:
         self.slave, self.name, self._pysoem = slave, name, pysoem
+        self.emergencies: Deque[Tuple[int, int]] = deque(maxlen=EMERGENCIES_KEPT)
+        slave.add_emergency_callback(self._emergency)
+
+    def _emergency(self, message: Any) -> None:
+        self.emergencies.append((int(message.error_code), int(message.error_reg)))
 
     def _failed(self, exc: Exception, index: int, subindex: int, what: str) -> CoeError:
         p = self._pysoem
@@ -209,8 +224,6 @@ class EthercatBus:
         self.dc_active = False
         self.timings: Dict[str, float] = {}
         self._ports: Dict[int, PysoemSdoPort] = {}
-        self._emergencies: Dict[int, List[Tuple[int, int]]] = {}
-        self._emcy_registered: set = set()
 
     # --- bring-up ------------------------------------------------------------------------
     def open(self) -> None:
@@ -269,8 +282,7 @@ class EthercatBus:
         t0 = time.monotonic()
         self.expected_wkc = None
         self.drive_findings = {}
-        self._ports = {}
-        self._emcy_registered = set()       # config_init makes new slave objects
+        self._ports = {}                    # config_init makes new slave objects
         self.dc_active = False
         self._inputs = [bytes(s.inputs.size) for s in self.config.slaves]
         for out in self._outputs:
@@ -600,19 +612,16 @@ class EthercatBus:
         return self.master is not None
 
     def poll_emergencies(self, position: int) -> List[Tuple[int, int]]:
-        """Read the slave's mailbox once; the emergency messages that were in it (error
-        code, error register), oldest first."""
-        received = self._emergencies.setdefault(position, [])
-        slave = self.master.slaves[position]
-        if position not in self._emcy_registered:
-            slave.add_emergency_callback(
-                lambda msg: received.append((msg.error_code, msg.error_reg)))
-            self._emcy_registered.add(position)
+        """Read the slave's mailbox once; the emergency messages that were in it, or that
+        came during its SDO transfers since the last call (error code, error register),
+        oldest first."""
+        port = self.port(position)
         p = self._pysoem
         try:
-            slave.mbx_receive()
+            port.slave.mbx_receive()
         except (p.Emergency, p.MailboxError, p.PacketError, p.WkcError):
             pass
+        received = port.emergencies
         out = list(received)
         received.clear()
         return out

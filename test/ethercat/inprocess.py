@@ -47,7 +47,9 @@ class PacketError(Exception):
 
 
 class Emergency(Exception):
-    pass
+    def __init__(self, slave_pos, error_code, error_reg):
+        super().__init__(f'emergency 0x{error_code:04X}')
+        self.slave_pos, self.error_code, self.error_reg = slave_pos, error_code, error_reg
 
 
 class ConfigMapError(Exception):
@@ -106,40 +108,65 @@ class FakeSlave:
 
     def sdo_read(self, index, subindex, size=0, ca=False, release_gil=None):
         od = self._od()
+        waiting = self._take_emergencies()
         try:
-            return od.upload(index, subindex, ca)
+            data = od.upload(index, subindex, ca)
         except SdoAbort as exc:
+            self._hand_over(waiting)
             raise SdoError(self._pos + 1, index, subindex, exc.code,
                            ABORT_TEXT.get(exc.code, '')) from None
+        self._hand_over(waiting)
+        return data
 
     def sdo_write(self, index, subindex, data, ca=False, release_gil=None):
         od = self._od()
+        waiting = self._take_emergencies()
         self._master._owner.sdo_writes.append((self._pos, index, subindex, ca))
         try:
             od.download(index, subindex, data, self._esc.al_state, ca)
         except SdoAbort as exc:
+            self._hand_over(waiting)
             raise SdoError(self._pos + 1, index, subindex, exc.code,
                            ABORT_TEXT.get(exc.code, '')) from None
+        self._hand_over(waiting)
 
     def add_emergency_callback(self, callback):
         self._callbacks.append(callback)
 
-    def mbx_receive(self):
+    def _take_emergencies(self):
+        """The emergencies in the slave's mailbox, taken out of it: SOEM empties the mailbox
+        before a transfer and keeps an emergency it finds on its error stack."""
         esc = self._esc
+        out = []
         if esc.mailbox is None or not esc.mailbox_active():
-            return 0
+            return out
         while True:
             message = esc.mailbox.take()
             if message is None:
-                return 1
+                return out
             esc.mailbox.read_done()
             esc.mem[0x080D] &= 0xF7
             _, _, _, mtype = HEADER.unpack_from(message)
             body = message[HEADER.size:]
             if mtype & 0x0F == MBX_COE and struct.unpack_from('<H', body)[0] >> 12 == 1:
-                code, register = struct.unpack_from('<HB', body, 2)
-                for cb in self._callbacks:
-                    cb(_Message(code, register))
+                out.append(struct.unpack_from('<HB', body, 2))
+
+    def _hand_over(self, emergencies):
+        """As pysoem after a transfer or a mailbox read: each emergency to the callbacks, or,
+        with none registered, the first raised out of the call (whatever it returned is
+        lost)."""
+        for code, register in emergencies:
+            if not self._callbacks:
+                raise Emergency(self._pos + 1, code, register)
+            for cb in self._callbacks:
+                cb(_Message(code, register))
+
+    def mbx_receive(self):
+        esc = self._esc
+        if esc.mailbox is None or not esc.mailbox_active():
+            return 0
+        self._hand_over(self._take_emergencies())
+        return 1
 
     # registers
     def eeprom_read(self, word, timeout=20000):

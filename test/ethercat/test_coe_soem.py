@@ -135,3 +135,43 @@ def test_first_power_on_over_soem(emulator, tmp_path, capsys):
     offset = yaml.safe_load(out.read_text())['/**']['ros__parameters']['c0']['pressure_offset']
     assert offset == pytest.approx(0.015, abs=3e-3)
     assert emulator.client.slave('drive0')['max_torque_permille'] == 32767    # given back
+
+
+def test_an_emergency_in_the_mailbox_through_soem(emulator, tmp_path):
+    """SOEM's own mailbox: a drive that faulted while the bus sat in SAFE-OP has its emergency
+    waiting; the mode read over CoE at activate (0x6061 unmapped here) still gets its answer
+    (pysoem raises an emergency out of a transfer when no callback takes it, the answer lost)
+    and the emergency reaches the fault the channel reports, with the 0x603F code."""
+    out = tmp_path / 'bus.yaml'
+    assert scan.main(['--interface', emulator.master_interface, '--output', str(out),
+                      '--channels', ','.join(CHANNELS)]) == 0
+    data = yaml.safe_load(out.read_text())
+    for slave in data['slaves'][:2]:
+        slave['inputs'] = [e for e in slave['inputs'] if e[0] not in ('mode_display',
+                                                                       'error_code')]
+    config = BusConfig.from_dict(data)
+    backend = EthercatBackend(config, CHANNELS, emulator.master_interface, DT,
+                              receive_timeout=2e-3, drive_watchdog=2.0)
+    client = emulator.client
+    try:
+        backend.open()
+        backend.configure()
+        client.drive_fault('drive0', code=0x2310, latched=True)
+        assert 'wrist: 0x6061 = 10 read over CoE' in backend.activate()
+        plant = PlantCycle(CHANNELS, DT, PlantLimits(command_timeout=0.5),
+                           units_per_nm=backend.units_per_nm)
+        whole = 'wrist: drive fault 0x2310 (continuous over current), emergency 0x2310'
+        end = time.monotonic() + 30.0          # the 0x603F reading runs off the cycle thread
+        while time.monotonic() < end and not any(whole in f for f in plant.latched_faults()):
+            sample = PlantSample(2)
+            link = backend.read(sample)
+            if link.received and plant.exchange(link.counter, link.expected):
+                plant.command(list(CHANNELS), [0.0, 0.0], plant.state_published())
+            backend.write(plant.step(time.monotonic(), sample.velocity, backend.drives()))
+            time.sleep(DT)
+        assert any(whole in f for f in plant.latched_faults()), plant.latched_faults()
+        assert client.cia402_state('drive0') == 'fault'
+    finally:
+        client.clear_fault('drive0')
+        backend.close()
+    assert {s['al_state'] for s in client.status()['slaves']} == {1}

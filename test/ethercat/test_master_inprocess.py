@@ -486,3 +486,35 @@ def test_an_sdo_that_was_answered_with_an_error_is_never_tried_again(direction, 
     else:
         assert 'failed: ' in str(info.value)
 
+
+def test_a_fault_while_inactive_is_reported_at_activate_with_its_emergency():
+    """A drive that faulted while the bus sat in SAFE-OP has its emergency in its mailbox; the
+    mode read at activate (0x6061 unmapped) still gets its answer (pysoem raises an emergency
+    out of a transfer when nobody listens) and the emergency is kept: the fault the cycle
+    latches names the 0x603F code and the emergency; cleared and reset, the drive is enabled
+    in CST."""
+    rig = Rig(line('csp_start', 'standard'))
+    rig.backend.open()
+    try:
+        rig.backend.configure()
+        drive = rig.drive('drive0')
+        drive.inject_fault(0x3220, 'undervoltage')
+        rig.activate()
+        assert 'c0: 0x6061 = 10 read over CoE' in rig.activated
+        whole = 'c0: drive fault 0x3220 (DC link under voltage), emergency 0x3220 register 0x05'
+        end = time.monotonic() + 30.0       # the 0x603F reading runs off the cycle thread
+        while time.monotonic() < end:
+            plant = rig.cycles(1)
+            if any(whole in f for f in plant.latched_faults()):
+                break
+            time.sleep(0.001)
+        assert any(whole in f for f in plant.latched_faults()), plant.latched_faults()
+        assert drive.status()['applied_torque_permille'] == 0
+        drive.clear_fault()
+        plant.request_reset()
+        rig.cycles(200)
+        assert plant.latched_faults() == []
+        assert drive.status()['cia402_state'] == 'operation_enabled'
+        assert_no_unsafe_torque(rig)
+    finally:
+        rig.down()
