@@ -290,16 +290,20 @@ def read_error_code(port: SdoPort) -> int:
 #: ETG.1020 sync manager parameter subindices read for /diagnostics.
 SYNC_COUNTERS = ((0x0B, 'sm_event_missed', '<H'), (0x0C, 'cycle_time_too_small', '<H'),
                  (0x20, 'sync_error', '<B'))
+#: The sync manager parameter objects and the prefix of their counters' names: 0x1C32 the
+#: outputs' (SM2), 0x1C33 the inputs' (SM3).
+SYNC_OBJECTS = ((0x1C32, ''), (0x1C33, 'input_'))
 
 
 def read_sync_counters(port: SdoPort) -> dict:
-    """0x1C32:0B/:0C/:20 (SM events missed, cycle time too small, sync error), those the
-    slave has."""
+    """0x1C32:0B/:0C/:20 (SM events missed, cycle time too small, sync error) and the same
+    of 0x1C33 (``input_``...), those the slave has."""
     out = {}
-    for sub, name, fmt in SYNC_COUNTERS:
-        value = _optional(port, 0x1C32, sub, fmt)
-        if value is not None:
-            out[name] = value
+    for index, prefix in SYNC_OBJECTS:
+        for sub, name, fmt in SYNC_COUNTERS:
+            value = _optional(port, index, sub, fmt)
+            if value is not None:
+                out[prefix + name] = value
     return out
 
 

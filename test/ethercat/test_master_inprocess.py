@@ -115,6 +115,13 @@ def test_every_profile_reaches_op_and_follows_the_torque(profile):
             assert held['sync0_active'] and held['sync0_cycle_ns'] == 500000
             assert rig.drive('drive1').status()['dc_activation'] == 0     # free run stays so
             assert 'SYNC0 on drive0' in rig.configured
+            # the ETG.1020 counters of both sync manager objects in /diagnostics, the DC
+            # slave's only
+            values = rig.backend.diagnostics().values
+            assert values['drive0.sm_event_missed'] == held['sm_event_missed']
+            assert {'drive0.input_sm_event_missed', 'drive0.input_cycle_time_too_small',
+                    'drive0.sync_error', 'drive0.input_sync_error'} <= set(values)
+            assert not any(key.startswith('drive1.') for key in values)
         if profile == 'csp_start':
             assert 'drive0' not in [s for s in rig.activated.split('0x6061 mapped')[0]]
             assert 'c0: 0x6061 = 10 read over CoE' in rig.activated
