@@ -17,6 +17,8 @@ CONSOLE_SCRIPTS = [
     'zwidth = seaforce_ros.tools.zwidth:main',
     'bag_reindex = seaforce_ros.tools.bag_reindex:main',
     'commission = seaforce_ros.tools.commission:main',
+    'ethercat_scan = seaforce_ros.ethercat.scan:main',
+    'first_power_on = seaforce_ros.ethercat.power_on:main',
 ]
 
 setup(

@@ -25,7 +25,7 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 
 from helpers.processes import ProcessGroup, stop_leftovers  # noqa: E402
-from ethercat.fixtures import ecat_bus, ecat_emulator, soem_master  # noqa: E402,F401
+from ethercat.fixtures import _shared_line, ecat_bus, ecat_emulator, soem_master  # noqa: E402,F401
 
 
 def pytest_addoption(parser):

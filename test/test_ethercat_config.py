@@ -2,6 +2,7 @@
 import copy
 import math
 import pathlib
+import struct
 
 import pytest
 import yaml
@@ -17,9 +18,14 @@ TEMPLATE = yaml.safe_load((ROOT / 'config' / 'ethercat_bus.yaml').read_text())
 
 def test_template_loads_with_layouts_and_scalings():
     bus = BusConfig.load(ROOT / 'config' / 'ethercat_bus.yaml')
-    assert [s.name for s in bus.slaves] == ['wrist_drive', 'pinch_drive', 'pressure_adc']
+    assert [s.name for s in bus.slaves] == ['wrist_drive', 'pinch_drive', 'coupler',
+                                            'pressure_adc']
+    assert [s.kind for s in bus.slaves][2] == 'coupler' and bus.slaves[2].passive
     drive = bus.slaves[0]
-    assert (drive.outputs.size, drive.inputs.size) == (5, 12)
+    assert (drive.outputs.size, drive.inputs.size) == (5, 15)
+    assert (drive.pdo_mapping, drive.rx_pdo, drive.tx_pdo, drive.sdo, drive.dc) == (
+        'auto', 0x1600, 0x1A00, (), None)
+    assert bus.channel('wrist').rated_torque is None         # the drive's 0x6076
     assert drive.inputs.offsets()['position'] == (2, '<i')
     assert drive.inputs.offsets()['torque'] == (10, '<h')
     pinch = bus.channel('pinch')
@@ -42,7 +48,7 @@ def test_scaling_chain_compiles_and_inverts():
     (lambda d: d['slaves'][0].pop('product_code'), ['product_code']),
     (lambda d: d['slaves'][0].update(inputs=[['statusword', 0x6041, 0, 'u16']]),
      ['position', 'velocity']),
-    (lambda d: d['slaves'][2]['inputs'][1].__setitem__(3, 'f32'), ['f32']),
+    (lambda d: d['slaves'][3]['inputs'][1].__setitem__(3, 'f32'), ['f32']),
     (lambda d: d['channels']['pinch']['pressure']['source'].update(entry='value9'),
      ['value9', 'value1']),
     (lambda d: d['channels']['pinch'].update(drive='pressure_adc'), ['cia402_drive']),
@@ -50,6 +56,21 @@ def test_scaling_chain_compiles_and_inverts():
     (lambda d: d['channels']['pinch'].update(external_force={'from_channel': 'elbow'}),
      ['elbow']),
     (lambda d: d['channels']['pinch'].pop('pressure'), ['pressure']),
+    # the keys of CoE, DC and the kinds: each mistake named with what to write
+    (lambda d: d['slaves'][0].update(pdo_maping='write'), ['pdo_maping', 'pdo_mapping']),
+    (lambda d: d['slaves'][0].update(pdo_mapping='always'), ['always', 'auto, write, check']),
+    (lambda d: d['slaves'][0].update(rx_pdo=0x1A00), ['rx_pdo', '0x1600..0x17FF']),
+    (lambda d: d['slaves'][0].update(sdo=[[0x60C2, 1, 'u8', 300]]), ['300', 'u8']),
+    (lambda d: d['slaves'][0].update(sdo=[[0x60C2, 1, 'u9', 3]]), ['u9', 'u64']),
+    (lambda d: d['slaves'][0].update(sdo=[{'index': 0x60C2, 'value': 3}]), ['subindex', 'type']),
+    (lambda d: d['slaves'][0].update(dc={'sync0_shift_ns': 100}), ['assign_activate']),
+    (lambda d: d['slaves'][0].update(dc={'assign_activate': 0x0300, 'sync1_cycle_ns': 5}),
+     ['sync1_cycle_ns', '0x0700']),
+    (lambda d: d['slaves'][2].update(inputs=[['x', 0x6000, 1, 'u8']]), ['coupler', 'passive']),
+    (lambda d: d['slaves'][0]['inputs'].__setitem__(4, ['mode_display', 0x6060, 0, 'i8']),
+     ['mode_display', '0x6061']),
+    (lambda d: d['channels']['pinch'].update(rated_torque=-1), ['rated_torque', 'omitted']),
+    (lambda d: d['channels']['pinch'].update(drive='wrist_drive'), ['same drive']),
 ])
 def test_configuration_mistakes_name_the_item(mutate, words):
     data = copy.deepcopy(TEMPLATE)
@@ -91,3 +112,47 @@ def test_enable_sequence_fault_and_reset():
     seq.enable = False
     assert seq.controlword(0x0237, MODE_CST) == CW_SWITCH_ON     # disable operation
     assert seq.controlword(0x0233, MODE_CST) == CW_DISABLE_VOLTAGE
+
+
+def test_the_fault_reset_pulse_is_held_reset_cycles_each_half():
+    seq = DriveSequencer(reset_cycles=4)
+    seq.enable = True
+    seq.request_fault_reset()
+    words = [seq.controlword(0x0218, MODE_CST) for _ in range(10)]
+    assert words == [CW_DISABLE_VOLTAGE] * 4 + [CW_FAULT_RESET] * 4 + [CW_DISABLE_VOLTAGE] * 2
+
+
+def test_enable_operation_is_sent_only_while_the_drive_shows_mode_10():
+    seq = DriveSequencer()
+    seq.enable = True
+    assert seq.controlword(0x0233, 8) == CW_SWITCH_ON        # switched on, CSP: held there
+    assert seq.held_for_mode and not seq.torque_allowed
+    assert seq.controlword(0x0233, MODE_CST) == CW_ENABLE_OPERATION
+    assert seq.controlword(0x0237, MODE_CST) == CW_ENABLE_OPERATION and seq.torque_allowed
+    assert seq.controlword(0x0237, 9) == CW_SWITCH_ON        # the mode changed: disable it
+    assert not seq.torque_allowed
+
+
+def test_sdo_and_dc_entries_parse_to_what_is_written():
+    data = copy.deepcopy(TEMPLATE)
+    data['slaves'][0].update(
+        sdo=[[0x60C2, 1, 'u8', 5], [0x60C2, 2, 'i8', -4],
+             {'index': 0x1010, 'subindex': 1, 'type': 'str', 'value': 'save', 'verify': False},
+             [0x2000, 0, 'f32', 1.5]],
+        dc={'assign_activate': 0x0300}, pdo_mapping='check', complete_access=True)
+    slave = BusConfig.from_dict(data).slaves[0]
+    assert [s.encode() for s in slave.sdo] == [b'\x05', b'\xfc', b'save',
+                                              struct.pack('<f', 1.5)]
+    assert [s.verify for s in slave.sdo] == [True, True, False, True]
+    assert slave.sdo[1].decode(b'\xfc') == -4
+    assert slave.dc.shift_ns(500000) == 250000                # half the cycle by default
+    assert (slave.pdo_mapping, slave.complete_access) == ('check', True)
+    assert slave.outputs.entry('target_torque').mapping == 0x60710010
+
+
+def test_the_bus_yaml_reference_lists_every_key():
+    from seaforce_ros.ethercat.bus_config import KEYS, keys_markdown
+    text = '\n'.join(keys_markdown())
+    for key in KEYS:
+        assert f'| `{key.name}` |' in text
+    assert (ROOT / 'docs' / 'parameters.md').read_text().count('| `assign_activate` |') == 1

@@ -76,9 +76,9 @@ def start_controller(processes, tmp_path, overrides=None):
                       {'rate': RATE, **RELAXED, **(overrides or {})})
 
 
-def start_bringup(processes, tmp_path, harness, overrides=None):
+def start_bringup(processes, tmp_path, harness, overrides=None, bus=BUS):
     """hardware_bringup loop:=direct at SCHED_FIFO 40 (hardware + controller, one process)."""
-    values = {'interface': harness.master_interface, 'bus_config': str(BUS), 'rate': RATE,
+    values = {'interface': harness.master_interface, 'bus_config': str(bus), 'rate': RATE,
               'torque_limit': 5.0, 'wkc_error_limit': 200, 'drive_watchdog': 0.5,
               'loop': 'direct', 'autostart': 'active', **RELAXED, **(overrides or {})}
     path = tmp_path / 'bringup.yaml'
@@ -120,6 +120,11 @@ def _diag(probe, name, predicate, timeout=10.0):
     return [s for s in msgs[-1].status if s.name == name][0]
 
 
+def _value(status, key):
+    """A /diagnostics status's value of ``key`` ('' when it has none)."""
+    return next((kv.value for kv in status.values if kv.key == key), '')
+
+
 @pytest.mark.usefixtures('cpu_hog')
 def test_cable_pull_latches_bus_fault_and_drive_watchdog_drops_torque(
         ecat_emulator, processes, tmp_path, probe):
@@ -138,14 +143,25 @@ def test_cable_pull_latches_bus_fault_and_drive_watchdog_drops_torque(
     probe.wait_for(lambda: not harness.client.torque_applied('pinch_drive'), timeout=10,
                    what='the emulated drive dropping torque')
     assert any('watchdog' in e['text'].lower() for e in harness.client.events())
-    # cable back: frames flow again, but the fault stays latched (zero torque, STATUS_FAULT)
-    # until ~/reset
+    # cable back: the watchdog left the drives in SAFE-OP + ERR 0x001B, so every frame comes
+    # back incomplete (no state is published) and /diagnostics names the AL code
     back_ns = time.time_ns()
     harness.client.silent(False)
-    states = probe.wait_messages('actuator_state', 50, where=lambda m: stamp_ns(m) > back_ns)
-    assert all(pinch(m, 'status') & ActuatorState.STATUS_FAULT for m in states)
-    assert all(pinch(m, 'motor_effort') == 0.0 for m in states)
+    status = _diag(probe, 'hardware: bus', lambda s: '0x001B' in _value(s, 'al_status'))
+    assert 'sync manager watchdog' in _value(status, 'al_status')
     assert not harness.client.torque_applied('pinch_drive')
+    # ~/reset acknowledges the AL errors (SAFE-OP + ERR -> SAFE-OP), brings OP back, resets
+    # the drives' fault: torque only once they are in Operation enabled again (the fixture
+    # holds the drives' count of frames that carried torque to one that was not)
+    harness.client.clear_history()
+    assert probe.call(Trigger, '/hardware/reset', timeout=TIMEOUT).success
+    probe.wait_for(lambda: {harness.client.cia402_state(d) for d in DRIVES}
+                   == {'operation_enabled'}, timeout=15, what='the drives enabled again')
+    assert [e['value'] for e in harness.client.al_history()
+            if e['slave'] == 'pinch_drive'][:2] == [0x14, 0x08]
+    states = probe.wait_messages('actuator_state', 50, where=lambda m: stamp_ns(m) > back_ns
+                                 and pinch(m, 'status') == 0)
+    assert any(pinch(m, 'motor_effort') != 0.0 for m in states)
 
 
 @pytest.mark.usefixtures('cpu_hog')
@@ -204,7 +220,7 @@ def test_drive_fault_zero_torque_then_reset_recovers(ecat_emulator, processes, t
     probe.record(DiagnosticArray, '/diagnostics')
     probe.wait_for(lambda: harness.client.torque_applied('pinch_drive'), timeout=30,
                    what='torque applied')
-    harness.client.drive_fault('pinch_drive')
+    harness.client.drive_fault('pinch_drive', code=0x2310)
     probe.wait_messages('actuator_state', 1, where=lambda m: pinch(
         m, 'status') & ActuatorState.STATUS_FAULT)
     probe.clear('actuator_state')
@@ -212,12 +228,15 @@ def test_drive_fault_zero_torque_then_reset_recovers(ecat_emulator, processes, t
     assert all(pinch(m, 'motor_effort') == 0.0 for m in after)
     assert all(pinch(m, 'status') & ActuatorState.STATUS_FAULT for m in after)
     assert harness.client.cia402_state('pinch_drive') == 'fault'
-    status = _diag(probe, 'hardware: pinch', lambda s: 'FAULT' in s.message)
-    assert 'drive reports a fault' in status.message
+    # the drive's error code (0x603F, mapped) and its emergency in the fault and /diagnostics
+    status = _diag(probe, 'hardware: pinch', lambda s: 'emergency' in s.message)
+    assert status.message == ('FAULT: drive fault 0x2310 (continuous over current), '
+                              'emergency 0x2310 register 0x03'), status.message
+    assert _value(status, 'error_code') == '0x2310 (continuous over current)'
     response = probe.call(Trigger, '/hardware/reset', timeout=TIMEOUT)
     # (a starved test process may re-send the request: the answer it gets can be the second)
     assert response.success
-    assert bringup.wait_for_output('reset: cleared pinch: drive reports a fault', timeout=10)
+    assert bringup.wait_for_output('reset: cleared pinch: drive fault 0x2310', timeout=10)
     probe.wait_for(lambda: harness.client.cia402_state('pinch_drive') == 'operation_enabled',
                    timeout=10, what='Operation enabled after ~/reset')
     probe.clear('actuator_state')
@@ -288,15 +307,32 @@ def test_commands_naming_only_wrist_do_not_keep_pinch_torque(ecat_emulator, proc
 @pytest.mark.usefixtures('cpu_hog')
 def test_direct_layout_over_ethercat(ecat_emulator, processes, tmp_path, probe):
     """hardware_bringup loop:=direct: the cycle thread calls the controller between reading
-    and writing the bus. The feed-forward lowers |Z| over real frames, every state and command
-    is published, each cycle's torque is the command answering the state just before, and
-    parameters and ~/reset work from the executor."""
-    harness = ecat_emulator(driven_config())
-    start_bringup(processes, tmp_path, harness)
+    and writing the bus. The pinch drive needs distributed clocks (it refuses OP without
+    SYNC0): its bus YAML entry starts SYNC0 and the cycle locks to the reference clock. The
+    feed-forward lowers |Z| over real frames, every state and command is published, each
+    cycle's torque is the command answering the state just before, and parameters and
+    ~/reset work from the executor."""
+    config = driven_config()
+    config['slaves'][1]['profile'] = 'requires_dc'
+    harness = ecat_emulator(config)
+    bus = yaml.safe_load(BUS.read_text())
+    bus['slaves'][1].update(product_code=0x00004402,
+                            dc={'assign_activate': 0x0300, 'sync0_shift_ns': 250000},
+                            # this loaded 2-core host: a generous sync error limit
+                            sdo=[[0x10F1, 2, 'u16', 1000]])
+    path = tmp_path / 'bus_dc.yaml'
+    path.write_text(yaml.safe_dump(bus))
+    bringup = start_bringup(processes, tmp_path, harness, bus=path)
+    assert 'SYNC0 on pinch_drive' in bringup.output()
     probe.record(DiagnosticArray, '/diagnostics')
     diag = _diag(probe, 'hardware: bus', lambda s: any(
         kv.key == 'layout' and kv.value == 'direct' for kv in s.values), timeout=30)
     assert diag.level == DiagnosticStatus.OK, diag.message
+    diag = _diag(probe, 'hardware: bus', lambda s: _value(s, 'dc') == 'locked', timeout=30)
+    assert _value(diag, 'pinch_drive.sm_event_missed') != ''       # 0x1C32:0B read
+    pinch_status = harness.client.slave('pinch_drive')
+    assert pinch_status['sync0_active'] and pinch_status['sync0_cycle_ns'] == 500000
+    assert harness.client.slave('wrist_drive')['dc_activation'] == 0   # free run stays so
     z_passive = measured_impedance_db(harness.client, 1.0)
     ok, reason = probe.set_parameters('/controller', {'pinch.mode': 'dob_full_ff'},
                                       timeout=TIMEOUT)
@@ -506,28 +542,31 @@ def test_wrong_identity_fails_configure_with_the_reason(ecat_emulator, processes
 
 def test_failed_activate_returns_to_inactive_with_zero_torque(ecat_emulator, processes,
                                                               tmp_path, probe):
-    """hardware_node with the default autostart (inactive: bus checked, drives disabled). A
-    slave that refuses OP (an AL error it was not acknowledged) fails activate: the node
-    reports why, stays inactive with no torque and the bus in SAFE-OP; cleanup + configure
-    acknowledge the error and activate then works."""
-    harness = ecat_emulator(emulator_config())
+    """hardware_node with the default autostart (inactive: bus checked, drives disabled). An AL
+    error left on a slave is acknowledged by activate (and said so); a drive that refuses OP
+    -- one that needs SYNC0 on a bus YAML without dc -- fails activate with one line naming
+    its AL code and the fix, the node stays inactive with no torque and the bus in SAFE-OP."""
+    config = emulator_config()
+    config['slaves'][1]['profile'] = 'requires_dc'
+    harness = ecat_emulator(config)
     client = harness.client
-    hardware = start_hardware(processes, tmp_path, harness, {'autostart': 'inactive'})
+    bus = yaml.safe_load(BUS.read_text())
+    bus['slaves'][1]['product_code'] = 0x00004402         # that model's code
+    path = tmp_path / 'bus_no_dc.yaml'
+    path.write_text(yaml.safe_dump(bus))
+    hardware = start_hardware(processes, tmp_path, harness, {'autostart': 'inactive'}, bus=path)
     lifecycle = Lifecycle(probe)
     assert lifecycle.state() == 'inactive'
     assert set(_slaves(client, 'al_state').values()) == {4}
     assert_no_torque(client)
-    client.al_error('pinch_drive')
+    client.al_error('wrist_drive')
     ok, state = lifecycle.set(Transition.TRANSITION_ACTIVATE)
     assert not ok and state == 'inactive', (ok, state, hardware.output()[-3000:])
     assert hardware.wait_for_output('activate failed: slaves did not reach OP', timeout=10)
+    line = [ln for ln in hardware.output().splitlines() if 'activate failed' in ln][0]
+    assert 'pinch_drive: SAFE-OP+ERR 0x0030 (invalid DC SYNC configuration)' in line, line
+    assert 'add dc: {assign_activate: 0x0300} to this slave' in line, line
+    assert any(e['value'] == 0x14 and e['slave'] == 'wrist_drive' for e in client.al_history())
     assert_no_torque(client)
     assert set(_slaves(client, 'al_state').values()) == {4}
-    for transition, goal in ((Transition.TRANSITION_CLEANUP, 'unconfigured'),
-                             (Transition.TRANSITION_CONFIGURE, 'inactive'),
-                             (Transition.TRANSITION_ACTIVATE, 'active')):
-        ok, state = lifecycle.set(transition)
-        assert state == goal, (transition, ok, state, hardware.output()[-3000:])
-    probe.wait_for(lambda: {client.cia402_state(d) for d in DRIVES} == {'operation_enabled'},
-                   timeout=10, what='drives enabled after the second activate')
     assert 'Traceback' not in hardware.output()

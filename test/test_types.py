@@ -1,4 +1,5 @@
-"""The ROS-free packages (core, bags, identification, commissioning) are annotated and type-check.
+"""The ROS-free packages (core, bags, identification, commissioning, ethercat) are annotated and
+type-check.
 
 mypy runs with the configuration in setup.cfg (``[mypy]``: every function annotated, every
 body checked, no module excepted). Its cache is the default

@@ -234,6 +234,12 @@ class PlantBackend(abc.ABC):
         :meth:`~.plant_cycle.PlantCycle.step`); None: no drives and no fault (simulation)."""
         return None
 
+    def clock_correction(self) -> float:
+        """How far to shift the cycle's next deadlines [s] (negative: earlier) so that it
+        follows the plant's clock (EtherCAT distributed clocks); 0.0: the host's own clock.
+        Called once per cycle after :meth:`write`."""
+        return 0.0
+
     @abc.abstractmethod
     def write(self, command: PlantOutput) -> None:
         """Apply PlantCycle's decision: ``command.torque`` [N m] (or ``command.units``),

@@ -43,7 +43,8 @@ Rules (each with a status bit per channel, an event for the log and a counter):
 * **drives** (hardware): a drive that is not in Operation enabled gets zero torque and its
   channel ``STATUS_FAULT`` (the controller then follows the applied torque); one that leaves
   Operation enabled without being told to, or reports a fault (except during a grace period
-  after a reset, while it leaves its Fault state), latches that channel's fault. A latched
+  after a reset, while it leaves its Fault state), latches that channel's fault (its reason
+  becomes the drive's own as soon as the backend knows it: an error code read after the bit). A latched
   channel fault also disables that channel's drive.
 * **bus fault** (hardware): ``wkc_error_limit`` consecutive incomplete exchanges latch a bus
   fault: zero torque everywhere and the drives disabled.
@@ -145,11 +146,12 @@ class _PlantChannel:
         The plant's step count when that state was published.
     """
 
-    __slots__ = ("fault", "was_allowed", "grace", "timeout_episode", "effort", "raw", "answer",
-                 "answer_tick")
+    __slots__ = ("fault", "drive_fault", "was_allowed", "grace", "timeout_episode", "effort",
+                 "raw", "answer", "answer_tick")
 
     def __init__(self, timeout_episode: Episode) -> None:
         self.fault = ""
+        self.drive_fault = False       # the latched fault is the drive's own
         self.was_allowed = False
         self.grace = 0
         self.timeout_episode = timeout_episode
@@ -235,6 +237,7 @@ class PlantCycle:
         self._bus_fault = ""
         self._conflict = ""
         self._wkc_errors = 0                 # consecutive
+        self._fresh = True                   # the newest exchange was complete
         self._crowded_ep = Episode(self.events, quiet_period, severity=ERROR)
         self._reject_ep = {kind: Episode(self.events, quiet_period)
                            for kind in ("stale", "future", "malformed", "unknown")}
@@ -338,7 +341,8 @@ class PlantCycle:
 
     def exchange(self, wkc: int, expected_wkc: int) -> bool:
         """Result of this cycle's process-data exchange (hardware); True if complete."""
-        if wkc == expected_wkc:
+        self._fresh = wkc == expected_wkc
+        if self._fresh:
             self._wkc_errors = 0
             return True
         self._wkc_errors += 1
@@ -409,8 +413,14 @@ class PlantCycle:
                 ch.grace -= 1
             elif not ch.fault:
                 self._latch(i, reason or "drive reports a fault (statusword bit 3)")
+                ch.drive_fault = True
+            elif ch.drive_fault and reason and reason != ch.fault:
+                # what the drive's fault is came after its fault bit (its error code read)
+                ch.fault = reason
+                self.events.add(ERROR, f"{self.channels[i]}: the fault is {reason}")
         else:
-            ch.grace = 0
+            if self._fresh:                 # (a stale sample says nothing about the reset)
+                ch.grace = 0
             if ch.was_allowed and not allowed and self.out.enable[i] and not ch.fault:
                 self._latch(i, "drive left Operation enabled without being told to "
                                "(quick stop, safe torque off, mode change?)")
@@ -505,6 +515,7 @@ class PlantCycle:
         cleared = [f for f in self.latched_faults() if not f.startswith("commands: ")]
         for i, ch in enumerate(self._ch):
             ch.fault = ""
+            ch.drive_fault = False
             ch.grace = RESET_GRACE_CYCLES
             ch.was_allowed = False           # the drive walks up to Operation enabled again
             self.out.fault_reset[i] = True

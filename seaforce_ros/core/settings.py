@@ -133,13 +133,21 @@ class HardwareSettings(ParameterGroup):
     interface: str = param("", "", "network interface of the EtherCAT bus (required; `ip link` "
                            "lists them; a dedicated NIC)", read_only=True)
     bus_config: str = param("", "", "bus YAML: slaves in bus order with identities, PDO "
-                            "entries, scaling", read_only=True,
+                            "entries and how each is configured at PRE-OP (CoE mapping, "
+                            "start-up SDOs, distributed clocks), scaling (its keys: the Bus "
+                            "YAML section below)", read_only=True,
                             default_note="the package's config/ethercat_bus.yaml")
     drive_watchdog: float = param(0.1, "s", "process-data watchdog programmed into every "
                                   "drive: it drops torque on its own when the master stops "
                                   "for this long", ge=0.001, le=6.0, read_only=True)
     receive_timeout: float = param(4e-4, "s", "wait for the process-data frame", ge=1e-5,
                                    le=0.1, read_only=True)
+    fault_reset_time: float = param(0.01, "s", "each half of a drive's fault-reset pulse "
+                                    "(controlword bit 7 low, then high) is held this long, so "
+                                    "that a drive sampling the controlword slower than the "
+                                    "cycle sees the edge", ge=1e-4, le=0.04, read_only=True,
+                                    hint="a reset's grace period for a drive still in Fault "
+                                    "is 0.1 s")
 
 
 @group("", nodes=(RECORDER,), per_channel=False)

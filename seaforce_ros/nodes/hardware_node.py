@@ -2,7 +2,9 @@
 
 A :class:`~seaforce_ros.nodes.plant_node.PlantNode` composing an
 :class:`~seaforce_ros.ethercat.backend.EthercatBackend` built from the parameters
-(``interface``, ``bus_config``, ``receive_timeout``, ``drive_watchdog``). The bus is driven
+(``interface``, ``bus_config``, ``receive_timeout``, ``drive_watchdog``,
+``fault_reset_time``). A ``torque_limit`` above a drive's max torque (0x6072, read at
+configure) is reported, at configure and when it is set. The bus is driven
 through pysoem (SOEM); the cycle thread runs at ``rate`` with absolute deadlines: one
 process-data frame per cycle, sent at the end of a cycle and received at the start of the
 next, scaled to SI units, an ``actuator_state`` sample with the same semantics as the sim's,
@@ -82,10 +84,29 @@ class HardwareNode(PlantNode):
             backend = EthercatBackend(
                 BusConfig.load(values['bus_config']), self.channels, values['interface'],
                 self.dt, receive_timeout=values['receive_timeout'],
-                drive_watchdog=values['drive_watchdog'])
+                drive_watchdog=values['drive_watchdog'],
+                fault_reset_time=values['fault_reset_time'])
         except (ValueError, BusConfigError) as exc:
             raise StartupError(str(exc)) from exc
+        self._ethercat = backend
+        self.add_post_set_parameters_callback(self._torque_limit_changed)
         self.attach(backend, description=backend.describe())
+
+    def _configure(self) -> str:
+        """Configure, then say whether ``torque_limit`` is above a drive's max torque."""
+        done = super()._configure()
+        note = self._ethercat.torque_limit_note(self.get_parameter('torque_limit').value)
+        if note:
+            self.get_logger().warning(note)
+            done += f'; {note}'
+        return done
+
+    def _torque_limit_changed(self, params: List[Any]) -> None:
+        for p in params:
+            if p.name == 'torque_limit':
+                note = self._ethercat.torque_limit_note(p.value)
+                if note:
+                    self.get_logger().warning(note)
 
 
 def main(args: Optional[List[str]] = None) -> None:

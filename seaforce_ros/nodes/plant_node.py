@@ -399,6 +399,7 @@ class PlantNode(LifecycleNode):
         # collector's generations, so a full collection during the cycle stays short
         gc.freeze()
         deadline = Deadline(self.dt)
+        backend = self.backend
         try:
             while self._running:
                 now = deadline.wait()
@@ -406,6 +407,8 @@ class PlantNode(LifecycleNode):
                     break
                 self.run_cycle(now)
                 self.busy.add(time.monotonic() - now)
+                # the plant's clock (EtherCAT DC) moves the next deadlines, if it has one
+                deadline.start += backend.clock_correction()
         except Exception as exc:  # never die silently: report; the drives' own watchdog acts
             if self._running and self.context.ok():
                 self.get_logger().fatal(f'plant cycle stopped: {exc!r}')

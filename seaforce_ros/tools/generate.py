@@ -1,7 +1,8 @@
 """Files generated from the parameter schema (:mod:`seaforce_ros.core.schema`).
 
 * ``docs/parameters.md``: the parameter reference, one table per node, every row with its
-  type, default, unit, range or allowed values, read-only flag and description;
+  type, default, unit, range or allowed values, read-only flag and description; then the
+  bus YAML's keys (:data:`seaforce_ros.ethercat.bus_config.KEYS`);
 * the ``<choice>`` lists of the launch files' arguments that set a parameter with allowed
   values (``wrist_mode`` -> ``<channel>.mode``, ``loop``, ...): rewritten in place, the rest
   of each file untouched.
@@ -114,7 +115,21 @@ def parameters_markdown() -> str:
                        f"`<channel>.{SIM_PREFIX}` (`<channel>.{SIM_PREFIX}plant.hose_stiffness`"
                        ", ...): the same rows, default the model's value, changeable at run "
                        "time (a plant that drifts, or a controller on a wrong model).\n")
+    out += _bus_yaml()
     return "\n".join(out).rstrip() + "\n"
+
+
+def _bus_yaml() -> List[str]:
+    """The bus YAML's keys (hardware_node's ``bus_config``): its rows in
+    :data:`seaforce_ros.ethercat.bus_config.KEYS`."""
+    from ..ethercat.bus_config import keys_markdown
+    return ["## Bus YAML (hardware_node's `bus_config`)\n",
+            "The EtherCAT bus, read at configure: each slave is checked, and configured at "
+            "PRE-OP over CoE (start-up SDOs, the PDO mapping written and read back entry by "
+            "entry, distributed clocks), before any drive is enabled. A misspelt or unknown key "
+            "is refused with the known ones. How to write one for a new rig: "
+            "[ethercat-hardware.md](ethercat-hardware.md). Generated from "
+            "`seaforce_ros/ethercat/bus_config.py` (`KEYS`).\n"] + keys_markdown()
 
 
 # --- launch files ------------------------------------------------------------------------------

@@ -9,7 +9,13 @@
   ``realtime``, connected side channel ``.client``).  Every harness it started is stopped at
   teardown, pass or fail; the emulator's log and its last events (AL changes and errors,
   watchdog expiries) are printed, which pytest shows when a test failed.
-* ``ecat_bus`` -- the default bus (wrist drive, pinch drive, pressure terminal), started.
+  ``evidence`` (default True): at teardown, every drive must report that no frame carried
+  torque to it unless the newest inputs its master had showed Operation enabled in CST, and
+  that it never entered Operation enabled in another mode (:func:`torque_evidence`);
+  emulator tests driving pysoem by hand pass False.
+* ``ecat_bus`` -- the default bus (wrist drive, pinch drive, pressure terminal), for a bare
+  pysoem master: one emulator per test module, reset to power-up before each test (the
+  ``reset`` command).
 * ``soem_master`` -- factory ``open(interface) -> pysoem.Master``; each master is closed
   at teardown.
 """
@@ -46,26 +52,46 @@ def realtime_allowed(priority=EMULATOR_PRIORITY):
         return False
 
 
+def torque_evidence(client):
+    """The drives' count of frames that carried torque to a drive whose newest inputs at the
+    master did not show Operation enabled in CST, and of entries into Operation enabled in
+    another mode (ethercat/emulator/cia402.py): ``[(drive, unsafe, enables)]`` of those not 0."""
+    bad = []
+    for s in client.status()["slaves"]:
+        if s["kind"] == "cia402_drive" and (s["unsafe_torque_frames"] or
+                                            s["enables_outside_cst"]):
+            bad.append((s["name"], s["unsafe_torque_frames"], s["enables_outside_cst"]))
+    return bad
+
+
 @pytest.fixture
 def ecat_emulator(tmp_path):
+    """Factory of running emulators (see module docstring). ``evidence=True`` (the default:
+    the project's master drives the bus) makes the test fail at teardown if a drive counted
+    torque it should never have received; tests of the emulator with a bare pysoem master,
+    which break that rule on purpose, pass False."""
     harnesses = []
 
-    def start(config=None, realtime=EMULATOR_PRIORITY):
+    def start(config=None, realtime=EMULATOR_PRIORITY, evidence=True):
         if realtime and not realtime_allowed(realtime):
             warnings.warn("SCHED_FIFO %d not permitted here: the EtherCAT emulator runs at "
                           "normal priority and may miss frames on a loaded host" % realtime)
             realtime = 0
         h = EmulatorHarness(config, workdir=tmp_path / ("emulator%d" % len(harnesses)),
                             realtime=realtime)
+        h.evidence = evidence
         harnesses.append(h)
         return h.start()
 
+    violations = []
     try:
         yield start
     finally:
         for h in harnesses:
             try:
                 events = h.client.events() if h.client is not None else []
+                if h.evidence and h.client is not None:
+                    violations += torque_evidence(h.client)
             except Exception as exc:          # e.g. the emulator died: its log says why
                 events = ["(no events: %s)" % exc]
             log = h.log()
@@ -78,11 +104,42 @@ def ecat_emulator(tmp_path):
             print("---- emulator %s events (last 40) ----" % h.master_interface)
             for event in events[-40:]:
                 print(event)
+    assert not violations, ("torque reached a drive not in Operation enabled in CST, or a "
+                            "drive was enabled in another mode (drive, frames, enables): %s"
+                            % violations)
+
+
+@pytest.fixture(scope="module")
+def _shared_line(tmp_path_factory):
+    """One default line per test module (``ecat_bus`` resets it before each test)."""
+    priority = EMULATOR_PRIORITY if realtime_allowed() else 0
+    h = EmulatorHarness(None, workdir=tmp_path_factory.mktemp("ecat_line"), realtime=priority)
+    h.start()
+    try:
+        yield h
+    finally:
+        log = h.log()
+        h.stop()
+        print("---- shared emulator %s log ----\n%s" % (h.master_interface, log))
 
 
 @pytest.fixture
-def ecat_bus(ecat_emulator):
-    return ecat_emulator()
+def ecat_bus(_shared_line):
+    """The default line for a bare pysoem master (no torque evidence asked), shared by the
+    tests of a module: reset to power-up (every slave, the physics, the counters) before
+    each test -- a veth pair, a namespace and a process less per test."""
+    _shared_line.client.reset()
+    _shared_line.client.clear_history()
+    try:
+        yield _shared_line
+    finally:
+        try:
+            events = _shared_line.client.events()
+        except Exception as exc:
+            events = ["(no events: %s)" % exc]
+        print("---- emulator %s events (last 40) ----" % _shared_line.master_interface)
+        for event in events[-40:]:
+            print(event)
 
 
 @pytest.fixture

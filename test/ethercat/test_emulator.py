@@ -1,7 +1,8 @@
 """The emulator proven against SOEM: pysoem 1.1.13 is the master, on a veth pair whose
 slave end lives in a network namespace with the emulator process.
 
-Every test gets its own emulator (fixture ``ecat_bus`` / ``ecat_emulator``) and its own
+The tests on the default line share one emulator, reset to power-up before each (fixture
+``ecat_bus``); those with another line get their own (``ecat_emulator``); each test has its own
 pysoem master (``soem_master``); teardown removes processes, links and namespaces.
 """
 
@@ -24,6 +25,7 @@ DRIVE_ID = (0x5EA0, 0x402, 0x10000)
 TERMINAL_ID = (0x2, 0x0C1E3052, 0x00100000)
 COUNTS_PER_RAD = 2 ** 20 / (2 * math.pi)
 EXPECTED_WKC = 7            # 2 drives x (LRW read + write = 3) + terminal (read = 1)
+SAFEOP_WKC = 3              # in SAFE-OP the drives take no outputs: their reads only
 
 
 def wait_until(predicate, what, timeout=10.0, step=None):
@@ -99,7 +101,7 @@ def test_op_and_cyclic_working_counter(ecat_bus, soem_master):
     # busy test process reads the emulator's status after the cycles
     for i in bus.drives:
         bus.slaves[i].set_watchdog("processdata", SAFE_WATCHDOG_MS)
-    assert bus.cycle() == [EXPECTED_WKC]
+    assert bus.cycle() == [SAFEOP_WKC]
     assert bus.request_state(pysoem.OP_STATE) == pysoem.OP_STATE
     steps0 = ecat_bus.client.status()["physics_steps"]
     wkcs = bus.cycle(2000)
@@ -116,7 +118,7 @@ def test_block_lrw_makes_soem_use_lwr_and_lrd(ecat_emulator, soem_master):
     # on the terminal: SOEM copies the SII data of a slave identical to an earlier one
     # (the pinch drive gets the wrist drive's), so the flag would be missed there
     config["slaves"][2]["block_lrw"] = True
-    emu = ecat_emulator(config)
+    emu = ecat_emulator(config, evidence=False)
     bus = SoemBus(soem_master(emu.master_interface))
     assert bus.bring_up() == pysoem.OP_STATE
     frames0 = emu.client.status()["counters"]["datagrams"]
@@ -166,15 +168,23 @@ def test_cia402_enable_applies_torque_and_moves_the_plant(bus_in_op):
     assert cia402_state(bus.command(0, CW_DISABLE_VOLTAGE).statusword) == "switch_on_disabled"
 
 
-def test_torque_needs_cyclic_synchronous_torque_mode(bus_in_op):
+def test_the_drive_follows_the_mode_it_is_in(bus_in_op):
+    """CST applies the target torque; CSP (mode 8) servos to the target position, here the
+    unmapped 0x607A = 0, whatever torque is sent -- the accident of a drive enabled in the
+    wrong mode -- and the emulator counts every such frame as evidence."""
     emu, bus = bus_in_op
-    bus.enable(1, 200)
-    d = bus.command(1, CW_ENABLE_OPERATION, 200, mode=8, cycles=5)   # CSP: not supported
+    bus.enable(1, 0)
+    d = bus.command(1, CW_ENABLE_OPERATION, 200, mode=10, cycles=200)
+    assert d.mode == 10 and d.torque == 200 and d.statusword & 0x1000
+    assert d.position > 0                              # pushed ahead by 0.1 N m
+    assert emu.client.slave("pinch_drive")["enables_outside_cst"] == 0
+    d = bus.command(1, CW_ENABLE_OPERATION, 200, mode=8, cycles=5)
     assert cia402_state(d.statusword) == "operation_enabled"
-    assert d.mode == 8 and d.torque == 0 and not d.statusword & 0x1000
-    assert not emu.client.torque_applied("pinch_drive")
-    d = bus.command(1, CW_ENABLE_OPERATION, 200, mode=10, cycles=5)
-    assert d.mode == 10 and d.torque == 200
+    assert d.mode == 8 and d.torque < 0              # back towards position 0, not +200
+    assert emu.client.slave("pinch_drive")["frames_outside_cst"] >= 5
+    bus.command(1, CW_SWITCH_ON, 0, mode=8, cycles=3)          # disable operation, then
+    bus.command(1, CW_ENABLE_OPERATION, 0, mode=8, cycles=3)   # enabled in CSP: counted
+    assert emu.client.slave("pinch_drive")["enables_outside_cst"] == 1
 
 
 def test_position_drive_backdrives_the_finger(ecat_emulator, soem_master):
@@ -186,7 +196,7 @@ def test_position_drive_backdrives_the_finger(ecat_emulator, soem_master):
         "inputs": [{"channel": "pinch", "quantity": "endpoint_position",
                     "volts_per_unit": 10 / math.pi},
                    {"channel": "pinch", "quantity": "external_force", "volts_per_unit": 2.0}]})
-    emu = ecat_emulator(config)
+    emu = ecat_emulator(config, evidence=False)
     master = soem_master(emu.master_interface)
     bus = SoemBus(master)
     assert bus.bring_up() == pysoem.OP_STATE
@@ -250,9 +260,10 @@ def test_cable_pull_gives_wkc_errors_and_watchdog_removes_torque(bus_in_op):
     assert (wrist["al_state"], wrist["al_error"], wrist["al_status_code"]) == (4, True, 0x1B)
     assert wrist["cia402_state"] == "fault"
     emu.client.silent(False)
-    # back on the wire: process data flows again (SAFE-OP still serves it), the master
-    # sees the drive in SAFE-OP + error with code 0x1B and the fault bit
-    assert bus.cycle(3)[-1] == EXPECTED_WKC
+    # back on the wire: process data flows again (SAFE-OP still serves the inputs, not the
+    # outputs: the WKC shows the drives out of OP), the master sees the drive in SAFE-OP +
+    # error with code 0x1B and the fault bit
+    assert bus.cycle(3)[-1] == SAFEOP_WKC
     bus.master.read_state()
     assert bus.slaves[0].state == pysoem.SAFEOP_STATE | pysoem.STATE_ERROR
     assert bus.slaves[0].al_status == 0x1B
@@ -285,7 +296,7 @@ def test_watchdog_drops_torque_when_process_data_stop(bus_in_op):
     assert pinch["cia402_state"] == "fault" and pinch["al_status_code"] == 0x1B
     assert emu.client.slave("wrist_drive")["watchdog_expiries"] == 1    # not enabled, also expired
     assert emu.client.slave("pressure_terminal")["al_state"] == pysoem.OP_STATE
-    assert bus.cycle() == [EXPECTED_WKC]
+    assert bus.cycle() == [SAFEOP_WKC]
     d = bus.drive(1)
     assert cia402_state(d.statusword) == "fault" and d.torque == 0
     assert emu.client.channel("pinch")["torque"] == 0.0
@@ -345,7 +356,7 @@ def test_wrong_identity_is_visible_to_the_master(ecat_bus, soem_master):
 def test_wrong_identity_from_the_configuration(ecat_emulator, soem_master):
     config = default_config()
     config["slaves"][2]["product_code"] = "0x0C1E3053"
-    emu = ecat_emulator(config)
+    emu = ecat_emulator(config, evidence=False)
     master = soem_master(emu.master_interface)
     assert master.config_init() == 3
     assert master.slaves[2].id == 0x0C1E3053 and master.slaves[0].id == DRIVE_ID[1]

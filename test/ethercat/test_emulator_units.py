@@ -27,9 +27,19 @@ class FakeClock:
         return self.t
 
 
+def legacy_config():
+    """The default line with drives without a mailbox (their mapping fixed in the SII): the
+    ESC-level tests below program SMs and FMMUs by hand, as SOEM does for such slaves."""
+    config = cfg.default_config()
+    for spec in config["slaves"]:
+        if spec["type"] == "cia402_drive":
+            spec["profile"] = "no_mailbox"
+    return config
+
+
 def make_bus(config=None):
     clock = FakeClock()
-    return cfg.build(config or cfg.default_config(), clock=clock), clock
+    return cfg.build(config or legacy_config(), clock=clock), clock
 
 
 def send(bus, datagrams, index=3):
@@ -179,6 +189,11 @@ def test_process_data_wkc_and_fmmu_copy():
     al_request(bus, 0x04)
     assert [al_status(bus, 0x1001 + i) for i in range(3)] == [(4, 0)] * 3
     out = struct.pack("<Hhb", 0x1234, -5, 10) + struct.pack("<Hhb", 0x0006, 7, 9)
+    # SAFE-OP: inputs served, outputs not taken (the output SM stays deactivated)
+    (data, wkc, _), = send(bus, [(F.LRW, 0, None, out + bytes(iomap - 10))])
+    assert wkc == 3                                             # 2 drives + terminal, reads
+    assert bytes(bus.slaves[0].mem[0x1100:0x1105]) == bytes(5)
+    al_request(bus, 0x08)
     (data, wkc, _), = send(bus, [(F.LRW, 0, None, out + bytes(iomap - 10))])
     assert wkc == 7                                             # 2 x 3 + 1
     assert data[:10] == out                                     # outputs pass unchanged
@@ -191,11 +206,12 @@ def test_process_data_wkc_and_fmmu_copy():
     assert wkc == 3
     (_, wkc, _), = send(bus, [(F.LWR, 0, None, bytes(10))])
     assert wkc == 2
-    # a window over only the terminal's inputs
+    # a window over only the terminal's inputs (what it holds before the frame's step)
+    before = bus.slaves[2].values[0]
     (data, wkc, _), = send(bus, [(F.LRW, 36, None, bytes(8))])
     assert wkc == 1
     status, value = struct.unpack_from("<Hh", data, 0)
-    assert value == bus.slaves[2].values[0]
+    assert value == before
 
 
 def test_physics_steps_once_per_process_frame():
@@ -409,7 +425,7 @@ def test_pressure_chain_and_adc():
 
 
 def test_drive_inputs_scale_plant_state():
-    config = cfg.default_config()
+    config = legacy_config()
     config["channels"]["wrist"]["pressure_noise"] = 0.0
     bus, _ = make_bus(config)
     configure_addresses(bus)
@@ -453,6 +469,11 @@ def test_documented_yaml_example_builds(tmp_path):
     path = tmp_path / "bus.yaml"
     path.write_text(text)
     bus = cfg.build(cfg.load(path))
-    assert [s.name for s in bus.slaves] == ["wrist_drive", "pinch_drive", "pressure_terminal"]
+    assert [s.name for s in bus.slaves] == ["wrist_drive", "pinch_drive", "coupler",
+                                            "pressure_terminal"]
     assert bus.physics.channel("pinch").sim.environment.mode == "position_sine"
-    assert bus.slaves[2].identity.product_code == 0x0C1E3052
+    assert bus.slaves[3].identity.product_code == 0x0C1E3052
+    pinch = bus.slaves[1]
+    assert pinch.profile.name == "elmo_like" and pinch.profile.requires_dc
+    assert pinch.profile.required == {(0x60C2, 1): 5, (0x60C2, 2): -4}
+    assert bus.slaves[2].kind == "coupler"

@@ -39,7 +39,7 @@ def main(argv=None):
     except (OSError, ValueError) as exc:
         print("emulator: bad configuration: %s" % exc, file=sys.stderr, flush=True)
         return 2
-    serve(bus, args.interface, args.control)
+    serve(bus, args.interface, args.control, rebuild=lambda: cfg.build(config))
     return 0
 
 

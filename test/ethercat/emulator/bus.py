@@ -53,6 +53,7 @@ class Bus:
         self.events = deque(maxlen=history_length)
         for i, s in enumerate(self.slaves):
             s.position = i
+            s.line_length = len(self.slaves)
             s.set_link(last=(i == len(self.slaves) - 1))
             s.on_al_request = self._record_al_request
             s.on_event = self._record_event
@@ -164,11 +165,13 @@ class Bus:
         if self._drop and self._take_drop(is_process, "reply"):
             self.counters["dropped_replies"] += 1
             return 0
-        if self._corrupt:
-            how = self._take(self._corrupt, is_process)
-            if how is not None:
-                self.counters["corrupted"] += 1
-                self._apply_corruption(buf, datagrams, how)
+        how = self._take(self._corrupt, is_process) if self._corrupt else None
+        if how is not None:
+            self.counters["corrupted"] += 1
+            self._apply_corruption(buf, datagrams, how)
+        elif is_process:
+            for d in self.drives:       # the master receives these inputs
+                d.reply_delivered()
         buf[6:12] = F.REPLY_SOURCE_MAC
         self.counters["answered"] += 1
         return nbytes

@@ -156,6 +156,10 @@ class EmulatorClient:
         "amplitude": 0.5, "frequency": 1.0}`` (None: free)."""
         return self.request("set_environment", channel=channel, environment=environment)
 
+    def reset(self):
+        """Every slave as at power-up (a fresh line of the same configuration)."""
+        return self.request("reset")
+
     def shutdown(self):
         """Stop the emulator process."""
         return self.request("shutdown")

@@ -16,8 +16,14 @@ Format (every key optional except ``slaves``; integers may be written as ``"0x..
     slaves:                          # bus order
       - {type: cia402_drive, name: wrist_drive, channel: wrist,
          vendor_id: 0x5EA0, product_code: 0x402, revision: 0x10000, serial: 1,
-         rated_torque: 0.5, counts_per_rev: 1048576, max_torque_permille: 32767}
-      - {type: cia402_drive, name: pinch_drive, channel: pinch, serial: 2}
+         rated_torque: 0.5, counts_per_rev: 1048576, max_torque_permille: 32767,
+         profile: standard}          # cia402.PROFILES; these keys override a profile's:
+      - {type: cia402_drive, name: pinch_drive, channel: pinch, serial: 2,
+         profile: elmo_like, requires_dc: true, sync0_cycle_ns: 500000,
+         required: [[0x60C2, 1, 5], [0x60C2, 2, -4]], controlword_period: 0.002,
+         initial_mode: 8, mailbox_size: 128, complete_access: true, sync_error_limit: 4,
+         dc: true}
+      - {type: coupler, name: coupler, serial: 0}      # EK1100-like: no process data
       - type: analog_input
         name: pressure_terminal
         vendor_id: 2
@@ -42,7 +48,8 @@ from seaforce_ros.core.params import DahlParams, PlantParams
 
 from .analog import AnalogInputTerminal, DEFAULT_IDENTITY as ANALOG_IDENTITY
 from .bus import Bus
-from .cia402 import Cia402Drive, DEFAULT_IDENTITY as DRIVE_IDENTITY
+from .cia402 import Cia402Drive, DEFAULT_IDENTITY as DRIVE_IDENTITY, PROFILES
+from .coupler import Coupler, DEFAULT_IDENTITY as COUPLER_IDENTITY
 from .physics import AnalogSource, ChannelConfig, Physics, PressureChain
 from .sii import Identity
 
@@ -175,6 +182,39 @@ def _analog_source(spec, key):
         raise ConfigError("%s: %s" % (key, exc)) from None
 
 
+#: drive keys that override the profile's fields (DriveProfile)
+_PROFILE_INTS = ("initial_mode", "mailbox_size", "sync0_cycle_ns", "sync_error_limit")
+_PROFILE_BOOLS = ("complete_access", "requires_dc", "dc", "sii_pdos")
+
+
+def _profile(spec, key):
+    """The drive's :class:`~.cia402.DriveProfile`: ``profile`` (a name) with the keys that
+    override its fields."""
+    name = spec.get("profile", "standard")
+    if name not in PROFILES:
+        raise ConfigError("%s.profile %r is not one of %s" % (key, name, ", ".join(PROFILES)))
+    changes = {}
+    for field_name in _PROFILE_INTS:
+        if field_name in spec:
+            changes[field_name] = _int(spec[field_name], key + "." + field_name)
+    for field_name in _PROFILE_BOOLS:
+        if field_name in spec:
+            changes[field_name] = bool(spec[field_name])
+    if "controlword_period" in spec:
+        changes["controlword_period"] = _float(spec["controlword_period"],
+                                               key + ".controlword_period")
+    if "required" in spec:
+        try:
+            changes["required"] = {(_int(i, key + ".required"), _int(s, key + ".required")):
+                                   _int(v, key + ".required") for i, s, v in spec["required"]}
+        except (TypeError, ValueError):
+            raise ConfigError("%s.required is a list of [index, subindex, value]" % key) from None
+    if "mailbox_size" in changes and changes["mailbox_size"] not in (0,) and not (
+            32 <= changes["mailbox_size"] <= 128):
+        raise ConfigError("%s.mailbox_size must be 0 (none) or 32..128 bytes" % key)
+    return dataclasses.replace(PROFILES[name], **changes)
+
+
 def build(config, clock=None):
     """Build the :class:`~.bus.Bus` described by ``config`` (a dict).
 
@@ -213,15 +253,23 @@ def build(config, clock=None):
             cpr = _int(spec.get("counts_per_rev", 2 ** 20), key + ".counts_per_rev")
             counts[channel] = cpr
             channel_specs.setdefault(channel, {})
+            profile = _profile(spec, key)
+            default = dataclasses.replace(DRIVE_IDENTITY, product_code=profile.product_code)
             try:
                 slave = Cia402Drive(
-                    name, channel, identity=_identity(spec, DRIVE_IDENTITY, key),
-                    rated_torque=_float(spec.get("rated_torque", 0.5), key + ".rated_torque"),
+                    name, channel, identity=_identity(spec, default, key),
+                    profile=profile,
+                    rated_torque=(_float(spec["rated_torque"], key + ".rated_torque")
+                                  if "rated_torque" in spec else None),
                     counts_per_rev=cpr,
-                    max_torque_permille=_int(spec.get("max_torque_permille", 32767),
-                                             key + ".max_torque_permille"), **extra)
+                    max_torque_permille=(_int(spec["max_torque_permille"],
+                                              key + ".max_torque_permille")
+                                         if "max_torque_permille" in spec else None),
+                    cycle_time=cycle_time, **extra)
             except ValueError as exc:
                 raise ConfigError("%s: %s" % (key, exc)) from None
+        elif kind == "coupler":
+            slave = Coupler(name, identity=_identity(spec, COUPLER_IDENTITY, key), **extra)
         elif kind == "analog_input":
             inputs = spec.get("inputs", [None, None])
             if not isinstance(inputs, list) or len(inputs) != 2:
@@ -233,7 +281,8 @@ def build(config, clock=None):
             slave = AnalogInputTerminal(name, sources,
                                         identity=_identity(spec, ANALOG_IDENTITY, key), **extra)
         else:
-            raise ConfigError("%s.type must be cia402_drive or analog_input, got %r" % (key, kind))
+            raise ConfigError("%s.type must be cia402_drive, analog_input or coupler, got %r"
+                              % (key, kind))
         slaves.append(slave)
     channels = {}
     for name, values in channel_specs.items():

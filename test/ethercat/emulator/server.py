@@ -40,11 +40,13 @@ def _drive_arg(bus, req):
 
 
 class Controller:
-    """Executes side-channel commands on a bus."""
+    """Executes side-channel commands on a bus (``rebuild()``: a fresh bus of the same
+    configuration, for ``reset``)."""
 
-    def __init__(self, bus, info):
+    def __init__(self, bus, info, rebuild=None):
         self.bus = bus
         self.info = info
+        self.rebuild = rebuild
         self.stop_requested = False
 
     def execute(self, req):
@@ -130,6 +132,14 @@ class Controller:
         self.stop_requested = True
         return None
 
+    def cmd_reset(self, req):
+        """Every slave as at power-up (a fresh line of the same configuration): tests that
+        share one emulator start each from the same state."""
+        if self.rebuild is None:
+            raise ValueError("this emulator was started without its configuration")
+        self.bus = self.rebuild()
+        return None
+
 
 COMMANDS = sorted(n[4:] for n in dir(Controller) if n.startswith("cmd_"))
 
@@ -140,8 +150,9 @@ class _Client:
         self.buf = b""
 
 
-def serve(bus, interface, control_path, log=print):
-    """Serve ``bus`` on ``interface`` until SIGTERM/SIGINT or the ``shutdown`` command."""
+def serve(bus, interface, control_path, log=print, rebuild=None):
+    """Serve ``bus`` on ``interface`` until SIGTERM/SIGINT or the ``shutdown`` command
+    (``rebuild()``: a fresh bus, what the ``reset`` command swaps in)."""
     raw = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(F.ETHERTYPE))
     raw.bind((interface, F.ETHERTYPE))
     raw.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
@@ -155,7 +166,7 @@ def serve(bus, interface, control_path, log=print):
     ctl.listen(8)
     ctl.setblocking(False)
     controller = Controller(bus, {"interface": interface, "control": control_path,
-                                  "slaves": [s.name for s in bus.slaves]})
+                                  "slaves": [s.name for s in bus.slaves]}, rebuild)
     stop = []
 
     def on_signal(signum, frame):
@@ -177,6 +188,9 @@ def serve(bus, interface, control_path, log=print):
         % (interface, control_path, ", ".join(s.name for s in bus.slaves)), flush=True)
     try:
         while not stop and not controller.stop_requested:
+            if controller.bus is not bus:             # reset: a fresh line
+                bus = controller.bus
+                handle, after_frame = bus.handle, bus.after_frame
             deadline = bus.poll()
             timeout = POLL_MS
             if deadline is not None:

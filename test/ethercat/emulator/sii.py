@@ -3,7 +3,8 @@
 The image is a ``bytearray`` of 16-bit words: a 64-word header (configuration area,
 identity at words 0x08-0x0F, mailbox words 0x18-0x1C) and categories from word 0x40,
 each ``type u16, length u16 (words), data``, ending with type 0xFFFF.  Without a mailbox
-words 0x18-0x1C are 0.  SOEM caches at most 4096 bytes, so images stay below that.
+words 0x18-0x1C are 0; with one they give its SM0/SM1 offsets and sizes and the protocols
+(CoE), and GENERAL byte 5 the CoE details.  SOEM caches at most 4096 bytes, so images stay below that.
 """
 
 import struct
@@ -23,6 +24,12 @@ WORD_VENDOR = 0x08
 WORD_PRODUCT = 0x0A
 WORD_REVISION = 0x0C
 WORD_SERIAL = 0x0E
+WORD_MAILBOX = 0x18          # receive offset, receive size, send offset, send size, protocols
+MBX_PROTO_COE = 0x0004
+
+# GENERAL byte 5, CoE details
+COE_SDO, COE_SDO_INFO, COE_PDO_ASSIGN, COE_PDO_CONFIG, COE_UPLOAD, COE_COMPLETE_ACCESS = (
+    0x01, 0x02, 0x04, 0x08, 0x10, 0x20)
 
 # SII SM category entry types
 SM_TYPE_UNUSED, SM_TYPE_MBX_OUT, SM_TYPE_MBX_IN, SM_TYPE_OUTPUTS, SM_TYPE_INPUTS = range(5)
@@ -95,6 +102,11 @@ class SiiSpec:
     tx_pdos: List[Pdo] = field(default_factory=list)    # inputs (slave -> master)
     block_lrw: bool = False
     group: Optional[str] = None
+    #: (receive offset, receive size, send offset, send size) of the standard mailbox, or None
+    mailbox: Optional[Tuple[int, int, int, int]] = None
+    #: GENERAL byte 5: bit 0 SDO, 1 SDO info, 2 PDO assign, 3 PDO config, 4 upload at start-up,
+    #: 5 SDO complete access
+    coe_details: int = 0
 
 
 def _pad_words(data):
@@ -153,7 +165,10 @@ def build_image(spec):
     struct.pack_into("<IIII", header, WORD_VENDOR * 2, ident.vendor_id & 0xFFFFFFFF,
                      ident.product_code & 0xFFFFFFFF, ident.revision & 0xFFFFFFFF,
                      ident.serial & 0xFFFFFFFF)
-    # words 0x18-0x1C: no mailbox -> 0.  word 0x3E: EEPROM size (KiBit - 1), 0x3F: version.
+    # words 0x18-0x1C: the standard mailbox (receive = master -> slave, send) and its
+    # protocols (bit 2 CoE); no mailbox -> 0.  word 0x3E: EEPROM size (KiBit - 1), 0x3F: version.
+    if spec.mailbox is not None:
+        struct.pack_into("<HHHHH", header, WORD_MAILBOX * 2, *spec.mailbox, MBX_PROTO_COE)
     struct.pack_into("<HH", header, 0x3E * 2, 31, 1)
 
     strings = _Strings()
@@ -167,7 +182,7 @@ def build_image(spec):
     general[1] = 0                                   # image
     general[2] = name_idx                            # order
     general[3] = name_idx                            # name
-    general[5] = 0                                   # CoE details: none (no mailbox)
+    general[5] = spec.coe_details if spec.mailbox else 0   # CoE details
     general[11] = 0x02 if spec.block_lrw else 0x00   # flags: bit 1 blockLRW
     sm = bytearray()
     for s in spec.sync_managers:
@@ -177,8 +192,10 @@ def build_image(spec):
     body = bytearray()
     body += _category(CAT_STRINGS, strings.encode())
     body += _category(CAT_GENERAL, general)
-    body += _category(CAT_FMMU, fmmu)
-    body += _category(CAT_SM, sm)
+    if fmmu:                                         # a coupler has neither
+        body += _category(CAT_FMMU, fmmu)
+    if sm:
+        body += _category(CAT_SM, sm)
     if spec.tx_pdos:
         body += _category(CAT_TXPDO, txcat)
     if spec.rx_pdos:
