@@ -221,25 +221,22 @@ def write_mapping(port: SdoPort, slave: SlaveConfig, complete_access: bool = Fal
             _write(port, assign, 0, b'\x01', f'assigning 0x{assign:04X}:00 = 1', fix)
 
 
+def _entries(port: SdoPort, index: int, fmt: str, complete_access: bool) -> List[int]:
+    """Subindices 1..n of a list object (its count at subindex 0), each unpacked as ``fmt``
+    (``H`` or ``I``): in one complete-access transfer, or one upload per entry."""
+    if complete_access:
+        data = port.read(index, 0, ca=True)
+        return list(struct.unpack_from(f'<{data[0]}{fmt}', data, 2)) if data else []
+    count = _u(port, index, 0, '<B')
+    return [_u(port, index, k, '<' + fmt) for k in range(1, count + 1)]
+
+
 def read_mapping(port: SdoPort, assign: int,
                  complete_access: bool = False) -> List[Tuple[int, List[Tuple[int, int, int]]]]:
     """``[(pdo, [(index, subindex, bits)])]`` an assignment object (0x1C12/0x1C13) assigns."""
-    if complete_access:
-        data = port.read(assign, 0, ca=True)
-        pdos = list(struct.unpack_from(f'<{data[0]}H', data, 2)) if data else []
-    else:
-        count = _u(port, assign, 0, '<B')
-        pdos = [_u(port, assign, k, '<H') for k in range(1, count + 1)]
-    out = []
-    for pdo in pdos:
-        if complete_access:
-            data = port.read(pdo, 0, ca=True)
-            values = list(struct.unpack_from(f'<{data[0]}I', data, 2)) if data else []
-        else:
-            count = _u(port, pdo, 0, '<B')
-            values = [_u(port, pdo, k, '<I') for k in range(1, count + 1)]
-        out.append((pdo, [(v >> 16, (v >> 8) & 0xFF, v & 0xFF) for v in values]))
-    return out
+    return [(pdo, [(v >> 16, (v >> 8) & 0xFF, v & 0xFF)
+                   for v in _entries(port, pdo, 'I', complete_access)])
+            for pdo in _entries(port, assign, 'H', complete_access)]
 
 
 def check_mapping(port: SdoPort, slave: SlaveConfig, complete_access: bool = False) -> None:

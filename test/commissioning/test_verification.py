@@ -38,10 +38,13 @@ DT = 5e-4
 CONFIG = ControllerConfig(max_torque=20.0)
 
 
-def verify_on(sim, candidates, config=CONFIG):
-    """The verification of ``candidates`` run by a controller on ``sim``; the job."""
+def verify_on(sim, candidates, config=CONFIG, points=None):
+    """The verification of ``candidates`` run by a controller on ``sim`` (at ``points``:
+    default the job's own); the job."""
     ctl = ChannelController(config.replace(mode="passive"), DT)
     job = FreeFingerVerification(candidates, config, DT)
+    if points is not None:
+        job.points = list(points)
     ctl.request_job(job)
     m = sim.measurement()
     for _ in range(int(200.0 / DT)):
@@ -164,16 +167,7 @@ def test_the_candidate_takes_over_from_the_static_load(start):
                            sensors=SensorParams(motor_counts_per_rev=2 ** 14))
     sim.reset((start, 0.0, start, 0.0))
     candidate = Candidate("the shipped feed-forward", config)
-    job = FreeFingerVerification([candidate], config.replace(
-        verification=dataclasses.replace(config.verification, offset=0.25)), DT)
-    job.points = [0.25]
-    ctl = ChannelController(config.replace(mode="passive"), DT)
-    ctl.request_job(job)
-    m = sim.measurement()
-    for _ in range(int(30.0 / DT)):
-        m = sim.step(ctl.update(m.x, m.v, m.f_p))
-        if not job.active:
-            break
+    job = verify_on(sim, [candidate], config, points=[0.25])
     outcome = job.outcomes[0]
     assert outcome.passed, outcome.reason
     assert all(w.peak_speed < 2.0 * config.verification.speed for w in outcome.windows), [
