@@ -56,7 +56,7 @@ from typing import TYPE_CHECKING, Dict, List, Optional, Sequence
 from ..core.controller import ChannelController
 from ..core.jobs import TORQUE, InvalidJobGoalError, Job, JobSample
 from ..core.params import ControllerConfig, DahlParams, PlantParams, PlantTermsParams
-from ..core.modes import TRANSFER_TIME
+from ..core.servo import MotorServo
 from ..core.safety import REST_SPEED
 from ..core.sensors import SensorParams
 from ..core.signals import faded_sine
@@ -168,8 +168,7 @@ class FreeFingerVerification(Job):
         # (the servo's gains: the last candidate's, tuned for the loop measured -- the
         # channel's may be a hand-typed hold that a rig's delay makes unstable)
         servo = self.candidates[-1].config.hold
-        self._kp, self._kd = servo.stiffness, servo.damping
-        self._decay = math.exp(-self.dt / TRANSFER_TIME)
+        self._motor = MotorServo(servo.stiffness, servo.damping, self.dt)
         rest = config.feedforward.rest_position
         lim = config.limits
         room = lim.wall_band + DITHER_AMPLITUDE + 0.05
@@ -194,7 +193,6 @@ class FreeFingerVerification(Job):
         self._private: Optional[ChannelController] = None
         self._t = 0.0                  # time in the present step [s]
         self._x0 = math.nan            # the servo's start and the torque it entered with
-        self._bias = 0.0
         self._still = [0.0, 0]         # the servo's torque summed over the still, samples
         self._move = 0.0
         self._move_time = 0.0
@@ -253,7 +251,7 @@ class FreeFingerVerification(Job):
         """The move to the next point and the dither there; then the candidate takes over."""
         if self._x0 != self._x0:
             self._x0 = x
-            self._bias = max(-self._limit, min(self._limit, torque)) + self._kd * v
+            self._motor.start(max(-self._limit, min(self._limit, torque)), v)
             self._move = self.points[self._p] - xe
             self._move_time = max(0.2, 0.5 * math.pi * abs(self._move) / MOVE_SPEED)
             self._t = 0.0
@@ -281,8 +279,7 @@ class FreeFingerVerification(Job):
                 self._enter(u)
                 return u
         self._t = t + self.dt * steps
-        u = self._bias + self._kp * (self._x0 + r - x) + self._kd * (rd - v)
-        self._bias *= self._decay if steps == 1 else self._decay ** steps
+        u = self._motor.output(self._x0 + r - x, rd - v, steps)
         if t >= tm and t - tm >= DITHER_CYCLES / DITHER_FREQUENCY + 0.5 * STILL_TIME:
             self._still[0] += max(-self._limit, min(self._limit, u)) * steps
             self._still[1] += steps

@@ -41,7 +41,7 @@ import math
 from typing import TYPE_CHECKING
 
 from .jobs import TORQUE, Job, JobSample
-from .modes import TRANSFER_TIME
+from .servo import MotorServo
 from .params import ControllerConfig
 from .sided import SidedStiffness
 from .signals import faded_sine
@@ -109,8 +109,7 @@ class PressureTare(Job):
         self.applied = False
         fp = config.friction
         self._limit = min(fp.torque_limit, config.max_torque)
-        self._kp, self._kd = config.hold.stiffness, config.hold.damping
-        self._decay = math.exp(-self.dt / TRANSFER_TIME)
+        self._motor = MotorServo(config.hold.stiffness, config.hold.damping, self.dt)
         self._ke = config.plant.endpoint_stiffness
         self._rest = config.feedforward.rest_position
         self._w = 2.0 * math.pi * FREQUENCY
@@ -120,7 +119,6 @@ class PressureTare(Job):
         self._x0: float | None = None
         self._move = 0.0                   # the move's length [rad] and duration [s]
         self._move_time = 0.0
-        self._bias = 0.0
         self._t = 0.0
         self._sums = [0.0, 0.0, 0]         # F_p, X_e_hat, samples of the period being measured
         self._per_period: list[float] = []
@@ -160,7 +158,7 @@ class PressureTare(Job):
                 self._finish("aborted", reason + ", nothing applied")
                 return 0.0
             self._x0 = x
-            self._bias = max(-self._limit, min(self._limit, sample.torque)) + self._kd * v
+            self._motor.start(max(-self._limit, min(self._limit, sample.torque)), v)
             move = self._rest - xe
             if abs(move) > MOVE_TOLERANCE:
                 self._move = move
@@ -177,9 +175,8 @@ class PressureTare(Job):
                                     f"{friction.max_tracking_error:g} rad: the finger is held "
                                     "(not free), nothing applied")
             return 0.0
-        u = self._bias + self._kp * error + self._kd * (rd - v)
+        u = self._motor.output(error, rd - v, sample.steps)
         u = max(-self._limit, min(self._limit, u))
-        self._bias *= self._decay if sample.steps == 1 else self._decay ** sample.steps
         if self._abort_request is not None:
             self._finish("aborted", self._abort_request + ", nothing applied")
             return u
